@@ -1,0 +1,76 @@
+#pragma once
+// Streaming HDF5 output (spec: docs/output.md) and the XDMF file beside it.
+//
+// The file is written under a temporary name (`<file>.partial`) and renamed to its
+// final name by finish() (status "complete", "interrupted" or "diverged: ...").
+// Frames are appended to chunked, extendible datasets and the file is flushed
+// every `flush_every` frames, so a run that dies leaves every completed frame
+// readable. An existing final file is never overwritten unless `force`.
+#include <softdiff/core/types.hpp>
+
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace softdiff::io {
+
+struct OutputBody {
+  std::string name;
+  Mat3X rest;           // (3, n) rest positions (after scale/rotate/translate)
+  Tets tets;            // (4, m)
+  Triangles surface;    // (3, k) outward boundary triangles
+};
+
+struct WriterOptions {
+  std::filesystem::path file;
+  bool force = false;
+  bool write_v = false;
+  std::string command;      // argv joined with spaces
+  std::string scene_yaml;   // whole scene text
+  int flush_every = 10;     // frames
+};
+
+class Hdf5Writer {
+ public:
+  // Throws InputError if the file exists and !force, or if its folder does not
+  // exist / is not writable. Nothing is left on disk when it throws.
+  Hdf5Writer(const WriterOptions& options, const std::vector<OutputBody>& bodies);
+  ~Hdf5Writer();  // finish("interrupted") if finish() was not called; never throws
+  Hdf5Writer(const Hdf5Writer&) = delete;
+  Hdf5Writer& operator=(const Hdf5Writer&) = delete;
+
+  // Appends one frame. x (and v when write_v) hold all bodies' nodes in body
+  // order, node-major (3 * n_total). step_seconds: wall time of the step that
+  // produced the frame (0 for frame 0).
+  void append_frame(double time, const VecX& x, const VecX* v, double step_seconds);
+
+  // Generic per-frame series for later stages (actuators, effectors, contact,
+  // solver figures): a dataset at `path` of shape (T) when width == 0 or (T, width),
+  // float64, appended one row per call. Returns a handle for append_series.
+  int add_series(const std::string& path, int width);
+  void append_series(int handle, const double* row);
+
+  // A dense matrix written once (e.g. /jacobians/<theta>), with string attributes.
+  void write_matrix(const std::string& path, const MatX& value,
+                    const std::vector<std::pair<std::string, std::string>>& attributes = {});
+  // Attribute on the root or on any existing group.
+  void set_attribute(const std::string& object_path, const std::string& name, const std::string& value);
+  void set_attribute(const std::string& object_path, const std::string& name, double value);
+
+  // Writes the `status` attribute, closes, renames to the final name and writes
+  // the XDMF file (<file without .h5>.xmf). Idempotent.
+  void finish(const std::string& status);
+
+  long frames_written() const;
+  const std::filesystem::path& final_path() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// Library versions for `softdiff --version` and the file's attributes.
+std::string hdf5_version();
+
+}  // namespace softdiff::io

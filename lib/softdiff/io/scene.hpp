@@ -1,0 +1,104 @@
+#pragma once
+// The scene file (spec: docs/scene.md), parsed and validated into plain data.
+// load_scene() checks everything that can be checked without the mesh: keys,
+// types, ranges, exclusive options, that files exist. Checks that need the mesh
+// (a physical group that the mesh lacks, a box that selects no node) are done by
+// build_model(), which uses the `where` marks kept here to report
+// `FILE:LINE:COL: KEY.PATH: message`.
+#include <softdiff/core/types.hpp>
+#include <softdiff/material/material.hpp>
+
+#include <array>
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace softdiff::io {
+
+// Where a value came from: "scene.yaml:12:7: bodies[0].material.poisson".
+struct Where {
+  std::string file;
+  int line = 0;    // 1-based; 0 if unknown (e.g. a value given by --set)
+  int column = 0;  // 1-based
+  std::string path;  // bodies[0].fixed[1].group
+  std::string str() const;  // "FILE:LINE:COL: PATH" (omits LINE:COL when unknown)
+};
+
+struct FixedDesc {
+  enum class Kind { box, group, nodes } kind = Kind::box;
+  std::array<double, 6> box{};        // xmin ymin zmin xmax ymax zmax (world, after transform)
+  std::string group;                  // physical group name
+  std::vector<long> nodes;            // 0-based indices in file node order
+  std::array<bool, 3> axes{true, true, true};  // which world components are fixed
+  Where where;
+};
+
+struct MaterialDesc {
+  material::Law law = material::Law::corotational;
+  double young = 0, poisson = 0, density = 0;
+  Where where;
+};
+
+enum class MassKind { lumped, consistent };
+
+struct BodyDesc {
+  std::string name;
+  std::filesystem::path mesh;   // resolved against the scene file's folder
+  double mesh_scale = 1.0;
+  Vec3 translate = Vec3::Zero();
+  Vec3 rotate_deg = Vec3::Zero();  // XYZ Euler angles: R = Rz * Ry * Rx, applied after scale
+  MaterialDesc material;
+  MassKind mass = MassKind::lumped;
+  double rayleigh_mass = 0, rayleigh_stiffness = 0;
+  bool psd_projection = false;
+  std::vector<FixedDesc> fixed;
+  Vec3 initial_velocity = Vec3::Zero();
+  Where where;
+};
+
+enum class Integrator { implicit_euler, static_equilibrium };
+enum class LinearSolverKind { cholmod, ldlt, cg };
+
+struct SimulationDesc {
+  Integrator integrator = Integrator::implicit_euler;
+  double dt = 0.01;
+  long steps = 0;              // from `steps`, or round(duration / dt) (duration must be a multiple of dt to 1e-9)
+  Vec3 gravity{0, 0, -9.81};
+  int newton_iterations = 1;
+  double newton_tolerance = 1e-10;   // extension: relative velocity-increment tolerance for newton_iterations > 1
+  int static_max_iterations = 50;
+  double static_tolerance = 1e-10;
+  int static_load_steps = 1;
+};
+
+struct LinearSolverDesc {
+  LinearSolverKind kind = LinearSolverKind::cholmod;
+  double cg_tolerance = 1e-10;     // extension (cg only): relative residual
+  int cg_max_iterations = 10000;   // extension (cg only)
+};
+
+struct OutputDesc {
+  std::filesystem::path file;   // resolved against the scene file's folder; empty if absent (the CLI then uses -o or "<scene stem>.h5" in the current directory)
+  long every = 1;
+  bool v = false, contact = false, actuation = false, effectors = false;  // x is always written
+  std::vector<std::string> jacobians;
+};
+
+struct SceneDesc {
+  std::filesystem::path file;   // the scene file
+  std::string text;             // the YAML text as read (written to the output's attributes)
+  std::string name;
+  SimulationDesc simulation;
+  LinearSolverDesc linear_solver;
+  std::vector<BodyDesc> bodies;
+  OutputDesc output;
+};
+
+// Parse and validate. `overrides` are --set KEY=VALUE strings, applied to the YAML
+// tree before validation (KEY: dotted path; list items by index or, for bodies and
+// named items, by name, e.g. bodies.beam.material.young=2e5; VALUE is parsed as YAML).
+// Throws InputError with a one-line message `FILE:LINE:COL: PATH: message`.
+SceneDesc load_scene(const std::filesystem::path& file, const std::vector<std::string>& overrides = {});
+
+}  // namespace softdiff::io

@@ -1,0 +1,41 @@
+#pragma once
+// Hyperelastic laws for linear tetrahedra (method.md, "Internal forces and stiffness").
+// For each law: the energy density psi(F), the first Piola-Kirchhoff stress
+// P = dpsi/dF and its exact derivative dP/dF (a 9x9 matrix acting on vec(F),
+// column-major: vec(F)[3*j + i] = F(i, j)). Kernels are templated on the scalar
+// type where that is cheap (psi), so tests check them against Eigen's AutoDiff.
+#include <softdiff/core/types.hpp>
+
+#include <string>
+#include <string_view>
+
+namespace softdiff::material {
+
+enum class Law { corotational, stvk, neo_hookean };
+std::string_view law_name(Law law);
+
+struct Lame {
+  double mu = 0;
+  double lambda = 0;
+};
+// The usual conversion: mu = E / (2 (1 + nu)), lambda = E nu / ((1 + nu)(1 - 2 nu)).
+Lame lame_from_young_poisson(double young, double poisson);
+
+// What an element evaluation may need beyond P and dP/dF (kept for derivatives).
+struct PointCache {
+  Mat3 R = Mat3::Identity();  // corotational: rotation of the polar decomposition F = R S
+  Mat3 S = Mat3::Identity();  // corotational: symmetric stretch
+};
+
+// psi(F). Returns +infinity when the energy is undefined (neo_hookean with J <= 0).
+double psi(Law law, const Mat3& F, const Lame& lame);
+
+// P(F) and, if dP_dF != nullptr, dP/dF. Returns false (and leaves the outputs
+// unspecified) if the law is undefined at F (neo_hookean with J <= 0).
+bool stress(Law law, const Mat3& F, const Lame& lame, Mat3& P, Mat9* dP_dF, PointCache* cache = nullptr);
+
+// Symmetric eigenvalue clamp of a 12x12 element Hessian: negative eigenvalues set
+// to zero (the `psd_projection` option). No heap allocation.
+void project_psd(Mat12& K);
+
+}  // namespace softdiff::material
