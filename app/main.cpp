@@ -1,2 +1,51 @@
+// softdiff: command-line entry point (spec: docs/cli.md).
+#include "commands.hpp"
+#include "common.hpp"
+
+#include <softdiff/core/error.hpp>
+
 #include <cstdio>
-int main() { std::puts("softdiff: under construction"); return 0; }
+#include <exception>
+
+int main(int argc, char** argv) {
+  using namespace softdiff::app;
+  CLI::App app{"softdiff: differentiable soft-robot simulation (FEM, frictional contact, gradients)", "softdiff"};
+  app.set_version_flag("--version", version_text());
+  app.require_subcommand(1);
+  app.fallthrough(false);
+
+  SimulateOptions simulate;
+  auto* sim_cmd = app.add_subcommand("simulate", "Simulate a scene and write its trajectory (HDF5 + XDMF)");
+  add_simulate(*sim_cmd, simulate);
+  InfoOptions info;
+  auto* info_cmd = app.add_subcommand("info", "Describe a mesh (.msh) or validate and describe a scene (.yaml)");
+  add_info(*info_cmd, info);
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForAllHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForVersion& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    error(std::string(e.what()) + " (see softdiff --help)");
+    return kExitBadInput;
+  }
+
+  try {
+    if (sim_cmd->parsed()) return run_simulate(simulate, join_argv(argc, argv));
+    if (info_cmd->parsed()) return run_info(info);
+  } catch (const softdiff::InputError& e) {
+    error(e.what());
+    return kExitBadInput;
+  } catch (const softdiff::ComputationError& e) {
+    error(e.what());
+    return kExitFailed;
+  } catch (const std::exception& e) {
+    error(std::string("internal error: ") + e.what());
+    return kExitFailed;
+  }
+  return kExitBadInput;
+}

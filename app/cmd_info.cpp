@@ -1,0 +1,131 @@
+// softdiff info FILE: describe a mesh, or validate and describe a scene.
+#include "commands.hpp"
+#include "common.hpp"
+
+#include <softdiff/core/error.hpp>
+#include <softdiff/io/build_model.hpp>
+#include <softdiff/io/gmsh_msh.hpp>
+#include <softdiff/io/scene.hpp>
+#include <softdiff/material/material.hpp>
+
+#include <cstdio>
+#include <filesystem>
+
+namespace softdiff::app {
+namespace {
+
+std::vector<double> v3(const Vec3& v) { return {v.x(), v.y(), v.z()}; }
+
+int info_mesh(const std::string& file, bool json) {
+  const mesh::TetMesh m = io::read_gmsh(file);
+  const Triangles surface = mesh::boundary_triangles(m.tets);
+  const mesh::Quality q = mesh::quality(m.X, m.tets);
+  if (json) {
+    Json j;
+    j.begin_object().value("file", file).value("nodes", m.num_nodes()).value("tets", m.num_tets());
+    j.value("triangles", static_cast<long>(m.triangles.cols())).value("boundary_triangles", static_cast<long>(surface.cols()));
+    j.value("orphan_nodes", m.orphan_nodes).value("reoriented_tets", m.reoriented_tets);
+    j.value("bbox_min", v3(q.bbox_min)).value("bbox_max", v3(q.bbox_max));
+    j.begin_object("quality")
+        .value("volume", q.total_volume)
+        .value("min_volume", q.min_volume)
+        .value("max_volume", q.max_volume)
+        .value("min_aspect", q.min_aspect)
+        .value("median_aspect", q.median_aspect)
+        .value("max_aspect", q.max_aspect)
+        .value("worst_tet", q.worst_tet)
+        .end_object();
+    j.begin_array("groups");
+    for (const auto& g : m.groups)
+      j.begin_object()
+          .value("name", g.name)
+          .value("dim", g.dim)
+          .value("tag", g.tag)
+          .value("nodes", static_cast<long>(g.nodes.size()))
+          .value("triangles", static_cast<long>(g.triangles.size()))
+          .value("tets", static_cast<long>(g.tets.size()))
+          .end_object();
+    j.end_array().end_object();
+    std::printf("%s\n", j.str().c_str());
+    return kExitOk;
+  }
+  std::printf("mesh        %s\n", file.c_str());
+  std::printf("nodes       %d (%ld orphan nodes dropped)\n", m.num_nodes(), m.orphan_nodes);
+  std::printf("tets        %d (%ld reoriented)\n", m.num_tets(), m.reoriented_tets);
+  std::printf("triangles   %ld in the file, %ld on the boundary\n", static_cast<long>(m.triangles.cols()),
+              static_cast<long>(surface.cols()));
+  std::printf("bbox        [%.6g, %.6g, %.6g] to [%.6g, %.6g, %.6g]\n", q.bbox_min.x(), q.bbox_min.y(), q.bbox_min.z(),
+              q.bbox_max.x(), q.bbox_max.y(), q.bbox_max.z());
+  std::printf("volume      %.6g (tet volume min %.4g, max %.4g)\n", q.total_volume, q.min_volume, q.max_volume);
+  std::printf("aspect      min %.3f, median %.3f, max %.3f (tet %d); 1 = regular\n", q.min_aspect, q.median_aspect,
+              q.max_aspect, q.worst_tet);
+  std::printf("groups      %zu\n", m.groups.size());
+  for (const auto& g : m.groups)
+    std::printf("  %-20s dim %d tag %-4d %zu nodes, %zu triangles, %zu tets\n",
+                g.name.empty() ? "(unnamed)" : g.name.c_str(), g.dim, g.tag, g.nodes.size(), g.triangles.size(),
+                g.tets.size());
+  return kExitOk;
+}
+
+int info_scene(const std::string& file, const std::vector<std::string>& set, bool json) {
+  const io::SceneDesc scene = io::load_scene(file, set);
+  io::BuildReport report;
+  const Model model = io::build_model(scene, &report);
+  for (const auto& w : report.warnings) warn(w);
+  const auto& fem = model.fem;
+  const bool is_static = model.step.integrator == IntegratorKind::static_equilibrium;
+  if (json) {
+    Json j;
+    j.begin_object().value("file", file).value("valid", true).value("name", model.name);
+    j.value("integrator", is_static ? "static" : "implicit_euler").value("dt", model.step.dt).value("steps", model.step.steps);
+    j.value("dofs", 3L * fem.num_nodes).value("fixed_dofs", fem.num_fixed_dofs).value("nonzeros", fem.pattern.nnz());
+    j.value("colors", static_cast<long>(fem.pattern.color_begin.size()) - 1).value("total_mass", fem.total_mass);
+    j.begin_array("bodies");
+    for (const auto& b : fem.bodies)
+      j.begin_object()
+          .value("name", b.name)
+          .value("law", std::string(material::law_name(b.law)))
+          .value("nodes", b.num_nodes)
+          .value("tets", b.num_tets)
+          .value("mass", fem.mass_diagonal.segment(3 * b.node_begin, 3 * b.num_nodes).sum() / 3)
+          .end_object();
+    j.end_array().end_object();
+    std::printf("%s\n", j.str().c_str());
+    return kExitOk;
+  }
+  std::printf("scene       %s (valid)%s%s\n", file.c_str(), model.name.empty() ? "" : ": ", model.name.c_str());
+  if (is_static)
+    std::printf("integrator  static, %d load steps\n", model.step.static_load_steps);
+  else
+    std::printf("integrator  implicit_euler, dt %g s, %ld steps (%g s), newton_iterations %d\n", model.step.dt,
+                model.step.steps, model.step.dt * model.step.steps, model.step.newton_iterations);
+  std::printf("system      %d dofs (%ld fixed), %ld nonzeros in the upper triangle, %zu element colors\n",
+              3 * fem.num_nodes, fem.num_fixed_dofs, fem.pattern.nnz(), fem.pattern.color_begin.size() - 1);
+  for (const auto& b : fem.bodies) {
+    long fixed_nodes = 0;
+    for (int i = b.node_begin; i < b.node_begin + b.num_nodes; ++i)
+      fixed_nodes += (fem.fixed[3 * i] || fem.fixed[3 * i + 1] || fem.fixed[3 * i + 2]) ? 1 : 0;
+    const double mass = fem.mass_diagonal.segment(3 * b.node_begin, 3 * b.num_nodes).sum() / 3;
+    std::printf("body        %s: %d nodes, %d tets, %ld fixed nodes, %s E=%g Pa nu=%g rho=%g kg/m^3, mass %g kg\n",
+                b.name.c_str(), b.num_nodes, b.num_tets, fixed_nodes, std::string(material::law_name(b.law)).c_str(),
+                b.young, b.poisson, b.density, mass);
+  }
+  return kExitOk;
+}
+
+}  // namespace
+
+void add_info(CLI::App& app, InfoOptions& o) {
+  app.add_option("file", o.file, "A mesh (.msh) or a scene (.yaml/.yml)")->required()->check(CLI::ExistingFile);
+  app.add_option("--set", o.set, "Scene override KEY=VALUE (scenes only; repeatable)");
+  app.add_flag("--json", o.json, "Print a JSON object on stdout");
+}
+
+int run_info(const InfoOptions& o) {
+  const std::string ext = std::filesystem::path(o.file).extension().string();
+  if (ext == ".yaml" || ext == ".yml") return info_scene(o.file, o.set, o.json);
+  if (ext == ".msh") return info_mesh(o.file, o.json);
+  throw InputError(o.file + ": unknown file type '" + ext + "' (expected a mesh .msh or a scene .yaml/.yml)");
+}
+
+}  // namespace softdiff::app

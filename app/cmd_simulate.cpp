@@ -1,0 +1,225 @@
+// softdiff simulate SCENE.yaml: run a scene, stream frames to HDF5 (+ XDMF).
+#include "commands.hpp"
+#include "common.hpp"
+
+#include <softdiff/core/error.hpp>
+#include <softdiff/data.hpp>
+#include <softdiff/integrator/implicit_euler.hpp>
+#include <softdiff/integrator/static_solver.hpp>
+#include <softdiff/io/build_model.hpp>
+#include <softdiff/io/hdf5_writer.hpp>
+#include <softdiff/io/scene.hpp>
+
+#include <omp.h>
+
+#include <chrono>
+#include <csignal>
+#include <cstdio>
+#include <filesystem>
+#include <sstream>
+
+namespace softdiff::app {
+namespace {
+
+volatile std::sig_atomic_t g_interrupted = 0;
+extern "C" void on_signal(int) { g_interrupted = 1; }
+
+using Clock = std::chrono::steady_clock;
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+std::string fmt_ms(double seconds, long steps) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.3g", steps > 0 ? 1e3 * seconds / steps : 0.0);
+  return buf;
+}
+
+}  // namespace
+
+void add_simulate(CLI::App& app, SimulateOptions& o) {
+  app.add_option("scene", o.scene, "Scene file (YAML, docs/scene.md)")->required()->check(CLI::ExistingFile);
+  app.add_option("-o,--output", o.output,
+                 "Output HDF5 file (default: the scene's output.file, else <scene name>.h5 in the current folder)");
+  app.add_flag("--force", o.force, "Overwrite an existing output file");
+  auto* steps = app.add_option("--steps", o.steps, "Number of steps (overrides simulation.steps/duration)")
+                    ->check(CLI::PositiveNumber);
+  auto* duration = app.add_option("--duration", o.duration, "Simulated time in seconds (overrides the scene)")
+                       ->check(CLI::PositiveNumber);
+  steps->excludes(duration);
+  app.add_option("--dt", o.dt, "Time step in seconds (overrides simulation.dt)")->check(CLI::PositiveNumber);
+  app.add_option("--set", o.set, "Override a scene value: KEY=VALUE, e.g. bodies.beam.material.young=2e5 (repeatable)");
+  app.add_option("--jacobian", o.jacobian, "Write d x_T / d theta for these theta (comma-separated; not yet available)");
+  app.add_option("--threads", o.threads, "OpenMP threads (default: all cores)")->check(CLI::NonNegativeNumber);
+  app.add_flag("--strict", o.strict, "Treat a solver that does not reach its tolerance as an error (exit 1)");
+  app.add_flag("--quiet", o.quiet, "No progress bar, no summary");
+  app.add_flag("--json", o.json, "Print a JSON summary of the run on stdout");
+}
+
+int run_simulate(const SimulateOptions& o, const std::string& command_line) {
+  if (!o.jacobian.empty())
+    throw InputError("--jacobian " + o.jacobian + ": derivatives are not available yet in this version of softdiff");
+  if (o.threads > 0) omp_set_num_threads(o.threads);
+
+  // 1. Scene and model: every input error is raised here, before any file is created.
+  std::vector<std::string> overrides = o.set;
+  if (o.dt) overrides.push_back("simulation.dt=" + std::to_string(*o.dt));
+  if (o.steps) overrides.push_back("simulation.steps=" + std::to_string(*o.steps));
+  if (o.duration) {
+    std::ostringstream s;
+    s.precision(17);
+    s << "simulation.duration=" << *o.duration;
+    overrides.push_back(s.str());
+  }
+  auto t_setup = Clock::now();
+  const io::SceneDesc scene = io::load_scene(o.scene, overrides);
+  io::BuildReport report;
+  const Model model = io::build_model(scene, &report);
+  for (const auto& w : report.warnings) warn(w);
+  Data data(model);
+  const double setup_seconds = seconds_since(t_setup);
+
+  std::filesystem::path out_path = o.output;
+  if (out_path.empty()) out_path = scene.output.file;
+  if (out_path.empty()) out_path = std::filesystem::path(o.scene).stem().string() + ".h5";
+
+  io::WriterOptions wo;
+  wo.file = out_path;
+  wo.force = o.force;
+  wo.write_v = scene.output.v;
+  wo.command = command_line;
+  wo.scene_yaml = scene.text;
+  std::vector<io::OutputBody> out_bodies;
+  for (const auto& b : model.fem.bodies) out_bodies.push_back({b.name, b.mesh.X, b.mesh.tets, b.surface});
+  io::Hdf5Writer writer(wo, out_bodies);
+
+  std::signal(SIGINT, on_signal);
+  std::signal(SIGTERM, on_signal);
+
+  // 2. Run.
+  const bool is_static = model.step.integrator == IntegratorKind::static_equilibrium;
+  const long total = is_static ? model.step.static_load_steps : model.step.steps;
+  const long every = std::max<long>(1, scene.output.every);
+  State state = model.initial, next = model.initial;
+  writer.append_frame(state.t, state.x, &state.v, 0.0);
+
+  StepTimings timings;
+  double output_seconds = 0;
+  long steps_done = 0, warnings_newton = 0;
+  StepStatus failure;
+  std::string status = "complete";
+  Progress progress(total, !o.quiet);
+  auto t_run = Clock::now();
+
+  if (is_static) {
+    auto t0 = Clock::now();
+    failure = integrator::solve_static(model, data, state, next, [&](long s, const State& st) {
+      const double step_seconds = seconds_since(t0);
+      auto tw = Clock::now();
+      writer.append_frame(st.t, st.x, &st.v, step_seconds);
+      output_seconds += seconds_since(tw);
+      steps_done = s;
+      progress.update(s);
+      t0 = Clock::now();
+    });
+    timings = data.timings;
+    if (failure.ok()) state = next;
+  } else {
+    for (long k = 1; k <= total; ++k) {
+      if (g_interrupted) {
+        status = "interrupted";
+        break;
+      }
+      auto t0 = Clock::now();
+      StepStatus s = integrator::implicit_euler_step(model, data, state, next, k);
+      const double step_seconds = seconds_since(t0);
+      if (s.code == StepStatus::Code::not_converged) {
+        if (o.strict) {
+          failure = s;
+        } else {
+          if (warnings_newton++ == 0) warn(describe(model, s) + " (further such warnings are counted, not shown)");
+          s = StepStatus{};
+        }
+      } else if (!s.ok()) {
+        failure = s;
+      }
+      timings += data.timings;
+      if (!failure.ok()) break;
+      std::swap(state, next);
+      steps_done = k;
+      if (k % every == 0 || k == total) {
+        auto tw = Clock::now();
+        writer.append_frame(state.t, state.x, &state.v, step_seconds);
+        output_seconds += seconds_since(tw);
+      }
+      progress.update(k);
+    }
+  }
+  progress.finish();
+  const double run_seconds = seconds_since(t_run);
+
+  if (!failure.ok()) {
+    const std::string reason = describe(model, failure);
+    writer.finish("diverged: " + reason);
+    error(reason);
+    note("frames up to the last completed step are in " + writer.final_path().string());
+    return kExitFailed;
+  }
+  writer.finish(status);
+  if (status == "interrupted") {
+    error("interrupted after " + std::to_string(steps_done) + " steps; frames written to " +
+          writer.final_path().string());
+    return kExitFailed;
+  }
+
+  const long n = std::max<long>(1, steps_done);
+  if (!o.quiet) {
+    std::ostringstream s;
+    s.precision(3);
+    s << steps_done << (is_static ? " load steps" : " steps") << " in " << run_seconds << " s (setup "
+      << setup_seconds << " s); ms/step: assembly " << fmt_ms(timings.assembly, n) << ", factorization "
+      << fmt_ms(timings.factorization, n) << ", solve " << fmt_ms(timings.solve, n) << ", contact 0, derivatives 0, output "
+      << fmt_ms(output_seconds, n) << " -> " << writer.final_path().string();
+    note(s.str());
+  }
+  if (warnings_newton > 1) warn(std::to_string(warnings_newton) + " steps did not reach newton_tolerance");
+
+  if (o.json) {
+    Json j;
+    j.begin_object();
+    j.value("command", "simulate").value("scene", o.scene).value("output", writer.final_path().string());
+    j.value("status", status).value("steps", steps_done).value("frames", writer.frames_written());
+    j.value("time", state.t).value("wall_seconds", run_seconds).value("setup_seconds", setup_seconds);
+    j.begin_object("ms_per_step")
+        .value("assembly", 1e3 * timings.assembly / n)
+        .value("factorization", 1e3 * timings.factorization / n)
+        .value("solve", 1e3 * timings.solve / n)
+        .value("other", 1e3 * timings.other / n)
+        .value("contact", 0.0)
+        .value("derivatives", 0.0)
+        .value("output", 1e3 * output_seconds / n)
+        .end_object();
+    j.value("factorizations", data.factorizations);
+    j.value("newton_not_converged_steps", warnings_newton);
+    j.begin_object("bodies");
+    for (const auto& b : model.fem.bodies) {
+      double max_disp = 0;
+      Vec3 centroid = Vec3::Zero();
+      for (int i = b.node_begin; i < b.node_begin + b.num_nodes; ++i) {
+        max_disp = std::max(max_disp, (state.x.segment<3>(3 * i) - model.fem.X.col(i)).norm());
+        centroid += state.x.segment<3>(3 * i);
+      }
+      centroid /= b.num_nodes;
+      j.begin_object(b.name)
+          .value("nodes", b.num_nodes)
+          .value("tets", b.num_tets)
+          .value("max_displacement", max_disp)
+          .value("centroid", std::vector<double>{centroid.x(), centroid.y(), centroid.z()})
+          .end_object();
+    }
+    j.end_object();
+    j.end_object();
+    std::printf("%s\n", j.str().c_str());
+  }
+  return kExitOk;
+}
+
+}  // namespace softdiff::app

@@ -1,0 +1,125 @@
+#include "common.hpp"
+
+#include <cmath>
+#include <iomanip>
+#include <unistd.h>
+
+namespace softdiff::app {
+
+void warn(const std::string& message) { std::fprintf(stderr, "softdiff: warning: %s\n", message.c_str()); }
+void error(const std::string& message) { std::fprintf(stderr, "softdiff: error: %s\n", message.c_str()); }
+void note(const std::string& message) { std::fprintf(stderr, "softdiff: %s\n", message.c_str()); }
+
+std::string json_escape(const std::string& s) {
+  std::string out;
+  for (char c : s) {
+    switch (c) {
+      case '"': out += "\\\""; break;
+      case '\\': out += "\\\\"; break;
+      case '\n': out += "\\n"; break;
+      case '\t': out += "\\t"; break;
+      case '\r': out += "\\r"; break;
+      default:
+        if (static_cast<unsigned char>(c) < 0x20) {
+          char buf[8];
+          std::snprintf(buf, sizeof buf, "\\u%04x", c);
+          out += buf;
+        } else {
+          out += c;
+        }
+    }
+  }
+  return out;
+}
+
+void Json::key(const std::string& k) {
+  if (!first_.back()) out_ << ",";
+  first_.back() = false;
+  if (!k.empty()) out_ << "\"" << json_escape(k) << "\":";
+}
+Json& Json::begin_object(const std::string& k) {
+  key(k);
+  out_ << "{";
+  first_.push_back(true);
+  return *this;
+}
+Json& Json::end_object() {
+  out_ << "}";
+  first_.pop_back();
+  return *this;
+}
+Json& Json::begin_array(const std::string& k) {
+  key(k);
+  out_ << "[";
+  first_.push_back(true);
+  return *this;
+}
+Json& Json::end_array() {
+  out_ << "]";
+  first_.pop_back();
+  return *this;
+}
+Json& Json::value(const std::string& k, double v) {
+  key(k);
+  if (std::isfinite(v))
+    out_ << std::setprecision(17) << v;
+  else
+    out_ << "null";
+  return *this;
+}
+Json& Json::value(const std::string& k, long v) {
+  key(k);
+  out_ << v;
+  return *this;
+}
+Json& Json::value(const std::string& k, bool v) {
+  key(k);
+  out_ << (v ? "true" : "false");
+  return *this;
+}
+Json& Json::value(const std::string& k, const std::string& v) {
+  key(k);
+  out_ << "\"" << json_escape(v) << "\"";
+  return *this;
+}
+Json& Json::value(const std::string& k, const std::vector<double>& v) {
+  begin_array(k);
+  for (double x : v) value("", x);
+  return end_array();
+}
+
+Progress::Progress(long total, bool enabled)
+    : total_(total), enabled_(enabled && isatty(STDERR_FILENO)), start_(std::chrono::steady_clock::now()), last_(start_) {}
+
+void Progress::update(long done) {
+  if (!enabled_) return;
+  const auto now = std::chrono::steady_clock::now();
+  if (done < total_ && std::chrono::duration<double>(now - last_).count() < 0.1) return;
+  last_ = now;
+  const double elapsed = std::chrono::duration<double>(now - start_).count();
+  const double rate = elapsed > 0 ? done / elapsed : 0;
+  const double eta = rate > 0 ? (total_ - done) / rate : 0;
+  constexpr int width = 30;
+  const int filled = total_ > 0 ? static_cast<int>(width * done / total_) : width;
+  std::string bar(filled, '=');
+  bar.resize(width, ' ');
+  std::fprintf(stderr, "\r[%s] %ld/%ld steps  %.1f steps/s  ETA %.0f s   ", bar.c_str(), done, total_, rate, eta);
+  std::fflush(stderr);
+}
+
+void Progress::finish() {
+  if (!enabled_) return;
+  std::fprintf(stderr, "\r%*s\r", 80, "");
+  std::fflush(stderr);
+}
+
+std::string join_argv(int argc, char** argv) {
+  std::string s;
+  for (int i = 0; i < argc; ++i) {
+    if (i) s += ' ';
+    s += argv[i];
+  }
+  return s;
+}
+
+}  // namespace softdiff::app

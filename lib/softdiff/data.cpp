@@ -1,0 +1,83 @@
+#include <softdiff/data.hpp>
+
+#include <sstream>
+
+namespace softdiff {
+
+Data::Data(const Model& model) {
+  const int ndof = 3 * model.fem.num_nodes;
+  fem.resize(model.fem);
+  K_i_values = VecX::Zero(model.fem.pattern.nnz());
+  A = model.fem.pattern.structure;
+  rhs = VecX::Zero(ndof);
+  dv = VecX::Zero(ndof);
+  Mv = VecX::Zero(ndof);
+  Mvi = VecX::Zero(ndof);
+  Kv = VecX::Zero(ndof);
+  x_iter = VecX::Zero(ndof);
+  v_iter = VecX::Zero(ndof);
+  solver = integrator::make_linear_solver(model.solver);
+}
+
+namespace {
+
+const fem::BodyModel* body_of_node(const Model& model, int node) {
+  for (const auto& b : model.fem.bodies)
+    if (node >= b.node_begin && node < b.node_begin + b.num_nodes) return &b;
+  return nullptr;
+}
+
+const fem::BodyModel* body_of_element(const Model& model, int e) {
+  if (e < 0 || e >= model.fem.num_tets) return nullptr;
+  return &model.fem.bodies[model.fem.tet_body[e]];
+}
+
+std::string node_name(const Model& model, int dof) {
+  const int node = dof / 3;
+  const auto* b = body_of_node(model, node);
+  if (!b) return "dof " + std::to_string(dof);
+  const int local = node - b->node_begin;
+  std::ostringstream s;
+  s << "node " << local;
+  if (local < static_cast<int>(b->mesh.file_tag.size())) s << " (gmsh tag " << b->mesh.file_tag[local] << ")";
+  s << " of body '" << b->name << "', component " << "xyz"[dof % 3];
+  return s.str();
+}
+
+}  // namespace
+
+std::string describe(const Model& model, const StepStatus& st) {
+  std::ostringstream s;
+  if (st.step >= 0) s << (model.step.integrator == IntegratorKind::static_equilibrium ? "load step " : "step ") << st.step << ": ";
+  switch (st.code) {
+    case StepStatus::Code::ok: s << "ok"; break;
+    case StepStatus::Code::inverted_element: {
+      const auto* b = body_of_element(model, st.element);
+      s << "inverted element: tetrahedron " << (b ? st.element - b->tet_begin : st.element);
+      if (b) s << " of body '" << b->name << "'";
+      s << " has det F = " << st.value << " <= 0";
+      break;
+    }
+    case StepStatus::Code::not_positive_definite:
+      s << "the system matrix is not positive definite";
+      if (st.dof >= 0) s << " (pivot failed at " << node_name(model, st.dof) << ")";
+      s << "; the stiffness is indefinite (large compression: try psd_projection: true, a smaller dt, "
+           "or newton_iterations > 1) or, for a static solve, a body is not held by fixed nodes";
+      break;
+    case StepStatus::Code::non_finite:
+      s << "non-finite value (NaN or Inf) at " << node_name(model, st.dof);
+      break;
+    case StepStatus::Code::diverged:
+      s << "diverged: " << node_name(model, st.dof) << " moved " << st.value << " m from rest, more than "
+        << model.step.divergence_factor << " times its body's size";
+      break;
+    case StepStatus::Code::not_converged:
+      s << "Newton did not converge in " << st.iterations << " iterations (relative residual " << st.residual << ")";
+      break;
+    case StepStatus::Code::solver_failed: s << "linear solver failed"; break;
+  }
+  if (!st.detail.empty() && st.code != StepStatus::Code::not_positive_definite) s << ": " << st.detail;
+  return s.str();
+}
+
+}  // namespace softdiff

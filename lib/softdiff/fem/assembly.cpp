@@ -1,0 +1,133 @@
+#include <softdiff/fem/assembly.hpp>
+
+#include <Eigen/LU>
+#include <algorithm>
+#include <limits>
+
+namespace softdiff::fem {
+
+void FemData::resize(const FemModel& model) {
+  F.assign(model.num_tets, Mat3::Identity());
+  R.assign(model.num_tets, Mat3::Identity());
+  element_energy = VecX::Zero(model.num_tets);
+  f_int = VecX::Zero(3 * model.num_nodes);
+  K_values = VecX::Zero(model.pattern.nnz());
+}
+
+bool element_forces_stiffness(material::Law law, const material::Lame& lame, double volume, const Mat3& Dm_inv,
+                              const Eigen::Matrix<double, 3, 4>& x_e, bool psd_projection, Mat3& F, Vec12& f_e,
+                              Mat12* K_e, double* energy, Mat3* R) {
+  Mat3 Ds;
+  Ds.col(0) = x_e.col(1) - x_e.col(0);
+  Ds.col(1) = x_e.col(2) - x_e.col(0);
+  Ds.col(2) = x_e.col(3) - x_e.col(0);
+  F.noalias() = Ds * Dm_inv;
+  if (!(F.determinant() > 0)) return false;
+  const Eigen::Matrix<double, 3, 4> G = shape_gradients(Dm_inv);
+  Mat3 P;
+  Mat9 dP_dF;
+  material::PointCache cache;
+  if (!material::stress(law, F, lame, P, K_e ? &dP_dF : nullptr, &cache)) return false;
+  if (R) *R = cache.R;
+  if (energy) *energy = volume * material::psi(law, F, lame);
+  // f_a = -V P g_a
+  Eigen::Map<Eigen::Matrix<double, 3, 4>>(f_e.data()).noalias() = -volume * P * G;
+  if (K_e) {
+    // K(3a+i, 3b+k) = V sum_{j,l} dP_dF(i+3j, k+3l) G(j,a) G(l,b)
+    Eigen::Matrix<double, 9, 12> T;  // T(:, 3b+k) = sum_l dP_dF(:, k+3l) G(l,b)
+    for (int b = 0; b < 4; ++b)
+      for (int k = 0; k < 3; ++k)
+        T.col(3 * b + k) = dP_dF.col(k) * G(0, b) + dP_dF.col(k + 3) * G(1, b) + dP_dF.col(k + 6) * G(2, b);
+    for (int a = 0; a < 4; ++a)
+      for (int i = 0; i < 3; ++i)
+        K_e->row(3 * a + i) = volume * (G(0, a) * T.row(i) + G(1, a) * T.row(i + 3) + G(2, a) * T.row(i + 6));
+    if (psd_projection) material::project_psd(*K_e);
+  }
+  return true;
+}
+
+bool evaluate(const FemModel& model, const VecX& x, const EvalRequest& request, FemData& data) {
+  const auto& pattern = model.pattern;
+  if (request.forces) data.f_int.setZero();
+  if (request.stiffness) data.K_values.setZero();
+  int bad = std::numeric_limits<int>::max();
+  const int num_colors = static_cast<int>(pattern.color_begin.size()) - 1;
+  for (int c = 0; c < num_colors; ++c) {
+    const int begin = pattern.color_begin[c], end = pattern.color_begin[c + 1];
+    // The last color may hold elements that share nodes (overflow of the coloring):
+    // it is small and assembled serially.
+    const bool serial = (c == num_colors - 1) && pattern.last_color_shares_nodes;
+#pragma omp parallel for schedule(static) reduction(min : bad) if (!serial && end - begin > 256)
+    for (int k = begin; k < end; ++k) {
+      const int e = pattern.color_elements[k];
+      const auto& body = model.bodies[model.tet_body[e]];
+      Eigen::Matrix<double, 3, 4> x_e;
+      for (int a = 0; a < 4; ++a) x_e.col(a) = x.segment<3>(3 * model.tets(a, e));
+      Vec12 f_e;
+      Mat12 K_e;
+      double psi_e = 0;
+      if (!element_forces_stiffness(body.law, body.lame, model.rest_volume[e], model.Dm_inv[e], x_e,
+                                    body.psd_projection, data.F[e], f_e, request.stiffness ? &K_e : nullptr,
+                                    request.energy ? &psi_e : nullptr, &data.R[e])) {
+        bad = std::min(bad, e);
+        continue;
+      }
+      if (request.energy) data.element_energy[e] = psi_e;
+      if (request.forces)
+        for (int a = 0; a < 4; ++a) data.f_int.segment<3>(3 * model.tets(a, e)) += f_e.segment<3>(3 * a);
+      if (request.stiffness) {
+        const int* scatter = pattern.element_scatter.data() + 78 * static_cast<size_t>(e);
+        int s = 0;
+        for (int i = 0; i < 12; ++i)
+          for (int j = i; j < 12; ++j) data.K_values[scatter[s++]] += K_e(i, j);
+      }
+    }
+  }
+  if (bad != std::numeric_limits<int>::max()) {
+    data.bad_element = bad;
+    data.bad_det = data.F[bad].determinant();
+    return false;
+  }
+  data.bad_element = -1;
+  if (request.energy) data.energy = data.element_energy.sum();
+  return true;
+}
+
+int find_inverted_element(const FemModel& model, const VecX& x, double* det_F) {
+  int bad = std::numeric_limits<int>::max();
+#pragma omp parallel for schedule(static) reduction(min : bad)
+  for (int e = 0; e < model.num_tets; ++e) {
+    Mat3 Ds;
+    const Vec3 x0 = x.segment<3>(3 * model.tets(0, e));
+    for (int k = 0; k < 3; ++k) Ds.col(k) = x.segment<3>(3 * model.tets(k + 1, e)) - x0;
+    if (!(Ds.determinant() > 0)) bad = std::min(bad, e);
+  }
+  if (bad == std::numeric_limits<int>::max()) return -1;
+  if (det_F) {
+    Mat3 Ds;
+    const Vec3 x0 = x.segment<3>(3 * model.tets(0, bad));
+    for (int k = 0; k < 3; ++k) Ds.col(k) = x.segment<3>(3 * model.tets(k + 1, bad)) - x0;
+    *det_F = (Ds * model.Dm_inv[bad]).determinant();
+  }
+  return bad;
+}
+
+void symmetric_multiply(const FemModel& model, const VecX& values, const VecX& x, VecX& y) {
+  const auto& S = model.pattern.structure;
+  const int* outer = S.outerIndexPtr();
+  const int* inner = S.innerIndexPtr();
+  y.setZero(x.size());
+  for (int col = 0; col < S.outerSize(); ++col) {
+    double acc = 0;
+    const double xc = x[col];
+    for (int k = outer[col]; k < outer[col + 1]; ++k) {
+      const int row = inner[k];
+      const double s = values[k];
+      y[row] += s * xc;
+      if (row != col) acc += s * x[row];
+    }
+    y[col] += acc;
+  }
+}
+
+}  // namespace softdiff::fem

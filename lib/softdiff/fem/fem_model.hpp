@@ -1,0 +1,86 @@
+#pragma once
+// The finite-element part of a Model: what does not change during a run.
+// Built once by io::build_model (through fem::build_fem_model); algorithms take it by
+// const reference. All soft bodies share one global node numbering: body b owns
+// nodes [node_begin, node_begin + num_nodes), degrees of freedom 3 i + c.
+#include <softdiff/core/types.hpp>
+#include <softdiff/material/material.hpp>
+#include <softdiff/mesh/tet_mesh.hpp>
+
+#include <string>
+#include <vector>
+
+namespace softdiff::fem {
+
+enum class MassKind { lumped, consistent };
+
+struct BodyModel {
+  std::string name;
+  int node_begin = 0, num_nodes = 0;   // global node range
+  int tet_begin = 0, num_tets = 0;     // global element range
+  material::Law law = material::Law::corotational;
+  double young = 0, poisson = 0, density = 0;
+  material::Lame lame;
+  double rayleigh_mass = 0;            // alpha in D = alpha M + beta K
+  double rayleigh_stiffness = 0;       // beta
+  bool psd_projection = false;
+  MassKind mass_kind = MassKind::lumped;
+  mesh::TetMesh mesh;                  // the body's mesh with world rest positions (local node indices)
+  Triangles surface;                   // (3, k) outward boundary triangles, local node indices
+  int value_begin = 0, value_end = 0;  // this body's range in the system pattern's value array
+  double bbox_diagonal = 0;            // rest bounding-box diagonal (divergence check scale)
+};
+
+// The sparsity pattern of every 3n x 3n system matrix (K, M, A): the upper triangle
+// of the node-adjacency graph expanded to 3x3 blocks, compressed by columns, with
+// precomputed scatter indices so that assembly writes straight into the values.
+struct SystemPattern {
+  SparseMatrix structure;              // (3n, 3n) upper triangle, values unused (zeros)
+  std::vector<int> element_scatter;    // (78 m): for element e and local dofs i <= j (row-major
+                                       // upper triangle of the 12x12 matrix), the value index
+  std::vector<int> diagonal;           // (3n) value index of each diagonal entry
+  std::vector<int> fixed_offdiagonal;  // value indices in a fixed row or column (off the diagonal)
+  std::vector<int> fixed_diagonal;     // value indices of fixed diagonal entries
+  std::vector<int> color_begin;        // element colors: elements color_elements[color_begin[c] ..
+  std::vector<int> color_elements;     //   color_begin[c+1]) share no node (parallel assembly),
+  bool last_color_shares_nodes = false; // except the last color if the coloring overflowed (serial)
+  long nnz() const { return structure.nonZeros(); }
+};
+
+struct FemModel {
+  std::vector<BodyModel> bodies;
+  int num_nodes = 0;
+  int num_tets = 0;
+  Mat3X X;                          // (3, n) rest positions, world frame
+  Tets tets;                        // (4, m) global node indices
+  std::vector<int> tet_body;        // (m) body of each element
+  std::vector<Mat3> Dm_inv;         // (m) inverse rest edge matrix [X1-X0, X2-X0, X3-X0]^-1
+  VecX rest_volume;                 // (m)
+  std::vector<unsigned char> fixed; // (3n) 1 if the dof is fixed (projected out)
+  long num_fixed_dofs = 0;
+  SystemPattern pattern;
+  VecX mass_values;                 // (nnz) mass matrix in the pattern (lumped: diagonal only)
+  VecX mass_diagonal;               // (3n) lumped masses (consistent: row sums)
+  VecX gravity_force;               // (3n) M g
+  double total_mass = 0;
+};
+
+// Per-element derivative of F with respect to the element's 12 node coordinates:
+// F = sum_a x_a g_a^T with g_a the shape-function gradients (g_0 = -(g_1+g_2+g_3),
+// g_k = row k-1 of Dm_inv). Returns G = [g_0 g_1 g_2 g_3] (3 x 4).
+inline Eigen::Matrix<double, 3, 4> shape_gradients(const Mat3& Dm_inv) {
+  Eigen::Matrix<double, 3, 4> G;
+  G.col(1) = Dm_inv.row(0).transpose();
+  G.col(2) = Dm_inv.row(1).transpose();
+  G.col(3) = Dm_inv.row(2).transpose();
+  G.col(0) = -(G.col(1) + G.col(2) + G.col(3));
+  return G;
+}
+
+// Builds geometry (Dm_inv, volumes), mass, the pattern, coloring and gravity from
+// bodies whose `mesh` (world rest positions), material and options are filled in.
+// `fixed` (3n) marks fixed dofs. Throws InputError for degenerate rest elements.
+void build_fem_model(std::vector<BodyModel> bodies, const std::vector<unsigned char>& fixed,
+                     const Vec3& gravity, FemModel& model);
+
+}  // namespace softdiff::fem

@@ -1,0 +1,214 @@
+#include <softdiff/integrator/implicit_euler.hpp>
+
+#include <softdiff/core/assert.hpp>
+
+#include <chrono>
+#include <cmath>
+
+namespace softdiff {
+
+namespace integrator {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+void project(const Model& model, VecX& b) {
+  if (model.fem.num_fixed_dofs == 0) return;
+  for (int k = 0; k < b.size(); ++k)
+    if (model.fem.fixed[k]) b[k] = 0;
+}
+
+StepStatus inverted(const Model& model, const Data& data, long step_index) {
+  (void)model;
+  StepStatus s;
+  s.code = StepStatus::Code::inverted_element;
+  s.step = step_index;
+  s.element = data.fem.bad_element;
+  s.value = data.fem.bad_det;
+  return s;
+}
+
+// r = -R(v) = M v_i + h (P + f) - (1 + h alpha) M v - h beta K_i v (per body), projected.
+// Mvi = M v_i; data.Mv and data.Kv are scratch.
+void newton_residual(const Model& model, Data& data, double h, const VecX& Mvi, const VecX& v, VecX& r) {
+  const auto& fem = model.fem;
+  fem::symmetric_multiply(fem, fem.mass_values, v, data.Mv);
+  fem::symmetric_multiply(fem, data.K_i_values, v, data.Kv);
+  for (const auto& b : fem.bodies) {
+    const int begin = 3 * b.node_begin, len = 3 * b.num_nodes;
+    r.segment(begin, len) = Mvi.segment(begin, len) +
+                            h * (fem.gravity_force.segment(begin, len) + data.fem.f_int.segment(begin, len)) -
+                            (1 + h * b.rayleigh_mass) * data.Mv.segment(begin, len) -
+                            h * b.rayleigh_stiffness * data.Kv.segment(begin, len);
+  }
+  project(model, r);
+}
+
+}  // namespace
+
+void assemble_system_matrix(const Model& model, double h, const VecX& K_damping, const VecX& K, Data& data) {
+  const auto& fem = model.fem;
+  double* A = data.A.valuePtr();
+  const double* M = fem.mass_values.data();
+  for (const auto& b : fem.bodies) {
+    const double cM = 1 + h * b.rayleigh_mass, cKd = h * b.rayleigh_stiffness, cK = h * h;
+    if (&K_damping == &K) {
+      const double c = cKd + cK;
+      for (int k = b.value_begin; k < b.value_end; ++k) A[k] = cM * M[k] + c * K[k];
+    } else {
+      for (int k = b.value_begin; k < b.value_end; ++k) A[k] = cM * M[k] + cKd * K_damping[k] + cK * K[k];
+    }
+  }
+  for (int k : fem.pattern.fixed_offdiagonal) A[k] = 0;
+  for (int k : fem.pattern.fixed_diagonal) A[k] = 1;
+  data.factor_is_current = false;
+}
+
+StepStatus factorize(const Model& model, Data& data, long step_index) {
+  (void)model;
+  StepStatus s;
+  if (!data.analyzed) {
+    data.solver->analyze(data.A);
+    data.analyzed = true;
+  }
+  const FactorStatus f = data.solver->factorize(data.A);
+  ++data.factorizations;
+  if (!f.ok) {
+    s.code = StepStatus::Code::not_positive_definite;
+    s.step = step_index;
+    s.dof = f.column;
+    s.detail = f.message;
+    return s;
+  }
+  data.factor_is_current = true;
+  return s;
+}
+
+StepStatus check_state(const Model& model, const State& state, long step_index) {
+  StepStatus s;
+  s.step = step_index;
+  for (int k = 0; k < state.x.size(); ++k)
+    if (!std::isfinite(state.x[k]) || !std::isfinite(state.v[k])) {
+      s.code = StepStatus::Code::non_finite;
+      s.dof = k;
+      return s;
+    }
+  const auto& fem = model.fem;
+  for (const auto& b : fem.bodies) {
+    const double limit = model.step.divergence_factor * b.bbox_diagonal;
+    for (int i = b.node_begin; i < b.node_begin + b.num_nodes; ++i) {
+      const double d = (state.x.segment<3>(3 * i) - fem.X.col(i)).norm();
+      if (d > limit) {
+        s.code = StepStatus::Code::diverged;
+        s.dof = 3 * i;
+        s.value = d;
+        return s;
+      }
+    }
+  }
+  double det = 0;
+  const int e = fem::find_inverted_element(fem, state.x, &det);
+  if (e >= 0) {
+    s.code = StepStatus::Code::inverted_element;
+    s.element = e;
+    s.value = det;
+  }
+  return s;
+}
+
+StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, State& out, long step_index) {
+  const auto& fem = model.fem;
+  const double h = model.step.dt;
+  data.timings = {};
+  auto t0 = Clock::now();
+
+  // 1. Linearization at x_i: f_int, K (the record the derivatives use).
+  if (!fem::evaluate(fem, in.x, {false, true, true}, data.fem)) return inverted(model, data, step_index);
+  // 2. A = M + h D + h^2 K and b = h (P + f - D v_i) - h^2 K v_i, per body.
+  assemble_system_matrix(model, h, data.fem.K_values, data.fem.K_values, data);
+  fem::symmetric_multiply(fem, fem.mass_values, in.v, data.Mv);
+  fem::symmetric_multiply(fem, data.fem.K_values, in.v, data.Kv);
+  for (const auto& b : fem.bodies) {
+    const int begin = 3 * b.node_begin, len = 3 * b.num_nodes;
+    const double alpha = b.rayleigh_mass, beta = b.rayleigh_stiffness;
+    data.rhs.segment(begin, len) =
+        h * (fem.gravity_force.segment(begin, len) + data.fem.f_int.segment(begin, len)) -
+        (h * alpha) * data.Mv.segment(begin, len) - (h * beta + h * h) * data.Kv.segment(begin, len);
+  }
+  project(model, data.rhs);
+  data.timings.assembly += seconds_since(t0);
+
+  t0 = Clock::now();
+  StepStatus status = factorize(model, data, step_index);
+  data.timings.factorization += seconds_since(t0);
+  if (!status.ok()) return status;
+
+  t0 = Clock::now();
+  if (!data.solver->solve(data.rhs, data.dv)) {
+    status.code = StepStatus::Code::solver_failed;
+    status.step = step_index;
+    status.detail = "iterative linear solver did not reach its tolerance";
+    return status;
+  }
+  out.v = in.v + data.dv;
+  project(model, out.v);  // fixed dofs have v = 0
+  data.timings.solve += seconds_since(t0);
+  data.newton_iterations_used = 1;
+  data.newton_residual = 0;
+
+  // 3. Newton iterations on the nonlinear implicit Euler equations (optional).
+  if (model.step.newton_iterations > 1) {
+    t0 = Clock::now();
+    data.K_i_values = data.fem.K_values;
+    fem::symmetric_multiply(fem, fem.mass_values, in.v, data.Mvi);
+    // Reference: ||R(0)|| = ||M v_i + h (P + f(x_i))|| (f(x_i) is still in data.fem).
+    data.v_iter.setZero();
+    newton_residual(model, data, h, data.Mvi, data.v_iter, data.rhs);
+    const double r0 = data.rhs.norm();
+    data.timings.other += seconds_since(t0);
+    double r = 0;
+    for (int it = 1;; ++it) {
+      t0 = Clock::now();
+      data.x_iter = in.x + h * out.v;
+      if (!fem::evaluate(fem, data.x_iter, {false, true, true}, data.fem)) return inverted(model, data, step_index);
+      newton_residual(model, data, h, data.Mvi, out.v, data.rhs);
+      r = data.rhs.norm();
+      data.timings.assembly += seconds_since(t0);
+      if (!(std::isfinite(r))) break;
+      if (r <= model.step.newton_tolerance * r0 || it >= model.step.newton_iterations) {
+        data.newton_iterations_used = it;
+        break;
+      }
+      t0 = Clock::now();
+      assemble_system_matrix(model, h, data.K_i_values, data.fem.K_values, data);
+      data.timings.assembly += seconds_since(t0);
+      t0 = Clock::now();
+      status = factorize(model, data, step_index);
+      data.timings.factorization += seconds_since(t0);
+      if (!status.ok()) return status;
+      t0 = Clock::now();
+      data.solver->solve(data.rhs, data.dv);
+      out.v += data.dv;
+      project(model, out.v);
+      data.timings.solve += seconds_since(t0);
+    }
+    data.newton_residual = r0 > 0 ? r / r0 : 0;
+  }
+
+  t0 = Clock::now();
+  out.x = in.x + h * out.v;
+  out.t = in.t + h;
+  status = check_state(model, out, step_index);
+  data.timings.other += seconds_since(t0);
+  if (status.ok() && model.step.newton_iterations > 1 && data.newton_residual > model.step.newton_tolerance) {
+    status.code = StepStatus::Code::not_converged;
+    status.step = step_index;
+    status.iterations = data.newton_iterations_used;
+    status.residual = data.newton_residual;
+  }
+  return status;
+}
+
+}  // namespace integrator
+}  // namespace softdiff

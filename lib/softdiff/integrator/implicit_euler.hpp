@@ -1,0 +1,33 @@
+#pragma once
+// Implicit Euler with Rayleigh damping (method.md, "The step").
+//
+// newton_iterations == 1 is the paper's linearized step:
+//     A  = M + h D + h^2 K(x_i),   D = alpha M + beta K(x_i)
+//     b  = h (P + f_int(x_i) - D v_i) - h^2 K(x_i) v_i
+//     A dv = b,  v_f = v_i + dv,  x_f = x_i + h v_f
+// newton_iterations > 1 solves the nonlinear implicit Euler equations
+//     R(v) = M (v - v_i) - h (P + f_int(x_i + h v)) + h D v = 0,  D = alpha M + beta K(x_i)
+// by Newton's method started at v = 0 (x = x_i), whose first iterate is exactly the
+// linearized step; it stops when ||R|| <= newton_tolerance * ||R(0)|| or after
+// newton_iterations solves. The damping matrix is frozen at x_i (linear Rayleigh
+// damping of the step), so the residual is a function of v alone.
+// Fixed dofs are projected (method.md): A <- Pi A Pi + (I - Pi), b <- Pi b.
+#include <softdiff/data.hpp>
+#include <softdiff/model.hpp>
+
+namespace softdiff::integrator {
+
+// One time step from `in` to `out` (out may not alias in). `step_index` (1-based)
+// is recorded in the status. Fills data's record (F, K, factor, timings).
+StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, State& out, long step_index);
+
+// Assembles data.A = (1 + h alpha) M + h beta K_damping + h^2 K, projected, per body.
+void assemble_system_matrix(const Model& model, double h, const VecX& K_damping, const VecX& K, Data& data);
+
+// Symbolic analysis on first use, then numeric factorization of data.A.
+StepStatus factorize(const Model& model, Data& data, long step_index);
+
+// Post-step checks: finite values, inverted elements, divergence.
+StepStatus check_state(const Model& model, const State& state, long step_index);
+
+}  // namespace softdiff::integrator

@@ -1,0 +1,202 @@
+#include <softdiff/integrator/linear_solver.hpp>
+
+#include <softdiff/core/assert.hpp>
+
+#include <Eigen/IterativeLinearSolvers>
+#include <Eigen/SparseCholesky>
+#include <cholmod.h>
+#include <string>
+
+namespace softdiff::integrator {
+
+bool LinearSolver::solve(const MatX& B, MatX& X) {
+  X.resize(B.rows(), B.cols());
+  VecX b, x;
+  bool ok = true;
+  for (int k = 0; k < B.cols(); ++k) {
+    b = B.col(k);
+    ok = solve(b, x) && ok;
+    X.col(k) = x;
+  }
+  return ok;
+}
+
+namespace {
+
+// CHOLMOD supernodal Cholesky. The cholmod_sparse header points at the caller's
+// arrays (no copy). Workspaces of cholmod_solve2 are kept between solves so that
+// repeated solves do not allocate.
+class CholmodSolver final : public LinearSolver {
+ public:
+  CholmodSolver() {
+    cholmod_start(&common_);
+    common_.supernodal = CHOLMOD_SUPERNODAL;
+    common_.final_ll = 1;      // keep L L^T (no conversion to LDL^T)
+    common_.quick_return_if_not_posdef = 1;
+    common_.print = 0;
+    common_.error_handler = nullptr;
+  }
+  ~CholmodSolver() override {
+    if (factor_) cholmod_free_factor(&factor_, &common_);
+    if (X_) cholmod_free_dense(&X_, &common_);
+    if (Y_) cholmod_free_dense(&Y_, &common_);
+    if (E_) cholmod_free_dense(&E_, &common_);
+    cholmod_finish(&common_);
+  }
+  std::string name() const override { return "cholmod"; }
+
+  void analyze(const SparseMatrix& A) override {
+    cholmod_sparse view = wrap(A);
+    if (factor_) cholmod_free_factor(&factor_, &common_);
+    factor_ = cholmod_analyze(&view, &common_);
+    SOFTDIFF_DEMAND(factor_ != nullptr, "cholmod_analyze failed (status " + std::to_string(common_.status) + ")");
+  }
+
+  FactorStatus factorize(const SparseMatrix& A) override {
+    SOFTDIFF_DEMAND(factor_ != nullptr, "factorize() before analyze()");
+    cholmod_sparse view = wrap(A);
+    cholmod_factorize(&view, factor_, &common_);
+    FactorStatus status;
+    if (common_.status == CHOLMOD_NOT_POSDEF) {
+      status.ok = false;
+      // factor_->minor is the column (in the permuted order) where it failed.
+      const long minor = static_cast<long>(factor_->minor);
+      if (factor_->Perm && minor < static_cast<long>(factor_->n))
+        status.column = static_cast<const int*>(factor_->Perm)[minor];
+      status.message = "matrix is not positive definite";
+    } else if (common_.status < CHOLMOD_OK) {
+      status.ok = false;
+      status.message = "CHOLMOD factorization failed (status " + std::to_string(common_.status) + ")";
+    }
+    factored_ = status.ok;
+    return status;
+  }
+
+  bool solve(const VecX& b, VecX& x) override {
+    SOFTDIFF_DEMAND(factored_, "solve() without a valid factorization");
+    cholmod_dense B;
+    B.nrow = b.size();
+    B.ncol = 1;
+    B.nzmax = b.size();
+    B.d = b.size();
+    B.x = const_cast<double*>(b.data());
+    B.z = nullptr;
+    B.xtype = CHOLMOD_REAL;
+    B.dtype = CHOLMOD_DOUBLE;
+    const int ok = cholmod_solve2(CHOLMOD_A, factor_, &B, nullptr, &X_, nullptr, &Y_, &E_, &common_);
+    SOFTDIFF_DEMAND(ok, "cholmod_solve2 failed (status " + std::to_string(common_.status) + ")");
+    x = Eigen::Map<const VecX>(static_cast<const double*>(X_->x), b.size());
+    return true;
+  }
+
+  double factor_nonzeros() const override { return common_.lnz; }
+
+ private:
+  static cholmod_sparse wrap(const SparseMatrix& A) {
+    SOFTDIFF_DEMAND(A.isCompressed(), "matrix must be compressed");
+    cholmod_sparse s{};
+    s.nrow = A.rows();
+    s.ncol = A.cols();
+    s.nzmax = A.nonZeros();
+    s.p = const_cast<int*>(A.outerIndexPtr());
+    s.i = const_cast<int*>(A.innerIndexPtr());
+    s.nz = nullptr;
+    s.x = const_cast<double*>(A.valuePtr());
+    s.z = nullptr;
+    s.stype = 1;  // upper triangle stored
+    s.itype = CHOLMOD_INT;
+    s.xtype = CHOLMOD_REAL;
+    s.dtype = CHOLMOD_DOUBLE;
+    s.sorted = 1;
+    s.packed = 1;
+    return s;
+  }
+
+  cholmod_common common_{};
+  cholmod_factor* factor_ = nullptr;
+  cholmod_dense* X_ = nullptr;
+  cholmod_dense* Y_ = nullptr;
+  cholmod_dense* E_ = nullptr;
+  bool factored_ = false;
+};
+
+// Eigen's simplicial LDL^T (no BLAS): a dependable reference, slower on large meshes.
+class LdltSolver final : public LinearSolver {
+ public:
+  std::string name() const override { return "ldlt"; }
+  void analyze(const SparseMatrix& A) override { ldlt_.analyzePattern(A); }
+  FactorStatus factorize(const SparseMatrix& A) override {
+    ldlt_.factorize(A);
+    FactorStatus status;
+    if (ldlt_.info() != Eigen::Success) {
+      status.ok = false;
+      status.message = "LDL^T factorization failed (zero pivot)";
+      return status;
+    }
+    const auto& D = ldlt_.vectorD();
+    Eigen::Index k;
+    if (!(D.minCoeff(&k) > 0)) {
+      status.ok = false;
+      status.column = static_cast<int>(ldlt_.permutationPinv().indices()[k]);
+      status.message = "matrix is not positive definite";
+    }
+    return status;
+  }
+  bool solve(const VecX& b, VecX& x) override {
+    x = ldlt_.solve(b);
+    return true;
+  }
+
+ private:
+  Eigen::SimplicialLDLT<SparseMatrix, Eigen::Upper> ldlt_;
+};
+
+// Conjugate gradients with a Jacobi preconditioner: no factorization, memory linear
+// in the matrix size; accuracy set by the tolerance (relative residual).
+class CgSolver final : public LinearSolver {
+ public:
+  explicit CgSolver(const SolverOptions& o) {
+    cg_.setTolerance(o.cg_tolerance);
+    cg_.setMaxIterations(o.cg_max_iterations);
+  }
+  std::string name() const override { return "cg"; }
+  void analyze(const SparseMatrix& A) override { cg_.analyzePattern(A); }
+  FactorStatus factorize(const SparseMatrix& A) override {
+    cg_.factorize(A);
+    FactorStatus status;
+    for (int k = 0; k < A.cols(); ++k)
+      if (!(A.coeff(k, k) > 0)) {
+        status.ok = false;
+        status.column = k;
+        status.message = "matrix has a non-positive diagonal entry (not positive definite)";
+        break;
+      }
+    return status;
+  }
+  bool solve(const VecX& b, VecX& x) override {
+    x = cg_.solveWithGuess(b, VecX::Zero(b.size()));
+    return cg_.info() == Eigen::Success;
+  }
+
+ private:
+  Eigen::ConjugateGradient<SparseMatrix, Eigen::Upper> cg_;
+};
+
+}  // namespace
+
+std::unique_ptr<LinearSolver> make_linear_solver(const SolverOptions& options) {
+  switch (options.kind) {
+    case SolverKind::cholmod: return std::make_unique<CholmodSolver>();
+    case SolverKind::ldlt: return std::make_unique<LdltSolver>();
+    case SolverKind::cg: return std::make_unique<CgSolver>(options);
+  }
+  return nullptr;
+}
+
+std::string suitesparse_version() {
+  return std::to_string(SUITESPARSE_MAIN_VERSION) + "." + std::to_string(SUITESPARSE_SUB_VERSION) + "." +
+         std::to_string(SUITESPARSE_SUBSUB_VERSION) + " (CHOLMOD " + std::to_string(CHOLMOD_MAIN_VERSION) + "." +
+         std::to_string(CHOLMOD_SUB_VERSION) + "." + std::to_string(CHOLMOD_SUBSUB_VERSION) + ")";
+}
+
+}  // namespace softdiff::integrator

@@ -1,0 +1,126 @@
+#include <softdiff/integrator/static_solver.hpp>
+
+#include <softdiff/integrator/implicit_euler.hpp>
+
+#include <chrono>
+#include <cmath>
+
+namespace softdiff::integrator {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+void project(const Model& model, VecX& b) {
+  for (int k = 0; k < b.size(); ++k)
+    if (model.fem.fixed[k]) b[k] = 0;
+}
+
+}  // namespace
+
+StepStatus solve_static(const Model& model, Data& data, const State& in, State& out,
+                        const LoadStepCallback& on_load_step) {
+  const auto& fem = model.fem;
+  const auto& settings = model.step;
+  const int L = std::max(1, settings.static_load_steps);
+  out = in;
+  out.v.setZero();
+  data.timings = {};
+  VecX& residual = data.rhs;
+  VecX& dx = data.dv;
+  VecX& trial = data.x_iter;
+  VecX load_full = fem.gravity_force;
+  project(model, load_full);
+  const double load_norm = load_full.norm();
+  StepStatus status;
+  int total_iterations = 0;
+
+  for (long s = 1; s <= L; ++s) {
+    const double factor = static_cast<double>(s) / L;
+    const double reference = factor * load_norm > 0 ? factor * load_norm : 1.0;
+    double rel = 0;
+    int it = 0;
+    for (;; ++it) {
+      auto t0 = Clock::now();
+      if (!fem::evaluate(fem, out.x, {true, true, true}, data.fem)) {
+        status.code = StepStatus::Code::inverted_element;
+        status.step = s;
+        status.element = data.fem.bad_element;
+        status.value = data.fem.bad_det;
+        return status;
+      }
+      residual = data.fem.f_int + factor * fem.gravity_force;
+      project(model, residual);
+      rel = residual.norm() / reference;
+      data.timings.assembly += seconds_since(t0);
+      if (!std::isfinite(rel)) {
+        status.code = StepStatus::Code::non_finite;
+        status.step = s;
+        return status;
+      }
+      if (rel <= settings.static_tolerance) break;
+      if (it >= settings.static_max_iterations) {
+        status.code = StepStatus::Code::not_converged;
+        status.step = s;
+        status.iterations = it;
+        status.residual = rel;
+        status.detail = "static equilibrium not reached (increase static.max_iterations or static.load_steps)";
+        return status;
+      }
+      // K dx = f + P (K = d^2E/dx^2, projected). M and damping play no part.
+      t0 = Clock::now();
+      double* A = data.A.valuePtr();
+      for (long k = 0; k < data.A.nonZeros(); ++k) A[k] = data.fem.K_values[k];
+      for (int k : fem.pattern.fixed_offdiagonal) A[k] = 0;
+      for (int k : fem.pattern.fixed_diagonal) A[k] = 1;
+      data.timings.assembly += seconds_since(t0);
+      t0 = Clock::now();
+      status = factorize(model, data, s);
+      data.timings.factorization += seconds_since(t0);
+      if (!status.ok()) return status;
+      t0 = Clock::now();
+      data.solver->solve(residual, dx);
+      project(model, dx);
+      data.timings.solve += seconds_since(t0);
+
+      // Backtracking (Armijo) on Pi(x) = E(x) - factor P.x along dx, a descent
+      // direction when K is positive definite: dPi/dalpha = -(f + P).dx < 0.
+      t0 = Clock::now();
+      const double pi0 = data.fem.energy - factor * fem.gravity_force.dot(out.x);
+      const double slope = -residual.dot(dx);
+      double alpha = 1;
+      bool accepted = false;
+      for (int ls = 0; ls < 40; ++ls, alpha *= 0.5) {
+        trial = out.x + alpha * dx;
+        if (!fem::evaluate(fem, trial, {true, false, false}, data.fem)) continue;  // inverted: shorter step
+        const double pi = data.fem.energy - factor * fem.gravity_force.dot(trial);
+        if (pi <= pi0 + 1e-4 * alpha * slope || std::abs(pi - pi0) <= 1e-14 * std::abs(pi0)) {
+          accepted = true;
+          break;
+        }
+      }
+      data.timings.other += seconds_since(t0);
+      if (!accepted) {
+        status.code = StepStatus::Code::not_converged;
+        status.step = s;
+        status.iterations = it;
+        status.residual = rel;
+        status.detail = "line search found no decrease of the potential energy";
+        return status;
+      }
+      out.x = trial;
+      ++total_iterations;
+    }
+    out.t = factor;
+    status = check_state(model, out, s);
+    if (!status.ok()) return status;
+    status.iterations = total_iterations;
+    status.residual = rel;
+    data.newton_iterations_used = total_iterations;
+    data.newton_residual = rel;
+    if (on_load_step) on_load_step(s, out);
+  }
+  return status;
+}
+
+}  // namespace softdiff::integrator

@@ -1,0 +1,21 @@
+#pragma once
+// Static equilibrium (`integrator: static`): f_int(x) + P = 0 (method.md; actuation
+// joins later), with fixed dofs projected. Newton's method with a backtracking line
+// search on the total potential energy Pi(x) = E(x) - P.x, and load steps: the
+// external load is ramped as s / load_steps, s = 1..load_steps, each solved to
+// ||Pi (f_int + s P / L)|| <= tolerance * ||Pi P|| (relative residual force norm).
+#include <softdiff/data.hpp>
+#include <softdiff/model.hpp>
+
+#include <functional>
+
+namespace softdiff::integrator {
+
+// Called after each converged load step with the load factor s / L and the state
+// (v = 0, t = load factor).
+using LoadStepCallback = std::function<void(long load_step, const State& state)>;
+
+StepStatus solve_static(const Model& model, Data& data, const State& in, State& out,
+                        const LoadStepCallback& on_load_step = {});
+
+}  // namespace softdiff::integrator

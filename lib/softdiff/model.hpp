@@ -1,0 +1,46 @@
+#pragma once
+// Model / State: the aggregate of every stage's constant part, and the state of a
+// frame. See data.hpp for the per-step workspace and record.
+#include <softdiff/core/types.hpp>
+#include <softdiff/fem/fem_model.hpp>
+#include <softdiff/integrator/linear_solver.hpp>
+
+#include <string>
+
+namespace softdiff {
+
+enum class IntegratorKind { implicit_euler, static_equilibrium };
+
+struct StepSettings {
+  IntegratorKind integrator = IntegratorKind::implicit_euler;
+  double dt = 0.01;                 // h
+  long steps = 0;                   // number of steps (implicit_euler)
+  Vec3 gravity{0, 0, -9.81};
+  int newton_iterations = 1;        // 1: the paper's linearized step; > 1: at most this many Newton solves
+  double newton_tolerance = 1e-10;  // relative residual of the implicit Euler equations (newton_iterations > 1)
+  int static_max_iterations = 50;   // Newton iterations per load step
+  double static_tolerance = 1e-10;  // relative residual force norm
+  int static_load_steps = 1;
+  double divergence_factor = 100;   // a node further than this many body diagonals from rest: diverged
+};
+
+// Exactly what a frame of the output holds; enough to restart.
+struct State {
+  double t = 0;
+  VecX x;  // (3n) positions, node-major
+  VecX v;  // (3n) velocities
+};
+
+struct Model {
+  std::string name;
+  fem::FemModel fem;
+  StepSettings step;
+  integrator::SolverOptions solver;
+  State initial;  // x = rest positions, v = initial velocities (0 on fixed dofs)
+
+  // True when the system matrix A does not depend on the state (then it is
+  // factorized once per run). Not the case for any nonlinear law.
+  bool constant_system_matrix() const { return false; }
+};
+
+}  // namespace softdiff
