@@ -37,7 +37,6 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
 
   for (long s = 1; s <= L; ++s) {
     const double factor = static_cast<double>(s) / L;
-    const double reference = factor * load_norm > 0 ? factor * load_norm : 1.0;
     double rel = 0;
     int it = 0;
     for (;; ++it) {
@@ -49,9 +48,12 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
         status.value = data.fem.bad_det;
         return status;
       }
+      // Scale of the residual: the applied load, or the internal forces including
+      // the reactions at fixed dofs (displacement-driven problems have no load).
+      const double reference = std::max(factor * load_norm, data.fem.f_int.norm());
       residual = data.fem.f_int + factor * fem.gravity_force;
       project(model, residual);
-      rel = residual.norm() / reference;
+      rel = reference > 0 ? residual.norm() / reference : 0.0;
       data.timings.assembly += seconds_since(t0);
       if (!std::isfinite(rel)) {
         status.code = StepStatus::Code::non_finite;

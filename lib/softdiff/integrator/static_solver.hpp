@@ -3,7 +3,9 @@
 // joins later), with fixed dofs projected. Newton's method with a backtracking line
 // search on the total potential energy Pi(x) = E(x) - P.x, and load steps: the
 // external load is ramped as s / load_steps, s = 1..load_steps, each solved to
-// ||Pi (f_int + s P / L)|| <= tolerance * ||Pi P|| (relative residual force norm).
+// ||Pi (f_int + s P / L)|| <= tolerance * max(||Pi s P / L||, ||f_int||) (relative
+// residual force norm; ||f_int|| includes the reactions at fixed dofs, the force scale
+// of displacement-driven problems).
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
 

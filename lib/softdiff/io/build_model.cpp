@@ -4,6 +4,7 @@
 #include <softdiff/io/gmsh_msh.hpp>
 
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 #include <sstream>
@@ -136,6 +137,13 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
     b.mass_kind = bd.mass == MassKind::consistent ? fem::MassKind::consistent : fem::MassKind::lumped;
     std::vector<unsigned char> fixed_local(3 * b.mesh.num_nodes(), 0);
     resolve_fixed(bd, b.mesh, fixed_local);
+    if (sim.integrator == Integrator::static_equilibrium &&
+        std::find(fixed_local.begin(), fixed_local.end(), 1) == fixed_local.end()) {
+      Where w = bd.where;
+      w.path += ".fixed";
+      fail(w, "a static scene needs fixed nodes on every body: body '" + bd.name +
+                  "' is free, so it has no equilibrium under load");
+    }
     fixed.insert(fixed.end(), fixed_local.begin(), fixed_local.end());
     initial_velocity.push_back(bd.initial_velocity);
     bodies.push_back(std::move(b));

@@ -1,0 +1,185 @@
+// The command line: exit codes (0 ok, 1 computation failed, 2 bad input), messages
+// that name the file and place, and no output file left behind on bad input.
+#include <support/cli.hpp>
+
+#include <gtest/gtest.h>
+#include <hdf5.h>
+
+#include <filesystem>
+
+using namespace softdiff::test;
+namespace fs = std::filesystem;
+
+namespace {
+
+const fs::path kRoot = SOFTDIFF_SOURCE_DIR;
+const fs::path kWork = fs::path(SOFTDIFF_TEST_DATA_DIR) / "cli";
+
+fs::path fresh_dir(const std::string& name) {
+  const fs::path d = kWork / name;
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d;
+}
+
+// A small valid scene around the shipped beam mesh, with `extra` appended to the body.
+std::string beam_scene(const std::string& material_extra = "", const std::string& top_extra = "") {
+  return "softdiff: 1\n"
+         "simulation:\n"
+         "  dt: 0.01\n"
+         "  steps: 3\n" +
+         top_extra +
+         "bodies:\n"
+         "  - name: beam\n"
+         "    mesh: " +
+         (kRoot / "meshes/beam.msh").string() +
+         "\n"
+         "    material: {law: corotational, young: 1.0e6, poisson: 0.45, density: 1070" +
+         material_extra +
+         "}\n"
+         "    fixed:\n"
+         "      - group: clamp\n";
+}
+
+std::string status_attribute(const fs::path& file) {
+  H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
+  const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (f < 0) return "<cannot open>";
+  const hid_t a = H5Aopen(f, "status", H5P_DEFAULT);
+  std::string value = "<no status>";
+  if (a >= 0) {
+    const hid_t type = H5Aget_type(a);
+    if (H5Tis_variable_str(type) > 0) {
+      char* s = nullptr;
+      const hid_t mem = H5Tcopy(H5T_C_S1);
+      H5Tset_size(mem, H5T_VARIABLE);
+      if (H5Aread(a, mem, &s) >= 0 && s) value = s;
+      H5free_memory(s);
+      H5Tclose(mem);
+    } else {
+      std::string buf(H5Tget_size(type), '\0');
+      const hid_t mem = H5Tcopy(type);
+      if (H5Aread(a, mem, buf.data()) >= 0) value = buf.c_str();
+      H5Tclose(mem);
+    }
+    H5Tclose(type);
+    H5Aclose(a);
+  }
+  H5Fclose(f);
+  return value;
+}
+
+TEST(Cli, SimulateWritesCompleteFileAndXdmf) {
+  const auto dir = fresh_dir("ok");
+  write_text(dir / "scene.yaml", beam_scene());
+  const auto r = run_cli("simulate scene.yaml -o out.h5 --json", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_TRUE(fs::exists(dir / "out.h5"));
+  EXPECT_TRUE(fs::exists(dir / "out.xmf"));
+  EXPECT_FALSE(fs::exists(dir / "out.h5.partial"));
+  EXPECT_EQ(status_attribute(dir / "out.h5"), "complete");
+  EXPECT_NE(r.out.find("\"status\":\"complete\""), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("\"steps\":3"), std::string::npos) << r.out;
+  EXPECT_NE(r.err.find("ms/step"), std::string::npos) << r.err;  // closing summary
+}
+
+TEST(Cli, ExistingOutputNeedsForce) {
+  const auto dir = fresh_dir("force");
+  write_text(dir / "scene.yaml", beam_scene());
+  write_text(dir / "out.h5", "precious");
+  auto r = run_cli("simulate scene.yaml -o out.h5", dir);
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.err.find("out.h5"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("--force"), std::string::npos) << r.err;
+  EXPECT_EQ(read_text(dir / "out.h5"), "precious");
+  r = run_cli("simulate scene.yaml -o out.h5 --force --quiet", dir);
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(status_attribute(dir / "out.h5"), "complete");
+}
+
+struct BadInput {
+  std::string name;
+  std::string scene;        // scene text written to scene.yaml ("" = none)
+  std::string args;         // command line after the executable
+  std::string expect;       // substring of stderr
+};
+
+class CliBadInput : public ::testing::TestWithParam<BadInput> {};
+
+TEST_P(CliBadInput, ExitsTwoWithMessageAndNoOutput) {
+  const auto& p = GetParam();
+  const auto dir = fresh_dir("bad_" + p.name);
+  if (!p.scene.empty()) write_text(dir / "scene.yaml", p.scene);
+  write_text(dir / "broken.msh", "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Nodes\n1 2 1 2\n");
+  const auto r = run_cli(p.args, dir);
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_NE(r.err.find(p.expect), std::string::npos) << "stderr: " << r.err;
+  for (const auto& entry : fs::directory_iterator(dir)) {
+    const auto ext = entry.path().extension();
+    EXPECT_TRUE(ext != ".h5" && ext != ".xmf" && ext != ".partial") << "left behind: " << entry.path();
+  }
+}
+
+std::string replace(std::string s, const std::string& from, const std::string& to) {
+  s.replace(s.find(from), from.size(), to);
+  return s;
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    Cases, CliBadInput,
+    ::testing::Values(
+        BadInput{"unknown_key", replace(beam_scene(), "  dt: 0.01", "  dtt: 0.01"), "simulate scene.yaml -o o.h5",
+                 "scene.yaml:3:3"},
+        BadInput{"poisson", replace(beam_scene(), "poisson: 0.45", "poisson: 0.5"), "simulate scene.yaml -o o.h5",
+                 "poisson"},
+        BadInput{"missing_mesh", replace(beam_scene(), "meshes/beam.msh", "meshes/nothere.msh"),
+                 "simulate scene.yaml -o o.h5", "nothere.msh"},
+        BadInput{"broken_mesh",
+                 replace(beam_scene(), (kRoot / "meshes/beam.msh").string(), "broken.msh"),
+                 "simulate scene.yaml -o o.h5", "broken.msh"},
+        BadInput{"missing_group", replace(beam_scene(), "group: clamp", "group: clampp"),
+                 "simulate scene.yaml -o o.h5", "clampp"},
+        BadInput{"set_unknown", beam_scene(), "simulate scene.yaml -o o.h5 --set bodies.beam.material.yung=3",
+                 "yung"},
+        BadInput{"set_no_body", beam_scene(), "simulate scene.yaml -o o.h5 --set bodies.bam.material.young=3",
+                 "bam"},
+        BadInput{"jacobian", beam_scene(), "simulate scene.yaml -o o.h5 --jacobian young", "--jacobian"},
+        BadInput{"no_scene", "", "simulate nothere.yaml -o o.h5", "nothere.yaml"},
+        BadInput{"unknown_option", beam_scene(), "simulate scene.yaml -o o.h5 --frobnicate", "frobnicate"},
+        BadInput{"steps_and_duration", beam_scene(), "simulate scene.yaml -o o.h5 --steps 3 --duration 1",
+                 "duration"},
+        BadInput{"no_output_folder", beam_scene(), "simulate scene.yaml -o nofolder/o.h5", "nofolder"},
+        BadInput{"info_broken_mesh", "", "info broken.msh", "broken.msh"},
+        BadInput{"info_unknown_type", "x", "info scene.yaml.txt", "scene.yaml.txt"}),
+    [](const auto& info) { return info.param.name; });
+
+TEST(Cli, DivergenceExitsOneAndKeepsCompletedFrames) {
+  const auto dir = fresh_dir("diverge");
+  // A very soft beam with a huge step: elements invert within a few steps.
+  write_text(dir / "scene.yaml", replace(replace(beam_scene(), "young: 1.0e6", "young: 1.0"), "dt: 0.01", "dt: 0.5"));
+  const auto r = run_cli("simulate scene.yaml -o out.h5", dir);
+  EXPECT_EQ(r.code, 1) << r.err;
+  EXPECT_NE(r.err.find("step"), std::string::npos) << r.err;
+  ASSERT_TRUE(fs::exists(dir / "out.h5"));
+  EXPECT_EQ(status_attribute(dir / "out.h5").rfind("diverged: ", 0), 0u) << status_attribute(dir / "out.h5");
+}
+
+TEST(Cli, InfoDescribesMeshAndScene) {
+  const auto dir = fresh_dir("info");
+  auto r = run_cli("info " + (kRoot / "meshes/beam.msh").string(), dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("3840"), std::string::npos) << r.out;  // tets
+  EXPECT_NE(r.out.find("clamp"), std::string::npos) << r.out;
+  r = run_cli("info " + (kRoot / "configs/beam_cantilever.yaml").string() + " --json", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("\"valid\":true"), std::string::npos) << r.out;
+}
+
+TEST(Cli, VersionListsLibraries) {
+  const auto r = run_cli("--version", fresh_dir("version"));
+  EXPECT_EQ(r.code, 0);
+  for (const char* lib : {"softdiff", "Eigen", "SuiteSparse", "FCL", "HDF5", "NLopt"})
+    EXPECT_NE(r.out.find(lib), std::string::npos) << lib << " missing in: " << r.out;
+}
+
+}  // namespace
