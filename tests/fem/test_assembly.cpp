@@ -7,6 +7,7 @@
 #include <support/meshes.hpp>
 #include <support/model_builder.hpp>
 
+#include <Eigen/Eigenvalues>
 #include <gtest/gtest.h>
 #include <omp.h>
 #include <random>

@@ -2,6 +2,10 @@
 // Programmatic test meshes (no file I/O): boxes split into tetrahedra.
 #include <softdiff/mesh/tet_mesh.hpp>
 
+#include <Eigen/LU>
+#include <array>
+#include <vector>
+
 namespace softdiff::test {
 
 // An nx x ny x nz grid of boxes of size (lx, ly, lz) from the origin, each box split
