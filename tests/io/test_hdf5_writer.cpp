@@ -668,37 +668,67 @@ TEST(Hdf5Writer, AKilledRunLeavesEveryFlushedFrameReadable) {
 }
 
 TEST(Hdf5Writer, AFailedWriteIsAComputationErrorAndKeepsFramesConsistent) {
-  // The child may only grow files to 200 kB: a "disk full" (EFBIG) after a few frames.
+  // The child may only grow files to 200 kB (soft limit): a "disk full" (EFBIG) after
+  // a few frames. It then lifts the limit, writes one more frame and finishes; the
+  // file must hold the frames before the failure plus that one, with one T everywhere.
   const fs::path dir = test_dir();
   const fs::path file = dir / "out.h5";
+  constexpr int kBig = 2000;  // 48 kB per frame
+  const auto frame_value = [](int k) { return 10.0 * k; };
   const int code = run_in_child([&]() -> int {
     std::signal(SIGXFSZ, SIG_IGN);
-    const rlimit limit{200 * 1024, 200 * 1024};
+    rlimit limit{};
+    if (::getrlimit(RLIMIT_FSIZE, &limit) != 0) return 10;
+    const rlim_t unlimited = limit.rlim_cur;
+    limit.rlim_cur = 200 * 1024;
     if (::setrlimit(RLIMIT_FSIZE, &limit) != 0) return 10;
     OutputBody big;
     big.name = "big";
-    big.rest = softdiff::Mat3X::Zero(3, 2000);  // 48 kB per frame
+    big.rest = softdiff::Mat3X::Zero(3, kBig);
     big.tets.resize(4, 1);
     big.tets << 0, 1, 2, 3;
     WriterOptions options = options_for(file, false);
     options.flush_every = 1;
     Hdf5Writer writer(options, {big});
-    const VecX x = VecX::Ones(3 * 2000);
-    long written = -1;
+    VecX x(3 * kBig);
+    int k = 0;
     try {
-      for (int k = 0; k < 100; ++k) writer.append_frame(k, x, nullptr, 0.0);
+      for (; k < 100; ++k) {
+        x.setConstant(frame_value(k));
+        writer.append_frame(k, x, nullptr, 0.0);
+      }
       return 11;  // no failure?
     } catch (const ComputationError& e) {
-      written = writer.frames_written();
-      std::cerr << "child: expected failure after " << written << " frames: " << e.what() << "\n";
+      std::cerr << "child: expected failure after " << writer.frames_written() << " frames: " << e.what() << "\n";
       const std::string what = e.what();
       if (what.find("out.h5.partial") == std::string::npos || what.find("frame") == std::string::npos) return 12;
       if (what.find("File too large") == std::string::npos) return 13;
     }
-    if (written < 1) return 14;
-    return 0;  // the destructor runs: finish("interrupted") must not throw or abort
+    if (writer.frames_written() != k || k < 1) return 14;
+    limit.rlim_cur = unlimited;
+    if (::setrlimit(RLIMIT_FSIZE, &limit) != 0) return 15;
+    x.setConstant(frame_value(k));
+    writer.append_frame(k, x, nullptr, 0.0);  // the writer is still usable
+    writer.finish("complete");
+    return 0;
   });
-  EXPECT_EQ(code, 0);
+  ASSERT_EQ(code, 0);
+  H5File h5(file);
+  ASSERT_GE(h5.id, 0);
+  const std::vector<hsize_t> time_shape = shape_of(h5.id, "/time");
+  ASSERT_EQ(time_shape.size(), 1u);
+  const hsize_t T = time_shape[0];
+  EXPECT_GE(T, 2u);
+  EXPECT_EQ(shape_of(h5.id, "/solver/step_seconds"), std::vector<hsize_t>({T}));
+  EXPECT_EQ(shape_of(h5.id, "/bodies/big/x"), std::vector<hsize_t>({T, kBig, 3}));
+  const auto time = read_doubles(h5.id, "/time");
+  const auto x = read_doubles(h5.id, "/bodies/big/x");
+  for (hsize_t k = 0; k < T; ++k) {
+    EXPECT_EQ(time[k], static_cast<double>(k));
+    EXPECT_EQ(x[k * 3 * kBig], frame_value(static_cast<int>(k)));
+    EXPECT_EQ(x[(k + 1) * 3 * kBig - 1], frame_value(static_cast<int>(k)));
+  }
+  EXPECT_EQ(string_attribute(h5.id, "/", "status"), "complete");
 }
 
 TEST(Hdf5Writer, SeriesMatricesAndAttributesRoundTrip) {

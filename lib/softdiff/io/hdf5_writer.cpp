@@ -133,9 +133,21 @@ constexpr std::size_t kSeriesChunkBytes = 32 * 1024;   // rows of a generic seri
 constexpr hsize_t kMaxChunkRows = 1024;
 constexpr hsize_t kMaxChunkNodes = hsize_t{1} << 22;   // 96 MiB chunks at most
 
+// Dataset access properties. `direct`: no chunk cache, so that a write covering
+// whole chunks goes from the caller's buffer to the file (with no fill value, see
+// create_appendable). Returns an invalid handle on failure.
+Handle dataset_access(bool direct) {
+  Handle access(H5Pcreate(H5P_DATASET_ACCESS), H5Pclose);
+  if (access.valid() && direct &&
+      H5Pset_chunk_cache(access.get(), H5D_CHUNK_CACHE_NSLOTS_DEFAULT, 0, H5D_CHUNK_CACHE_W0_DEFAULT) < 0)
+    access.reset();
+  return access;
+}
+
 // A float64 dataset of shape (rows, d1[, d2]) that grows by one row at a time.
 struct Appendable {
   std::string path;
+  bool direct = false;
   int rank = 1;
   std::array<hsize_t, 3> dims{0, 0, 0};  // dims[0]: rows written
   std::array<hsize_t, 3> row{1, 0, 0};   // shape of one row: (1, d1, d2)
@@ -160,12 +172,20 @@ struct Appendable {
     return true;
   }
 
-  // Shrinks the dataset back to `rows` (after a failed append); best effort.
-  void truncate(hsize_t rows) {
+  // Undoes a failed append: shrinks the dataset back to `rows` and reopens it. Best
+  // effort. The reopening matters: when a chunk write fails, HDF5 1.10 keeps the
+  // address of the chunk it had just allocated in the dataset's chunk lookup cache
+  // although the chunk never entered the chunk index; the next write of that chunk
+  // would go to that address without indexing it (the frame would read as zeros).
+  void roll_back(hid_t file, hsize_t rows) {
+    if (!dataset.valid()) return;
     std::array<hsize_t, 3> shape = dims;
     shape[0] = rows;
     H5Dset_extent(dataset.get(), shape.data());
     dims[0] = rows;
+    dataset.reset();
+    const Handle access = dataset_access(direct);
+    dataset = Handle(H5Dopen2(file, path.c_str(), access.valid() ? access.get() : H5P_DEFAULT), H5Dclose);
   }
 
   bool close() {
@@ -322,17 +342,15 @@ struct Hdf5Writer::Impl {
     out.memory_space = Handle(H5Screate_simple(out.rank, out.row.data(), nullptr), H5Sclose);
     if (!out.file_space.valid() || !out.memory_space.valid()) fail("cannot create the dataspaces of " + path);
 
+    out.direct = direct;
     Handle creation(H5Pcreate(H5P_DATASET_CREATE), H5Pclose);
-    Handle access(H5Pcreate(H5P_DATASET_ACCESS), H5Pclose);
+    const Handle access = dataset_access(direct);
     if (!creation.valid() || !access.valid() || H5Pset_chunk(creation.get(), out.rank, chunk.data()) < 0)
       fail("cannot set up the chunks of " + path);
-    if (direct) {
-      // A chunk larger than the (empty) chunk cache and no fill value to write:
-      // H5Dwrite then writes the caller's buffer to the file without a copy.
-      if (H5Pset_fill_time(creation.get(), H5D_FILL_TIME_NEVER) < 0 ||
-          H5Pset_chunk_cache(access.get(), H5D_CHUNK_CACHE_NSLOTS_DEFAULT, 0, H5D_CHUNK_CACHE_W0_DEFAULT) < 0)
-        fail("cannot set up the chunk cache of " + path);
-    }
+    // A chunk larger than the (empty) chunk cache and no fill value to write:
+    // H5Dwrite then writes the caller's buffer to the file without a copy.
+    if (direct && H5Pset_fill_time(creation.get(), H5D_FILL_TIME_NEVER) < 0)
+      fail("cannot set up the fill value of " + path);
     out.dataset = create_dataset(path, H5T_IEEE_F64LE, out.file_space.get(), creation.get(), access.get());
     return out;
   }
@@ -477,11 +495,11 @@ struct Hdf5Writer::Impl {
       const std::string reason = hdf5_reason();
       const auto rows = static_cast<hsize_t>(frames);
       for (BodyOutput& body : bodies) {
-        body.x.truncate(rows);
-        if (options.write_v) body.v.truncate(rows);
+        body.x.roll_back(file.get(), rows);
+        if (options.write_v) body.v.roll_back(file.get(), rows);
       }
-      step_seconds.truncate(rows);
-      time.truncate(rows);
+      step_seconds.roll_back(file.get(), rows);
+      time.roll_back(file.get(), rows);
       H5Eclear2(H5E_DEFAULT);
       throw ComputationError(partial_name() + ": cannot write frame " + std::to_string(frames) + " (" +
                              failed->path + "): " + reason);
@@ -519,7 +537,7 @@ struct Hdf5Writer::Impl {
     const hsize_t rows = target.dims[0];
     if (!target.append(row)) {
       const std::string reason = hdf5_reason();
-      target.truncate(rows);
+      target.roll_back(file.get(), rows);
       H5Eclear2(H5E_DEFAULT);
       throw ComputationError(partial_name() + ": cannot write row " + std::to_string(rows) + " of " + target.path +
                              ": " + reason);
