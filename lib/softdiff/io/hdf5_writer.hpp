@@ -6,6 +6,12 @@
 // Frames are appended to chunked, extendible datasets and the file is flushed
 // every `flush_every` frames, so a run that dies leaves every completed frame
 // readable. An existing final file is never overwritten unless `force`.
+//
+// Errors: HDF5 failures while writing (disk full, quota, I/O error) throw
+// ComputationError naming the file, the dataset and the system's reason; a frame
+// or row that fails is not written (every per-frame dataset keeps the same T) and
+// the writer stays usable. Misuse (wrong sizes, unknown or existing paths, calls
+// after finish) throws std::logic_error. The XDMF layout is described in xdmf.hpp.
 #include <softdiff/core/types.hpp>
 
 #include <filesystem>
@@ -59,7 +65,9 @@ class Hdf5Writer {
   void set_attribute(const std::string& object_path, const std::string& name, double value);
 
   // Writes the `status` attribute, closes, renames to the final name and writes
-  // the XDMF file (<file without .h5>.xmf). Idempotent.
+  // the XDMF file (<file without .h5>.xmf). Idempotent. Throws ComputationError if
+  // the file cannot be closed or renamed (its frames stay in <file>.partial), and
+  // InputError if, without force, a file of the final name appeared meanwhile.
   void finish(const std::string& status);
 
   long frames_written() const;

@@ -1,0 +1,671 @@
+// Streaming HDF5 output: see hdf5_writer.hpp and the format spec (output.md).
+//
+// Design notes
+// - File format: HDF5's default (earliest) library-version bounds. Files are readable
+//   by any HDF5 >= 1.8 (h5py, h5dump, ParaView), and a file left open by a killed
+//   process carries no "file is open for writing" superblock flag (the 1.10 format
+//   would), so readers open it without h5clear.
+// - Frames: every per-frame dataset is chunked with an unlimited first dimension.
+//   A frame of x/v that is at least 64 KiB is one chunk, written straight from the
+//   caller's buffer (no chunk cache, no fill value: HDF5 then copies nothing).
+//   Smaller frames are grouped several per chunk through the chunk cache.
+// - Consistency: append_frame extends and writes every per-frame dataset; if any
+//   write fails, all of them are shrunk back, so /time and every x always hold the
+//   same T. The file is flushed every flush_every frames (and at finish), so a run
+//   killed between flushes leaves a file readable up to the last flush.
+// - Safety: the file is written as <file>.partial (created exclusively unless
+//   force) and renamed at finish; without force the rename never replaces a file.
+#include <softdiff/io/hdf5_writer.hpp>
+
+#include <softdiff/core/assert.hpp>
+#include <softdiff/core/error.hpp>
+#include <softdiff/io/xdmf.hpp>
+#include <softdiff/version.hpp>
+
+#include <hdf5.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <array>
+#include <cerrno>
+#include <ctime>
+#include <system_error>
+#include <utility>
+
+namespace softdiff::io {
+
+namespace {
+
+namespace fs = std::filesystem;
+
+// ---------------------------------------------------------------------------
+// HDF5 identifiers and errors
+
+// Owns one HDF5 identifier and closes it with the matching H5?close.
+class Handle {
+ public:
+  using Closer = herr_t (*)(hid_t);
+  Handle() = default;
+  Handle(hid_t id, Closer closer) : id_(id), closer_(closer) {}
+  Handle(Handle&& other) noexcept : id_(std::exchange(other.id_, -1)), closer_(other.closer_) {}
+  Handle& operator=(Handle&& other) noexcept {
+    if (this != &other) {
+      reset();
+      id_ = std::exchange(other.id_, -1);
+      closer_ = other.closer_;
+    }
+    return *this;
+  }
+  Handle(const Handle&) = delete;
+  Handle& operator=(const Handle&) = delete;
+  ~Handle() { reset(); }
+
+  hid_t get() const { return id_; }
+  bool valid() const { return id_ >= 0; }
+  // Closes now; false if HDF5 reported an error while closing.
+  bool reset() {
+    bool ok = true;
+    if (id_ >= 0 && closer_ != nullptr) ok = closer_(id_) >= 0;
+    id_ = -1;
+    return ok;
+  }
+
+ private:
+  hid_t id_ = -1;
+  Closer closer_ = nullptr;
+};
+
+struct ErrorWalk {
+  std::string innermost;
+};
+
+herr_t collect_error(unsigned /*n*/, const H5E_error2_t* error, void* data) {
+  auto* walk = static_cast<ErrorWalk*>(data);
+  if (error != nullptr && error->desc != nullptr && error->desc[0] != '\0') walk->innermost = error->desc;
+  return 0;
+}
+
+// The reason for the HDF5 failure that just happened, from the innermost entry of
+// HDF5's error stack (which is then cleared). An I/O failure carries errno's text:
+// "file write failed: time = ..., errno = 28, error message = 'No space left on
+// device', ..." becomes "file write failed: No space left on device".
+std::string hdf5_reason() {
+  ErrorWalk walk;
+  H5Ewalk2(H5E_DEFAULT, H5E_WALK_DOWNWARD, collect_error, &walk);
+  H5Eclear2(H5E_DEFAULT);
+  std::string reason = walk.innermost;
+  const std::string marker = "error message = '";
+  if (const auto at = reason.find(marker); at != std::string::npos) {
+    const auto start = at + marker.size();
+    const auto end = reason.find('\'', start);
+    const auto head = reason.find_first_of(":,");
+    reason = reason.substr(0, head) + ": " + reason.substr(start, end == std::string::npos ? end : end - start);
+  }
+  return reason.empty() ? std::string("unknown HDF5 error") : reason;
+}
+
+void silence_hdf5_error_printing() {
+  // HDF5 prints its error stack to stderr by default; we report errors as exceptions.
+  H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
+}
+
+// ---------------------------------------------------------------------------
+// Small helpers
+
+std::string iso8601_utc_now() {
+  const std::time_t now = std::time(nullptr);
+  std::tm utc{};
+  gmtime_r(&now, &utc);
+  char text[32];
+  std::strftime(text, sizeof text, "%Y-%m-%dT%H:%M:%SZ", &utc);
+  return text;
+}
+
+// Chunk of (rows, ...) for an appendable dataset whose rows hold `row_bytes` bytes:
+// about `target_bytes` per chunk, at most `max_rows` rows.
+hsize_t rows_per_chunk(std::size_t row_bytes, std::size_t target_bytes, hsize_t max_rows) {
+  const std::size_t rows = target_bytes / std::max<std::size_t>(row_bytes, 1);
+  return std::clamp<hsize_t>(static_cast<hsize_t>(rows), 1, max_rows);
+}
+
+constexpr std::size_t kFrameChunkBytes = 64 * 1024;    // below this, frames share chunks
+constexpr std::size_t kSeriesChunkBytes = 32 * 1024;   // rows of a generic series
+constexpr hsize_t kMaxChunkRows = 1024;
+constexpr hsize_t kMaxChunkNodes = hsize_t{1} << 22;   // 96 MiB chunks at most
+
+// Dataset access properties. `direct`: no chunk cache, so that a write covering
+// whole chunks goes from the caller's buffer to the file (with no fill value, see
+// create_appendable). Returns an invalid handle on failure.
+Handle dataset_access(bool direct) {
+  Handle access(H5Pcreate(H5P_DATASET_ACCESS), H5Pclose);
+  if (access.valid() && direct &&
+      H5Pset_chunk_cache(access.get(), H5D_CHUNK_CACHE_NSLOTS_DEFAULT, 0, H5D_CHUNK_CACHE_W0_DEFAULT) < 0)
+    access.reset();
+  return access;
+}
+
+// A float64 dataset of shape (rows, d1[, d2]) that grows by one row at a time.
+struct Appendable {
+  std::string path;
+  bool direct = false;
+  int rank = 1;
+  std::array<hsize_t, 3> dims{0, 0, 0};  // dims[0]: rows written
+  std::array<hsize_t, 3> row{1, 0, 0};   // shape of one row: (1, d1, d2)
+  Handle dataset;
+  Handle file_space;  // kept and re-extended, not re-created per row
+  Handle memory_space;
+
+  // Appends one row; false on an HDF5 failure (the error stack is left for the caller).
+  bool append(const double* values) {
+    std::array<hsize_t, 3> grown = dims;
+    grown[0] += 1;
+    const std::array<hsize_t, 3> start{dims[0], 0, 0};
+    std::array<hsize_t, 3> max_dims = dims;
+    max_dims[0] = H5S_UNLIMITED;
+    if (H5Dset_extent(dataset.get(), grown.data()) < 0) return false;
+    if (H5Sset_extent_simple(file_space.get(), rank, grown.data(), max_dims.data()) < 0) return false;
+    if (H5Sselect_hyperslab(file_space.get(), H5S_SELECT_SET, start.data(), nullptr, row.data(), nullptr) < 0)
+      return false;
+    if (H5Dwrite(dataset.get(), H5T_NATIVE_DOUBLE, memory_space.get(), file_space.get(), H5P_DEFAULT, values) < 0)
+      return false;
+    dims = grown;
+    return true;
+  }
+
+  // Undoes a failed append: shrinks the dataset back to `rows` and reopens it. Best
+  // effort. The reopening matters: when a chunk write fails, HDF5 1.10 keeps the
+  // address of the chunk it had just allocated in the dataset's chunk lookup cache
+  // although the chunk never entered the chunk index; the next write of that chunk
+  // would go to that address without indexing it (the frame would read as zeros).
+  void roll_back(hid_t file, hsize_t rows) {
+    if (!dataset.valid()) return;
+    std::array<hsize_t, 3> shape = dims;
+    shape[0] = rows;
+    H5Dset_extent(dataset.get(), shape.data());
+    dims[0] = rows;
+    dataset.reset();
+    const Handle access = dataset_access(direct);
+    dataset = Handle(H5Dopen2(file, path.c_str(), access.valid() ? access.get() : H5P_DEFAULT), H5Dclose);
+  }
+
+  bool close() {
+    bool ok = memory_space.reset();
+    ok = file_space.reset() && ok;
+    return dataset.reset() && ok;
+  }
+};
+
+struct BodyOutput {
+  std::string name;
+  Eigen::Index first_node = 0;  // offset in the global node-major x
+  Eigen::Index nodes = 0;
+  Eigen::Index tets = 0;
+  Appendable x, v;
+};
+
+bool exists_as_file_system_entry(const fs::path& path) {
+  std::error_code ec;
+  return fs::exists(fs::symlink_status(path, ec));
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------
+
+struct Hdf5Writer::Impl {
+  WriterOptions options;
+  fs::path final_file, partial_file, xdmf_file;
+  std::vector<BodyOutput> bodies;
+  Eigen::Index total_nodes = 0;
+  Handle file;
+  Appendable time, step_seconds;
+  std::vector<Appendable> series;
+  std::vector<double> times;
+  long frames = 0;
+  bool finished = false;
+
+  std::string partial_name() const { return partial_file.string(); }
+
+  [[noreturn]] void fail(const std::string& what) const {
+    throw ComputationError(partial_name() + ": " + what + ": " + hdf5_reason());
+  }
+
+  // ---- creation
+
+  void check_paths() {
+    final_file = options.file;
+    if (final_file.empty()) throw InputError("output file name is empty");
+    partial_file = final_file;
+    partial_file += ".partial";
+    xdmf_file = final_file;
+    xdmf_file.replace_extension(".xmf");
+    const std::string name = final_file.string();
+    if (xdmf_file == final_file)
+      throw InputError(name + ": the output file cannot end in .xmf (the XDMF file is written beside it)");
+    if (final_file.filename().string().find_first_of(":|") != std::string::npos)
+      throw InputError(name + ": the output file name cannot contain ':' or '|' (the XDMF file beside it "
+                       "could not reference it)");
+
+    std::error_code ec;
+    if (exists_as_file_system_entry(final_file)) {
+      if (fs::is_directory(final_file, ec)) throw InputError(name + ": output file is a folder");
+      if (!options.force) throw InputError(name + ": output file exists (use --force to overwrite)");
+    }
+    if (!options.force && exists_as_file_system_entry(xdmf_file))
+      throw InputError(xdmf_file.string() + ": output file exists (use --force to overwrite)");
+
+    const fs::path folder = final_file.has_parent_path() ? final_file.parent_path() : fs::path(".");
+    const auto status = fs::status(folder, ec);
+    if (!fs::exists(status)) throw InputError(name + ": output folder " + folder.string() + " does not exist");
+    if (!fs::is_directory(status)) throw InputError(name + ": " + folder.string() + " is not a folder");
+    if (::access(folder.c_str(), W_OK | X_OK) != 0)
+      throw InputError(name + ": output folder " + folder.string() + " is not writable");
+
+    if (!options.force && exists_as_file_system_entry(partial_file))
+      throw InputError(partial_name() +
+                       ": a partial output file exists (another run writing it, or left by a killed "
+                       "run); remove it or use --force");
+  }
+
+  void check_bodies(const std::vector<OutputBody>& input) const {
+    for (std::size_t i = 0; i < input.size(); ++i) {
+      const std::string& name = input[i].name;
+      if (name.empty() || name == "." || name == ".." || name.find('/') != std::string::npos)
+        throw InputError(final_file.string() + ": body name '" + name +
+                         "' cannot name an HDF5 group (empty, '.', '..' or containing '/')");
+      for (std::size_t j = 0; j < i; ++j)
+        if (input[j].name == name) throw InputError(final_file.string() + ": two bodies are named '" + name + "'");
+      SOFTDIFF_DEMAND(input[i].rest.cols() > 0, "body '" + name + "' has no nodes");
+    }
+  }
+
+  void create_file() {
+    const bool partial_existed = exists_as_file_system_entry(partial_file);
+    Handle access(H5Pcreate(H5P_FILE_ACCESS), H5Pclose);
+    if (!access.valid() || H5Pset_fclose_degree(access.get(), H5F_CLOSE_STRONG) < 0)
+      fail("cannot set up the file access properties");
+    const unsigned mode = options.force ? H5F_ACC_TRUNC : H5F_ACC_EXCL;
+    file = Handle(H5Fcreate(partial_file.c_str(), mode, H5P_DEFAULT, access.get()), H5Fclose);
+    if (!file.valid()) {
+      const std::string reason = hdf5_reason();
+      std::error_code ec;
+      if (!partial_existed) fs::remove(partial_file, ec);
+      throw InputError(partial_name() + ": cannot create the output file: " + reason);
+    }
+  }
+
+  Handle create_group(const std::string& path) {
+    Handle group(H5Gcreate2(file.get(), path.c_str(), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), H5Gclose);
+    if (!group.valid()) fail("cannot create group " + path);
+    return group;
+  }
+
+  // Creates a dataset (any missing parent group is created) at `path`.
+  Handle create_dataset(const std::string& path, hid_t file_type, hid_t space, hid_t creation, hid_t access) {
+    Handle links(H5Pcreate(H5P_LINK_CREATE), H5Pclose);
+    if (!links.valid() || H5Pset_create_intermediate_group(links.get(), 1) < 0)
+      fail("cannot set up link creation properties");
+    Handle dataset(H5Dcreate2(file.get(), path.c_str(), file_type, space, links.get(), creation, access), H5Dclose);
+    if (!dataset.valid()) fail("cannot create dataset " + path);
+    return dataset;
+  }
+
+  // A (rows, cols) dataset written once from row-major memory of type `memory_type`.
+  void write_table(const std::string& path, hid_t file_type, hid_t memory_type, hsize_t rows, hsize_t cols,
+                   const void* data) {
+    const std::array<hsize_t, 2> shape{rows, cols};
+    Handle space(H5Screate_simple(2, shape.data(), nullptr), H5Sclose);
+    if (!space.valid()) fail("cannot create the dataspace of " + path);
+    Handle dataset = create_dataset(path, file_type, space.get(), H5P_DEFAULT, H5P_DEFAULT);
+    if (rows * cols > 0 && H5Dwrite(dataset.get(), memory_type, H5S_ALL, H5S_ALL, H5P_DEFAULT, data) < 0)
+      fail("cannot write " + path);
+    if (!dataset.reset()) fail("cannot close " + path);
+  }
+
+  // An empty (0, d1[, d2]) float64 dataset, unlimited along its first dimension.
+  // `direct`: one row per chunk, written straight from the caller's memory.
+  Appendable create_appendable(const std::string& path, std::vector<hsize_t> row_shape, hsize_t chunk_rows,
+                               hsize_t chunk_cols, bool direct) {
+    Appendable out;
+    out.path = path;
+    out.rank = 1 + static_cast<int>(row_shape.size());
+    SOFTDIFF_DEMAND(out.rank <= 3, "appendable datasets have at most 3 dimensions");
+    std::array<hsize_t, 3> max_dims{H5S_UNLIMITED, 0, 0};
+    std::array<hsize_t, 3> chunk{chunk_rows, 0, 0};
+    for (std::size_t i = 0; i < row_shape.size(); ++i) {
+      out.dims[i + 1] = max_dims[i + 1] = out.row[i + 1] = row_shape[i];
+      chunk[i + 1] = row_shape[i];
+    }
+    if (out.rank >= 2) chunk[1] = std::min(chunk[1], chunk_cols);
+
+    out.file_space = Handle(H5Screate_simple(out.rank, out.dims.data(), max_dims.data()), H5Sclose);
+    out.memory_space = Handle(H5Screate_simple(out.rank, out.row.data(), nullptr), H5Sclose);
+    if (!out.file_space.valid() || !out.memory_space.valid()) fail("cannot create the dataspaces of " + path);
+
+    out.direct = direct;
+    Handle creation(H5Pcreate(H5P_DATASET_CREATE), H5Pclose);
+    const Handle access = dataset_access(direct);
+    if (!creation.valid() || !access.valid() || H5Pset_chunk(creation.get(), out.rank, chunk.data()) < 0)
+      fail("cannot set up the chunks of " + path);
+    // A chunk larger than the (empty) chunk cache and no fill value to write:
+    // H5Dwrite then writes the caller's buffer to the file without a copy.
+    if (direct && H5Pset_fill_time(creation.get(), H5D_FILL_TIME_NEVER) < 0)
+      fail("cannot set up the fill value of " + path);
+    out.dataset = create_dataset(path, H5T_IEEE_F64LE, out.file_space.get(), creation.get(), access.get());
+    return out;
+  }
+
+  // Frames of (n, 3): one frame per chunk when a frame is large enough.
+  Appendable create_frames(const std::string& path, Eigen::Index nodes) {
+    const std::size_t frame_bytes = static_cast<std::size_t>(nodes) * 3 * sizeof(double);
+    const hsize_t frames_per_chunk = rows_per_chunk(frame_bytes, kFrameChunkBytes, kMaxChunkRows);
+    return create_appendable(path, {static_cast<hsize_t>(nodes), 3}, frames_per_chunk, kMaxChunkNodes,
+                             /*direct=*/frames_per_chunk == 1);
+  }
+
+  Appendable create_scalar_series(const std::string& path) {
+    return create_appendable(path, {}, kMaxChunkRows, 0, false);
+  }
+
+  void open(const WriterOptions& opts, const std::vector<OutputBody>& input) {
+    options = opts;
+    check_paths();
+    check_bodies(input);
+    SOFTDIFF_DEMAND(options.flush_every >= 1, "flush_every must be at least 1");
+    silence_hdf5_error_printing();
+    create_file();
+    try {
+      write_contents(input);
+      if (H5Fflush(file.get(), H5F_SCOPE_LOCAL) < 0) fail("cannot flush");
+    } catch (...) {
+      close_everything();
+      std::error_code ec;
+      fs::remove(partial_file, ec);
+      throw;
+    }
+  }
+
+  void write_contents(const std::vector<OutputBody>& input) {
+    set_int_attribute(file.get(), "softdiff_format", 1);
+    set_string_attribute(file.get(), "softdiff_version", SOFTDIFF_VERSION);
+    set_string_attribute(file.get(), "command", options.command);
+    set_string_attribute(file.get(), "scene_yaml", options.scene_yaml);
+    set_string_attribute(file.get(), "created", iso8601_utc_now());
+    set_string_attribute(file.get(), "status", "running");
+
+    time = create_scalar_series("/time");
+    create_group("/bodies");
+    bodies.reserve(input.size());
+    for (const OutputBody& body : input) {
+      BodyOutput out;
+      out.name = body.name;
+      out.first_node = total_nodes;
+      out.nodes = body.rest.cols();
+      out.tets = body.tets.cols();
+      total_nodes += out.nodes;
+      const std::string group = "/bodies/" + body.name;
+      create_group(group);
+      // Eigen's column-major (3, n) / (4, m) / (3, k) storage is the row-major
+      // (n, 3) / (m, 4) / (k, 3) layout of the datasets: written as is.
+      write_table(group + "/rest", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, static_cast<hsize_t>(out.nodes), 3,
+                  body.rest.data());
+      write_table(group + "/tets", H5T_STD_I64LE, H5T_NATIVE_INT, static_cast<hsize_t>(out.tets), 4,
+                  body.tets.data());
+      write_table(group + "/surface", H5T_STD_I64LE, H5T_NATIVE_INT, static_cast<hsize_t>(body.surface.cols()), 3,
+                  body.surface.data());
+      out.x = create_frames(group + "/x", out.nodes);
+      if (options.write_v) out.v = create_frames(group + "/v", out.nodes);
+      bodies.push_back(std::move(out));
+    }
+    create_group("/solver");
+    step_seconds = create_scalar_series("/solver/step_seconds");
+    times.reserve(1024);
+  }
+
+  // ---- attributes
+
+  // Whether `path` names an object (checked link by link: H5Lexists needs the parents).
+  bool path_exists(const std::string& path) const {
+    std::size_t at = path.find_first_not_of('/');
+    while (at != std::string::npos) {
+      const std::size_t end = path.find('/', at);
+      if (H5Lexists(file.get(), path.substr(0, end).c_str(), H5P_DEFAULT) <= 0) {
+        H5Eclear2(H5E_DEFAULT);
+        return false;
+      }
+      at = end == std::string::npos ? end : path.find_first_not_of('/', end);
+    }
+    return true;
+  }
+
+  Handle open_object(const std::string& object_path) const {
+    const std::string path = object_path.empty() ? std::string("/") : object_path;
+    SOFTDIFF_DEMAND(path_exists(path), "no object " + path + " in the output file");
+    Handle object(H5Oopen(file.get(), path.c_str(), H5P_DEFAULT), H5Oclose);
+    if (!object.valid()) fail("cannot open " + path);
+    return object;
+  }
+
+  void write_attribute(hid_t object, const std::string& name, hid_t file_type, hid_t memory_type,
+                       const void* value) const {
+    const htri_t exists = H5Aexists(object, name.c_str());
+    if (exists < 0 || (exists > 0 && H5Adelete(object, name.c_str()) < 0)) fail("cannot replace attribute " + name);
+    Handle space(H5Screate(H5S_SCALAR), H5Sclose);
+    if (!space.valid()) fail("cannot create the dataspace of attribute " + name);
+    Handle attribute(H5Acreate2(object, name.c_str(), file_type, space.get(), H5P_DEFAULT, H5P_DEFAULT), H5Aclose);
+    if (!attribute.valid()) fail("cannot create attribute " + name);
+    if (H5Awrite(attribute.get(), memory_type, value) < 0) fail("cannot write attribute " + name);
+    if (!attribute.reset()) fail("cannot close attribute " + name);
+  }
+
+  // Variable-length UTF-8 string (h5py reads it as str; no size limit).
+  void set_string_attribute(hid_t object, const std::string& name, const std::string& value) const {
+    Handle type(H5Tcopy(H5T_C_S1), H5Tclose);
+    if (!type.valid() || H5Tset_size(type.get(), H5T_VARIABLE) < 0 || H5Tset_cset(type.get(), H5T_CSET_UTF8) < 0)
+      fail("cannot create the string type of attribute " + name);
+    const char* text = value.c_str();
+    write_attribute(object, name, type.get(), type.get(), &text);
+  }
+
+  void set_int_attribute(hid_t object, const std::string& name, int value) const {
+    write_attribute(object, name, H5T_STD_I32LE, H5T_NATIVE_INT, &value);
+  }
+
+  void set_double_attribute(hid_t object, const std::string& name, double value) const {
+    write_attribute(object, name, H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, &value);
+  }
+
+  // ---- frames
+
+  void append_frame(double t, const VecX& x, const VecX* v, double seconds) {
+    SOFTDIFF_DEMAND(!finished, "append_frame after finish");
+    SOFTDIFF_DEMAND(x.size() == 3 * total_nodes,
+                    "x has " + std::to_string(x.size()) + " entries, expected " + std::to_string(3 * total_nodes));
+    if (options.write_v)
+      SOFTDIFF_DEMAND(v != nullptr && v->size() == 3 * total_nodes, "v is missing or has the wrong size");
+
+    const Appendable* failed = nullptr;
+    for (BodyOutput& body : bodies) {
+      if (!body.x.append(x.data() + 3 * body.first_node)) { failed = &body.x; break; }
+      if (options.write_v && !body.v.append(v->data() + 3 * body.first_node)) { failed = &body.v; break; }
+    }
+    if (failed == nullptr && !step_seconds.append(&seconds)) failed = &step_seconds;
+    if (failed == nullptr && !time.append(&t)) failed = &time;
+    if (failed != nullptr) {
+      const std::string reason = hdf5_reason();
+      const auto rows = static_cast<hsize_t>(frames);
+      for (BodyOutput& body : bodies) {
+        body.x.roll_back(file.get(), rows);
+        if (options.write_v) body.v.roll_back(file.get(), rows);
+      }
+      step_seconds.roll_back(file.get(), rows);
+      time.roll_back(file.get(), rows);
+      H5Eclear2(H5E_DEFAULT);
+      throw ComputationError(partial_name() + ": cannot write frame " + std::to_string(frames) + " (" +
+                             failed->path + "): " + reason);
+    }
+    ++frames;
+    times.push_back(t);
+    if (frames % options.flush_every == 0 && H5Fflush(file.get(), H5F_SCOPE_LOCAL) < 0)
+      fail("cannot flush after frame " + std::to_string(frames - 1));
+  }
+
+  // ---- generic datasets
+
+  void require_new_path(const std::string& path) const {
+    SOFTDIFF_DEMAND(!path.empty() && path.front() == '/', "dataset paths are absolute: '" + path + "'");
+    SOFTDIFF_DEMAND(!path_exists(path), path + " already exists in the output file");
+  }
+
+  int add_series(const std::string& path, int width) {
+    SOFTDIFF_DEMAND(!finished, "add_series after finish");
+    SOFTDIFF_DEMAND(width >= 0, "series width must be >= 0");
+    require_new_path(path);
+    const std::size_t row_bytes = static_cast<std::size_t>(std::max(width, 1)) * sizeof(double);
+    const hsize_t chunk_rows = rows_per_chunk(row_bytes, kSeriesChunkBytes, kMaxChunkRows);
+    std::vector<hsize_t> row_shape;
+    if (width > 0) row_shape.push_back(static_cast<hsize_t>(width));
+    series.push_back(create_appendable(path, row_shape, chunk_rows, static_cast<hsize_t>(width), false));
+    return static_cast<int>(series.size()) - 1;
+  }
+
+  void append_series(int handle, const double* row) {
+    SOFTDIFF_DEMAND(!finished, "append_series after finish");
+    SOFTDIFF_DEMAND(handle >= 0 && handle < static_cast<int>(series.size()), "unknown series handle");
+    SOFTDIFF_DEMAND(row != nullptr, "null row");
+    Appendable& target = series[static_cast<std::size_t>(handle)];
+    const hsize_t rows = target.dims[0];
+    if (!target.append(row)) {
+      const std::string reason = hdf5_reason();
+      target.roll_back(file.get(), rows);
+      H5Eclear2(H5E_DEFAULT);
+      throw ComputationError(partial_name() + ": cannot write row " + std::to_string(rows) + " of " + target.path +
+                             ": " + reason);
+    }
+  }
+
+  void write_matrix(const std::string& path, const MatX& value,
+                    const std::vector<std::pair<std::string, std::string>>& attributes) {
+    SOFTDIFF_DEMAND(!finished, "write_matrix after finish");
+    require_new_path(path);
+    // Eigen stores MatX column-major; the dataset is row-major.
+    const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> rows = value;
+    write_table(path, H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, static_cast<hsize_t>(rows.rows()),
+                static_cast<hsize_t>(rows.cols()), rows.data());
+    if (!attributes.empty()) {
+      Handle dataset = open_object(path);
+      for (const auto& [name, text] : attributes) set_string_attribute(dataset.get(), name, text);
+    }
+  }
+
+  // ---- finishing
+
+  // Closes every identifier; false if HDF5 reported an error (e.g. a failed flush).
+  bool close_everything() {
+    bool ok = true;
+    for (Appendable& s : series) ok = s.close() && ok;
+    for (BodyOutput& body : bodies) {
+      ok = body.x.close() && ok;
+      ok = body.v.close() && ok;
+    }
+    ok = step_seconds.close() && ok;
+    ok = time.close() && ok;
+    return file.reset() && ok;
+  }
+
+  // Renames <file>.partial to <file>; without force, never replaces a file that
+  // appeared during the run (link() fails on an existing name, atomically).
+  void move_into_place() {
+    std::error_code ec;
+    if (!options.force) {
+      if (::link(partial_file.c_str(), final_file.c_str()) == 0) {
+        fs::remove(partial_file, ec);
+        return;
+      }
+      const int error = errno;
+      // File systems without hard links: check, then rename.
+      if (error == EEXIST || exists_as_file_system_entry(final_file))
+        throw InputError(final_file.string() + ": output file appeared during the run; the output is in " +
+                         partial_name());
+    }
+    fs::rename(partial_file, final_file, ec);
+    if (ec)
+      throw ComputationError(partial_name() + ": cannot rename to " + final_file.string() + ": " + ec.message());
+  }
+
+  void finish(const std::string& status) {
+    if (finished) return;
+    finished = true;
+    std::string error;
+    try {
+      set_string_attribute(file.get(), "status", status);
+    } catch (const std::exception& e) {
+      error = e.what();
+    }
+    if (!close_everything() && error.empty()) error = partial_name() + ": cannot close: " + hdf5_reason();
+    if (!error.empty()) throw ComputationError(error + " (the frames written so far are in " + partial_name() + ")");
+
+    move_into_place();
+
+    std::vector<XdmfBody> described;
+    described.reserve(bodies.size());
+    for (const BodyOutput& body : bodies) described.push_back({body.name, static_cast<long>(body.nodes), static_cast<long>(body.tets)});
+    write_text_file_atomically(xdmf_file,
+                               xdmf_text(final_file.filename().string(), described, times, options.write_v));
+  }
+};
+
+// ---------------------------------------------------------------------------
+
+Hdf5Writer::Hdf5Writer(const WriterOptions& options, const std::vector<OutputBody>& bodies)
+    : impl_(std::make_unique<Impl>()) {
+  impl_->open(options, bodies);
+}
+
+Hdf5Writer::~Hdf5Writer() {
+  if (!impl_) return;
+  try {
+    impl_->finish("interrupted");
+  } catch (...) {
+    // Never throws: the frames flushed so far stay in <file>.partial.
+  }
+}
+
+void Hdf5Writer::append_frame(double time, const VecX& x, const VecX* v, double step_seconds) {
+  impl_->append_frame(time, x, v, step_seconds);
+}
+
+int Hdf5Writer::add_series(const std::string& path, int width) { return impl_->add_series(path, width); }
+
+void Hdf5Writer::append_series(int handle, const double* row) { impl_->append_series(handle, row); }
+
+void Hdf5Writer::write_matrix(const std::string& path, const MatX& value,
+                              const std::vector<std::pair<std::string, std::string>>& attributes) {
+  impl_->write_matrix(path, value, attributes);
+}
+
+void Hdf5Writer::set_attribute(const std::string& object_path, const std::string& name, const std::string& value) {
+  SOFTDIFF_DEMAND(!impl_->finished, "set_attribute after finish");
+  const Handle object = impl_->open_object(object_path);
+  impl_->set_string_attribute(object.get(), name, value);
+}
+
+void Hdf5Writer::set_attribute(const std::string& object_path, const std::string& name, double value) {
+  SOFTDIFF_DEMAND(!impl_->finished, "set_attribute after finish");
+  const Handle object = impl_->open_object(object_path);
+  impl_->set_double_attribute(object.get(), name, value);
+}
+
+void Hdf5Writer::finish(const std::string& status) { impl_->finish(status); }
+
+long Hdf5Writer::frames_written() const { return impl_->frames; }
+
+const std::filesystem::path& Hdf5Writer::final_path() const { return impl_->final_file; }
+
+std::string hdf5_version() {
+  unsigned major = 0, minor = 0, release = 0;
+  H5get_libversion(&major, &minor, &release);
+  return std::to_string(major) + "." + std::to_string(minor) + "." + std::to_string(release);
+}
+
+}  // namespace softdiff::io
