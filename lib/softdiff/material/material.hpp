@@ -27,12 +27,21 @@ struct PointCache {
   Mat3 S = Mat3::Identity();  // corotational: symmetric stretch
 };
 
+// The kernels of each law (templated psi, P, dP/dF, directional derivative) are
+// inline in corotational.hpp, stvk.hpp and neo_hookean.hpp; these functions dispatch.
+
 // psi(F). Returns +infinity when the energy is undefined (neo_hookean with J <= 0).
 double psi(Law law, const Mat3& F, const Lame& lame);
 
 // P(F) and, if dP_dF != nullptr, dP/dF. Returns false (and leaves the outputs
 // unspecified) if the law is undefined at F (neo_hookean with J <= 0).
 bool stress(Law law, const Mat3& F, const Lame& lame, Mat3& P, Mat9* dP_dF, PointCache* cache = nullptr);
+
+// d(dP/dF)[dF]: the derivative of dP/dF in the direction dF, i.e. the third derivative
+// of psi contracted with vec(dF) (a symmetric 9x9 matrix); needed for d(K v)/dx.
+// Returns false (output unspecified) where the law is undefined (neo_hookean, J <= 0).
+// Corotational: exact wherever dP/dF is (see corotational.hpp on sigma_i + sigma_j -> 0).
+bool stress_hessian_directional(Law law, const Mat3& F, const Lame& lame, const Mat3& dF, Mat9& d_dP_dF);
 
 // Symmetric eigenvalue clamp of a 12x12 element Hessian: negative eigenvalues set
 // to zero (the `psd_projection` option). No heap allocation.

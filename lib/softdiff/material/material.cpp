@@ -1,0 +1,64 @@
+// Dispatch from Law to the inline kernels (corotational.hpp, stvk.hpp, neo_hookean.hpp).
+// GCC 12 reports false -W(maybe-)uninitialized warnings inside its own AVX-512 intrinsics
+// (avx512fintrin.h, _mm512_extractf64x4_pd / _mm512_insertf64x4; GCC PR 105593, fixed
+// in GCC 13) whenever Eigen uses 8-wide double packets under -march=native. Including
+// <immintrin.h> first with the warning off silences it for the intrinsics' own lines
+// only; our code keeps the warning.
+#if defined(__GNUC__) && !defined(__clang__) && __GNUC__ == 12 && defined(__AVX512F__)
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#include <immintrin.h>
+#pragma GCC diagnostic pop
+#endif
+#include <softdiff/material/corotational.hpp>
+#include <softdiff/material/material.hpp>
+#include <softdiff/material/neo_hookean.hpp>
+#include <softdiff/material/psd.hpp>
+#include <softdiff/material/stvk.hpp>
+
+#include <limits>
+
+namespace softdiff::material {
+
+double psi(Law law, const Mat3& F, const Lame& lame) {
+  switch (law) {
+    case Law::corotational: return corotational::psi(F, lame.mu, lame.lambda);
+    case Law::stvk: return stvk::psi(F, lame.mu, lame.lambda);
+    case Law::neo_hookean: return neo_hookean::psi(F, lame.mu, lame.lambda);
+  }
+  return std::numeric_limits<double>::quiet_NaN();
+}
+
+bool stress(Law law, const Mat3& F, const Lame& lame, Mat3& P, Mat9* dP_dF, PointCache* cache) {
+  switch (law) {
+    case Law::corotational: {
+      corotational::Polar polar;
+      corotational::polar_svd(F, polar);
+      corotational::stress(F, polar, lame.mu, lame.lambda, P, dP_dF);
+      if (cache != nullptr) {
+        cache->R = polar.R;
+        cache->S = polar.stretch();
+      }
+      return true;
+    }
+    case Law::stvk: stvk::stress(F, lame.mu, lame.lambda, P, dP_dF); return true;
+    case Law::neo_hookean: return neo_hookean::stress(F, lame.mu, lame.lambda, P, dP_dF);
+  }
+  return false;
+}
+
+bool stress_hessian_directional(Law law, const Mat3& F, const Lame& lame, const Mat3& dF, Mat9& d_dP_dF) {
+  switch (law) {
+    case Law::corotational:
+      corotational::stress_hessian_directional(F, lame.mu, lame.lambda, dF, d_dP_dF);
+      return true;
+    case Law::stvk: stvk::stress_hessian_directional(F, lame.mu, lame.lambda, dF, d_dP_dF); return true;
+    case Law::neo_hookean: return neo_hookean::stress_hessian_directional(F, lame.mu, lame.lambda, dF, d_dP_dF);
+  }
+  return false;
+}
+
+void project_psd(Mat12& K) { clamp_negative_eigenvalues(K); }
+
+}  // namespace softdiff::material
