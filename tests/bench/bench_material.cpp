@@ -78,4 +78,3 @@ BENCHMARK(BM_project_psd);
 
 }  // namespace
 
-BENCHMARK_MAIN();

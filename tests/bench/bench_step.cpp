@@ -89,4 +89,3 @@ BENCHMARK(BM_Step)->Apply(step_args)->Unit(benchmark::kMillisecond)->UseRealTime
 
 }  // namespace
 
-BENCHMARK_MAIN();
