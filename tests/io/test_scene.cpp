@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 #include <string>
+#include <system_error>
 #include <vector>
 
 namespace {
@@ -49,9 +50,11 @@ std::string edit(const std::string& from, const std::string& to, std::string tex
 
 class Scene : public ::testing::Test {
  protected:
-  static void SetUpTestSuite() {
-    fs::create_directories(kDir / "meshes");
-    write_file(kDir / "meshes" / "beam.msh", "not a real mesh: load_scene only checks that it exists\n");
+  static void SetUpTestSuite() {  // (ctest may run these tests as parallel processes)
+    std::error_code ec;
+    fs::create_directories(kDir / "meshes", ec);
+    if (!fs::exists(kDir / "meshes" / "beam.msh"))
+      write_file(kDir / "meshes" / "beam.msh", "not a real mesh: load_scene only checks that it exists\n");
   }
 
   // A scene file named after the running test.
@@ -364,6 +367,8 @@ TEST_F(Scene, OutOfRange) {
   expect_error(edit("density: 1000", "density: -1"), ":11:7: bodies[0].material.density: must be > 0, got -1");
   expect_error(edit("dt: 0.01", "dt: 0"), ":3:3: simulation.dt: must be > 0, got 0");
   expect_error(edit("steps: 10", "steps: 0"), ":4:3: simulation.steps: must be >= 1, got 0");
+  expect_error(edit("steps: 10", "duration: 0"), ":4:3: simulation.duration: must be > 0, got 0");
+  expect_error(edit("steps: 10", "steps: 99999999999999999999"), ":4:3: simulation.steps: must be <= 9223372036854775807, got 99999999999999999999");
   expect_error(edit("steps: 10", "steps: 10\n  newton_iterations: 0"), ":5:3: simulation.newton_iterations: must be >= 1, got 0");
   expect_error(edit("steps: 10", "steps: 10\n  newton_iterations: 3000000000"),
                ":5:3: simulation.newton_iterations: must be <= 2147483647, got 3000000000");

@@ -54,7 +54,8 @@ class Converter {
 
   Node convert(const YAML::Node& y, const std::string& path, int depth) {
     if (++count_ > max_nodes) throw ParseError{mark(y.Mark()), path, "too many YAML nodes (aliases expanding?)"};
-    if (depth > max_depth) throw ParseError{mark(y.Mark()), path, "nested too deeply"};
+    if (depth > max_depth)  // no path: it would be 64 levels long
+      throw ParseError{mark(y.Mark()), "", "YAML nested more than " + std::to_string(max_depth) + " levels deep (a recursive alias?)"};
     Node n;
     n.mark = mark(y.Mark());
     switch (y.Type()) {

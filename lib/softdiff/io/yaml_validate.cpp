@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cmath>
 
 namespace softdiff::io::schema {
 
@@ -276,7 +277,16 @@ void validate(const Node& node, const Spec& spec, const Context& ctx, const yaml
     }
     case Kind::integer: {
       const std::optional<long long> v = yaml::to_integer(node);
-      if (!v) ctx.fail(at, path, expected_got(spec, node));
+      if (!v) {
+        const std::optional<double> d = yaml::to_number(node);
+        if (d && *d == std::floor(*d))  // an integer too large for a long long
+          ctx.fail(at, path,
+                   (*d > 0                    ? "must be <= " + std::to_string(spec.int_max)
+                    : range_text(spec).empty() ? "must be >= " + std::to_string(LLONG_MIN)
+                                               : range_text(spec)) +
+                       ", got " + node.scalar);
+        ctx.fail(at, path, expected_got(spec, node));
+      }
       if (!in_range(spec, static_cast<double>(*v))) ctx.fail(at, path, range_text(spec) + ", got " + node.scalar);
       if (*v > spec.int_max) ctx.fail(at, path, "must be <= " + std::to_string(spec.int_max) + ", got " + node.scalar);
       return;
