@@ -460,6 +460,7 @@ TEST_F(Scene, FeaturesNotSupportedYet) {
   expect_error(kBase + "obstacles:\n  - {name: floor, type: plane}\n", ":12:1: obstacles: not supported yet (planned: obstacles)");
   expect_error(kBase + "contact: {enabled: true}\n",
                ":12:1: contact: not supported yet (planned: contact); only 'enabled: false' is accepted");
+  expect_error(kBase + "contact: {enabled: no}\n", ":12:11: contact.enabled: expected true or false, got 'no'");
   expect_error(kBase + "contact: {friction: 0.3}\n",
                ":12:1: contact: not supported yet (planned: contact); only 'enabled: false' is accepted");
   expect_error(kBase + "output: {jacobians: [young]}\n", ":12:10: output.jacobians: not supported yet (planned: jacobians)");

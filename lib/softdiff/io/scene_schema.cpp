@@ -11,11 +11,12 @@ using yaml::Node;
 
 bool empty_list(const Node& n) { return n.is_null() || (n.is_sequence() && n.items.empty()); }
 
-// contact absent, empty, or {enabled: false, ...}: no collision detection.
+// contact absent, empty, or {enabled: false, ...}: no collision detection. An
+// `enabled` that is not a boolean passes here so that validation names its type.
 bool contact_disabled(const Node& n) {
   if (n.is_null()) return true;
   const Node* enabled = n.is_map() ? n.get("enabled") : nullptr;
-  return enabled && yaml::to_bool(*enabled) == false;
+  return enabled && yaml::to_bool(*enabled) != true;
 }
 
 SpecPtr box6() { return numbers(6, "a list of 6 numbers [xmin, ymin, zmin, xmax, ymax, zmax]"); }
