@@ -1,0 +1,332 @@
+// load_scene(): read, --set, validate, and turn the scene file into a SceneDesc.
+//
+// The format is scene.md (version 1); its keys are listed, with types and ranges,
+// in scene_schema.cpp. Validation order: YAML syntax and duplicate keys (while
+// converting yaml-cpp's tree, yaml_tree.cpp), the format version, the --set
+// overrides, the schema (yaml_validate.cpp: unknown keys, types, ranges, enums,
+// required keys, features not supported yet), then the checks below that relate
+// several keys or the file system. The first error is thrown as an InputError
+// with one line:
+//   FILE:LINE:COL: PATH: message       e.g. scene.yaml:12:7: bodies[0].material.poisson: must be in [0, 0.5), got 0.5
+//   FILE: cannot read scene file: <reason>
+//   --set: PATH: message               a value given by --set (no line)
+//   --set KEY: message                 a --set key that does not fit the schema
+// LINE:COL point at the key for a map value, at the item for a list item.
+//
+// Extensions to scene.md (all optional; scenes written to the spec are unaffected):
+//   simulation.newton_tolerance: 1e-10    > 0; relative velocity-increment tolerance
+//                                         that ends Newton early when newton_iterations > 1
+//   linear_solver: {type: cg, tolerance: 1e-10, max_iterations: 10000}
+//                                         the map form of linear_solver (`linear_solver: cg`
+//                                         is {type: cg}); type defaults to cholmod;
+//                                         tolerance (> 0, relative residual) and
+//                                         max_iterations (>= 1) are CG options, an
+//                                         error with another type
+//   --set KEY=null (or ~, or empty)       removes KEY (back to its default); giving
+//                                         simulation.steps removes duration and vice versa
+// Interpretation of scene.md where it is silent:
+//   - `softdiff`, `bodies` (non-empty), and per body `name`, `mesh`, `material` with
+//     `young`, `poisson`, `density` are required; material.law defaults to corotational,
+//     body type to soft; damping values are >= 0.
+//   - implicit_euler needs exactly one of steps/duration; with integrator static,
+//     dt, steps and duration are errors (they mean nothing there).
+//   - A present `contact` section without `enabled: false` asks for contact: not
+//     supported yet. Empty actuators/effectors/obstacles/jacobians lists are accepted.
+//   - Numbers are plain YAML numbers: a quoted "1e5" is a string, not a number.
+//     Integers may be written 1e3. Booleans are true/false.
+//   - A map key given with no value (`damping:`) is an empty map; an empty list key
+//     (`fixed:`) an empty list.
+#include <softdiff/io/scene.hpp>
+
+#include <softdiff/io/input_error.hpp>
+#include <softdiff/io/scene_schema.hpp>
+#include <softdiff/io/yaml_tree.hpp>
+#include <softdiff/io/yaml_validate.hpp>
+
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <system_error>
+
+namespace softdiff::io {
+
+std::string Where::str() const {
+  // (appends, not `":" + std::to_string(...)`: GCC 12 gives a false -Wrestrict on that)
+  std::string s = file;
+  if (line > 0) {
+    s += ':';
+    s += std::to_string(line);
+    s += ':';
+    s += std::to_string(column);
+  }
+  if (!path.empty()) {
+    s += ": ";
+    s += path;
+  }
+  return s;
+}
+
+namespace {
+
+namespace fs = std::filesystem;
+using yaml::Entry;
+using yaml::Node;
+
+constexpr long supported_version = 1;
+
+std::string read_scene_text(const fs::path& file) {
+  const std::string label = file.string();
+  std::error_code ec;
+  if (fs::is_directory(file, ec)) throw InputError(label + ": cannot read scene file: is a directory");
+  std::FILE* f = std::fopen(label.c_str(), "rb");
+  if (!f) throw InputError(label + ": cannot read scene file: " + std::strerror(errno));
+  std::string text;
+  char buffer[65536];
+  std::size_t n = 0;
+  while ((n = std::fread(buffer, 1, sizeof buffer, f)) > 0) text.append(buffer, n);
+  const bool failed = std::ferror(f) != 0;
+  const int error = errno;
+  std::fclose(f);
+  if (failed) throw InputError(label + ": cannot read scene file: " + std::strerror(error));
+  return text;
+}
+
+// Reads the validated tree into a SceneDesc, with the checks that relate keys.
+class Reader {
+ public:
+  Reader(const schema::Context& ctx, const fs::path& folder) : ctx_(ctx), folder_(folder) {}
+
+  void read(const Node& root, SceneDesc& scene) const {
+    if (const Node* n = root.get("name")) scene.name = n->scalar;
+    read_simulation(root, scene.simulation);
+    read_linear_solver(root, scene.linear_solver);
+    const Entry* bodies = root.find("bodies");
+    for (std::size_t i = 0; i < bodies->value.items.size(); ++i) {
+      const Node& body = bodies->value.items[i];
+      BodyDesc desc = read_body(body, yaml::index_path("bodies", i));
+      for (std::size_t j = 0; j < i; ++j)
+        if (scene.bodies[j].name == desc.name) {
+          const Entry* e = body.find("name");
+          ctx_.fail(e->key_mark, desc.where.path + ".name",
+                    "duplicate body name '" + desc.name + "' (also bodies[" + std::to_string(j) + "])");
+        }
+      scene.bodies.push_back(std::move(desc));
+    }
+    read_output(root, scene.output);
+  }
+
+ private:
+  static const Node* get(const Node* map, std::string_view key) { return map && map->is_map() ? map->get(key) : nullptr; }
+  static const Node* get(const Node& map, std::string_view key) { return get(&map, key); }
+  static double number(const Node* n, double fallback) { return n ? *yaml::to_number(*n) : fallback; }
+  static long long integer(const Node* n, long long fallback) { return n ? *yaml::to_integer(*n) : fallback; }
+  static bool boolean(const Node* n, bool fallback) { return n ? *yaml::to_bool(*n) : fallback; }
+  static Vec3 vec3(const Node* n, const Vec3& fallback) {
+    if (!n) return fallback;
+    return {*yaml::to_number(n->items[0]), *yaml::to_number(n->items[1]), *yaml::to_number(n->items[2])};
+  }
+
+  Where where(const Entry& e, const std::string& path) const { return ctx_.where(e.key_mark, path); }
+
+  void read_simulation(const Node& root, SimulationDesc& sim) const {
+    const Entry* section = root.find("simulation");
+    const Node* s = section ? &section->value : nullptr;
+    const yaml::Mark at = section ? section->key_mark : root.mark;
+    if (const Node* n = get(s, "integrator"))
+      sim.integrator = n->scalar == "static" ? Integrator::static_equilibrium : Integrator::implicit_euler;
+    sim.gravity = vec3(get(s, "gravity"), sim.gravity);
+    sim.newton_iterations = static_cast<int>(integer(get(s, "newton_iterations"), sim.newton_iterations));
+    sim.newton_tolerance = number(get(s, "newton_tolerance"), sim.newton_tolerance);
+    const Node* st = get(s, "static");
+    sim.static_max_iterations = static_cast<int>(integer(get(st, "max_iterations"), sim.static_max_iterations));
+    sim.static_tolerance = number(get(st, "tolerance"), sim.static_tolerance);
+    sim.static_load_steps = static_cast<int>(integer(get(st, "load_steps"), sim.static_load_steps));
+
+    const Entry* dt = s && s->is_map() ? s->find("dt") : nullptr;
+    const Entry* steps = s && s->is_map() ? s->find("steps") : nullptr;
+    const Entry* duration = s && s->is_map() ? s->find("duration") : nullptr;
+    if (sim.integrator == Integrator::static_equilibrium) {
+      for (const Entry* e : {dt, steps, duration})
+        if (e) ctx_.fail(e->key_mark, "simulation." + e->key, "not used by integrator 'static' (remove it)");
+      sim.steps = 0;
+      return;
+    }
+    sim.dt = number(dt ? &dt->value : nullptr, sim.dt);
+    if (steps && duration) {
+      const Entry* second = steps->key_mark.line > duration->key_mark.line ? steps : duration;
+      ctx_.fail(second->key_mark, "simulation." + second->key, "give either 'steps' or 'duration', not both");
+    }
+    if (!steps && !duration)
+      ctx_.fail(at, "simulation", "missing 'steps' or 'duration' (integrator implicit_euler needs exactly one)");
+    if (steps) {
+      sim.steps = static_cast<long>(*yaml::to_integer(steps->value));
+      return;
+    }
+    const double T = *yaml::to_number(duration->value);
+    const double ratio = T / sim.dt;
+    const std::string path = "simulation.duration";
+    if (!(ratio < 1e15)) ctx_.fail(duration->key_mark, path, "too many steps: duration / dt = " + format_number(ratio));
+    const double n = std::round(ratio);
+    if (n < 1)
+      ctx_.fail(duration->key_mark, path, "must be at least dt = " + format_number(sim.dt) + ", got " + duration->value.scalar);
+    if (std::abs(n * sim.dt - T) > 1e-9 * T)
+      ctx_.fail(duration->key_mark, path,
+                "must be a multiple of dt = " + format_number(sim.dt) + " (to 1e-9 relative), got " + duration->value.scalar +
+                    " = " + format_number(ratio) + " dt; use steps or a multiple of dt");
+    sim.steps = static_cast<long>(n);
+  }
+
+  void read_linear_solver(const Node& root, LinearSolverDesc& ls) const {
+    const Node* n = root.get("linear_solver");
+    if (!n) return;
+    const Node* type = n->is_scalar() ? n : get(n, "type");
+    const std::string kind = type ? type->scalar : "cholmod";
+    ls.kind = kind == "cg" ? LinearSolverKind::cg : kind == "ldlt" ? LinearSolverKind::ldlt : LinearSolverKind::cholmod;
+    if (!n->is_map()) return;
+    for (const Entry& e : n->entries)
+      if (e.key != "type" && ls.kind != LinearSolverKind::cg)
+        ctx_.fail(e.key_mark, "linear_solver." + e.key, "only used by type 'cg' (type is '" + kind + "')");
+    ls.cg_tolerance = number(get(n, "tolerance"), ls.cg_tolerance);
+    ls.cg_max_iterations = static_cast<int>(integer(get(n, "max_iterations"), ls.cg_max_iterations));
+  }
+
+  BodyDesc read_body(const Node& body, const std::string& path) const {
+    BodyDesc d;
+    d.where = ctx_.where(body.mark, path);
+    d.name = get(body, "name")->scalar;
+
+    const Entry* mesh = body.find("mesh");
+    d.mesh = (folder_ / fs::path(mesh->value.scalar)).lexically_normal();
+    std::error_code ec;
+    const fs::file_status status = fs::status(d.mesh, ec);
+    if (!fs::exists(status)) ctx_.fail(mesh->key_mark, path + ".mesh", "mesh file not found: " + d.mesh.string());
+    if (fs::is_directory(status)) ctx_.fail(mesh->key_mark, path + ".mesh", "is a directory, not a mesh file: " + d.mesh.string());
+
+    d.mesh_scale = number(get(body, "mesh_scale"), d.mesh_scale);
+    d.translate = vec3(get(body, "translate"), d.translate);
+    d.rotate_deg = vec3(get(body, "rotate_deg"), d.rotate_deg);
+
+    const Entry* material = body.find("material");
+    MaterialDesc& m = d.material;
+    m.where = where(*material, path + ".material");
+    if (const Node* law = get(material->value, "law"))
+      m.law = law->scalar == "stvk"          ? material::Law::stvk
+              : law->scalar == "neo_hookean" ? material::Law::neo_hookean
+                                             : material::Law::corotational;
+    m.young = number(get(material->value, "young"), 0);
+    m.poisson = number(get(material->value, "poisson"), 0);
+    m.density = number(get(material->value, "density"), 0);
+
+    if (const Node* mass = get(body, "mass")) d.mass = mass->scalar == "consistent" ? MassKind::consistent : MassKind::lumped;
+    const Node* damping = get(body, "damping");
+    d.rayleigh_mass = number(get(damping, "rayleigh_mass"), d.rayleigh_mass);
+    d.rayleigh_stiffness = number(get(damping, "rayleigh_stiffness"), d.rayleigh_stiffness);
+    d.psd_projection = boolean(get(body, "psd_projection"), d.psd_projection);
+    d.initial_velocity = vec3(get(body, "initial_velocity"), d.initial_velocity);
+
+    if (const Node* fixed = get(body, "fixed"))
+      for (std::size_t i = 0; i < fixed->items.size(); ++i)
+        d.fixed.push_back(read_fixed(fixed->items[i], yaml::index_path(path + ".fixed", i)));
+    return d;
+  }
+
+  FixedDesc read_fixed(const Node& item, const std::string& path) const {
+    FixedDesc f;
+    const Entry* chosen = nullptr;
+    for (const char* key : {"box", "group", "nodes"}) {
+      const Entry* e = item.find(key);
+      if (!e) continue;
+      if (chosen)
+        ctx_.fail(e->key_mark, path + "." + e->key,
+                  "give only one of 'box', 'group', 'nodes' per entry (this one also has '" + chosen->key + "')");
+      chosen = e;
+    }
+    if (!chosen) ctx_.fail(item.mark, path, "needs one of 'box', 'group', 'nodes'");
+    f.where = where(*chosen, path + "." + chosen->key);
+    const Node& v = chosen->value;
+    if (chosen->key == "box") {
+      f.kind = FixedDesc::Kind::box;
+      for (int k = 0; k < 6; ++k) f.box[k] = *yaml::to_number(v.items[k]);
+      static const char* const axis_names[] = {"x", "y", "z"};
+      for (int k = 0; k < 3; ++k)
+        if (f.box[k] > f.box[k + 3])
+          ctx_.fail(chosen->key_mark, f.where.path,
+                    std::string("min must not exceed max, got ") + axis_names[k] + "min " + v.items[k].scalar + " > " +
+                        axis_names[k] + "max " + v.items[k + 3].scalar);
+    } else if (chosen->key == "group") {
+      f.kind = FixedDesc::Kind::group;
+      f.group = v.scalar;
+    } else {
+      f.kind = FixedDesc::Kind::nodes;
+      for (const Node& n : v.items) f.nodes.push_back(static_cast<long>(*yaml::to_integer(n)));
+    }
+    if (const Node* axes = get(item, "axes")) {
+      f.axes = {false, false, false};
+      for (const Node& a : axes->items) f.axes[static_cast<std::size_t>(a.scalar[0] - 'x')] = true;
+    }
+    return f;
+  }
+
+  void read_output(const Node& root, OutputDesc& out) const {
+    const Node* o = root.get("output");
+    if (const Node* file = get(o, "file")) out.file = (folder_ / fs::path(file->scalar)).lexically_normal();
+    out.every = static_cast<long>(integer(get(o, "every"), out.every));
+    if (const Node* fields = get(o, "fields"))
+      for (const Node& f : fields->items) {
+        out.v = out.v || f.scalar == "v";
+        out.contact = out.contact || f.scalar == "contact";
+        out.actuation = out.actuation || f.scalar == "actuation";
+        out.effectors = out.effectors || f.scalar == "effectors";
+      }
+    if (const Node* jacobians = get(o, "jacobians"))
+      for (const Node& j : jacobians->items) out.jacobians.push_back(j.scalar);
+  }
+
+  const schema::Context& ctx_;
+  fs::path folder_;
+};
+
+// `softdiff: 1` must be there and be 1; checked first, since another version's
+// keys would make every other message misleading.
+void check_version(const Node& root, const schema::Context& ctx) {
+  const Entry* e = root.find("softdiff");
+  if (!e)
+    ctx.fail(root.mark, "", "missing required key 'softdiff' (the format version; this softdiff reads 'softdiff: " +
+                                std::to_string(supported_version) + "')");
+  const std::optional<long long> v = yaml::to_integer(e->value);
+  if (!v || *v != supported_version)
+    ctx.fail(e->key_mark, "softdiff",
+             "unsupported format version " + yaml::describe(e->value) + " (supported: " + std::to_string(supported_version) + ")");
+}
+
+}  // namespace
+
+SceneDesc load_scene(const std::filesystem::path& file, const std::vector<std::string>& overrides) {
+  SceneDesc scene;
+  scene.file = file;
+  scene.text = read_scene_text(file);
+  const schema::Context ctx{file.string()};
+
+  Node root;
+  try {
+    root = yaml::parse(scene.text, false);
+  } catch (const yaml::ParseError& e) {
+    ctx.fail(e.mark, e.path, e.message);
+  }
+  if (root.is_null())
+    throw InputError(ctx.file + ": empty scene file (expected at least 'softdiff: 1', 'simulation' and 'bodies')");
+  if (!root.is_map())
+    ctx.fail(root.mark, "", "expected a map of scene keys (softdiff, simulation, bodies, ...), got " + yaml::describe(root));
+  check_version(root, ctx);
+
+  const schema::Spec& spec = scene_schema();
+  for (const std::string& assignment : overrides) schema::apply_override(root, spec, assignment);
+  check_version(root, ctx);
+
+  schema::validate(root, spec, ctx, root.mark, "");
+  Reader(ctx, file.parent_path()).read(root, scene);
+  return scene;
+}
+
+}  // namespace softdiff::io

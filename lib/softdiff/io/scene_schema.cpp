@@ -1,0 +1,188 @@
+#include <softdiff/io/scene_schema.hpp>
+
+#include <climits>
+
+namespace softdiff::io {
+
+namespace {
+
+using namespace schema;
+using yaml::Node;
+
+bool empty_list(const Node& n) { return n.is_null() || (n.is_sequence() && n.items.empty()); }
+
+// contact absent, empty, or {enabled: false, ...}: no collision detection. An
+// `enabled` that is not a boolean passes here so that validation names its type.
+bool contact_disabled(const Node& n) {
+  if (n.is_null()) return true;
+  const Node* enabled = n.is_map() ? n.get("enabled") : nullptr;
+  return enabled && yaml::to_bool(*enabled) != true;
+}
+
+SpecPtr box6() { return numbers(6, "a list of 6 numbers [xmin, ymin, zmin, xmax, ymax, zmax]"); }
+
+// {box: [...]} | {group: name} | {nodes: [...]}, for `fixed` with optional axes.
+// (Exactly one of box/group/nodes: checked in scene.cpp.)
+SpecPtr node_selection(bool with_nodes_and_axes) {
+  std::vector<Field> fields = {
+      key("box", box6()),
+      key("group", text(true)),
+  };
+  if (with_nodes_and_axes) {
+    fields.push_back(key("nodes", list(integer(ge(0), LONG_MAX), "a list of node indices", 1)));
+    fields.push_back(key("axes", list(choice({"x", "y", "z"}), "a list of axes (x, y, z)", 1, true)));
+  }
+  return map(std::move(fields));
+}
+
+SpecPtr material() {
+  return map({
+      key("law", choice({"corotational", "stvk", "neo_hookean"})),
+      required("young", number(gt(0))),
+      required("poisson", number(half_open(0, 0.5))),
+      required("density", number(gt(0))),
+  });
+}
+
+// Planned (scene.md): actuators, effectors, obstacles, contact. Described fully so
+// that their keys are known (suggestions, --set) and enabling one is a table edit
+// plus its reader in scene.cpp. Type-specific keys (points for cables, radius for
+// spheres, ...) are to be checked by that reader.
+SpecPtr actuator() {
+  return map({
+      required("name", name()),
+      required("type", choice({"cable", "pressure", "servo"})),
+      key("points", list(vec3(), "a list of points [[x, y, z], ...]", 1)),
+      key("pull_point", vec3()),
+      key("force", number()),
+      key("limits", numbers(2, "a list of 2 numbers [min, max]")),
+      key("surface", text(true)),
+      key("pressure", number()),
+      key("nodes", node_selection(false)),
+      key("direction", vec3()),
+      key("axis", vec3()),
+      key("center", vec3()),
+  });
+}
+
+SpecPtr effector() {
+  return map({
+      required("name", name()),
+      required("point", vec3()),
+  });
+}
+
+SpecPtr obstacle() {
+  return map({
+      required("name", name()),
+      required("type", choice({"plane", "box", "sphere", "capsule", "cylinder", "mesh"})),
+      key("normal", vec3()),
+      key("offset", number()),
+      key("center", vec3()),
+      key("half_extents", vec3()),
+      key("rotate_deg", vec3()),
+      key("radius", number(gt(0))),
+      key("mesh", text(true)),
+      key("mesh_scale", number(gt(0))),
+  });
+}
+
+SpecPtr contact() {
+  auto pair = std::make_shared<Spec>(*list(text(), "a list of 3 [body, obstacle-or-body, mu]"));
+  pair->min_items = pair->max_items = 3;
+  return map({
+      key("enabled", boolean()),
+      key("friction", number(ge(0))),
+      key("pairs", list(pair)),
+      key("self_collision", boolean()),
+      key("margin", number(ge(0))),
+      key("solver", choice({"admm", "pgs"})),
+      key("tolerance", number(gt(0))),
+      key("max_iterations", integer(ge(1))),
+  });
+}
+
+SpecPtr body() {
+  return map({
+      required("name", name()),
+      key("type", choice({"soft"}, "static rigid shapes are 'obstacles'")),
+      required("mesh", text(true)),
+      key("mesh_scale", number(gt(0))),
+      key("translate", vec3()),
+      key("rotate_deg", vec3()),
+      required("material", material()),
+      key("mass", choice({"lumped", "consistent"})),
+      key("damping", map({
+                         key("rayleigh_mass", number(ge(0))),
+                         key("rayleigh_stiffness", number(ge(0))),
+                     })),
+      key("psd_projection", boolean()),
+      key("fixed", list(node_selection(true))),
+      key("initial_velocity", vec3()),
+      planned(key("actuators", list(actuator(), "a list", 0, false, "actuator")), "actuators", empty_list),
+      planned(key("effectors", list(effector(), "a list", 0, false, "effector")), "effectors", empty_list),
+  });
+}
+
+SpecPtr simulation() {
+  return map({
+      key("integrator", choice({"implicit_euler", "static"})),
+      key("dt", number(gt(0))),
+      excludes(key("duration", number(gt(0))), "steps"),
+      excludes(key("steps", integer(ge(1), LONG_MAX)), "duration"),
+      key("gravity", vec3()),
+      key("newton_iterations", integer(ge(1))),
+      key("newton_tolerance", number(gt(0))),  // extension
+      key("static", map({
+                        key("max_iterations", integer(ge(1))),
+                        key("tolerance", number(gt(0))),
+                        key("load_steps", integer(ge(1))),
+                    })),
+  });
+}
+
+SpecPtr linear_solver() {
+  // `linear_solver: cg`, or (extension) {type: cg, tolerance: 1e-10, max_iterations: N}
+  return map(
+      {
+          key("type", choice({"cholmod", "ldlt", "cg"})),
+          key("tolerance", number(gt(0))),
+          key("max_iterations", integer(ge(1))),
+      },
+      "type");
+}
+
+SpecPtr output() {
+  const auto field_names =
+      choice({"x", "v"}, {}, {{"contact", "contact"}, {"actuation", "actuators"}, {"effectors", "effectors"}});
+  const auto parameters =
+      choice({"young", "poisson", "density", "rayleigh_mass", "rayleigh_stiffness", "friction", "actuation", "x0", "v0"});
+  return map({
+      key("file", text(true)),
+      key("every", integer(ge(1), LONG_MAX)),
+      key("fields", list(field_names, "a list of fields (x, v, contact, actuation, effectors)", 0, true)),
+      planned(key("jacobians", list(parameters, "a list of parameters", 0, true)), "jacobians", empty_list),
+  });
+}
+
+SpecPtr scene() {
+  return map({
+      required("softdiff", integer()),
+      key("name", text()),
+      key("simulation", simulation()),
+      key("linear_solver", linear_solver()),
+      required("bodies", list(body(), "a list", 1, false, "body")),
+      planned(key("obstacles", list(obstacle(), "a list", 0, false, "obstacle")), "obstacles", empty_list),
+      planned(key("contact", contact()), "contact", contact_disabled, "only 'enabled: false' is accepted"),
+      key("output", output()),
+  });
+}
+
+}  // namespace
+
+const Spec& scene_schema() {
+  static const SpecPtr spec = scene();
+  return *spec;
+}
+
+}  // namespace softdiff::io

@@ -1,0 +1,546 @@
+// load_scene(): a full scene, defaults, one test per kind of error (exact
+// FILE:LINE:COL: PATH: message), and --set overrides.
+#include <softdiff/core/error.hpp>
+#include <softdiff/io/scene.hpp>
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <system_error>
+#include <vector>
+
+namespace {
+
+namespace fs = std::filesystem;
+using softdiff::InputError;
+using softdiff::Vec3;
+using namespace softdiff::io;
+
+const fs::path kDir = fs::path(SOFTDIFF_TEST_DATA_DIR) / "scene_tests";
+
+void write_file(const fs::path& path, const std::string& text) {
+  std::ofstream out(path, std::ios::binary);
+  out << text;
+}
+
+// Lines: 1 softdiff, 2 simulation, 3 dt, 4 steps, 5 bodies, 6 name, 7 mesh,
+// 8 material, 9 young, 10 poisson, 11 density. Body keys at column 5, material keys at 7.
+const std::string kBase = R"(softdiff: 1
+simulation:
+  dt: 0.01
+  steps: 10
+bodies:
+  - name: beam
+    mesh: meshes/beam.msh
+    material:
+      young: 1.0e5
+      poisson: 0.45
+      density: 1000
+)";
+
+// kBase with the first occurrence of `from` replaced by `to`.
+std::string edit(const std::string& from, const std::string& to, std::string text = kBase) {
+  const auto at = text.find(from);
+  EXPECT_NE(at, std::string::npos) << from;
+  if (at != std::string::npos) text.replace(at, from.size(), to);
+  return text;
+}
+
+class Scene : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {  // (ctest may run these tests as parallel processes)
+    std::error_code ec;
+    fs::create_directories(kDir / "meshes", ec);
+    if (!fs::exists(kDir / "meshes" / "beam.msh"))
+      write_file(kDir / "meshes" / "beam.msh", "not a real mesh: load_scene only checks that it exists\n");
+  }
+
+  // A scene file named after the running test.
+  fs::path write_scene(const std::string& text) {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    const fs::path path = kDir / (std::string(info->name()) + ".yaml");
+    write_file(path, text);
+    return path;
+  }
+
+  SceneDesc load(const std::string& text, const std::vector<std::string>& overrides = {}) {
+    return load_scene(write_scene(text), overrides);
+  }
+
+  // The message of the InputError that loading `text` throws.
+  std::string error(const std::string& text, const std::vector<std::string>& overrides = {}) {
+    const fs::path path = write_scene(text);
+    try {
+      load_scene(path, overrides);
+    } catch (const InputError& e) {
+      return e.what();
+    }
+    ADD_FAILURE() << "no InputError";
+    return {};
+  }
+
+  // The error must be "<scene file><suffix>", e.g. suffix ":10:7: bodies[0]...: ...".
+  void expect_error(const std::string& text, const std::string& suffix, const std::vector<std::string>& overrides = {}) {
+    const std::string message = error(text, overrides);
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    EXPECT_EQ(message, (kDir / (std::string(info->name()) + ".yaml")).string() + suffix);
+  }
+};
+
+// ---------------------------------------------------------------------------
+// Valid scenes
+
+TEST_F(Scene, FullSceneParsesEveryField) {
+  const std::string text = R"(softdiff: 1
+name: cantilever beam
+simulation:
+  integrator: implicit_euler
+  dt: 0.005
+  duration: 0.3
+  gravity: [0, -9.8, 0.5]
+  newton_iterations: 3
+  newton_tolerance: 1.0e-8
+  static:
+    max_iterations: 20
+    tolerance: 1.0e-6
+    load_steps: 4
+linear_solver: {type: cg, tolerance: 1.0e-9, max_iterations: 500}
+bodies:
+  - name: beam
+    type: soft
+    mesh: meshes/../meshes/beam.msh
+    mesh_scale: 0.001
+    translate: [1, 2, 3]
+    rotate_deg: [0, 90, 45]
+    material:
+      law: neo_hookean
+      young: 2.5e5
+      poisson: 0.3
+      density: 1100
+    mass: consistent
+    damping:
+      rayleigh_mass: 0.1
+      rayleigh_stiffness: 0.02
+    psd_projection: true
+    fixed:
+      - box: [-1, -1, -1, 0, 1, 1.5]
+      - group: clamp
+      - nodes: [0, 17, 42]
+      - {group: sym_x0, axes: [x, z]}
+    initial_velocity: [0.5, 0, -1]
+    actuators: []
+    effectors: []
+  - name: second-2
+    mesh: meshes/beam.msh
+    material: {young: 1e6, poisson: 0, density: 500}
+obstacles: []
+contact:
+  enabled: false
+  friction: 0.3
+output:
+  file: out/result.h5
+  every: 5
+  fields: [x, v]
+  jacobians: []
+)";
+  const SceneDesc s = load(text);
+  EXPECT_EQ(s.file, kDir / "FullSceneParsesEveryField.yaml");
+  EXPECT_EQ(s.text, text);
+  EXPECT_EQ(s.name, "cantilever beam");
+
+  EXPECT_EQ(s.simulation.integrator, Integrator::implicit_euler);
+  EXPECT_DOUBLE_EQ(s.simulation.dt, 0.005);
+  EXPECT_EQ(s.simulation.steps, 60);
+  EXPECT_EQ(s.simulation.gravity, Vec3(0, -9.8, 0.5));
+  EXPECT_EQ(s.simulation.newton_iterations, 3);
+  EXPECT_DOUBLE_EQ(s.simulation.newton_tolerance, 1e-8);
+  EXPECT_EQ(s.simulation.static_max_iterations, 20);
+  EXPECT_DOUBLE_EQ(s.simulation.static_tolerance, 1e-6);
+  EXPECT_EQ(s.simulation.static_load_steps, 4);
+
+  EXPECT_EQ(s.linear_solver.kind, LinearSolverKind::cg);
+  EXPECT_DOUBLE_EQ(s.linear_solver.cg_tolerance, 1e-9);
+  EXPECT_EQ(s.linear_solver.cg_max_iterations, 500);
+
+  ASSERT_EQ(s.bodies.size(), 2u);
+  const BodyDesc& b = s.bodies[0];
+  EXPECT_EQ(b.name, "beam");
+  EXPECT_EQ(b.mesh, kDir / "meshes" / "beam.msh");
+  EXPECT_DOUBLE_EQ(b.mesh_scale, 0.001);
+  EXPECT_EQ(b.translate, Vec3(1, 2, 3));
+  EXPECT_EQ(b.rotate_deg, Vec3(0, 90, 45));
+  EXPECT_EQ(b.material.law, softdiff::material::Law::neo_hookean);
+  EXPECT_DOUBLE_EQ(b.material.young, 2.5e5);
+  EXPECT_DOUBLE_EQ(b.material.poisson, 0.3);
+  EXPECT_DOUBLE_EQ(b.material.density, 1100);
+  EXPECT_EQ(b.mass, MassKind::consistent);
+  EXPECT_DOUBLE_EQ(b.rayleigh_mass, 0.1);
+  EXPECT_DOUBLE_EQ(b.rayleigh_stiffness, 0.02);
+  EXPECT_TRUE(b.psd_projection);
+  EXPECT_EQ(b.initial_velocity, Vec3(0.5, 0, -1));
+  ASSERT_EQ(b.fixed.size(), 4u);
+  EXPECT_EQ(b.fixed[0].kind, FixedDesc::Kind::box);
+  EXPECT_EQ(b.fixed[0].box, (std::array<double, 6>{-1, -1, -1, 0, 1, 1.5}));
+  EXPECT_EQ(b.fixed[0].axes, (std::array<bool, 3>{true, true, true}));
+  EXPECT_EQ(b.fixed[1].kind, FixedDesc::Kind::group);
+  EXPECT_EQ(b.fixed[1].group, "clamp");
+  EXPECT_EQ(b.fixed[2].kind, FixedDesc::Kind::nodes);
+  EXPECT_EQ(b.fixed[2].nodes, (std::vector<long>{0, 17, 42}));
+  EXPECT_EQ(b.fixed[3].group, "sym_x0");
+  EXPECT_EQ(b.fixed[3].axes, (std::array<bool, 3>{true, false, true}));
+
+  // Marks kept for build_model's errors.
+  const std::string file = s.file.string();
+  EXPECT_EQ(b.where.str(), file + ":16:5: bodies[0]");
+  EXPECT_EQ(b.material.where.str(), file + ":22:5: bodies[0].material");
+  EXPECT_EQ(b.fixed[0].where.str(), file + ":33:9: bodies[0].fixed[0].box");
+  EXPECT_EQ(b.fixed[1].where.str(), file + ":34:9: bodies[0].fixed[1].group");
+  EXPECT_EQ(b.fixed[3].where.str(), file + ":36:10: bodies[0].fixed[3].group");
+
+  const BodyDesc& b2 = s.bodies[1];
+  EXPECT_EQ(b2.name, "second-2");
+  EXPECT_DOUBLE_EQ(b2.material.young, 1e6);
+  EXPECT_DOUBLE_EQ(b2.material.poisson, 0);
+  EXPECT_EQ(b2.material.law, softdiff::material::Law::corotational);
+
+  EXPECT_EQ(s.output.file, kDir / "out" / "result.h5");
+  EXPECT_EQ(s.output.every, 5);
+  EXPECT_TRUE(s.output.v);
+  EXPECT_FALSE(s.output.contact || s.output.actuation || s.output.effectors);
+  EXPECT_TRUE(s.output.jacobians.empty());
+}
+
+TEST_F(Scene, Defaults) {
+  const SceneDesc s = load(kBase);
+  EXPECT_EQ(s.name, "");
+  EXPECT_EQ(s.simulation.integrator, Integrator::implicit_euler);
+  EXPECT_DOUBLE_EQ(s.simulation.dt, 0.01);
+  EXPECT_EQ(s.simulation.steps, 10);
+  EXPECT_EQ(s.simulation.gravity, Vec3(0, 0, -9.81));
+  EXPECT_EQ(s.simulation.newton_iterations, 1);
+  EXPECT_DOUBLE_EQ(s.simulation.newton_tolerance, 1e-10);
+  EXPECT_EQ(s.simulation.static_max_iterations, 50);
+  EXPECT_DOUBLE_EQ(s.simulation.static_tolerance, 1e-10);
+  EXPECT_EQ(s.simulation.static_load_steps, 1);
+  EXPECT_EQ(s.linear_solver.kind, LinearSolverKind::cholmod);
+  EXPECT_DOUBLE_EQ(s.linear_solver.cg_tolerance, 1e-10);
+  EXPECT_EQ(s.linear_solver.cg_max_iterations, 10000);
+  ASSERT_EQ(s.bodies.size(), 1u);
+  const BodyDesc& b = s.bodies[0];
+  EXPECT_DOUBLE_EQ(b.mesh_scale, 1.0);
+  EXPECT_EQ(b.translate, Vec3::Zero());
+  EXPECT_EQ(b.rotate_deg, Vec3::Zero());
+  EXPECT_EQ(b.material.law, softdiff::material::Law::corotational);
+  EXPECT_EQ(b.mass, MassKind::lumped);
+  EXPECT_EQ(b.rayleigh_mass, 0);
+  EXPECT_EQ(b.rayleigh_stiffness, 0);
+  EXPECT_FALSE(b.psd_projection);
+  EXPECT_TRUE(b.fixed.empty());
+  EXPECT_EQ(b.initial_velocity, Vec3::Zero());
+  EXPECT_TRUE(s.output.file.empty());
+  EXPECT_EQ(s.output.every, 1);
+  EXPECT_FALSE(s.output.v || s.output.contact || s.output.actuation || s.output.effectors);
+}
+
+TEST_F(Scene, StaticIntegratorNeedsNoTimeStep) {
+  const SceneDesc s = load(edit("  dt: 0.01\n  steps: 10\n", "  integrator: static\n  static: {load_steps: 3}\n"));
+  EXPECT_EQ(s.simulation.integrator, Integrator::static_equilibrium);
+  EXPECT_EQ(s.simulation.steps, 0);
+  EXPECT_EQ(s.simulation.static_load_steps, 3);
+}
+
+TEST_F(Scene, LinearSolverAsString) {
+  EXPECT_EQ(load(kBase + "linear_solver: ldlt\n").linear_solver.kind, LinearSolverKind::ldlt);
+  EXPECT_EQ(load(kBase + "linear_solver: cg\n").linear_solver.kind, LinearSolverKind::cg);
+}
+
+TEST_F(Scene, DurationGivesSteps) {
+  EXPECT_EQ(load(edit("steps: 10", "duration: 0.3")).simulation.steps, 30);
+  EXPECT_EQ(load(edit("steps: 10", "duration: 1")).simulation.steps, 100);
+}
+
+TEST_F(Scene, ContactDisabledIsAccepted) {
+  EXPECT_NO_THROW(load(kBase + "contact: {enabled: false}\n"));
+  EXPECT_NO_THROW(load(kBase + "contact:\n"));
+}
+
+// ---------------------------------------------------------------------------
+// Errors: reading and YAML
+
+TEST_F(Scene, MissingFile) {
+  const fs::path path = kDir / "no_such_scene.yaml";
+  try {
+    load_scene(path);
+    FAIL() << "no error";
+  } catch (const InputError& e) {
+    EXPECT_EQ(std::string(e.what()), path.string() + ": cannot read scene file: No such file or directory");
+  }
+}
+
+TEST_F(Scene, YamlSyntaxError) {
+  expect_error(edit("  steps: 10\n", "  steps: 10\n   bad: [1, 2\n"), ":5:7: YAML syntax error: illegal map value");
+  expect_error("softdiff: 1\nsimulation:\n  dt: 0.01: 2\n", ":3:11: YAML syntax error: illegal map value");
+}
+
+TEST_F(Scene, DuplicateKey) {
+  expect_error(edit("  steps: 10\n", "  steps: 10\n  dt: 0.02\n"), ":5:3: simulation.dt: duplicate key (first given at line 3)");
+  expect_error(edit("density: 1000", "density: 1000\n      young: 3"), ":12:7: bodies[0].material.young: duplicate key (first given at line 9)");
+}
+
+TEST_F(Scene, EmptyOrNotAMap) {
+  EXPECT_EQ(error("# nothing\n"), (kDir / "EmptyOrNotAMap.yaml").string() +
+                                      ": empty scene file (expected at least 'softdiff: 1', 'simulation' and 'bodies')");
+  expect_error("- 1\n- 2\n", ":1:1: expected a map of scene keys (softdiff, simulation, bodies, ...), got a list of 2 items");
+}
+
+// ---------------------------------------------------------------------------
+// Errors: version, unknown keys
+
+TEST_F(Scene, Version) {
+  expect_error(edit("softdiff: 1", "softdiff: 2"), ":1:1: softdiff: unsupported format version '2' (supported: 1)");
+  expect_error(edit("softdiff: 1\n", "name: x\n"),
+               ":1:1: missing required key 'softdiff' (the format version; this softdiff reads 'softdiff: 1')");
+}
+
+TEST_F(Scene, UnknownKeyWithSuggestionAtEveryLevel) {
+  expect_error(kBase + "outptu: {}\n", ":12:1: outptu: unknown key; did you mean 'output'?");
+  expect_error(edit("  dt: 0.01", "  dtt: 0.01"), ":3:3: simulation.dtt: unknown key; did you mean 'dt'?");
+  expect_error(edit("  steps: 10\n", "  steps: 10\n  static: {max_iteration: 3}\n"),
+               ":5:12: simulation.static.max_iteration: unknown key; did you mean 'max_iterations'?");
+  expect_error(edit("    mesh:", "    mesh_scal: 2\n    mesh:"), ":7:5: bodies[0].mesh_scal: unknown key; did you mean 'mesh_scale'?");
+  expect_error(edit("young:", "Young:"), ":9:7: bodies[0].material.Young: unknown key; did you mean 'young'?");
+  expect_error(edit("poisson:", "poison:"), ":10:7: bodies[0].material.poison: unknown key; did you mean 'poisson'?");
+  expect_error(kBase + "    damping: {rayleigh_mas: 0.1}\n",
+               ":12:15: bodies[0].damping.rayleigh_mas: unknown key; did you mean 'rayleigh_mass'?");
+  expect_error(kBase + "    fixed:\n      - {group: a, axis: [x]}\n",
+               ":13:20: bodies[0].fixed[0].axis: unknown key; did you mean 'axes'?");
+  expect_error(kBase + "linear_solver: {type: cg, tolerence: 1e-8}\n",
+               ":12:27: linear_solver.tolerence: unknown key; did you mean 'tolerance'?");
+  expect_error(kBase + "output:\n  evry: 2\n", ":13:3: output.evry: unknown key; did you mean 'every'?");
+  expect_error(kBase + "contact: {enabled: false, frction: 0.3}\n",
+               ":12:27: contact.frction: unknown key; did you mean 'friction'?");
+}
+
+TEST_F(Scene, UnknownKeyWithoutSuggestionListsValidKeys) {
+  expect_error(kBase + "    damping: {alpha: 0.1}\n",
+               ":12:15: bodies[0].damping.alpha: unknown key (valid keys: rayleigh_mass, rayleigh_stiffness)");
+}
+
+// ---------------------------------------------------------------------------
+// Errors: types
+
+TEST_F(Scene, WrongType) {
+  expect_error(edit("young: 1.0e5", "young: stiff"), ":9:7: bodies[0].material.young: expected a number, got 'stiff'");
+  expect_error(edit("young: 1.0e5", "young: \"1e5\""),
+               ":9:7: bodies[0].material.young: expected a number, got \"1e5\" (a quoted string)");
+  expect_error(edit("young: 1.0e5", "young: .inf"), ":9:7: bodies[0].material.young: expected a finite number, got '.inf'");
+  expect_error(edit("young: 1.0e5", "young: [1]"), ":9:7: bodies[0].material.young: expected a number, got a list of 1 item");
+  expect_error(edit("young: 1.0e5", "young:"), ":9:7: bodies[0].material.young: expected a number, got nothing (null)");
+  expect_error(edit("steps: 10", "steps: 2.5"), ":4:3: simulation.steps: expected an integer, got '2.5'");
+  expect_error(edit("  steps: 10", "  steps: 10\n  gravity: -9.81"),
+               ":5:3: simulation.gravity: expected a list of 3 numbers [x, y, z], got '-9.81'");
+  expect_error(edit("  steps: 10", "  steps: 10\n  gravity: [0, 0]"),
+               ":5:3: simulation.gravity: expected a list of 3 numbers [x, y, z], got a list of 2 items");
+  expect_error(edit("  steps: 10", "  steps: 10\n  gravity: [0, g, 0]"), ":5:16: simulation.gravity[1]: expected a number, got 'g'");
+  expect_error(kBase + "    psd_projection: yes\n", ":12:5: bodies[0].psd_projection: expected true or false, got 'yes'");
+  expect_error(edit("simulation:\n  dt: 0.01\n  steps: 10\n", "simulation: fast\n"), ":2:1: simulation: expected a map, got 'fast'");
+  expect_error(kBase + "linear_solver: [cg]\n", ":12:1: linear_solver: expected a map or one of: cholmod, ldlt, cg, got a list of 1 item");
+  expect_error("softdiff: 1\nsimulation: {steps: 1}\nbodies: {beam: 1}\n", ":3:1: bodies: expected a list, got a map");
+}
+
+TEST_F(Scene, MessagesAreOneLine) {
+  expect_error(edit("young: 1.0e5", "young: \"a\\nb\""), ":9:7: bodies[0].material.young: expected a number, got \"a\\nb\" (a quoted string)");
+}
+
+TEST_F(Scene, IntegersMayUseExponent) { EXPECT_EQ(load(edit("steps: 10", "steps: 1e3")).simulation.steps, 1000); }
+
+// ---------------------------------------------------------------------------
+// Errors: ranges
+
+TEST_F(Scene, OutOfRange) {
+  const auto body = [](const std::string& line) { return kBase + "    " + line + "\n"; };
+  expect_error(edit("young: 1.0e5", "young: 0"), ":9:7: bodies[0].material.young: must be > 0, got 0");
+  expect_error(edit("poisson: 0.45", "poisson: 0.5"), ":10:7: bodies[0].material.poisson: must be in [0, 0.5), got 0.5");
+  expect_error(edit("poisson: 0.45", "poisson: -0.1"), ":10:7: bodies[0].material.poisson: must be in [0, 0.5), got -0.1");
+  expect_error(edit("density: 1000", "density: -1"), ":11:7: bodies[0].material.density: must be > 0, got -1");
+  expect_error(edit("dt: 0.01", "dt: 0"), ":3:3: simulation.dt: must be > 0, got 0");
+  expect_error(edit("steps: 10", "steps: 0"), ":4:3: simulation.steps: must be >= 1, got 0");
+  expect_error(edit("steps: 10", "duration: 0"), ":4:3: simulation.duration: must be > 0, got 0");
+  expect_error(edit("steps: 10", "steps: 99999999999999999999"), ":4:3: simulation.steps: must be <= 9223372036854775807, got 99999999999999999999");
+  expect_error(edit("steps: 10", "steps: 10\n  newton_iterations: 0"), ":5:3: simulation.newton_iterations: must be >= 1, got 0");
+  expect_error(edit("steps: 10", "steps: 10\n  newton_iterations: 3000000000"),
+               ":5:3: simulation.newton_iterations: must be <= 2147483647, got 3000000000");
+  expect_error(edit("steps: 10", "steps: 10\n  newton_tolerance: -1e-9"), ":5:3: simulation.newton_tolerance: must be > 0, got -1e-9");
+  expect_error(edit("steps: 10", "steps: 10\n  static: {tolerance: 0}"), ":5:12: simulation.static.tolerance: must be > 0, got 0");
+  expect_error(edit("steps: 10", "steps: 10\n  static: {max_iterations: 0}"),
+               ":5:12: simulation.static.max_iterations: must be >= 1, got 0");
+  expect_error(edit("steps: 10", "steps: 10\n  static: {load_steps: 0}"), ":5:12: simulation.static.load_steps: must be >= 1, got 0");
+  expect_error(body("mesh_scale: 0"), ":12:5: bodies[0].mesh_scale: must be > 0, got 0");
+  expect_error(body("damping: {rayleigh_mass: -0.1}"), ":12:15: bodies[0].damping.rayleigh_mass: must be >= 0, got -0.1");
+  expect_error(body("damping: {rayleigh_stiffness: -1}"), ":12:15: bodies[0].damping.rayleigh_stiffness: must be >= 0, got -1");
+  expect_error(body("fixed: [{nodes: [0, -1]}]"), ":12:25: bodies[0].fixed[0].nodes[1]: must be >= 0, got -1");
+  expect_error(kBase + "output: {every: 0}\n", ":12:10: output.every: must be >= 1, got 0");
+  expect_error(kBase + "linear_solver: {type: cg, tolerance: 0}\n", ":12:27: linear_solver.tolerance: must be > 0, got 0");
+  expect_error(kBase + "linear_solver: {type: cg, max_iterations: 0}\n", ":12:27: linear_solver.max_iterations: must be >= 1, got 0");
+}
+
+TEST_F(Scene, Names) {
+  expect_error(edit("name: beam", "name: my beam"),
+               ":6:5: bodies[0].name: must be a name of letters, digits, '_' and '-' ([A-Za-z0-9_-]+), got 'my beam'");
+  const std::string second = "  - name: beam\n    mesh: meshes/beam.msh\n    material: {young: 1, poisson: 0, density: 1}\n";
+  expect_error(kBase + second, ":12:5: bodies[1].name: duplicate body name 'beam' (also bodies[0])");
+}
+
+TEST_F(Scene, Fixed) {
+  const auto fixed = [](const std::string& entry) { return kBase + "    fixed:\n      - " + entry + "\n"; };
+  expect_error(fixed("{box: [0, 0, 0, 1, 1]}"),
+               ":13:10: bodies[0].fixed[0].box: expected a list of 6 numbers [xmin, ymin, zmin, xmax, ymax, zmax], got a list of 5 items");
+  expect_error(fixed("{box: [0, 1, 0, 1, 0, 1]}"), ":13:10: bodies[0].fixed[0].box: min must not exceed max, got ymin 1 > ymax 0");
+  expect_error(fixed("{axes: [x]}"), ":13:9: bodies[0].fixed[0]: needs one of 'box', 'group', 'nodes'");
+  expect_error(fixed("{box: [0, 0, 0, 1, 1, 1], group: clamp}"),
+               ":13:35: bodies[0].fixed[0].group: give only one of 'box', 'group', 'nodes' per entry (this one also has 'box')");
+  expect_error(fixed("{group: clamp, axes: []}"), ":13:24: bodies[0].fixed[0].axes: must not be empty");
+  expect_error(fixed("{group: clamp, axes: [x, y, x]}"), ":13:37: bodies[0].fixed[0].axes[2]: duplicate entry 'x' (also at index 0)");
+  expect_error(fixed("{group: clamp, axes: [w]}"),
+               ":13:31: bodies[0].fixed[0].axes[0]: must be one of: x, y, z; got 'w'");
+  expect_error(fixed("{nodes: []}"), ":13:10: bodies[0].fixed[0].nodes: must not be empty");
+  expect_error(fixed("{group: \"\"}"), ":13:10: bodies[0].fixed[0].group: must not be empty");
+}
+
+// ---------------------------------------------------------------------------
+// Errors: required keys, exclusive keys
+
+TEST_F(Scene, MissingRequiredKey) {
+  expect_error(edit("      young: 1.0e5\n", ""), ":8:5: bodies[0].material: missing required key 'young'");
+  expect_error(edit("    mesh: meshes/beam.msh\n", ""), ":6:5: bodies[0]: missing required key 'mesh'");
+  expect_error("softdiff: 1\nsimulation: {steps: 1}\n", ":1:1: missing required key 'bodies'");
+  expect_error("softdiff: 1\nsimulation: {steps: 1}\nbodies: []\n", ":3:1: bodies: must not be empty");
+}
+
+TEST_F(Scene, StepsAndDuration) {
+  expect_error(edit("steps: 10", "steps: 10\n  duration: 0.1"), ":5:3: simulation.duration: give either 'steps' or 'duration', not both");
+  expect_error(edit("  steps: 10\n", ""), ":2:1: simulation: missing 'steps' or 'duration' (integrator implicit_euler needs exactly one)");
+  expect_error(edit("steps: 10", "duration: 0.305"),
+               ":4:3: simulation.duration: must be a multiple of dt = 0.01 (to 1e-9 relative), got 0.305 = 30.5 dt; use steps or a "
+               "multiple of dt");
+  expect_error(edit("steps: 10", "duration: 0.001"), ":4:3: simulation.duration: must be at least dt = 0.01, got 0.001");
+  expect_error(edit("steps: 10", "integrator: static"), ":3:3: simulation.dt: not used by integrator 'static' (remove it)");
+}
+
+// ---------------------------------------------------------------------------
+// Errors: enums, files, features not supported yet
+
+TEST_F(Scene, BadEnumListsValidValues) {
+  expect_error(edit("      young", "      law: neohookean\n      young"),
+               ":9:7: bodies[0].material.law: must be one of: corotational, stvk, neo_hookean; got 'neohookean' (did you mean "
+               "'neo_hookean'?)");
+  expect_error(edit("  dt", "  integrator: explicit\n  dt"), ":3:3: simulation.integrator: must be one of: implicit_euler, static; got 'explicit'");
+  expect_error(kBase + "linear_solver: cholesky\n", ":12:1: linear_solver: must be one of: cholmod, ldlt, cg; got 'cholesky'");
+  expect_error(kBase + "    mass: lumpd\n", ":12:5: bodies[0].mass: must be one of: lumped, consistent; got 'lumpd' (did you mean 'lumped'?)");
+  expect_error(kBase + "    type: rigid\n",
+               ":12:5: bodies[0].type: must be one of: soft; got 'rigid' (static rigid shapes are 'obstacles')");
+}
+
+TEST_F(Scene, MissingMeshFile) {
+  expect_error(edit("meshes/beam.msh", "meshes/nope.msh"),
+               ":7:5: bodies[0].mesh: mesh file not found: " + (kDir / "meshes" / "nope.msh").string());
+}
+
+TEST_F(Scene, CgOptionsNeedCg) {
+  expect_error(kBase + "linear_solver: {type: ldlt, tolerance: 1e-8}\n",
+               ":12:29: linear_solver.tolerance: only used by type 'cg' (type is 'ldlt')");
+}
+
+TEST_F(Scene, FeaturesNotSupportedYet) {
+  expect_error(kBase + "    actuators:\n      - {name: c, type: cable}\n", ":12:5: bodies[0].actuators: not supported yet (planned: actuators)");
+  expect_error(kBase + "    effectors: [{name: tip, point: [0, 0, 0]}]\n",
+               ":12:5: bodies[0].effectors: not supported yet (planned: effectors)");
+  expect_error(kBase + "obstacles:\n  - {name: floor, type: plane}\n", ":12:1: obstacles: not supported yet (planned: obstacles)");
+  expect_error(kBase + "contact: {enabled: true}\n",
+               ":12:1: contact: not supported yet (planned: contact); only 'enabled: false' is accepted");
+  expect_error(kBase + "contact: {enabled: no}\n", ":12:11: contact.enabled: expected true or false, got 'no'");
+  expect_error(kBase + "contact: {friction: 0.3}\n",
+               ":12:1: contact: not supported yet (planned: contact); only 'enabled: false' is accepted");
+  expect_error(kBase + "output: {jacobians: [young]}\n", ":12:10: output.jacobians: not supported yet (planned: jacobians)");
+  expect_error(kBase + "output: {fields: [x, contact]}\n",
+               ":12:22: output.fields[1]: 'contact' is not supported yet (planned: contact)");
+  expect_error(kBase + "output: {fields: [actuation]}\n",
+               ":12:19: output.fields[0]: 'actuation' is not supported yet (planned: actuators)");
+}
+
+// ---------------------------------------------------------------------------
+// --set
+
+TEST_F(Scene, SetNumbersByNameAndIndex) {
+  const SceneDesc s = load(kBase, {"bodies.beam.material.young=2e5", "bodies.0.material.poisson=0.25",
+                                   "bodies[0].material.density=1200", "simulation.dt=0.02"});
+  EXPECT_DOUBLE_EQ(s.bodies[0].material.young, 2e5);
+  EXPECT_DOUBLE_EQ(s.bodies[0].material.poisson, 0.25);
+  EXPECT_DOUBLE_EQ(s.bodies[0].material.density, 1200);
+  EXPECT_DOUBLE_EQ(s.simulation.dt, 0.02);
+}
+
+TEST_F(Scene, SetListsAndNewKeys) {
+  const SceneDesc s = load(kBase, {"simulation.gravity=[0, 0, -1]", "bodies.beam.fixed=[{group: clamp, axes: [z]}]",
+                                   "bodies.beam.damping.rayleigh_mass=0.5", "output.fields=[x, v]", "name=sweep 3"});
+  EXPECT_EQ(s.simulation.gravity, Vec3(0, 0, -1));
+  ASSERT_EQ(s.bodies[0].fixed.size(), 1u);
+  EXPECT_EQ(s.bodies[0].fixed[0].group, "clamp");
+  EXPECT_EQ(s.bodies[0].fixed[0].axes, (std::array<bool, 3>{false, false, true}));
+  EXPECT_EQ(s.bodies[0].fixed[0].where.str(), "--set: bodies[0].fixed[0].group");
+  EXPECT_DOUBLE_EQ(s.bodies[0].rayleigh_mass, 0.5);
+  EXPECT_TRUE(s.output.v);
+  EXPECT_EQ(s.name, "sweep 3");
+  const std::string with_gravity = edit("  steps: 10\n", "  steps: 10\n  gravity: [0, 0, -9]\n");
+  EXPECT_EQ(load(with_gravity, {"simulation.gravity.2=-3"}).simulation.gravity, Vec3(0, 0, -3));
+}
+
+TEST_F(Scene, SetStepsReplacesDurationAndBack) {
+  const std::string with_duration = edit("steps: 10", "duration: 0.3");
+  EXPECT_EQ(load(with_duration, {"simulation.steps=7"}).simulation.steps, 7);
+  EXPECT_EQ(load(kBase, {"simulation.duration=0.5"}).simulation.steps, 50);
+  EXPECT_EQ(load(with_duration, {"simulation.dt=0.1"}).simulation.steps, 3);
+}
+
+TEST_F(Scene, SetNullRemovesAKey) {
+  const SceneDesc s = load(kBase, {"simulation.integrator=static", "simulation.dt=null", "simulation.steps=~"});
+  EXPECT_EQ(s.simulation.integrator, Integrator::static_equilibrium);
+}
+
+TEST_F(Scene, SetIntoLinearSolverShorthand) {
+  const SceneDesc s = load(kBase + "linear_solver: cg\n", {"linear_solver.max_iterations=50"});
+  EXPECT_EQ(s.linear_solver.kind, LinearSolverKind::cg);
+  EXPECT_EQ(s.linear_solver.cg_max_iterations, 50);
+}
+
+TEST_F(Scene, SetErrors) {
+  EXPECT_EQ(error(kBase, {"bodies.beam.material.yung=2e5"}), "--set bodies.beam.material.yung: unknown key 'yung'; did you mean 'young'?");
+  EXPECT_EQ(error(kBase, {"simulaton.dt=1"}), "--set simulaton.dt: unknown key 'simulaton'; did you mean 'simulation'?");
+  EXPECT_EQ(error(kBase, {"bodies.beam.damping.alpha=1"}),
+            "--set bodies.beam.damping.alpha: unknown key 'alpha' (valid keys of 'bodies.beam.damping': rayleigh_mass, "
+            "rayleigh_stiffness)");
+  EXPECT_EQ(error(kBase, {"bodies.bam.material.young=2e5"}), "--set bodies.bam.material.young: no body named 'bam' (bodies: beam)");
+  EXPECT_EQ(error(kBase, {"bodies.3.mesh=x.msh"}), "--set bodies.3.mesh: index 3 out of range ('bodies' has 1 item)");
+  EXPECT_EQ(error(kBase, {"simulation.dt.x=1"}), "--set simulation.dt.x: cannot set 'x': 'simulation.dt' is a number, not a map or a list");
+  EXPECT_EQ(error(kBase, {"simulation.gravity=[0, 0, -1]", "simulation.gravity.z=1"}),
+            "--set simulation.gravity.z: 'z' is not an index into 'simulation.gravity' (a list)");
+  EXPECT_EQ(error(kBase, {"simulation.gravity.2=-3"}),
+            "--set simulation.gravity.2: 'simulation.gravity' is not in the scene; set the whole list (simulation.gravity=[...])");
+  EXPECT_EQ(error(kBase, {"simulation.dt"}), "--set simulation.dt: expected KEY=VALUE (e.g. bodies.beam.material.young=2e5)");
+  EXPECT_EQ(error(kBase, {"simulation.gravity=[0, 0"}),
+            "--set simulation.gravity: invalid YAML value '[0, 0': YAML syntax error: end of sequence flow not found");
+  // Values given by --set are validated like the file's, with "--set" as their place.
+  EXPECT_EQ(error(kBase, {"bodies.beam.material.young=-1"}), "--set: bodies[0].material.young: must be > 0, got -1");
+  EXPECT_EQ(error(kBase, {"simulation.gravity=[0, 0]"}),
+            "--set: simulation.gravity: expected a list of 3 numbers [x, y, z], got a list of 2 items");
+  EXPECT_EQ(error(kBase, {"bodies.beam.material.law=neohookean"}),
+            "--set: bodies[0].material.law: must be one of: corotational, stvk, neo_hookean; got 'neohookean' (did you mean "
+            "'neo_hookean'?)");
+  EXPECT_EQ(error(kBase, {"contact.enabled=true"}),
+            "--set: contact: not supported yet (planned: contact); only 'enabled: false' is accepted");
+  EXPECT_EQ(error(kBase, {"softdiff=2"}), "--set: softdiff: unsupported format version '2' (supported: 1)");
+}
+
+}  // namespace
