@@ -38,9 +38,15 @@ struct Model {
   integrator::SolverOptions solver;
   State initial;  // x = rest positions, v = initial velocities (0 on fixed dofs)
 
-  // True when the system matrix A does not depend on the state (then it is
-  // factorized once per run). Not the case for any nonlinear law.
-  bool constant_system_matrix() const { return false; }
+  // True when the system matrix A does not depend on the state: every body uses
+  // the `linear` law (constant K; h is constant). Then K is assembled and A
+  // factorized once per run, and f_int = -K (x - X) is a product with the stored K.
+  bool constant_system_matrix() const {
+    if (fem.bodies.empty()) return false;
+    for (const auto& b : fem.bodies)
+      if (b.law != material::Law::linear || b.psd_projection) return false;
+    return true;
+  }
 };
 
 }  // namespace softdiff

@@ -177,3 +177,28 @@ TEST(StaticSolver, LoadStepsReachTheSameEquilibrium) {
 }
 
 }  // namespace
+
+namespace {
+
+// A scene of `linear` bodies has a constant system matrix: one factorization per
+// run, and the same trajectory as refactorizing every step.
+TEST(ImplicitEuler, LinearLawFactorizesOnce) {
+  Model model = cantilever(material::Law::linear, 0.5, 0.002, 1);
+  ASSERT_TRUE(model.constant_system_matrix());
+  Model refactor = model;
+  refactor.fem.bodies[0].psd_projection = true;  // same matrix (already PSD) but not flagged constant
+  ASSERT_FALSE(refactor.constant_system_matrix());
+  Data a(model), b(refactor);
+  State sa = model.initial, sb = model.initial, na, nb;
+  for (int k = 1; k <= 20; ++k) {
+    ASSERT_TRUE(integrator::implicit_euler_step(model, a, sa, na, k).ok());
+    ASSERT_TRUE(integrator::implicit_euler_step(refactor, b, sb, nb, k).ok());
+    std::swap(sa, na);
+    std::swap(sb, nb);
+  }
+  EXPECT_EQ(a.factorizations, 1);
+  EXPECT_EQ(b.factorizations, 20);
+  EXPECT_LT((sa.x - sb.x).cwiseAbs().maxCoeff(), 1e-9 * (sb.x - model.initial.x).cwiseAbs().maxCoeff());
+}
+
+}  // namespace

@@ -123,10 +123,19 @@ StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, 
   data.timings = {};
   auto t0 = Clock::now();
 
-  // 1. Linearization at x_i: f_int, K (the record the derivatives use).
-  if (!fem::evaluate(fem, in.x, {false, true, true}, data.fem)) return inverted(model, data, step_index);
-  // 2. A = M + h D + h^2 K and b = h (P + f - D v_i) - h^2 K v_i, per body.
-  assemble_system_matrix(model, h, data.fem.K_values, data.fem.K_values, data);
+  // 1. Linearization at x_i: f_int, K (the record the derivatives use). With a
+  // constant system matrix (all bodies `linear`), K and the factor of A are kept
+  // from the first step and f_int = -K (x_i - X).
+  const bool reuse = model.constant_system_matrix() && data.factor_is_current;
+  if (reuse) {
+    data.x_iter = in.x - Eigen::Map<const VecX>(fem.X.data(), 3 * fem.num_nodes);
+    fem::symmetric_multiply(fem, data.fem.K_values, data.x_iter, data.fem.f_int);
+    data.fem.f_int = -data.fem.f_int;
+  } else {
+    if (!fem::evaluate(fem, in.x, {false, true, true}, data.fem)) return inverted(model, data, step_index);
+    // 2. A = M + h D + h^2 K and b = h (P + f - D v_i) - h^2 K v_i, per body.
+    assemble_system_matrix(model, h, data.fem.K_values, data.fem.K_values, data);
+  }
   fem::symmetric_multiply(fem, fem.mass_values, in.v, data.Mv);
   fem::symmetric_multiply(fem, data.fem.K_values, in.v, data.Kv);
   for (const auto& b : fem.bodies) {
@@ -140,7 +149,8 @@ StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, 
   data.timings.assembly += seconds_since(t0);
 
   t0 = Clock::now();
-  StepStatus status = factorize(model, data, step_index);
+  StepStatus status;
+  if (!reuse) status = factorize(model, data, step_index);
   data.timings.factorization += seconds_since(t0);
   if (!status.ok()) return status;
 

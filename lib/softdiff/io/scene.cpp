@@ -14,8 +14,11 @@
 // LINE:COL point at the key for a map value, at the item for a list item.
 //
 // Extensions to scene.md (all optional; scenes written to the spec are unaffected):
-//   simulation.newton_tolerance: 1e-10    > 0; relative velocity-increment tolerance
-//                                         that ends Newton early when newton_iterations > 1
+//   simulation.newton_tolerance: 1e-10    > 0; relative residual of the implicit Euler
+//                                         equations that ends Newton early when
+//                                         newton_iterations > 1 (docs/method.md)
+//   bodies[].material.law: linear         small-strain elasticity (constant stiffness:
+//                                         one factorization per run)
 //   linear_solver: {type: cg, tolerance: 1e-10, max_iterations: 10000}
 //                                         the map form of linear_solver (`linear_solver: cg`
 //                                         is {type: cg}); type defaults to cholmod;
@@ -213,6 +216,7 @@ class Reader {
     if (const Node* law = get(material->value, "law"))
       m.law = law->scalar == "stvk"          ? material::Law::stvk
               : law->scalar == "neo_hookean" ? material::Law::neo_hookean
+              : law->scalar == "linear"      ? material::Law::linear
                                              : material::Law::corotational;
     m.young = number(get(material->value, "young"), 0);
     m.poisson = number(get(material->value, "poisson"), 0);

@@ -37,7 +37,7 @@ SpecPtr node_selection(bool with_nodes_and_axes) {
 
 SpecPtr material() {
   return map({
-      key("law", choice({"corotational", "stvk", "neo_hookean"})),
+      key("law", choice({"corotational", "stvk", "neo_hookean", "linear"})),
       required("young", number(gt(0))),
       required("poisson", number(half_open(0, 0.5))),
       required("density", number(gt(0))),

@@ -7,6 +7,7 @@ std::string_view law_name(Law law) {
     case Law::corotational: return "corotational";
     case Law::stvk: return "stvk";
     case Law::neo_hookean: return "neo_hookean";
+    case Law::linear: return "linear";
   }
   return "?";
 }

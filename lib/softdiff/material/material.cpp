@@ -15,6 +15,7 @@
 #include <softdiff/material/material.hpp>
 #include <softdiff/material/neo_hookean.hpp>
 #include <softdiff/material/psd.hpp>
+#include <softdiff/material/linear.hpp>
 #include <softdiff/material/stvk.hpp>
 
 #include <limits>
@@ -26,6 +27,7 @@ double psi(Law law, const Mat3& F, const Lame& lame) {
     case Law::corotational: return corotational::psi(F, lame.mu, lame.lambda);
     case Law::stvk: return stvk::psi(F, lame.mu, lame.lambda);
     case Law::neo_hookean: return neo_hookean::psi(F, lame.mu, lame.lambda);
+    case Law::linear: return linear::psi(F, lame.mu, lame.lambda);
   }
   return std::numeric_limits<double>::quiet_NaN();
 }
@@ -44,6 +46,7 @@ bool stress(Law law, const Mat3& F, const Lame& lame, Mat3& P, Mat9* dP_dF, Poin
     }
     case Law::stvk: stvk::stress(F, lame.mu, lame.lambda, P, dP_dF); return true;
     case Law::neo_hookean: return neo_hookean::stress(F, lame.mu, lame.lambda, P, dP_dF);
+    case Law::linear: linear::stress(F, lame.mu, lame.lambda, P, dP_dF); return true;
   }
   return false;
 }
@@ -55,6 +58,7 @@ bool stress_hessian_directional(Law law, const Mat3& F, const Lame& lame, const 
       return true;
     case Law::stvk: stvk::stress_hessian_directional(F, lame.mu, lame.lambda, dF, d_dP_dF); return true;
     case Law::neo_hookean: return neo_hookean::stress_hessian_directional(F, lame.mu, lame.lambda, dF, d_dP_dF);
+    case Law::linear: d_dP_dF.setZero(); return true;  // constant dP/dF
   }
   return false;
 }

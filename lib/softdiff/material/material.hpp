@@ -11,7 +11,8 @@
 
 namespace softdiff::material {
 
-enum class Law { corotational, stvk, neo_hookean };
+// linear: small-strain elasticity (a softdiff extension, constant stiffness).
+enum class Law { corotational, stvk, neo_hookean, linear };
 std::string_view law_name(Law law);
 
 struct Lame {
