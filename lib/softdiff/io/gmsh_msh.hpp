@@ -9,7 +9,24 @@
 //   - tets whose |volume| is below `degenerate_rel_tol` * (mean |volume|) are an
 //     InputError listing them (ids in the file and volumes).
 // Every error is an InputError whose message starts with `FILE:` (and the line
-// number, for ASCII files: `FILE:LINE: ...`).
+// number, for ASCII files: `FILE:LINE: ...`; in binary data: `FILE: byte N: ...`).
+//
+// Details of the cleaning (see also TetMesh / PhysicalGroup):
+//   - An element listed more than once with the same node set (MSH 2 repeats an
+//     element once per physical group it belongs to) is kept once and belongs to
+//     all those groups; its first occurrence gives its node order and tag.
+//   - A negative tet (a, b, c, d) becomes (a, b, d, c).
+//   - Degenerate means |volume| <= degenerate_rel_tol * mean |volume|.
+//   - Triangles with a node that is in no tet are not on the body: they are
+//     dropped (TetMesh::dropped_triangles, PhysicalGroup::dropped_triangles).
+//   - A group's `nodes` are the nodes of all its elements as listed in the file
+//     (dropped triangles included) that are simulation nodes; the others are
+//     counted in PhysicalGroup::dropped_nodes.
+//   - Groups are sorted by (dim, tag); a group named in $PhysicalNames without
+//     elements in the file is still listed, with empty index lists.
+//   - MSH 4.1: physical tags come from $Entities (or $PartitionedEntities for
+//     partitioned meshes); a file without $Entities has no physical groups.
+//   - Binary files must have the byte order of this machine.
 #include <softdiff/mesh/tet_mesh.hpp>
 
 #include <filesystem>
