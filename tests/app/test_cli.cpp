@@ -53,6 +53,7 @@ std::string status_attribute(const fs::path& file) {
       char* s = nullptr;
       const hid_t mem = H5Tcopy(H5T_C_S1);
       H5Tset_size(mem, H5T_VARIABLE);
+      H5Tset_cset(mem, H5Tget_cset(type));
       if (H5Aread(a, mem, &s) >= 0 && s) value = s;
       H5free_memory(s);
       H5Tclose(mem);
@@ -124,6 +125,8 @@ std::string replace(std::string s, const std::string& from, const std::string& t
   s.replace(s.find(from), from.size(), to);
   return s;
 }
+
+void PrintTo(const BadInput& b, std::ostream* os) { *os << b.name; }
 
 INSTANTIATE_TEST_SUITE_P(
     Cases, CliBadInput,

@@ -76,7 +76,7 @@ TEST_P(AssemblyLaw, GlobalForcesAndStiffnessMatchFiniteDifferences) {
 }
 
 INSTANTIATE_TEST_SUITE_P(AllLaws, AssemblyLaw, ::testing::Values(Law::corotational, Law::stvk, Law::neo_hookean),
-                         [](const auto& info) { return std::string(material::law_name(info.param)); });
+                         [](const auto& p) { return std::string(material::law_name(p.param)); });
 
 TEST(Mass, LumpedAndConsistentSumToBodyMassAndGravityIsWeight) {
   const auto mesh = test::box_mesh(3, 2, 2, 0.3, 0.1, 0.05);

@@ -145,8 +145,8 @@ TEST_P(ElementLaw, PsdProjectionGivesPositiveSemidefiniteStiffness) {
 
 INSTANTIATE_TEST_SUITE_P(AllLaws, ElementLawFd,
                          ::testing::Values(Law::corotational, Law::stvk, Law::neo_hookean, Law::linear),
-                         [](const auto& info) { return std::string(material::law_name(info.param)); });
+                         [](const auto& p) { return std::string(material::law_name(p.param)); });
 INSTANTIATE_TEST_SUITE_P(AllLaws, ElementLaw, ::testing::Values(Law::corotational, Law::stvk, Law::neo_hookean),
-                         [](const auto& info) { return std::string(material::law_name(info.param)); });
+                         [](const auto& p) { return std::string(material::law_name(p.param)); });
 
 }  // namespace

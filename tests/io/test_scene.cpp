@@ -434,7 +434,7 @@ TEST_F(Scene, StepsAndDuration) {
 
 TEST_F(Scene, BadEnumListsValidValues) {
   expect_error(edit("      young", "      law: neohookean\n      young"),
-               ":9:7: bodies[0].material.law: must be one of: corotational, stvk, neo_hookean; got 'neohookean' (did you mean "
+               ":9:7: bodies[0].material.law: must be one of: corotational, stvk, neo_hookean, linear; got 'neohookean' (did you mean "
                "'neo_hookean'?)");
   expect_error(edit("  dt", "  integrator: explicit\n  dt"), ":3:3: simulation.integrator: must be one of: implicit_euler, static; got 'explicit'");
   expect_error(kBase + "linear_solver: cholesky\n", ":12:1: linear_solver: must be one of: cholmod, ldlt, cg; got 'cholesky'");
@@ -536,7 +536,7 @@ TEST_F(Scene, SetErrors) {
   EXPECT_EQ(error(kBase, {"simulation.gravity=[0, 0]"}),
             "--set: simulation.gravity: expected a list of 3 numbers [x, y, z], got a list of 2 items");
   EXPECT_EQ(error(kBase, {"bodies.beam.material.law=neohookean"}),
-            "--set: bodies[0].material.law: must be one of: corotational, stvk, neo_hookean; got 'neohookean' (did you mean "
+            "--set: bodies[0].material.law: must be one of: corotational, stvk, neo_hookean, linear; got 'neohookean' (did you mean "
             "'neo_hookean'?)");
   EXPECT_EQ(error(kBase, {"contact.enabled=true"}),
             "--set: contact: not supported yet (planned: contact); only 'enabled: false' is accepted");

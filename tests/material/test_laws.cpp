@@ -30,6 +30,7 @@
 #include <softdiff/material/material.hpp>
 #include <softdiff/material/neo_hookean.hpp>
 #include <softdiff/material/psd.hpp>
+#include <softdiff/material/linear.hpp>
 #include <softdiff/material/stvk.hpp>
 
 #include <gtest/gtest.h>
@@ -160,6 +161,7 @@ T psi_t(Law law, const Eigen::Matrix<T, 3, 3>& F, const Lame& l) {
     case Law::corotational: return corotational::psi(F, l.mu, l.lambda);
     case Law::stvk: return stvk::psi(F, l.mu, l.lambda);
     case Law::neo_hookean: return neo_hookean::psi(F, l.mu, l.lambda);
+    case Law::linear: return linear::psi(F, l.mu, l.lambda);  // tested in test_linear.cpp
   }
   return T(std::numeric_limits<double>::quiet_NaN());
 }
