@@ -77,6 +77,8 @@ void BM_Step(benchmark::State& st) {
   st.counters["other_ms"] = total.other * per;
   st.counters["floor_ms"] = 1e3 * floor;
   st.counters["ratio"] = wall / steps / floor;
+  st.counters["L_nnz"] = floor_solver->factor_nonzeros();
+  st.counters["floor_GFlops"] = floor_solver->factor_flops() / floor * 1e-9;
   st.SetLabel(std::string(material::law_name(law)));
 }
 

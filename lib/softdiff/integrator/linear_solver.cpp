@@ -90,6 +90,7 @@ class CholmodSolver final : public LinearSolver {
   }
 
   double factor_nonzeros() const override { return common_.lnz; }
+  double factor_flops() const override { return common_.fl; }
 
  private:
   static cholmod_sparse wrap(const SparseMatrix& A) {

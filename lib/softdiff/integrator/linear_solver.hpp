@@ -38,6 +38,7 @@ class LinearSolver {
   virtual bool solve(const MatX& B, MatX& X);
   // Figures of the last factorization, for reports: nonzeros in L, flops.
   virtual double factor_nonzeros() const { return 0; }
+  virtual double factor_flops() const { return 0; }
 };
 
 std::unique_ptr<LinearSolver> make_linear_solver(const SolverOptions& options);
