@@ -14,7 +14,7 @@
 // the points of pair j (j = 0..9) sit at radius CableRadius0 + d.y*CablePitch*j and heights
 // CableZLow + d.z*CablePitch*j and CableZHigh + d.z*CablePitch*j, i.e. 3 mm either side of
 // groove j+1, on its flanks. In the upstream mesh 11 of the 20 points of each long cable lie
-// 0.01-0.8 mm outside the body (grooves 2-8 are too wide for them). With FitCables = 1
+// 0.01-0.8 mm outside the body (grooves 2-7 are too wide for them). With FitCables = 1
 // (default) a flank is made just steep enough that every cable point lies at least
 // CableClearance inside it (distance normal to the flank; 0.25 mm is what the upstream
 // outline gives at groove 1, which is kept as measured). Only the flank angles change; the
