@@ -1,0 +1,106 @@
+// Per-step evaluations of the actuators allocate nothing. The test binary interposes
+// malloc (forwarding to glibc's __libc_malloc) and counts calls while a scope is
+// active: this catches std containers (operator new calls malloc) and Eigen's dynamic
+// temporaries (Eigen's aligned_malloc calls malloc) alike.
+#include <softdiff/actuation/cable.hpp>
+#include <softdiff/actuation/effector.hpp>
+#include <softdiff/actuation/pressure.hpp>
+#include <softdiff/actuation/servo.hpp>
+
+#include "helpers.hpp"
+
+#include <cstdlib>
+#include <gtest/gtest.h>
+
+extern "C" void* __libc_malloc(std::size_t size);
+
+namespace {
+bool counting = false;
+long allocations = 0;
+}  // namespace
+
+extern "C" void* malloc(std::size_t size) noexcept {
+  if (counting) ++allocations;
+  return __libc_malloc(size);
+}
+
+using namespace softdiff;
+using namespace softdiff::actuation;
+
+namespace {
+
+struct Count {
+  Count() {
+    allocations = 0;
+    counting = true;
+  }
+  ~Count() { counting = false; }
+  long stop() {
+    counting = false;
+    return allocations;
+  }
+};
+
+}  // namespace
+
+TEST(Allocation, CounterSeesAllocations) {
+  Count count;
+  std::vector<int> v(10);
+  VecX w = VecX::Zero(100);
+  const long n = count.stop();
+  EXPECT_GE(n, 2) << "the malloc interposition does not work";
+  EXPECT_EQ(v.size() + w.size(), 110u);
+}
+
+TEST(Allocation, ActuatorEvaluationsAreAllocationFree) {
+  std::mt19937 rng(40);
+  const Vec3 size(0.03, 0.02, 0.02);
+  const mesh::TetMesh m = test::jittered_box(3, 2, 2, size[0], size[1], size[2], 0.2, rng);
+  const PointLocator locator(m.X, m.tets);
+  std::vector<EmbeddedPoint> points;
+  for (const Vec3& p : {Vec3(0.001, 0.01, 0.01), Vec3(0.015, 0.017, 0.006), Vec3(0.029, 0.003, 0.009)})
+    points.push_back(embedded_point(locator.locate(p).embedding, m.tets, 0));
+  const Cable cable(points, Vec3(-0.01, 0.01, 0.01));
+  Cavity cavity;
+  ASSERT_TRUE(Cavity::create(m.X, m.tets, test::box_boundary(m, size), 0, cavity).ok());
+  const VecX x_rest = test::flatten(m.X);
+  Servo translation, rotation;
+  ASSERT_TRUE(Servo::translation({0, 1, 2, 5}, Vec3::UnitX(), x_rest, translation).ok());
+  ASSERT_TRUE(Servo::rotation({0, 1, 2, 5, 7}, Vec3::UnitZ(), Vec3(0.01, 0.01, 0), x_rest, rotation).ok());
+  const Effector effector(points[1]);
+
+  const VecX x = test::deform(x_rest, 1e-3, rng), dx = VecX::Random(x.size());
+  VecX f = VecX::Zero(x.size()), H(x.size()), out = VecX::Zero(x.size());
+  Mat3X v_cable(3, cable.nodes().size()), v_cavity(3, cavity.nodes().size());
+  Mat3X v_translation(3, translation.nodes().size()), v_rotation(3, rotation.nodes().size());
+  double sink = 0;
+  LocateResult r;
+
+  Count count;
+  sink += cable.length(x);
+  cable.add_force(x, 1.0, 0.01, f);
+  cable.gradient(x, H);
+  cable.gradient_sparse(x, v_cable);
+  cable.add_force_derivative(x, 1.0, dx, out);
+  sink += cavity.volume(x);
+  cavity.add_force(x, 1.0, 0.01, f);
+  cavity.gradient(x, H);
+  cavity.gradient_sparse(x, v_cavity);
+  cavity.add_force_derivative(x, 1.0, dx, out);
+  translation.add_force(x, 1.0, 0.01, f);
+  translation.gradient(x, H);
+  translation.gradient_sparse(x, v_translation);
+  translation.add_force_derivative(x, 1.0, dx, out);
+  rotation.add_force(x, 1.0, 0.01, f);
+  rotation.gradient(x, H);
+  rotation.gradient_sparse(x, v_rotation);
+  rotation.add_force_derivative(x, 1.0, dx, out);
+  sink += effector.position(x).sum() + effector.jacobian_times(dx).sum();
+  effector.add_jacobian_transpose(Vec3(1, 2, 3), 1.0, out);
+  r = locator.locate(Vec3(0.011, 0.004, 0.013));
+  r = locator.locate(Vec3(0.031, 0.004, 0.013));
+  const long n = count.stop();
+  EXPECT_EQ(n, 0);
+  EXPECT_TRUE(std::isfinite(sink + f.sum() + H.sum() + out.sum()));
+  EXPECT_NE(r.status, LocateStatus::no_tets);
+}
