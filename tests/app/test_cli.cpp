@@ -154,7 +154,7 @@ INSTANTIATE_TEST_SUITE_P(
         BadInput{"no_output_folder", beam_scene(), "simulate scene.yaml -o nofolder/o.h5", "nofolder"},
         BadInput{"info_broken_mesh", "", "info broken.msh", "broken.msh"},
         BadInput{"info_unknown_type", "x", "info scene.yaml.txt", "scene.yaml.txt"}),
-    [](const auto& info) { return info.param.name; });
+    [](const auto& p) { return p.param.name; });
 
 TEST(Cli, DivergenceExitsOneAndKeepsCompletedFrames) {
   const auto dir = fresh_dir("diverge");
