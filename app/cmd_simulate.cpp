@@ -99,7 +99,40 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
   const long total = is_static ? model.step.static_load_steps : model.step.steps;
   const long every = std::max<long>(1, scene.output.every);
   State state = model.initial, next = model.initial;
-  writer.append_frame(state.t, state.x, &state.v, 0.0);
+  // Per-frame series of actuators (value, and cable length / closed-cavity volume)
+  // and effectors (position).
+  struct Series {
+    int value = -1, measure = -1;
+  };
+  std::vector<Series> actuator_series;
+  for (const auto& a : model.actuation.actuators) {
+    Series s;
+    s.value = writer.add_series("/actuators/" + a.name + "/value", 0);
+    if (a.has_measure()) s.measure = writer.add_series("/actuators/" + a.name + "/" + a.measure_name(), 0);
+    actuator_series.push_back(s);
+  }
+  std::vector<int> effector_series;
+  for (const auto& e : model.actuation.effectors)
+    effector_series.push_back(
+        writer.add_series("/bodies/" + model.fem.bodies[e.body].name + "/effectors/" + e.name, 3));
+  auto write_frame = [&](const State& st, double step_seconds) {
+    writer.append_frame(st.t, st.x, &st.v, step_seconds);
+    for (size_t a = 0; a < actuator_series.size(); ++a) {
+      const auto& act = model.actuation.actuators[a];
+      double value = act.value.at(st.t);
+      if (is_static && act.value.points.empty()) value *= st.t;  // static: constant values ramped by the load factor
+      writer.append_series(actuator_series[a].value, &value);
+      if (actuator_series[a].measure >= 0) {
+        const double m = act.measure(st.x);
+        writer.append_series(actuator_series[a].measure, &m);
+      }
+    }
+    for (size_t e = 0; e < effector_series.size(); ++e) {
+      const Vec3 p = model.actuation.effectors[e].effector.position(st.x);
+      writer.append_series(effector_series[e], p.data());
+    }
+  };
+  write_frame(state, 0.0);
 
   StepTimings timings;
   double output_seconds = 0;
@@ -114,7 +147,7 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
     failure = integrator::solve_static(model, data, state, next, [&](long s, const State& st) {
       const double step_seconds = seconds_since(t0);
       auto tw = Clock::now();
-      writer.append_frame(st.t, st.x, &st.v, step_seconds);
+      write_frame(st, step_seconds);
       output_seconds += seconds_since(tw);
       steps_done = s;
       progress.update(s);
@@ -147,7 +180,7 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
       steps_done = k;
       if (k % every == 0 || k == total) {
         auto tw = Clock::now();
-        writer.append_frame(state.t, state.x, &state.v, step_seconds);
+        write_frame(state, step_seconds);
         output_seconds += seconds_since(tw);
       }
       progress.update(k);

@@ -16,6 +16,8 @@ Data::Data(const Model& model) {
   Kv = VecX::Zero(ndof);
   x_iter = VecX::Zero(ndof);
   v_iter = VecX::Zero(ndof);
+  lambda_a = VecX::Zero(static_cast<Eigen::Index>(model.actuation.actuators.size()));
+  f_act = VecX::Zero(ndof);
   solver = integrator::make_linear_solver(model.solver);
 }
 

@@ -45,6 +45,8 @@ struct Data {
   VecX rhs;                         // (3n) right-hand side of the last solve (projected)
   VecX dv;                          // (3n) solution of the last solve
   VecX Mv, Kv, Mvi;                 // (3n) scratch: M v, K v, M v_i
+  VecX lambda_a;                    // (n_a) actuation values used by the last step (at t_i + h)
+  VecX f_act;                       // (3n) H_a(x_i)^T lambda_a of the last step (unprojected, without h)
   VecX x_iter, v_iter;              // (3n) Newton iterates
   std::unique_ptr<integrator::LinearSolver> solver;
   bool analyzed = false;            // symbolic factorization done (once per scene)

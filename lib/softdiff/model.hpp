@@ -1,6 +1,7 @@
 #pragma once
 // Model / State: the aggregate of every stage's constant part, and the state of a
 // frame. See data.hpp for the per-step workspace and record.
+#include <softdiff/actuation/actuation_model.hpp>
 #include <softdiff/core/types.hpp>
 #include <softdiff/fem/fem_model.hpp>
 #include <softdiff/integrator/linear_solver.hpp>
@@ -34,6 +35,7 @@ struct State {
 struct Model {
   std::string name;
   fem::FemModel fem;
+  actuation::ActuationModel actuation;  // actuators (values over time) and effectors
   StepSettings step;
   integrator::SolverOptions solver;
   State initial;  // x = rest positions, v = initial velocities (0 on fixed dofs)

@@ -454,9 +454,6 @@ TEST_F(Scene, CgOptionsNeedCg) {
 }
 
 TEST_F(Scene, FeaturesNotSupportedYet) {
-  expect_error(kBase + "    actuators:\n      - {name: c, type: cable}\n", ":12:5: bodies[0].actuators: not supported yet (planned: actuators)");
-  expect_error(kBase + "    effectors: [{name: tip, point: [0, 0, 0]}]\n",
-               ":12:5: bodies[0].effectors: not supported yet (planned: effectors)");
   expect_error(kBase + "obstacles:\n  - {name: floor, type: plane}\n", ":12:1: obstacles: not supported yet (planned: obstacles)");
   expect_error(kBase + "contact: {enabled: true}\n",
                ":12:1: contact: not supported yet (planned: contact); only 'enabled: false' is accepted");
@@ -466,8 +463,71 @@ TEST_F(Scene, FeaturesNotSupportedYet) {
   expect_error(kBase + "output: {jacobians: [young]}\n", ":12:10: output.jacobians: not supported yet (planned: jacobians)");
   expect_error(kBase + "output: {fields: [x, contact]}\n",
                ":12:22: output.fields[1]: 'contact' is not supported yet (planned: contact)");
-  expect_error(kBase + "output: {fields: [actuation]}\n",
-               ":12:19: output.fields[0]: 'actuation' is not supported yet (planned: actuators)");
+}
+
+// ---------------------------------------------------------------------------
+// Actuators and effectors
+
+TEST_F(Scene, ActuatorsAndEffectorsParse) {
+  const SceneDesc s = load(kBase + R"(    actuators:
+      - {name: c1, type: cable, points: [[0, 0, 0], [1, 0, 0]], pull_point: [-1, 0, 0], force: 2.5, limits: [0, 20]}
+      - {name: cav, type: pressure, surface: cavity, schedule: [[0, 0], [1, 500]]}
+      - {name: s1, type: servo, nodes: {box: [0, 0, 0, 1, 1, 1]}, direction: [0, 0, 2], force: -1}
+      - {name: s2, type: servo, nodes: {group: clamp}, axis: [0, 1, 0], center: [0, 0, 0.5]}
+    effectors:
+      - {name: tip, point: [0.2, 0.01, 0.01]}
+output: {fields: [x, actuation, effectors]}
+)");
+  const auto& a = s.bodies[0].actuators;
+  ASSERT_EQ(a.size(), 4u);
+  EXPECT_EQ(a[0].kind, ActuatorDesc::Kind::cable);
+  EXPECT_EQ(a[0].points.size(), 2u);
+  ASSERT_TRUE(a[0].pull_point.has_value());
+  EXPECT_EQ(*a[0].pull_point, Vec3(-1, 0, 0));
+  EXPECT_DOUBLE_EQ(a[0].value, 2.5);
+  ASSERT_TRUE(a[0].limits.has_value());
+  EXPECT_DOUBLE_EQ((*a[0].limits)[1], 20);
+  EXPECT_EQ(a[1].kind, ActuatorDesc::Kind::pressure);
+  EXPECT_EQ(a[1].surface, "cavity");
+  ASSERT_EQ(a[1].schedule.size(), 2u);
+  EXPECT_DOUBLE_EQ(a[1].schedule[1][1], 500);
+  EXPECT_EQ(a[2].kind, ActuatorDesc::Kind::servo);
+  EXPECT_FALSE(a[2].rotation);
+  EXPECT_EQ(a[2].nodes.kind, FixedDesc::Kind::box);
+  EXPECT_TRUE(a[3].rotation);
+  EXPECT_EQ(a[3].nodes.group, "clamp");
+  EXPECT_EQ(a[3].center, Vec3(0, 0, 0.5));
+  ASSERT_EQ(s.bodies[0].effectors.size(), 1u);
+  EXPECT_EQ(s.bodies[0].effectors[0].name, "tip");
+  EXPECT_TRUE(s.output.actuation);
+  EXPECT_TRUE(s.output.effectors);
+}
+
+TEST_F(Scene, ActuatorErrors) {
+  const std::string head = kBase + "    actuators:\n";
+  expect_error(head + "      - {name: c, type: cable}\n", ":13:9: bodies[0].actuators[0]: a cable actuator needs 'points'");
+  expect_error(head + "      - {name: c, type: cable, points: [[0, 0, 0]]}\n",
+               ":13:32: bodies[0].actuators[0].points: a cable needs at least 2 points, or 1 point and a pull_point");
+  expect_error(head + "      - {name: c, type: cable, points: [[0, 0, 0], [1, 0, 0]], surface: s}\n",
+               ":13:64: bodies[0].actuators[0].surface: not used by a cable actuator");
+  expect_error(head + "      - {name: p, type: pressure}\n", ":13:9: bodies[0].actuators[0]: a pressure actuator needs 'surface'");
+  expect_error(head + "      - {name: p, type: pressure, surface: s, force: 1}\n",
+               ":13:47: bodies[0].actuators[0].force: not used by a pressure actuator");
+  expect_error(head + "      - {name: s, type: servo, nodes: {group: g}, direction: [1, 0, 0], axis: [0, 0, 1]}\n",
+               ":13:51: bodies[0].actuators[0].direction: give either 'direction' (translation servo) or 'axis' and "
+               "'center' (rotation servo), not both");
+  expect_error(head + "      - {name: s, type: servo, nodes: {group: g}, direction: [0, 0, 0]}\n",
+               ":13:51: bodies[0].actuators[0].direction: must be a non-zero vector");
+  expect_error(head + "      - {name: s, type: servo, nodes: {group: g}}\n",
+               ":13:9: bodies[0].actuators[0]: a servo needs 'direction' (translation) or both 'axis' and 'center' (rotation)");
+  expect_error(head + "      - {name: p, type: pressure, surface: s, schedule: [[0, 1], [0, 2]]}\n",
+               ":13:66: bodies[0].actuators[0].schedule[1]: times must be >= 0 and increasing, got 0");
+  expect_error(head + "      - {name: p, type: pressure, surface: s, pressure: 1, schedule: [[0, 1]]}\n",
+               ":13:60: bodies[0].actuators[0].schedule: give either 'pressure' (constant) or 'schedule', not both");
+  expect_error(head + "      - {name: p, type: pressure, surface: s, limits: [2, 1]}\n",
+               ":13:47: bodies[0].actuators[0].limits: min must not exceed max, got [2, 1]");
+  expect_error(head + "      - {name: p, type: pressure, surface: s}\n      - {name: p, type: pressure, surface: t}\n",
+               ":14:9: bodies[0].actuators[1].name: duplicate actuator name 'p' (also bodies[0].actuators[0])");
 }
 
 // ---------------------------------------------------------------------------

@@ -38,7 +38,8 @@ void newton_residual(const Model& model, Data& data, double h, const VecX& Mvi, 
   for (const auto& b : fem.bodies) {
     const int begin = 3 * b.node_begin, len = 3 * b.num_nodes;
     r.segment(begin, len) = Mvi.segment(begin, len) +
-                            h * (fem.gravity_force.segment(begin, len) + data.fem.f_int.segment(begin, len)) -
+                            h * (fem.gravity_force.segment(begin, len) + data.fem.f_int.segment(begin, len) +
+                                 data.f_act.segment(begin, len)) -
                             (1 + h * b.rayleigh_mass) * data.Mv.segment(begin, len) -
                             h * b.rayleigh_stiffness * data.Kv.segment(begin, len);
   }
@@ -144,6 +145,13 @@ StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, 
     data.rhs.segment(begin, len) =
         h * (fem.gravity_force.segment(begin, len) + data.fem.f_int.segment(begin, len)) -
         (h * alpha) * data.Mv.segment(begin, len) - (h * beta + h * h) * data.Kv.segment(begin, len);
+  }
+  // Actuation: + h H_a(x_i)^T lambda_a, lambda_a at the end of the step (t_i + h).
+  if (!model.actuation.empty()) {
+    model.actuation.values(in.t + h, data.lambda_a);
+    data.f_act.setZero();
+    model.actuation.add_forces(in.x, data.lambda_a, 1.0, data.f_act);
+    data.rhs += h * data.f_act;
   }
   project(model, data.rhs);
   data.timings.assembly += seconds_since(t0);

@@ -2,6 +2,7 @@
 
 #include <softdiff/integrator/implicit_euler.hpp>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 
@@ -34,6 +35,13 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
   const double load_norm = load_full.norm();
   StepStatus status;
   int total_iterations = 0;
+  // Actuators: H_a(x)^T lambda_a joins the residual. The tangent keeps K only (the
+  // actuation forces' own derivative couples nodes outside the FEM pattern and is not
+  // symmetric for follower loads): a modified Newton method, with a line search on
+  // the residual norm (no potential for follower loads).
+  const bool actuated = !model.actuation.empty();
+  bool constant_values = true;
+  for (const auto& a : model.actuation.actuators) constant_values = constant_values && a.value.points.empty();
   double size_scale = 0;
   for (const auto& b : fem.bodies) size_scale = std::max(size_scale, b.bbox_diagonal);
 
@@ -52,8 +60,16 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       }
       // Scale of the residual: the applied load, or the internal forces including
       // the reactions at fixed dofs (displacement-driven problems have no load).
-      const double reference = std::max(factor * load_norm, data.fem.f_int.norm());
       residual = data.fem.f_int + factor * fem.gravity_force;
+      if (actuated) {
+        model.actuation.values(factor, data.lambda_a);
+        if (constant_values) data.lambda_a *= factor;
+        data.f_act.setZero();
+        model.actuation.add_forces(out.x, data.lambda_a, 1.0, data.f_act);
+        residual += data.f_act;
+      }
+      const double reference =
+          std::max({factor * load_norm, data.fem.f_int.norm(), actuated ? data.f_act.norm() : 0.0});
       project(model, residual);
       rel = reference > 0 ? residual.norm() / reference : 0.0;
       data.timings.assembly += seconds_since(t0);
@@ -95,19 +111,33 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       }
 
       // Backtracking (Armijo) on Pi(x) = E(x) - factor P.x along dx, a descent
-      // direction when K is positive definite: dPi/dalpha = -(f + P).dx < 0.
+      // direction when K is positive definite: dPi/dalpha = -(f + P).dx < 0. With
+      // actuators: backtracking on the residual norm.
       t0 = Clock::now();
       const double pi0 = data.fem.energy - factor * fem.gravity_force.dot(out.x);
       const double slope = -residual.dot(dx);
+      const double r0 = residual.norm();
       double alpha = 1;
       bool accepted = false;
       for (int ls = 0; ls < 40; ++ls, alpha *= 0.5) {
         trial = out.x + alpha * dx;
-        if (!fem::evaluate(fem, trial, {true, false, false}, data.fem)) continue;  // inverted: shorter step
-        const double pi = data.fem.energy - factor * fem.gravity_force.dot(trial);
-        if (pi <= pi0 + 1e-4 * alpha * slope || std::abs(pi - pi0) <= 1e-14 * std::abs(pi0)) {
-          accepted = true;
-          break;
+        if (!actuated) {
+          if (!fem::evaluate(fem, trial, {true, false, false}, data.fem)) continue;  // inverted: shorter step
+          const double pi = data.fem.energy - factor * fem.gravity_force.dot(trial);
+          if (pi <= pi0 + 1e-4 * alpha * slope || std::abs(pi - pi0) <= 1e-14 * std::abs(pi0)) {
+            accepted = true;
+            break;
+          }
+        } else {
+          if (!fem::evaluate(fem, trial, {false, true, false}, data.fem)) continue;
+          data.Kv = data.fem.f_int + factor * fem.gravity_force;
+          model.actuation.add_forces(trial, data.lambda_a, 1.0, data.Kv);
+          project(model, data.Kv);
+          const double r = data.Kv.norm();
+          if (r <= (1 - 1e-4 * alpha) * r0 || r <= 1e-3 * settings.static_tolerance * r0) {
+            accepted = true;
+            break;
+          }
         }
       }
       data.timings.other += seconds_since(t0);

@@ -1,6 +1,7 @@
 #pragma once
-// Static equilibrium (`integrator: static`): f_int(x) + P = 0 (method.md; actuation
-// joins later), with fixed dofs projected. Newton's method with a backtracking line
+// Static equilibrium (`integrator: static`): f_int(x) + P + H_a(x)^T lambda_a = 0
+// (method.md), with fixed dofs projected. Load step s of L applies s/L of gravity
+// and the actuators' values at pseudo-time s/L (a constant value v gives v s/L). Newton's method with a backtracking line
 // search on the total potential energy Pi(x) = E(x) - P.x, and load steps: the
 // external load is ramped as s / load_steps, s = 1..load_steps, each solved to
 // ||Pi (f_int + s P / L)|| <= tolerance * max(||Pi s P / L||, ||f_int||) (relative

@@ -2,6 +2,7 @@
 
 #include <softdiff/core/error.hpp>
 #include <softdiff/io/gmsh_msh.hpp>
+#include <softdiff/actuation/embedding.hpp>
 
 #include <Eigen/Geometry>
 #include <algorithm>
@@ -35,52 +36,151 @@ std::string group_list(const mesh::TetMesh& m) {
   return s.empty() ? "the mesh has no named physical groups" : "groups: " + s;
 }
 
-// Marks the fixed dofs of one body (local node indices).
-void resolve_fixed(const BodyDesc& body, const mesh::TetMesh& m, std::vector<unsigned char>& fixed_local) {
+// Local nodes selected by a box (world coordinates), a physical group or a list of
+// file node indices; an empty selection is an error at `f.where`.
+std::vector<int> select_nodes(const FixedDesc& f, const std::string& body, const mesh::TetMesh& m,
+                              std::unordered_map<long, int>& by_file_index) {
   const Vec3 lo = m.X.rowwise().minCoeff(), hi = m.X.rowwise().maxCoeff();
   const double tol = 1e-9 * (hi - lo).norm();
-  std::unordered_map<long, int> by_file_index;
-  for (const auto& f : body.fixed) {
-    std::vector<int> nodes;
-    switch (f.kind) {
-      case FixedDesc::Kind::box:
-        for (int i = 0; i < m.num_nodes(); ++i) {
-          const Vec3 p = m.X.col(i);
-          bool inside = true;
-          for (int c = 0; c < 3; ++c) inside = inside && p[c] >= f.box[c] - tol && p[c] <= f.box[c + 3] + tol;
-          if (inside) nodes.push_back(i);
-        }
-        if (nodes.empty()) {
-          std::ostringstream s;
-          s.precision(6);
-          s << "box selects no node of body '" << body.name << "' (its nodes span [" << lo.x() << ", " << lo.y()
-            << ", " << lo.z() << "] to [" << hi.x() << ", " << hi.y() << ", " << hi.z()
-            << "] after mesh_scale/rotate_deg/translate)";
-          fail(f.where, s.str());
-        }
-        break;
-      case FixedDesc::Kind::group: {
-        const auto* g = m.find_group(f.group);
-        if (!g) fail(f.where, "mesh " + m.source + " has no physical group '" + f.group + "' (" + group_list(m) + ")");
-        if (g->nodes.empty()) fail(f.where, "physical group '" + f.group + "' has no node on the tetrahedral mesh");
-        nodes = g->nodes;
-        break;
+  std::vector<int> nodes;
+  switch (f.kind) {
+    case FixedDesc::Kind::box:
+      for (int i = 0; i < m.num_nodes(); ++i) {
+        const Vec3 p = m.X.col(i);
+        bool inside = true;
+        for (int c = 0; c < 3; ++c) inside = inside && p[c] >= f.box[c] - tol && p[c] <= f.box[c + 3] + tol;
+        if (inside) nodes.push_back(i);
       }
-      case FixedDesc::Kind::nodes:
-        if (by_file_index.empty())
-          for (int i = 0; i < m.num_nodes(); ++i) by_file_index[m.file_index[i]] = i;
-        for (long k : f.nodes) {
-          auto it = by_file_index.find(k);
-          if (it == by_file_index.end())
-            fail(f.where, "node " + std::to_string(k) + " is not a node of a tetrahedron of " + m.source + " (" +
-                              std::to_string(m.num_nodes() + m.orphan_nodes) + " nodes in the file)");
-          nodes.push_back(it->second);
-        }
-        break;
+      if (nodes.empty()) {
+        std::ostringstream s;
+        s.precision(6);
+        s << "box selects no node of body '" << body << "' (its nodes span [" << lo.x() << ", " << lo.y() << ", "
+          << lo.z() << "] to [" << hi.x() << ", " << hi.y() << ", " << hi.z()
+          << "] after mesh_scale/rotate_deg/translate)";
+        fail(f.where, s.str());
+      }
+      break;
+    case FixedDesc::Kind::group: {
+      const auto* g = m.find_group(f.group);
+      if (!g) fail(f.where, "mesh " + m.source + " has no physical group '" + f.group + "' (" + group_list(m) + ")");
+      if (g->nodes.empty()) fail(f.where, "physical group '" + f.group + "' has no node on the tetrahedral mesh");
+      nodes = g->nodes;
+      break;
     }
-    for (int i : nodes)
+    case FixedDesc::Kind::nodes:
+      if (by_file_index.empty())
+        for (int i = 0; i < m.num_nodes(); ++i) by_file_index[m.file_index[i]] = i;
+      for (long k : f.nodes) {
+        auto it = by_file_index.find(k);
+        if (it == by_file_index.end())
+          fail(f.where, "node " + std::to_string(k) + " is not a node of a tetrahedron of " + m.source + " (" +
+                            std::to_string(m.num_nodes() + m.orphan_nodes) + " nodes in the file)");
+        nodes.push_back(it->second);
+      }
+      break;
+  }
+  return nodes;
+}
+
+// Marks the fixed dofs of one body (local node indices).
+void resolve_fixed(const BodyDesc& body, const mesh::TetMesh& m, std::vector<unsigned char>& fixed_local) {
+  std::unordered_map<long, int> by_file_index;
+  for (const auto& f : body.fixed)
+    for (int i : select_nodes(f, body.name, m, by_file_index))
       for (int c = 0; c < 3; ++c)
         if (f.axes[c]) fixed_local[3 * i + c] = 1;
+}
+
+std::string format_mm(double metres) {
+  std::ostringstream s;
+  s.precision(3);
+  s << metres * 1e3 << " mm";
+  return s.str();
+}
+
+// Embeds a world point in a body: inside, or outside within the locator's tolerance
+// (a warning: extrapolated weights, as SOFA's BarycentricMapping), else an error.
+actuation::EmbeddedPoint embed(const actuation::PointLocator& locator, const fem::BodyModel& b, const Vec3& p,
+                               const Where& where, const std::string& what, BuildReport* report) {
+  const auto r = locator.locate(p);
+  if (r.status == actuation::LocateStatus::too_far || r.status == actuation::LocateStatus::no_tets) {
+    std::ostringstream s;
+    s << what << " lies " << format_mm(r.embedding.outside_distance) << " outside body '" << b.name
+      << "' (more than the allowed " << format_mm(r.allowed_distance)
+      << ", half the nearest element's longest edge); points are world coordinates in metres, after the body's "
+         "mesh_scale/rotate_deg/translate";
+    fail(where, s.str());
+  }
+  if (r.status == actuation::LocateStatus::outside && report)
+    report->warnings.push_back(where.str() + ": " + what + " lies " + format_mm(r.embedding.outside_distance) +
+                               " outside body '" + b.name + "': mapped to its nearest tetrahedron (" +
+                               std::to_string(r.embedding.tet) + ") with extrapolated barycentric weights");
+  return actuation::embedded_point(r.embedding, b.mesh.tets, b.node_begin);
+}
+
+void build_actuation(const SceneDesc& scene, Model& model, BuildReport* report) {
+  const VecX rest = Eigen::Map<const VecX>(model.fem.X.data(), 3 * model.fem.num_nodes);
+  for (size_t bi = 0; bi < scene.bodies.size(); ++bi) {
+    const BodyDesc& bd = scene.bodies[bi];
+    const fem::BodyModel& b = model.fem.bodies[bi];
+    if (bd.actuators.empty() && bd.effectors.empty()) continue;
+    const actuation::PointLocator locator(b.mesh.X, b.mesh.tets);
+    std::unordered_map<long, int> by_file_index;
+    for (const ActuatorDesc& ad : bd.actuators) {
+      actuation::ActuatorModel a;
+      a.name = ad.name;
+      a.body = static_cast<int>(bi);
+      a.value.constant = ad.value;
+      a.value.points = ad.schedule;
+      if (ad.limits) {
+        a.has_limits = true;
+        a.limits = *ad.limits;
+      }
+      switch (ad.kind) {
+        case ActuatorDesc::Kind::cable: {
+          std::vector<actuation::EmbeddedPoint> points;
+          for (size_t k = 0; k < ad.points.size(); ++k) {
+            Where w = ad.where;
+            w.path += ".points[" + std::to_string(k) + "]";
+            points.push_back(embed(locator, b, ad.points[k], w, "cable point " + std::to_string(k), report));
+          }
+          a.kind = actuation::Cable(std::move(points), ad.pull_point);
+          break;
+        }
+        case ActuatorDesc::Kind::pressure: {
+          Where w = ad.where;
+          w.path += ".surface";
+          const mesh::PhysicalGroup* g = b.mesh.find_group(ad.surface);
+          if (!g) fail(w, "mesh " + b.mesh.source + " has no physical group '" + ad.surface + "' (" + group_list(b.mesh) + ")");
+          if (g->triangles.empty())
+            fail(w, "physical group '" + ad.surface + "' has no triangle on the body (a cavity is a group of boundary triangles)");
+          Triangles tris(3, static_cast<int>(g->triangles.size()));
+          for (size_t k = 0; k < g->triangles.size(); ++k) tris.col(static_cast<int>(k)) = b.mesh.triangles.col(g->triangles[k]);
+          actuation::Cavity cavity;
+          const auto status = actuation::Cavity::create(b.mesh.X, b.mesh.tets, tris, b.node_begin, cavity);
+          if (!status.ok()) fail(w, "cavity '" + ad.surface + "': " + status.message());
+          a.kind = std::move(cavity);
+          break;
+        }
+        case ActuatorDesc::Kind::servo: {
+          std::vector<int> nodes = select_nodes(ad.nodes, bd.name, b.mesh, by_file_index);
+          for (int& i : nodes) i += b.node_begin;
+          actuation::Servo servo;
+          const auto status = ad.rotation ? actuation::Servo::rotation(nodes, ad.direction, ad.center, rest, servo)
+                                          : actuation::Servo::translation(nodes, ad.direction, rest, servo);
+          if (!status.ok()) fail(ad.where, "servo '" + ad.name + "': " + status.message());
+          a.kind = std::move(servo);
+          break;
+        }
+      }
+      model.actuation.actuators.push_back(std::move(a));
+    }
+    for (const EffectorDesc& ed : bd.effectors) {
+      Where w = ed.where;
+      w.path += ".point";
+      model.actuation.effectors.push_back(
+          {ed.name, static_cast<int>(bi), actuation::Effector(embed(locator, b, ed.point, w, "effector point", report))});
+    }
   }
 }
 
@@ -149,6 +249,7 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
     bodies.push_back(std::move(b));
   }
   fem::build_fem_model(std::move(bodies), fixed, sim.gravity, model.fem);
+  build_actuation(scene, model, report);
 
   const int ndof = 3 * model.fem.num_nodes;
   model.initial.t = 0;

@@ -46,6 +46,7 @@
 #include <softdiff/io/yaml_tree.hpp>
 #include <softdiff/io/yaml_validate.hpp>
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
@@ -114,6 +115,17 @@ class Reader {
           ctx_.fail(e->key_mark, desc.where.path + ".name",
                     "duplicate body name '" + desc.name + "' (also bodies[" + std::to_string(j) + "])");
         }
+      // Actuator names are global (output: /actuators/<name>).
+      for (const auto& a : desc.actuators)
+        for (const auto& other : scene.bodies)
+          for (const auto& b : other.actuators)
+            if (a.name == b.name)
+              throw InputError(a.where.str() + ".name: duplicate actuator name '" + a.name + "' (also " + b.where.path + ")");
+      for (std::size_t p = 0; p < desc.actuators.size(); ++p)
+        for (std::size_t q = 0; q < p; ++q)
+          if (desc.actuators[p].name == desc.actuators[q].name)
+            throw InputError(desc.actuators[p].where.str() + ".name: duplicate actuator name '" + desc.actuators[p].name +
+                             "' (also " + desc.actuators[q].where.path + ")");
       scene.bodies.push_back(std::move(desc));
     }
     read_output(root, scene.output);
@@ -232,7 +244,120 @@ class Reader {
     if (const Node* fixed = get(body, "fixed"))
       for (std::size_t i = 0; i < fixed->items.size(); ++i)
         d.fixed.push_back(read_fixed(fixed->items[i], yaml::index_path(path + ".fixed", i)));
+    if (const Node* actuators = get(body, "actuators"))
+      for (std::size_t i = 0; i < actuators->items.size(); ++i)
+        d.actuators.push_back(read_actuator(actuators->items[i], yaml::index_path(path + ".actuators", i)));
+    if (const Node* effectors = get(body, "effectors"))
+      for (std::size_t i = 0; i < effectors->items.size(); ++i) {
+        const Node& e = effectors->items[i];
+        const std::string epath = yaml::index_path(path + ".effectors", i);
+        EffectorDesc ed;
+        ed.where = ctx_.where(e.mark, epath);
+        ed.name = get(e, "name")->scalar;
+        ed.point = vec3(get(e, "point"), ed.point);
+        for (const auto& other : d.effectors)
+          if (other.name == ed.name) ctx_.fail(e.mark, epath + ".name", "duplicate effector name '" + ed.name + "'");
+        d.effectors.push_back(ed);
+      }
     return d;
+  }
+
+  // Type-specific keys of an actuator: what each type needs, and nothing it ignores.
+  ActuatorDesc read_actuator(const Node& item, const std::string& path) const {
+    ActuatorDesc a;
+    a.where = ctx_.where(item.mark, path);
+    a.name = get(item, "name")->scalar;
+    const std::string type = get(item, "type")->scalar;
+    a.kind = type == "pressure" ? ActuatorDesc::Kind::pressure
+             : type == "servo"  ? ActuatorDesc::Kind::servo
+                                : ActuatorDesc::Kind::cable;
+    const char* value_key = a.kind == ActuatorDesc::Kind::pressure ? "pressure" : "force";
+    std::vector<std::string> allowed = {"name", "type", "limits", "schedule", value_key};
+    auto require = [&](const char* key) {
+      if (!item.find(key)) ctx_.fail(item.mark, path, "a " + type + " actuator needs '" + key + "'");
+    };
+    switch (a.kind) {
+      case ActuatorDesc::Kind::cable: {
+        allowed.insert(allowed.end(), {"points", "pull_point"});
+        require("points");
+        for (const Node& p : get(item, "points")->items) a.points.push_back(vec3(&p, Vec3::Zero()));
+        if (const Node* pp = get(item, "pull_point")) a.pull_point = vec3(pp, Vec3::Zero());
+        if (a.points.size() < 2 && !a.pull_point)
+          ctx_.fail(item.find("points")->key_mark, path + ".points",
+                    "a cable needs at least 2 points, or 1 point and a pull_point");
+        break;
+      }
+      case ActuatorDesc::Kind::pressure:
+        allowed.push_back("surface");
+        require("surface");
+        a.surface = get(item, "surface")->scalar;
+        break;
+      case ActuatorDesc::Kind::servo: {
+        allowed.insert(allowed.end(), {"nodes", "direction", "axis", "center"});
+        require("nodes");
+        const Entry* nodes = item.find("nodes");
+        const Entry* chosen = nullptr;
+        for (const char* key : {"box", "group"})
+          if (const Entry* e = nodes->value.find(key)) {
+            if (chosen) ctx_.fail(e->key_mark, path + ".nodes." + e->key, "give only one of 'box', 'group'");
+            chosen = e;
+          }
+        if (!chosen) ctx_.fail(nodes->key_mark, path + ".nodes", "needs one of 'box', 'group'");
+        a.nodes.where = where(*chosen, path + ".nodes." + chosen->key);
+        if (chosen->key == "box") {
+          a.nodes.kind = FixedDesc::Kind::box;
+          for (int k = 0; k < 6; ++k) a.nodes.box[k] = *yaml::to_number(chosen->value.items[k]);
+        } else {
+          a.nodes.kind = FixedDesc::Kind::group;
+          a.nodes.group = chosen->value.scalar;
+        }
+        const Entry* direction = item.find("direction");
+        const Entry* axis = item.find("axis");
+        const Entry* center = item.find("center");
+        if (direction && (axis || center))
+          ctx_.fail(direction->key_mark, path + ".direction",
+                    "give either 'direction' (translation servo) or 'axis' and 'center' (rotation servo), not both");
+        if (!direction && !(axis && center))
+          ctx_.fail(item.mark, path,
+                    "a servo needs 'direction' (translation) or both 'axis' and 'center' (rotation)");
+        a.rotation = !direction;
+        a.direction = vec3(&(direction ? direction : axis)->value, Vec3::Zero());
+        if (center) a.center = vec3(&center->value, Vec3::Zero());
+        if (!(a.direction.norm() > 0))
+          ctx_.fail((direction ? direction : axis)->key_mark, path + "." + (direction ? "direction" : "axis"),
+                    "must be a non-zero vector");
+        break;
+      }
+    }
+    for (const Entry& e : item.entries)
+      if (std::find(allowed.begin(), allowed.end(), e.key) == allowed.end())
+        ctx_.fail(e.key_mark, path + "." + e.key, "not used by a " + type + " actuator");
+    const Entry* value = item.find(value_key);
+    const Entry* schedule = item.find("schedule");
+    if (value && schedule)
+      ctx_.fail(schedule->key_mark, path + ".schedule",
+                std::string("give either '") + value_key + "' (constant) or 'schedule', not both");
+    a.value = number(value ? &value->value : nullptr, 0);
+    if (schedule) {
+      double previous = -1;
+      for (std::size_t k = 0; k < schedule->value.items.size(); ++k) {
+        const Node& pair = schedule->value.items[k];
+        const double t = *yaml::to_number(pair.items[0]);
+        if (!(t >= 0) || !(t > previous))
+          ctx_.fail(pair.mark, yaml::index_path(path + ".schedule", k),
+                    "times must be >= 0 and increasing, got " + pair.items[0].scalar);
+        previous = t;
+        a.schedule.push_back({t, *yaml::to_number(pair.items[1])});
+      }
+    }
+    if (const Entry* limits = item.find("limits")) {
+      const double lo = *yaml::to_number(limits->value.items[0]), hi = *yaml::to_number(limits->value.items[1]);
+      if (!(lo <= hi))
+        ctx_.fail(limits->key_mark, path + ".limits",
+                  "min must not exceed max, got [" + limits->value.items[0].scalar + ", " + limits->value.items[1].scalar + "]");
+      a.limits = std::array<double, 2>{lo, hi};
+    }
+    return a;
   }
 
   FixedDesc read_fixed(const Node& item, const std::string& path) const {

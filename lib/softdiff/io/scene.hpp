@@ -34,6 +34,30 @@ struct FixedDesc {
   Where where;
 };
 
+// An actuator (scene.md `actuators`). Coordinates are world coordinates (after the
+// body's mesh_scale/rotate_deg/translate), in metres, like fixed boxes.
+struct ActuatorDesc {
+  enum class Kind { cable, pressure, servo } kind = Kind::cable;
+  std::string name;
+  std::vector<Vec3> points;            // cable: from the pulled end to the anchored end
+  std::optional<Vec3> pull_point;      // cable
+  std::string surface;                 // pressure: physical group of boundary triangles
+  FixedDesc nodes;                     // servo: {box} or {group} (axes unused)
+  bool rotation = false;               // servo: axis + center (torque) instead of direction
+  Vec3 direction = Vec3::Zero();       // servo translation direction, or rotation axis
+  Vec3 center = Vec3::Zero();          // servo rotation center
+  double value = 0;                    // force (N), pressure (Pa) or torque (N m)
+  std::vector<std::array<double, 2>> schedule;  // extension: (t, value), t increasing
+  std::optional<std::array<double, 2>> limits;  // [min, max], used by control
+  Where where;
+};
+
+struct EffectorDesc {
+  std::string name;
+  Vec3 point = Vec3::Zero();           // world coordinates
+  Where where;
+};
+
 struct MaterialDesc {
   material::Law law = material::Law::corotational;
   double young = 0, poisson = 0, density = 0;
@@ -54,6 +78,8 @@ struct BodyDesc {
   bool psd_projection = false;
   std::vector<FixedDesc> fixed;
   Vec3 initial_velocity = Vec3::Zero();
+  std::vector<ActuatorDesc> actuators;
+  std::vector<EffectorDesc> effectors;
   Where where;
 };
 

@@ -44,7 +44,7 @@ SpecPtr material() {
   });
 }
 
-// Planned (scene.md): actuators, effectors, obstacles, contact. Described fully so
+// Planned (scene.md): obstacles, contact. Described fully so
 // that their keys are known (suggestions, --set) and enabling one is a table edit
 // plus its reader in scene.cpp. Type-specific keys (points for cables, radius for
 // spheres, ...) are to be checked by that reader.
@@ -62,6 +62,8 @@ SpecPtr actuator() {
       key("direction", vec3()),
       key("axis", vec3()),
       key("center", vec3()),
+      // extension: lambda_a(t), piecewise linear: [[t0, v0], [t1, v1], ...]
+      key("schedule", list(numbers(2, "a pair [time, value]"), "a list of [time, value] pairs", 1)),
   });
 }
 
@@ -119,8 +121,8 @@ SpecPtr body() {
       key("psd_projection", boolean()),
       key("fixed", list(node_selection(true))),
       key("initial_velocity", vec3()),
-      planned(key("actuators", list(actuator(), "a list", 0, false, "actuator")), "actuators", empty_list),
-      planned(key("effectors", list(effector(), "a list", 0, false, "effector")), "effectors", empty_list),
+      key("actuators", list(actuator(), "a list", 0, false, "actuator")),
+      key("effectors", list(effector(), "a list", 0, false, "effector")),
   });
 }
 
@@ -154,7 +156,7 @@ SpecPtr linear_solver() {
 
 SpecPtr output() {
   const auto field_names =
-      choice({"x", "v"}, {}, {{"contact", "contact"}, {"actuation", "actuators"}, {"effectors", "effectors"}});
+      choice({"x", "v", "actuation", "effectors"}, {}, {{"contact", "contact"}});
   const auto parameters =
       choice({"young", "poisson", "density", "rayleigh_mass", "rayleigh_stiffness", "friction", "actuation", "x0", "v0"});
   return map({
