@@ -12,6 +12,8 @@
 
 #include <omp.h>
 
+#include <softdiff/core/timer.hpp>
+
 #include <chrono>
 #include <csignal>
 #include <cstdio>
@@ -24,8 +26,6 @@ namespace {
 volatile std::sig_atomic_t g_interrupted = 0;
 extern "C" void on_signal(int) { g_interrupted = 1; }
 
-using Clock = std::chrono::steady_clock;
-double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
 std::string fmt_ms(double seconds, long steps) {
   char buf[32];

@@ -1,13 +1,7 @@
 // Per-quadrature-point cost of the constitutive kernels (one linear tet = one point):
 // P alone, P + dP/dF, the directional derivative of dP/dF, and the 12x12 PSD projection.
 // GCC 12 + AVX-512 false positives in the intrinsics headers: see material/material.cpp.
-#if defined(__GNUC__) && !defined(__clang__) && __GNUC__ == 12 && defined(__AVX512F__)
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
-#pragma GCC diagnostic ignored "-Wuninitialized"
-#include <immintrin.h>
-#pragma GCC diagnostic pop
-#endif
+#include <softdiff/core/avx512_gcc12.hpp>  // first: see there
 
 #include <softdiff/material/material.hpp>
 

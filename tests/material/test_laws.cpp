@@ -12,13 +12,7 @@
 // in GCC 13) whenever Eigen uses 8-wide double packets under -march=native. Including
 // <immintrin.h> first with the warning off silences it for the intrinsics' own lines
 // only; our code keeps the warning.
-#if defined(__GNUC__) && !defined(__clang__) && __GNUC__ == 12 && defined(__AVX512F__)
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
-#pragma GCC diagnostic ignored "-Wuninitialized"
-#include <immintrin.h>
-#pragma GCC diagnostic pop
-#endif
+#include <softdiff/core/avx512_gcc12.hpp>  // first: see there
 #include <stdexcept>
 #define EIGEN_RUNTIME_NO_MALLOC
 #define eigen_assert(x)                                                          \

@@ -2,6 +2,8 @@
 
 #include <softdiff/core/assert.hpp>
 
+#include <softdiff/core/timer.hpp>
+
 #include <chrono>
 #include <cmath>
 
@@ -10,14 +12,7 @@ namespace softdiff {
 namespace integrator {
 namespace {
 
-using Clock = std::chrono::steady_clock;
-double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
-void project(const Model& model, VecX& b) {
-  if (model.fem.num_fixed_dofs == 0) return;
-  for (int k = 0; k < b.size(); ++k)
-    if (model.fem.fixed[k]) b[k] = 0;
-}
 
 StepStatus inverted(const Model& model, const Data& data, long step_index) {
   (void)model;
@@ -47,6 +42,12 @@ void newton_residual(const Model& model, Data& data, double h, const VecX& Mvi, 
 }
 
 }  // namespace
+
+void project(const Model& model, VecX& b) {
+  if (model.fem.num_fixed_dofs == 0) return;
+  for (int k = 0; k < b.size(); ++k)
+    if (model.fem.fixed[k]) b[k] = 0;
+}
 
 void assemble_system_matrix(const Model& model, double h, const VecX& K_damping, const VecX& K, Data& data) {
   const auto& fem = model.fem;

@@ -24,6 +24,9 @@ StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, 
 // Assembles data.A = (1 + h alpha) M + h beta K_damping + h^2 K, projected, per body.
 void assemble_system_matrix(const Model& model, double h, const VecX& K_damping, const VecX& K, Data& data);
 
+// b <- Pi b: zero the fixed dofs.
+void project(const Model& model, VecX& b);
+
 // Symbolic analysis on first use, then numeric factorization of data.A.
 StepStatus factorize(const Model& model, Data& data, long step_index);
 

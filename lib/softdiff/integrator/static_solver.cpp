@@ -3,18 +3,22 @@
 #include <softdiff/integrator/implicit_euler.hpp>
 
 #include <algorithm>
+#include <softdiff/core/timer.hpp>
+
 #include <chrono>
 #include <cmath>
 
 namespace softdiff::integrator {
 namespace {
 
-using Clock = std::chrono::steady_clock;
-double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
-
-void project(const Model& model, VecX& b) {
-  for (int k = 0; k < b.size(); ++k)
-    if (model.fem.fixed[k]) b[k] = 0;
+StepStatus not_converged(long load_step, int iterations, double residual, const char* detail) {
+  StepStatus status;
+  status.code = StepStatus::Code::not_converged;
+  status.step = load_step;
+  status.iterations = iterations;
+  status.residual = residual;
+  status.detail = detail;
+  return status;
 }
 
 }  // namespace
@@ -79,14 +83,8 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
         return status;
       }
       if (rel <= settings.static_tolerance) break;
-      if (it >= settings.static_max_iterations) {
-        status.code = StepStatus::Code::not_converged;
-        status.step = s;
-        status.iterations = it;
-        status.residual = rel;
-        status.detail = "static equilibrium not reached (increase static.max_iterations or static.load_steps)";
-        return status;
-      }
+      if (it >= settings.static_max_iterations)
+        return not_converged(s, it, rel, "static equilibrium not reached (increase static.max_iterations or static.load_steps)");
       // K dx = f + P (K = d^2E/dx^2, projected). M and damping play no part.
       t0 = Clock::now();
       double* A = data.A.valuePtr();
@@ -141,14 +139,10 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
         }
       }
       data.timings.other += seconds_since(t0);
-      if (!accepted) {
-        status.code = StepStatus::Code::not_converged;
-        status.step = s;
-        status.iterations = it;
-        status.residual = rel;
-        status.detail = "line search found no decrease of the potential energy";
-        return status;
-      }
+      if (!accepted)
+        return not_converged(s, it, rel,
+                             actuated ? "line search found no decrease of the residual norm"
+                                      : "line search found no decrease of the potential energy");
       out.x = trial;
       ++total_iterations;
     }

@@ -1,16 +1,5 @@
 // Dispatch from Law to the inline kernels (corotational.hpp, stvk.hpp, neo_hookean.hpp).
-// GCC 12 reports false -W(maybe-)uninitialized warnings inside its own AVX-512 intrinsics
-// (avx512fintrin.h, _mm512_extractf64x4_pd / _mm512_insertf64x4; GCC PR 105593, fixed
-// in GCC 13) whenever Eigen uses 8-wide double packets under -march=native. Including
-// <immintrin.h> first with the warning off silences it for the intrinsics' own lines
-// only; our code keeps the warning.
-#if defined(__GNUC__) && !defined(__clang__) && __GNUC__ == 12 && defined(__AVX512F__)
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
-#pragma GCC diagnostic ignored "-Wuninitialized"
-#include <immintrin.h>
-#pragma GCC diagnostic pop
-#endif
+#include <softdiff/core/avx512_gcc12.hpp>  // first: see there
 #include <softdiff/material/corotational.hpp>
 #include <softdiff/material/material.hpp>
 #include <softdiff/material/neo_hookean.hpp>
