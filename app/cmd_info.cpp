@@ -89,6 +89,19 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
           .value("tets", b.num_tets)
           .value("mass", fem.mass_diagonal.segment(3 * b.node_begin, 3 * b.num_nodes).sum() / 3)
           .end_object();
+    j.end_array();
+    j.begin_array("actuators");
+    for (const auto& a : model.actuation.actuators) {
+      j.begin_object().value("name", a.name).value("type", a.kind_name()).value("body", fem.bodies[a.body].name);
+      if (a.has_measure()) j.value(a.measure_name(), a.measure(model.initial.x));
+      j.end_object();
+    }
+    j.end_array();
+    j.begin_array("effectors");
+    for (const auto& e : model.actuation.effectors) {
+      const Vec3 p = e.effector.position(model.initial.x);
+      j.begin_object().value("name", e.name).value("body", fem.bodies[e.body].name).value("point", v3(p)).end_object();
+    }
     j.end_array().end_object();
     std::printf("%s\n", j.str().c_str());
     return kExitOk;
@@ -101,6 +114,17 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
                 model.step.steps, model.step.dt * model.step.steps, model.step.newton_iterations);
   std::printf("system      %d dofs (%ld fixed), %ld nonzeros in the upper triangle, %zu element colors\n",
               3 * fem.num_nodes, fem.num_fixed_dofs, fem.pattern.nnz(), fem.pattern.color_begin.size() - 1);
+  for (const auto& a : model.actuation.actuators) {
+    std::printf("actuator    %s: %s on body '%s'", a.name.c_str(), a.kind_name(), fem.bodies[a.body].name.c_str());
+    if (a.has_measure()) std::printf(", rest %s %g", a.measure_name(), a.measure(model.initial.x));
+    if (a.has_limits) std::printf(", limits [%g, %g]", a.limits[0], a.limits[1]);
+    std::printf("\n");
+  }
+  for (const auto& e : model.actuation.effectors) {
+    const Vec3 p = e.effector.position(model.initial.x);
+    std::printf("effector    %s on body '%s' at [%g, %g, %g]\n", e.name.c_str(), fem.bodies[e.body].name.c_str(), p.x(),
+                p.y(), p.z());
+  }
   for (const auto& b : fem.bodies) {
     long fixed_nodes = 0;
     for (int i = b.node_begin; i < b.node_begin + b.num_nodes; ++i)

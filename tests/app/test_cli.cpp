@@ -6,6 +6,7 @@
 #include <hdf5.h>
 
 #include <filesystem>
+#include <vector>
 
 using namespace softdiff::test;
 namespace fs = std::filesystem;
@@ -70,6 +71,24 @@ std::string status_attribute(const fs::path& file) {
   return value;
 }
 
+// Shape of a dataset, empty if it does not exist.
+std::vector<hsize_t> dataset_shape(const fs::path& file, const std::string& path) {
+  H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
+  std::vector<hsize_t> dims;
+  const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (f < 0) return dims;
+  const hid_t d = H5Dopen2(f, path.c_str(), H5P_DEFAULT);
+  if (d >= 0) {
+    const hid_t space = H5Dget_space(d);
+    dims.resize(H5Sget_simple_extent_ndims(space));
+    H5Sget_simple_extent_dims(space, dims.data(), nullptr);
+    H5Sclose(space);
+    H5Dclose(d);
+  }
+  H5Fclose(f);
+  return dims;
+}
+
 TEST(Cli, SimulateWritesCompleteFileAndXdmf) {
   const auto dir = fresh_dir("ok");
   write_text(dir / "scene.yaml", beam_scene());
@@ -82,6 +101,26 @@ TEST(Cli, SimulateWritesCompleteFileAndXdmf) {
   EXPECT_NE(r.out.find("\"status\":\"complete\""), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("\"steps\":3"), std::string::npos) << r.out;
   EXPECT_NE(r.err.find("ms/step"), std::string::npos) << r.err;  // closing summary
+}
+
+TEST(Cli, ActuatorsAndEffectorsAreWrittenPerFrame) {
+  const auto dir = fresh_dir("actuators");
+  std::string scene = beam_scene();
+  scene += "    actuators:\n"
+           "      - {name: c, type: cable, points: [[0.19, 0.01, 0.015], [0.05, 0.01, 0.015]], "
+           "pull_point: [0.2, 0.01, 0.015], schedule: [[0, 0], [0.03, 0.5]]}\n"
+           "    effectors:\n"
+           "      - {name: tip, point: [0.2, 0.01, 0.01]}\n";
+  write_text(dir / "scene.yaml", scene);
+  const auto r = run_cli("simulate scene.yaml -o out.h5 --quiet", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(dataset_shape(dir / "out.h5", "/actuators/c/value"), (std::vector<hsize_t>{4}));
+  EXPECT_EQ(dataset_shape(dir / "out.h5", "/actuators/c/length"), (std::vector<hsize_t>{4}));
+  EXPECT_EQ(dataset_shape(dir / "out.h5", "/bodies/beam/effectors/tip"), (std::vector<hsize_t>{4, 3}));
+  const auto info = run_cli("info scene.yaml", dir);
+  ASSERT_EQ(info.code, 0) << info.err;
+  EXPECT_NE(info.out.find("actuator    c: cable"), std::string::npos) << info.out;
+  EXPECT_NE(info.out.find("effector    tip"), std::string::npos) << info.out;
 }
 
 TEST(Cli, ExistingOutputNeedsForce) {
