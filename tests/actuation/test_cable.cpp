@@ -6,6 +6,10 @@
 // O(h^2 / l^2) = 1e-12 relative and the round-off O(eps L / h) ~ 1e-16 x 0.05 / 1e-8
 // ~ 5e-10 relative to the O(1) gradient: both far below the 1e-6 tolerance.
 #include <softdiff/actuation/cable.hpp>
+#include <softdiff/actuation/actuation_model.hpp>
+#include <softdiff/fem/assembly.hpp>
+
+#include <Eigen/Eigenvalues>
 
 #include "helpers.hpp"
 #include <support/fd.hpp>
@@ -194,4 +198,111 @@ TEST(Cable, ZeroLengthSegmentsGiveNoNaN) {
   EXPECT_EQ(dd.norm(), 0);
   // Too few points is a programming error (the scene loader checks first).
   EXPECT_THROW(Cable({f.points[0]}), std::logic_error);
+}
+
+// The block form of the stiffness (Cable::for_each_stiffness_block) is the matrix of
+// the matrix-free derivative: sum of blocks applied to dx = -add_force_derivative(dx),
+// to round-off (same formula, different summation order), for random dx; symmetric
+// positive semi-definite. A repeated point (zero-length segment) is skipped by both.
+TEST(Cable, StiffnessBlocksMatchForceDerivative) {
+  std::mt19937 rng(16);
+  Fixture f = make_fixture(rng);
+  const double lambda = 2.7;
+  std::vector<EmbeddedPoint> dup = f.points;
+  dup.insert(dup.begin() + 2, f.points[2]);
+  for (int variant = 0; variant < 3; ++variant) {
+    const bool pull = variant != 1;
+    const Cable c(variant == 2 ? dup : f.points, pull ? std::optional<Vec3>(Vec3(-0.01, 0.012, 0.009)) : std::nullopt);
+    const Eigen::Index n = f.x.size();
+    MatX S = MatX::Zero(n, n);
+    int calls = 0;
+    c.for_each_stiffness_block(f.x, lambda, [&](int s, int a, int b, int i, int j, const Mat3& block) {
+      EXPECT_GE(s, 0);
+      EXPECT_LT(s, c.num_segments());
+      const auto st = c.segment_stencil(s);
+      EXPECT_EQ(st.nodes[a], i);
+      EXPECT_EQ(st.nodes[b], j);
+      S.block<3, 3>(3 * i, 3 * j) += block;
+      ++calls;
+    });
+    // Segments: 4 between points (+1 duplicate, skipped) and the pull segment (4 nodes).
+    EXPECT_EQ(calls, 4 * 64 + (pull ? 16 : 0));
+    EXPECT_EQ(c.num_segments(), (variant == 2 ? 5 : 4) + (pull ? 1 : 0));
+    EXPECT_LT((S - S.transpose()).norm(), 1e-15 * S.norm());
+    const double min_eig = Eigen::SelfAdjointEigenSolver<MatX>(S).eigenvalues().minCoeff();
+    EXPECT_GT(min_eig, -1e-12 * S.norm());
+    double worst = 0;
+    for (int trial = 0; trial < 5; ++trial) {
+      const VecX dx = VecX::Random(n);
+      VecX d = VecX::Zero(n);
+      c.add_force_derivative(f.x, lambda, dx, d);
+      worst = std::max(worst, (S * dx + d).norm() / d.norm());
+    }
+    std::printf("cable variant %d: stiffness blocks vs add_force_derivative: %.2e relative, min eigenvalue %.2e "
+                "(|S| %.2e)\n",
+                variant, worst, min_eig, S.norm());
+    EXPECT_LT(worst, 1e-14);
+    EXPECT_GT(S.norm(), 10.0);
+  }
+}
+
+// The assembled form: ActuationModel::add_stiffness through the pattern's clique
+// scatter equals the dense block sum, on a FEM model built with the cables' cliques;
+// without them the pattern does not fit.
+TEST(Cable, StiffnessAssemblesIntoThePattern) {
+  std::mt19937 rng(17);
+  Fixture f = make_fixture(rng);
+  // The fixture's body without the node offset.
+  std::vector<EmbeddedPoint> points = f.points;
+  for (auto& p : points)
+    for (int& i : p.nodes) i -= f.offset;
+  ActuationModel act;
+  for (bool pull : {true, false}) {
+    ActuatorModel a;
+    a.kind = Cable(points, pull ? std::optional<Vec3>(Vec3(-0.01, 0.012, 0.009)) : std::nullopt);
+    act.actuators.push_back(std::move(a));
+  }
+  // A non-cable actuator between them (a translation servo: constant H_a, zero
+  // derivative) contributes no clique and no stiffness.
+  ActuatorModel servo;
+  Servo translation;
+  ASSERT_TRUE(Servo::translation({0, 1, 2}, Vec3::UnitX(), f.x_rest.segment(3 * f.offset, 3 * f.m.num_nodes()),
+                                 translation)
+                  .ok());
+  servo.kind = std::move(translation);
+  act.actuators.insert(act.actuators.begin() + 1, std::move(servo));
+  const VecX lambda = (VecX(3) << 2.7, 5.0, 0.9).finished();
+  const auto cliques = act.stiffness_cliques();
+  ASSERT_EQ(cliques.size(), 5u + 4u);
+
+  auto build = [&](const std::vector<std::vector<int>>& extra) {
+    fem::BodyModel b;
+    b.name = "box";
+    b.mesh = f.m;
+    b.young = 1e5;
+    b.poisson = 0.3;
+    b.density = 1000;
+    std::vector<fem::BodyModel> bodies{b};
+    fem::FemModel m;
+    fem::build_fem_model(std::move(bodies), std::vector<unsigned char>(3 * f.m.num_nodes(), 0), Vec3::Zero(), m,
+                         extra);
+    return m;
+  };
+  const fem::FemModel plain = build({}), model = build(cliques);
+  EXPECT_FALSE(act.stiffness_fits(plain.pattern));
+  ASSERT_TRUE(act.stiffness_fits(model.pattern));
+  EXPECT_GT(model.pattern.nnz(), plain.pattern.nnz());
+  std::printf("pattern: %ld nonzeros, %ld with the cable cliques\n", plain.pattern.nnz(), model.pattern.nnz());
+
+  const VecX x = f.x.segment(3 * f.offset, 3 * f.m.num_nodes());
+  VecX values = VecX::Zero(model.pattern.nnz());
+  act.add_stiffness(x, lambda, model.pattern, values.data());
+  const VecX dx = VecX::Random(x.size());
+  VecX y(x.size()), d = VecX::Zero(x.size());
+  fem::symmetric_multiply(model, values, dx, y);
+  for (size_t a = 0; a < act.actuators.size(); ++a) act.actuators[a].add_force_derivative(x, lambda[a], dx, d);
+  const double err = (y + d).norm() / d.norm();
+  std::printf("assembled cable stiffness vs add_force_derivative: %.2e relative\n", err);
+  EXPECT_LT(err, 1e-14);
+  EXPECT_GT(d.norm(), 1.0);
 }

@@ -1,5 +1,8 @@
 #include <softdiff/actuation/actuation_model.hpp>
 
+#include <softdiff/core/assert.hpp>
+
+#include <algorithm>
 #include <limits>
 
 namespace softdiff::actuation {
@@ -68,6 +71,52 @@ void ActuationModel::add_forces(const VecX& x, const VecX& lambda, double scale,
   for (size_t a = 0; a < actuators.size(); ++a) {
     const double l = lambda[static_cast<Eigen::Index>(a)];
     if (l != 0) actuators[a].add_force(x, l, scale, f);
+  }
+}
+
+std::vector<std::vector<int>> ActuationModel::stiffness_cliques() const {
+  std::vector<std::vector<int>> cliques;
+  for (const auto& a : actuators)
+    if (const auto* c = std::get_if<Cable>(&a.kind))
+      for (int s = 0; s < c->num_segments(); ++s) {
+        const Cable::SegmentStencil st = c->segment_stencil(s);
+        cliques.emplace_back(st.nodes.begin(), st.nodes.begin() + st.count);
+      }
+  return cliques;
+}
+
+bool ActuationModel::stiffness_fits(const fem::SystemPattern& pattern) const {
+  const auto cliques = stiffness_cliques();
+  if (static_cast<int>(cliques.size()) > pattern.num_cliques()) return false;
+  for (size_t c = 0; c < cliques.size(); ++c) {
+    const int begin = pattern.clique_node_begin[c], end = pattern.clique_node_begin[c + 1];
+    if (!std::equal(cliques[c].begin(), cliques[c].end(), pattern.clique_nodes.begin() + begin,
+                    pattern.clique_nodes.begin() + end))
+      return false;
+  }
+  return true;
+}
+
+void ActuationModel::add_stiffness(const VecX& x, const VecX& lambda, const fem::SystemPattern& pattern,
+                                   double* values) const {
+  SOFTDIFF_DEMAND(lambda.size() == static_cast<Eigen::Index>(actuators.size()), "one value per actuator");
+  int first_clique = 0;  // clique of the cable's segment 0
+  for (size_t i = 0; i < actuators.size(); ++i) {
+    const auto* c = std::get_if<Cable>(&actuators[i].kind);
+    if (!c) continue;
+    const double l = lambda[static_cast<Eigen::Index>(i)];
+    if (l != 0) {
+      c->for_each_stiffness_block(x, l, [&](int s, int a, int b, int, int, const Mat3& block) {
+        const int clique = first_clique + s;
+        SOFTDIFF_ASSERT(clique < pattern.num_cliques());
+        const int k = pattern.clique_node_begin[clique + 1] - pattern.clique_node_begin[clique];
+        const int* scatter = pattern.clique_scatter.data() + pattern.clique_scatter_begin[clique] + 9 * (a * k + b);
+        for (int r = 0; r < 3; ++r)
+          for (int q = 0; q < 3; ++q)
+            if (scatter[3 * r + q] >= 0) values[scatter[3 * r + q]] += block(r, q);
+      });
+    }
+    first_clique += c->num_segments();
   }
 }
 

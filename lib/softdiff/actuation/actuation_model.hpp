@@ -6,6 +6,7 @@
 #include <softdiff/actuation/effector.hpp>
 #include <softdiff/actuation/pressure.hpp>
 #include <softdiff/actuation/servo.hpp>
+#include <softdiff/fem/fem_model.hpp>
 
 #include <array>
 #include <string>
@@ -57,6 +58,24 @@ struct ActuationModel {
   void values(double t, VecX& lambda) const;
   // f += scale * sum_a lambda_a H_a(x)^T
   void add_forces(const VecX& x, const VecX& lambda, double scale, VecX& f) const;
+
+  // Actuation stiffness in the static tangent: -sum_a d(H_a^T lambda_a)/dx restricted
+  // to the cables, sum_cables lambda d^2L/dx^2 (exact, symmetric positive
+  // semi-definite). Not included: pressure cavities (closed: p d^2V/dx^2 is exact and
+  // symmetric but indefinite, so adding it can make the tangent indefinite where K
+  // alone is not; open faces: not symmetric, and its symmetric part is not the
+  // tangent) and servos (translation: H_a constant, no term; rotation: couples all
+  // its nodes and is not symmetric). See method.md "Static equilibrium".
+  //
+  // The node cliques the cable stiffness couples, one per cable segment in actuator
+  // order (Cable::segment_stencil's nodes): build_fem_model's `cliques`.
+  std::vector<std::vector<int>> stiffness_cliques() const;
+  // True when `pattern` was built with (a list starting with) stiffness_cliques().
+  bool stiffness_fits(const fem::SystemPattern& pattern) const;
+  // values (pattern.nnz(), upper triangle) += sum_cables lambda_a d^2L_a/dx^2 at x,
+  // through the pattern's precomputed clique scatter (no search, no allocation).
+  // Requires stiffness_fits(pattern) (checked in debug builds only).
+  void add_stiffness(const VecX& x, const VecX& lambda, const fem::SystemPattern& pattern, double* values) const;
 };
 
 }  // namespace softdiff::actuation

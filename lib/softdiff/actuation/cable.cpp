@@ -45,21 +45,23 @@ double Cable::length(const VecX& x) const {
   return L;
 }
 
-template <class Fn>
-void Cable::for_each_segment(const VecX& x, Fn&& fn) const {
-  const double threshold = zero_segment_ratio * length(x);
-  auto segment = [&](int k0, const Vec3& a, int k1, const Vec3& b) {
-    const Vec3 d = b - a;
-    const double l = d.norm();
-    if (l > threshold && l > 0) fn(k0, k1, Vec3(d / l), l);
-  };
-  Vec3 prev = points_[0].position(x);
-  if (pull_point_) segment(-1, *pull_point_, 0, prev);
-  for (int k = 1; k < num_points(); ++k) {
-    const Vec3 p = points_[k].position(x);
-    segment(k - 1, prev, k, p);
-    prev = p;
+Cable::SegmentStencil Cable::segment_stencil(int s) const {
+  SOFTDIFF_DEMAND(s >= 0 && s < num_segments(), "segment index out of range");
+  const int k1 = s + (pull_point_ ? 0 : 1), k0 = k1 - 1;
+  SegmentStencil st;
+  for (int a = 0; a < 4; ++a) {
+    st.nodes[a] = points_[k1].nodes[a];
+    st.coeffs[a] = points_[k1].w[a];
   }
+  st.count = 4;
+  if (k0 >= 0) {
+    for (int a = 0; a < 4; ++a) {
+      st.nodes[4 + a] = points_[k0].nodes[a];
+      st.coeffs[4 + a] = -points_[k0].w[a];
+    }
+    st.count = 8;
+  }
+  return st;
 }
 
 void Cable::add_force(const VecX& x, double lambda, double scale, VecX& f) const {

@@ -21,6 +21,7 @@
 //
 // Every evaluation is allocation-free (fixed-size Eigen types only).
 #include <softdiff/actuation/embedding.hpp>
+#include <softdiff/core/assert.hpp>
 
 #include <array>
 #include <optional>
@@ -60,11 +61,66 @@ class Cable {
   // (I - u u^T)/|d| applied to dd = dp_{k+1} - dp_k, with dp = J dx.
   void add_force_derivative(const VecX& x, double lambda, const VecX& dx, VecX& out) const;
 
+  // Segments, numbered s = 0 .. num_segments() - 1 in cable order: with a pull point,
+  // segment 0 is q -> p_0 and segment s joins p_{s-1} and p_s; without, segment s
+  // joins p_s and p_{s+1}. The numbering does not depend on x.
+  int num_segments() const { return num_points() - 1 + (pull_point_ ? 1 : 0); }
+
+  // The segment vector d_s = p_k1 - p_k0 (or p_0 - q) as a fixed linear combination
+  // of node positions, d_s = sum_a coeffs[a] x_{nodes[a]} (+ const): nodes[0..3] are
+  // p_k1's nodes with coeffs w, nodes[4..7] p_k0's with -w (absent, count = 4, for the
+  // pull point segment). Nodes may repeat (two points in one tet); the stiffness
+  // blocks of repeated nodes simply add up.
+  struct SegmentStencil {
+    std::array<int, 8> nodes{};
+    std::array<double, 8> coeffs{};
+    int count = 0;
+  };
+  SegmentStencil segment_stencil(int s) const;
+
+  // The cable's stiffness lambda d^2L/dx^2 = -d(H_a^T lambda)/dx (symmetric positive
+  // semi-definite for lambda >= 0: L is convex in the point positions), block by
+  // block: calls fn(s, a, b, node_a, node_b, block) for every segment s with a usable
+  // length (zero-length segments are skipped, as in add_force_derivative) and every
+  // ordered pair (a, b) of its stencil (a, b < count), with the 3x3 block
+  //     coeffs[a] coeffs[b] lambda (I - u u^T) / l     (u = d_s / l, l = |d_s|)
+  // of the (node_a, node_b) block of the Hessian: lambda d^2L/dx^2 is the sum of all
+  // these blocks (both orders, a == b included). Allocation-free.
+  template <class Fn>
+  void for_each_stiffness_block(const VecX& x, double lambda, Fn&& fn) const {
+    SOFTDIFF_DEMAND(x.size() >= min_size_, "x is too short for the cable's nodes");
+    const int shift = pull_point_ ? 1 : 0;
+    for_each_segment(x, [&](int k0, int, const Vec3& u, double l) {
+      const int s = k0 + shift;
+      const SegmentStencil st = segment_stencil(s);
+      const Mat3 B = (lambda / l) * (Mat3::Identity() - u * u.transpose());
+      for (int a = 0; a < st.count; ++a)
+        for (int b = 0; b < st.count; ++b) {
+          const Mat3 block = (st.coeffs[a] * st.coeffs[b]) * B;
+          fn(s, a, b, st.nodes[a], st.nodes[b], block);
+        }
+    });
+  }
+
  private:
   // Calls fn(k0, k1, u, l) for every segment with a usable length, k0 = -1 for the
   // pull point segment (q to p_0); u = (p_k1 - p_k0)/l.
   template <class Fn>
-  void for_each_segment(const VecX& x, Fn&& fn) const;
+  void for_each_segment(const VecX& x, Fn&& fn) const {
+    const double threshold = zero_segment_ratio * length(x);
+    auto segment = [&](int k0, const Vec3& a, int k1, const Vec3& b) {
+      const Vec3 d = b - a;
+      const double l = d.norm();
+      if (l > threshold && l > 0) fn(k0, k1, Vec3(d / l), l);
+    };
+    Vec3 prev = points_[0].position(x);
+    if (pull_point_) segment(-1, *pull_point_, 0, prev);
+    for (int k = 1; k < num_points(); ++k) {
+      const Vec3 p = points_[k].position(x);
+      segment(k - 1, prev, k, p);
+      prev = p;
+    }
+  }
   void check_sizes(const VecX& x, const VecX& out) const;
 
   std::vector<EmbeddedPoint> points_;

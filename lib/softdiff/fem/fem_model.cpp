@@ -13,15 +13,22 @@ namespace softdiff::fem {
 namespace {
 
 // Upper-triangle block pattern of the node graph, expanded to 3x3 dof blocks.
-void build_pattern(const FemModel& m, SystemPattern& p) {
+// Extra cliques: all pairs of each clique's nodes.
+void build_pattern(const FemModel& m, const std::vector<std::vector<int>>& cliques, SystemPattern& p) {
   const int n = m.num_nodes;
-  std::vector<std::vector<int>> lower_neighbors(n);  // for node j: nodes i <= j sharing an element
+  std::vector<std::vector<int>> lower_neighbors(n);  // for node j: nodes i <= j sharing an element or a clique
   for (int e = 0; e < m.num_tets; ++e)
     for (int a = 0; a < 4; ++a)
       for (int b = 0; b < 4; ++b) {
         const int i = m.tets(a, e), j = m.tets(b, e);
         if (i <= j) lower_neighbors[j].push_back(i);
       }
+  for (const auto& clique : cliques)
+    for (int i : clique) {
+      SOFTDIFF_DEMAND(i >= 0 && i < n, "clique node index out of range");
+      for (int j : clique)
+        if (i <= j) lower_neighbors[j].push_back(i);
+    }
   for (auto& list : lower_neighbors) {
     std::sort(list.begin(), list.end());
     list.erase(std::unique(list.begin(), list.end()), list.end());
@@ -69,6 +76,23 @@ void build_pattern(const FemModel& m, SystemPattern& p) {
         out[k++] = find(std::min(gi, gj), std::max(gi, gj));
       }
   }
+  p.clique_node_begin.assign(1, 0);
+  p.clique_nodes.clear();
+  p.clique_scatter_begin.assign(1, 0);
+  p.clique_scatter.clear();
+  for (const auto& clique : cliques) {
+    const int k = static_cast<int>(clique.size());
+    p.clique_nodes.insert(p.clique_nodes.end(), clique.begin(), clique.end());
+    p.clique_node_begin.push_back(static_cast<int>(p.clique_nodes.size()));
+    for (int a = 0; a < k; ++a)
+      for (int b = 0; b < k; ++b)
+        for (int r = 0; r < 3; ++r)
+          for (int q = 0; q < 3; ++q) {
+            const int gi = 3 * clique[a] + r, gj = 3 * clique[b] + q;
+            p.clique_scatter.push_back(gi <= gj ? find(gi, gj) : -1);
+          }
+    p.clique_scatter_begin.push_back(static_cast<int>(p.clique_scatter.size()));
+  }
   p.fixed_offdiagonal.clear();
   p.fixed_diagonal.clear();
   for (int col = 0; col < ndof; ++col)
@@ -109,7 +133,7 @@ void color_elements(const FemModel& m, SystemPattern& p) {
 }  // namespace
 
 void build_fem_model(std::vector<BodyModel> bodies, const std::vector<unsigned char>& fixed, const Vec3& gravity,
-                     FemModel& m) {
+                     FemModel& m, const std::vector<std::vector<int>>& cliques) {
   m = FemModel{};
   m.bodies = std::move(bodies);
   for (auto& b : m.bodies) {
@@ -154,7 +178,7 @@ void build_fem_model(std::vector<BodyModel> bodies, const std::vector<unsigned c
     m.rest_volume[e] = det / 6.0;
   }
 
-  build_pattern(m, m.pattern);
+  build_pattern(m, cliques, m.pattern);
   color_elements(m, m.pattern);
   for (auto& b : m.bodies) {
     b.value_begin = m.pattern.structure.outerIndexPtr()[3 * b.node_begin];

@@ -44,6 +44,20 @@ struct SystemPattern {
   std::vector<int> color_begin;        // element colors: elements color_elements[color_begin[c] ..
   std::vector<int> color_elements;     //   color_begin[c+1]) share no node (parallel assembly),
   bool last_color_shares_nodes = false; // except the last color if the coloring overflowed (serial)
+  // Extra node cliques (build_fem_model's `cliques`: node groups coupled by something
+  // other than an element, e.g. a cable segment's stiffness): every pair of a clique's
+  // nodes has its 3x3 block in the pattern (zero in K and M). Clique c lists the nodes
+  // clique_nodes[clique_node_begin[c] .. clique_node_begin[c+1]) (as given: repeats
+  // allowed); for its k nodes, clique_scatter[clique_scatter_begin[c] + 9 (a k + b) +
+  // 3 r + q] is the value index of entry (3 node_a + r, 3 node_b + q) if that entry is
+  // in the upper triangle (row <= column), else -1 (the transposed entry, reached from
+  // (b, a), holds it). Adding a symmetric clique matrix's blocks for all ordered pairs
+  // (a, b) through this scatter therefore assembles exactly its upper triangle.
+  std::vector<int> clique_node_begin{0};
+  std::vector<int> clique_nodes;
+  std::vector<int> clique_scatter_begin{0};
+  std::vector<int> clique_scatter;
+  int num_cliques() const { return static_cast<int>(clique_node_begin.size()) - 1; }
   long nnz() const { return structure.nonZeros(); }
 };
 
@@ -79,8 +93,12 @@ inline Eigen::Matrix<double, 3, 4> shape_gradients(const Mat3& Dm_inv) {
 
 // Builds geometry (Dm_inv, volumes), mass, the pattern, coloring and gravity from
 // bodies whose `mesh` (world rest positions), material and options are filled in.
-// `fixed` (3n) marks fixed dofs. Throws InputError for degenerate rest elements.
+// `fixed` (3n) marks fixed dofs. `cliques` (global node indices) extend the pattern
+// (SystemPattern::clique_*); the actuators' stiffness needs them
+// (actuation::ActuationModel::stiffness_cliques). Throws InputError for degenerate
+// rest elements.
 void build_fem_model(std::vector<BodyModel> bodies, const std::vector<unsigned char>& fixed,
-                     const Vec3& gravity, FemModel& model);
+                     const Vec3& gravity, FemModel& model,
+                     const std::vector<std::vector<int>>& cliques = {});
 
 }  // namespace softdiff::fem

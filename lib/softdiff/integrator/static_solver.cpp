@@ -3,6 +3,7 @@
 #include <softdiff/integrator/implicit_euler.hpp>
 
 #include <algorithm>
+#include <softdiff/core/assert.hpp>
 #include <softdiff/core/timer.hpp>
 
 #include <chrono>
@@ -39,11 +40,16 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
   const double load_norm = load_full.norm();
   StepStatus status;
   int total_iterations = 0;
-  // Actuators: H_a(x)^T lambda_a joins the residual. The tangent keeps K only (the
-  // actuation forces' own derivative couples nodes outside the FEM pattern and is not
-  // symmetric for follower loads): a modified Newton method, with a line search on
-  // the residual norm (no potential for follower loads).
+  // Actuators: H_a(x)^T lambda_a joins the residual, and the cables' stiffness
+  // lambda d^2L/dx^2 = -d(H_a^T lambda)/dx joins the tangent (exact, symmetric
+  // positive semi-definite; its blocks are in the pattern: stiffness cliques). Cavities
+  // and servos keep their derivative out of the tangent (ActuationModel::add_stiffness):
+  // exact Newton for cables and translation servos, modified Newton otherwise. The
+  // line search is on the residual norm (no potential for follower loads).
   const bool actuated = !model.actuation.empty();
+  SOFTDIFF_DEMAND(!actuated || model.actuation.stiffness_fits(fem.pattern),
+                  "the FEM pattern lacks the actuators' stiffness cliques: build it with "
+                  "build_fem_model(..., model.actuation.stiffness_cliques())");
   bool constant_values = true;
   for (const auto& a : model.actuation.actuators) constant_values = constant_values && a.value.points.empty();
   double size_scale = 0;
@@ -85,10 +91,12 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       if (rel <= settings.static_tolerance) break;
       if (it >= settings.static_max_iterations)
         return not_converged(s, it, rel, "static equilibrium not reached (increase static.max_iterations or static.load_steps)");
-      // K dx = f + P (K = d^2E/dx^2, projected). M and damping play no part.
+      // A dx = f + P + H_a^T lambda, A = K + sum_cables lambda d^2L/dx^2 (K = d^2E/dx^2;
+      // projected). M and damping play no part.
       t0 = Clock::now();
       double* A = data.A.valuePtr();
       for (long k = 0; k < data.A.nonZeros(); ++k) A[k] = data.fem.K_values[k];
+      if (actuated) model.actuation.add_stiffness(out.x, data.lambda_a, fem.pattern, A);
       for (int k : fem.pattern.fixed_offdiagonal) A[k] = 0;
       for (int k : fem.pattern.fixed_diagonal) A[k] = 1;
       data.timings.assembly += seconds_since(t0);

@@ -6,7 +6,12 @@
 // external load is ramped as s / load_steps, s = 1..load_steps, each solved to
 // ||Pi (f_int + s P / L)|| <= tolerance * max(||Pi s P / L||, ||f_int||) (relative
 // residual force norm; ||f_int|| includes the reactions at fixed dofs, the force scale
-// of displacement-driven problems).
+// of displacement-driven problems). With actuators: the line search is on the
+// residual norm, and the tangent is K + sum_cables lambda d^2L/dx^2 (exact for
+// cables; cavities' and rotation servos' derivatives are left out). The model's
+// pattern must hold the cables' stiffness cliques (io::build_model does this; a
+// hand-built model passes model.actuation.stiffness_cliques() to build_fem_model):
+// SOFTDIFF_DEMAND otherwise.
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
 

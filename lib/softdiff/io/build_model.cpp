@@ -118,11 +118,19 @@ actuation::EmbeddedPoint embed(const actuation::PointLocator& locator, const fem
   return actuation::embedded_point(r.embedding, b.mesh.tets, b.node_begin);
 }
 
-void build_actuation(const SceneDesc& scene, Model& model, BuildReport* report) {
-  const VecX rest = Eigen::Map<const VecX>(model.fem.X.data(), 3 * model.fem.num_nodes);
+// Runs before build_fem_model (the cables' stiffness cliques enter the pattern):
+// `bodies` hold the world rest meshes and their global node offsets (node_begin).
+void build_actuation(const SceneDesc& scene, const std::vector<fem::BodyModel>& bodies, Model& model,
+                     BuildReport* report) {
+  int num_nodes = 0;
+  for (const auto& b : bodies) num_nodes += b.mesh.num_nodes();
+  VecX rest(3 * num_nodes);
+  for (const auto& b : bodies)
+    rest.segment(3 * b.node_begin, 3 * b.mesh.num_nodes()) =
+        Eigen::Map<const VecX>(b.mesh.X.data(), 3 * b.mesh.num_nodes());
   for (size_t bi = 0; bi < scene.bodies.size(); ++bi) {
     const BodyDesc& bd = scene.bodies[bi];
-    const fem::BodyModel& b = model.fem.bodies[bi];
+    const fem::BodyModel& b = bodies[bi];
     if (bd.actuators.empty() && bd.effectors.empty()) continue;
     const actuation::PointLocator locator(b.mesh.X, b.mesh.tets);
     std::unordered_map<long, int> by_file_index;
@@ -248,8 +256,13 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
     initial_velocity.push_back(bd.initial_velocity);
     bodies.push_back(std::move(b));
   }
-  fem::build_fem_model(std::move(bodies), fixed, sim.gravity, model.fem);
-  build_actuation(scene, model, report);
+  int node_begin = 0;
+  for (auto& b : bodies) {
+    b.node_begin = node_begin;  // as build_fem_model numbers them
+    node_begin += b.mesh.num_nodes();
+  }
+  build_actuation(scene, bodies, model, report);
+  fem::build_fem_model(std::move(bodies), fixed, sim.gravity, model.fem, model.actuation.stiffness_cliques());
 
   const int ndof = 3 * model.fem.num_nodes;
   model.initial.t = 0;
