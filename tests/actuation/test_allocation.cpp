@@ -2,6 +2,7 @@
 // malloc (forwarding to glibc's __libc_malloc) and counts calls while a scope is
 // active: this catches std containers (operator new calls malloc) and Eigen's dynamic
 // temporaries (Eigen's aligned_malloc calls malloc) alike.
+#include <softdiff/actuation/actuation_model.hpp>
 #include <softdiff/actuation/cable.hpp>
 #include <softdiff/actuation/effector.hpp>
 #include <softdiff/actuation/pressure.hpp>
@@ -75,8 +76,26 @@ TEST(Allocation, ActuatorEvaluationsAreAllocationFree) {
   Mat3X v_translation(3, translation.nodes().size()), v_rotation(3, rotation.nodes().size());
   double sink = 0;
   LocateResult r;
+  // The cable's stiffness in a pattern built with its cliques (static tangent).
+  ActuationModel act;
+  act.actuators.emplace_back();
+  act.actuators.back().kind = cable;
+  fem::FemModel fem_model;
+  {
+    fem::BodyModel b;
+    b.mesh = m;
+    b.young = 1e5;
+    b.poisson = 0.3;
+    b.density = 1000;
+    fem::build_fem_model({b}, std::vector<unsigned char>(3 * m.num_nodes(), 0), Vec3::Zero(), fem_model,
+                         act.stiffness_cliques());
+  }
+  VecX values = VecX::Zero(fem_model.pattern.nnz());
+  const VecX lambda = VecX::Constant(1, 2.0);
 
   Count count;
+  cable.for_each_stiffness_block(x, 2.0, [&](int, int, int, int, int, const Mat3& block) { sink += block(0, 0); });
+  act.add_stiffness(x, lambda, fem_model.pattern, values.data());
   sink += cable.length(x);
   cable.add_force(x, 1.0, 0.01, f);
   cable.gradient(x, H);
@@ -102,5 +121,6 @@ TEST(Allocation, ActuatorEvaluationsAreAllocationFree) {
   const long n = count.stop();
   EXPECT_EQ(n, 0);
   EXPECT_TRUE(std::isfinite(sink + f.sum() + H.sum() + out.sum()));
+  EXPECT_GT(values.norm(), 0);
   EXPECT_NE(r.status, LocateStatus::no_tets);
 }
