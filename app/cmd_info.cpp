@@ -8,13 +8,39 @@
 #include <softdiff/io/scene.hpp>
 #include <softdiff/material/material.hpp>
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
+#include <string>
+#include <variant>
 
 namespace softdiff::app {
 namespace {
 
 std::vector<double> v3(const Vec3& v) { return {v.x(), v.y(), v.z()}; }
+
+// Unit of an actuator's value: cable tension and servo force in N, pressure in Pa,
+// servo torque in N m.
+const char* value_unit(const actuation::ActuatorModel& a) {
+  if (std::holds_alternative<actuation::Cavity>(a.kind)) return "Pa";
+  if (const auto* s = std::get_if<actuation::Servo>(&a.kind); s && s->is_rotation()) return "N m";
+  return "N";
+}
+
+// "0.25 N" or "schedule of 2 points, 0 to 0.25 N over [0, 1] s".
+std::string describe_value(const actuation::ActuatorModel& a) {
+  char buf[160];
+  const auto& p = a.value.points;
+  if (p.empty()) {
+    std::snprintf(buf, sizeof buf, "%g %s", a.value.constant, value_unit(a));
+  } else {
+    double lo = p[0][1], hi = p[0][1];
+    for (const auto& q : p) lo = std::min(lo, q[1]), hi = std::max(hi, q[1]);
+    std::snprintf(buf, sizeof buf, "schedule of %zu points, %g to %g %s over [%g, %g] s", p.size(), lo, hi,
+                  value_unit(a), p.front()[0], p.back()[0]);
+  }
+  return buf;
+}
 
 int info_mesh(const std::string& file, bool json) {
   const mesh::TetMesh m = io::read_gmsh(file);
@@ -93,15 +119,26 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
     j.begin_array("actuators");
     for (const auto& a : model.actuation.actuators) {
       j.begin_object().value("name", a.name).value("type", a.kind_name()).value("body", fem.bodies[a.body].name);
+      j.value("unit", value_unit(a));
+      if (a.value.points.empty()) {
+        j.value("value", a.value.constant);
+      } else {
+        j.begin_array("schedule");
+        for (const auto& q : a.value.points) j.value("", std::vector<double>{q[0], q[1]});
+        j.end_array();
+      }
+      if (a.has_limits) j.value("limits", std::vector<double>{a.limits[0], a.limits[1]});
       if (a.has_measure()) j.value(a.measure_name(), a.measure(model.initial.x));
       j.end_object();
     }
     j.end_array();
     j.begin_array("effectors");
-    for (const auto& e : model.actuation.effectors) {
-      const Vec3 p = e.effector.position(model.initial.x);
-      j.begin_object().value("name", e.name).value("body", fem.bodies[e.body].name).value("point", v3(p)).end_object();
-    }
+    for (const auto& e : model.actuation.effectors)
+      j.begin_object()
+          .value("name", e.name)
+          .value("body", fem.bodies[e.body].name)
+          .value("point", v3(e.effector.position(model.initial.x)))
+          .end_object();
     j.end_array().end_object();
     std::printf("%s\n", j.str().c_str());
     return kExitOk;
@@ -114,17 +151,6 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
                 model.step.steps, model.step.dt * model.step.steps, model.step.newton_iterations);
   std::printf("system      %d dofs (%ld fixed), %ld nonzeros in the upper triangle, %zu element colors\n",
               3 * fem.num_nodes, fem.num_fixed_dofs, fem.pattern.nnz(), fem.pattern.color_begin.size() - 1);
-  for (const auto& a : model.actuation.actuators) {
-    std::printf("actuator    %s: %s on body '%s'", a.name.c_str(), a.kind_name(), fem.bodies[a.body].name.c_str());
-    if (a.has_measure()) std::printf(", rest %s %g", a.measure_name(), a.measure(model.initial.x));
-    if (a.has_limits) std::printf(", limits [%g, %g]", a.limits[0], a.limits[1]);
-    std::printf("\n");
-  }
-  for (const auto& e : model.actuation.effectors) {
-    const Vec3 p = e.effector.position(model.initial.x);
-    std::printf("effector    %s on body '%s' at [%g, %g, %g]\n", e.name.c_str(), fem.bodies[e.body].name.c_str(), p.x(),
-                p.y(), p.z());
-  }
   for (const auto& b : fem.bodies) {
     long fixed_nodes = 0;
     for (int i = b.node_begin; i < b.node_begin + b.num_nodes; ++i)
@@ -133,6 +159,26 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
     std::printf("body        %s: %d nodes, %d tets, %ld fixed nodes, %s E=%g Pa nu=%g rho=%g kg/m^3, mass %g kg\n",
                 b.name.c_str(), b.num_nodes, b.num_tets, fixed_nodes, std::string(material::law_name(b.law)).c_str(),
                 b.young, b.poisson, b.density, mass);
+  }
+  for (const auto& a : model.actuation.actuators) {
+    std::string line = "actuator    " + a.name + ": " + a.kind_name() + " on " + fem.bodies[a.body].name + ", " +
+                       describe_value(a);
+    char buf[96];
+    if (a.has_limits) {
+      std::snprintf(buf, sizeof buf, ", limits [%g, %g]", a.limits[0], a.limits[1]);
+      line += buf;
+    }
+    if (a.has_measure()) {
+      std::snprintf(buf, sizeof buf, ", rest %s %g %s", a.measure_name(), a.measure(model.initial.x),
+                    std::string(a.measure_name()) == "length" ? "m" : "m^3");
+      line += buf;
+    }
+    std::printf("%s\n", line.c_str());
+  }
+  for (const auto& e : model.actuation.effectors) {
+    const Vec3 p = e.effector.position(model.initial.x);
+    std::printf("effector    %s: on %s at [%g, %g, %g]\n", e.name.c_str(), fem.bodies[e.body].name.c_str(), p.x(), p.y(),
+                p.z());
   }
   return kExitOk;
 }

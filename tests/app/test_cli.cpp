@@ -6,6 +6,7 @@
 #include <hdf5.h>
 
 #include <filesystem>
+#include <string>
 #include <vector>
 
 using namespace softdiff::test;
@@ -215,6 +216,68 @@ TEST(Cli, InfoDescribesMeshAndScene) {
   r = run_cli("info " + (kRoot / "configs/beam_cantilever.yaml").string() + " --json", dir);
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.out.find("\"valid\":true"), std::string::npos) << r.out;
+}
+
+// A dataset of doubles, flattened (empty if absent).
+std::vector<double> read_doubles(const fs::path& file, const std::string& path) {
+  H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
+  std::vector<double> out;
+  const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (f < 0) return out;
+  const hid_t d = H5Dopen2(f, path.c_str(), H5P_DEFAULT);
+  if (d >= 0) {
+    const hid_t space = H5Dget_space(d);
+    out.resize(static_cast<size_t>(H5Sget_simple_extent_npoints(space)));
+    if (H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, out.data()) < 0) out.clear();
+    H5Sclose(space);
+    H5Dclose(d);
+  }
+  H5Fclose(f);
+  return out;
+}
+
+// Every shipped scene runs as shipped: exit 0, complete, and no warning (a cable or
+// effector point mapped from outside its body would be one).
+TEST(Cli, ShippedScenesRunAsShipped) {
+  int scenes = 0;
+  for (const auto& entry : fs::directory_iterator(kRoot / "configs")) {
+    if (entry.path().extension() != ".yaml") continue;
+    ++scenes;
+    const std::string stem = entry.path().stem().string();
+    SCOPED_TRACE(stem);
+    const auto dir = fresh_dir("shipped_" + stem);
+    const auto r = run_cli("simulate " + entry.path().string() + " -o out.h5 --force --quiet", dir);
+    EXPECT_EQ(r.code, 0) << r.err;
+    EXPECT_EQ(r.err.find("warning"), std::string::npos) << r.err;
+    EXPECT_EQ(status_attribute(dir / "out.h5"), "complete");
+  }
+  EXPECT_GE(scenes, 4);
+}
+
+TEST(Cli, RobotScenesWriteActuatorsAndEffectors) {
+  struct Case {
+    std::string scene, body, actuator;
+    double last_value;  // the schedule's value at the end of the default run
+  };
+  for (const Case& c : {Case{"trunk", "trunk", "cableL0", 0.25}, Case{"finger", "finger", "cable1", 2.0}}) {
+    SCOPED_TRACE(c.scene);
+    const auto dir = fresh_dir("robot_" + c.scene);
+    const fs::path scene = kRoot / "configs" / (c.scene + ".yaml");
+    auto r = run_cli("info " + scene.string(), dir);
+    ASSERT_EQ(r.code, 0) << r.err;
+    EXPECT_NE(r.out.find("actuator    " + c.actuator + ": cable on " + c.body), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("effector    tip: on " + c.body), std::string::npos) << r.out;
+    r = run_cli("simulate " + scene.string() + " -o out.h5 --force --quiet --steps 10 --set simulation.dt=0.1", dir);
+    ASSERT_EQ(r.code, 0) << r.err;
+    const auto value = read_doubles(dir / "out.h5", "/actuators/" + c.actuator + "/value");
+    const auto length = read_doubles(dir / "out.h5", "/actuators/" + c.actuator + "/length");
+    const auto tip = read_doubles(dir / "out.h5", "/bodies/" + c.body + "/effectors/tip");
+    ASSERT_EQ(value.size(), 11u);  // frame 0 and 10 steps
+    EXPECT_DOUBLE_EQ(value.front(), 0);
+    EXPECT_NEAR(value.back(), c.last_value, 1e-12);
+    ASSERT_EQ(length.size(), 11u);
+    ASSERT_EQ(tip.size(), 33u);
+  }
 }
 
 TEST(Cli, VersionListsLibraries) {

@@ -564,6 +564,22 @@ TEST_F(Scene, SetStepsReplacesDurationAndBack) {
   EXPECT_EQ(load(with_duration, {"simulation.dt=0.1"}).simulation.steps, 3);
 }
 
+TEST_F(Scene, SetActuatorForceReplacesScheduleAndBack) {
+  const std::string scene = kBase + R"(    actuators:
+      - {name: c, type: cable, points: [[0, 0, 0], [1, 0, 0]], schedule: [[0, 0], [1, 2]]}
+      - {name: p, type: pressure, surface: s, pressure: 5}
+)";
+  SceneDesc s = load(scene, {"bodies.beam.actuators.c.force=0.5"});
+  EXPECT_TRUE(s.bodies[0].actuators[0].schedule.empty());
+  EXPECT_DOUBLE_EQ(s.bodies[0].actuators[0].value, 0.5);
+  s = load(scene, {"bodies.beam.actuators.c.force=0.5", "bodies.beam.actuators.c.schedule=[[0, 1], [2, 3]]"});
+  ASSERT_EQ(s.bodies[0].actuators[0].schedule.size(), 2u);
+  EXPECT_DOUBLE_EQ(s.bodies[0].actuators[0].value, 0);
+  // schedule removes `force` only (one exclusion per key): a constant pressure stays, an error.
+  EXPECT_EQ(error(scene, {"bodies.beam.actuators.p.schedule=[[0, 1]]"}),
+            "--set: bodies[0].actuators[1].schedule: give either 'pressure' (constant) or 'schedule', not both");
+}
+
 TEST_F(Scene, SetNullRemovesAKey) {
   const SceneDesc s = load(kBase, {"simulation.integrator=static", "simulation.dt=null", "simulation.steps=~"});
   EXPECT_EQ(s.simulation.integrator, Integrator::static_equilibrium);

@@ -54,16 +54,17 @@ SpecPtr actuator() {
       required("type", choice({"cable", "pressure", "servo"})),
       key("points", list(vec3(), "a list of points [[x, y, z], ...]", 1)),
       key("pull_point", vec3()),
-      key("force", number()),
+      excludes(key("force", number()), "schedule"),  // --set force=... replaces a schedule
       key("limits", numbers(2, "a list of 2 numbers [min, max]")),
       key("surface", text(true)),
-      key("pressure", number()),
+      excludes(key("pressure", number()), "schedule"),
       key("nodes", node_selection(false)),
       key("direction", vec3()),
       key("axis", vec3()),
       key("center", vec3()),
       // extension: lambda_a(t), piecewise linear: [[t0, v0], [t1, v1], ...]
-      key("schedule", list(numbers(2, "a pair [time, value]"), "a list of [time, value] pairs", 1)),
+      // (--set schedule=... replaces a constant force; a constant pressure stays: an error)
+      excludes(key("schedule", list(numbers(2, "a pair [time, value]"), "a list of [time, value] pairs", 1)), "force"),
   });
 }
 
