@@ -67,6 +67,34 @@ void ActuationModel::values(double t, VecX& lambda) const {
   for (size_t a = 0; a < actuators.size(); ++a) lambda[static_cast<Eigen::Index>(a)] = actuators[a].value.at(t);
 }
 
+bool ActuationModel::conservative() const {
+  for (const auto& a : actuators) {
+    if (const auto* c = std::get_if<Cavity>(&a.kind); c && !c->closed()) return false;
+    if (const auto* s = std::get_if<Servo>(&a.kind); s && s->is_rotation()) return false;
+  }
+  return true;
+}
+
+double ActuationModel::potential(const VecX& x, const VecX& lambda) const {
+  double U = 0;
+  for (size_t k = 0; k < actuators.size(); ++k) {
+    const double l = lambda[static_cast<Eigen::Index>(k)];
+    if (l == 0) continue;
+    const auto& a = actuators[k];
+    if (const auto* c = std::get_if<Cable>(&a.kind)) {
+      U += l * c->length(x);  // H_a = -dL/dx: f = -d(lambda L)/dx
+    } else if (const auto* c = std::get_if<Cavity>(&a.kind)) {
+      U -= l * c->volume(x);  // H_a = dV/dx (closed)
+    } else if (const auto* s = std::get_if<Servo>(&a.kind)) {
+      Vec3 mean = Vec3::Zero();
+      for (int i : s->nodes()) mean += x.segment<3>(3 * i);
+      mean /= static_cast<double>(s->nodes().size());
+      U -= l * s->direction().dot(mean);  // uniform lambda d / N on each node
+    }
+  }
+  return U;
+}
+
 void ActuationModel::add_forces(const VecX& x, const VecX& lambda, double scale, VecX& f) const {
   for (size_t a = 0; a < actuators.size(); ++a) {
     const double l = lambda[static_cast<Eigen::Index>(a)];

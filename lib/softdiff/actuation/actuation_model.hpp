@@ -56,6 +56,12 @@ struct ActuationModel {
   bool empty() const { return actuators.empty(); }
   // lambda_a(t) for every actuator.
   void values(double t, VecX& lambda) const;
+  // True if every actuator's force derives from a potential: cables (lambda L),
+  // closed cavities (-p V), translation servos (-lambda d . mean of the nodes).
+  bool conservative() const;
+  // The actuators' potential energy U(x) with f = -dU/dx = sum_a lambda_a H_a^T
+  // (only meaningful when conservative()).
+  double potential(const VecX& x, const VecX& lambda) const;
   // f += scale * sum_a lambda_a H_a(x)^T
   void add_forces(const VecX& x, const VecX& lambda, double scale, VecX& f) const;
 

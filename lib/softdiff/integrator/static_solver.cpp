@@ -47,6 +47,9 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
   // exact Newton for cables and translation servos, modified Newton otherwise. The
   // line search is on the residual norm (no potential for follower loads).
   const bool actuated = !model.actuation.empty();
+  // Cables, closed cavities and translation servos derive from a potential: the line
+  // search then works on the total potential energy; otherwise on the residual norm.
+  const bool conservative = model.actuation.conservative();
   SOFTDIFF_DEMAND(!actuated || model.actuation.stiffness_fits(fem.pattern),
                   "the FEM pattern lacks the actuators' stiffness cliques: build it with "
                   "build_fem_model(..., model.actuation.stiffness_cliques())");
@@ -120,16 +123,18 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       // direction when K is positive definite: dPi/dalpha = -(f + P).dx < 0. With
       // actuators: backtracking on the residual norm.
       t0 = Clock::now();
-      const double pi0 = data.fem.energy - factor * fem.gravity_force.dot(out.x);
+      const double pi0 = data.fem.energy - factor * fem.gravity_force.dot(out.x) +
+                         (actuated && conservative ? model.actuation.potential(out.x, data.lambda_a) : 0.0);
       const double slope = -residual.dot(dx);
       const double r0 = residual.norm();
       double alpha = 1;
       bool accepted = false;
       for (int ls = 0; ls < 40; ++ls, alpha *= 0.5) {
         trial = out.x + alpha * dx;
-        if (!actuated) {
+        if (!actuated || conservative) {
           if (!fem::evaluate(fem, trial, {true, false, false}, data.fem)) continue;  // inverted: shorter step
-          const double pi = data.fem.energy - factor * fem.gravity_force.dot(trial);
+          const double pi = data.fem.energy - factor * fem.gravity_force.dot(trial) +
+                            (actuated ? model.actuation.potential(trial, data.lambda_a) : 0.0);
           if (pi <= pi0 + 1e-4 * alpha * slope || std::abs(pi - pi0) <= 1e-14 * std::abs(pi0)) {
             accepted = true;
             break;
@@ -149,7 +154,7 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       data.timings.other += seconds_since(t0);
       if (!accepted)
         return not_converged(s, it, rel,
-                             actuated ? "line search found no decrease of the residual norm"
+                             actuated && !conservative ? "line search found no decrease of the residual norm"
                                       : "line search found no decrease of the potential energy");
       out.x = trial;
       ++total_iterations;
