@@ -17,12 +17,7 @@ namespace {
 const fs::path kRoot = SOFTDIFF_SOURCE_DIR;
 const fs::path kWork = fs::path(SOFTDIFF_TEST_DATA_DIR) / "cli";
 
-fs::path fresh_dir(const std::string& name) {
-  const fs::path d = kWork / name;
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
+fs::path fresh_dir(const std::string& name) { return softdiff::test::fresh_dir(kWork, name); }
 
 // A small valid scene around the shipped beam mesh, with `extra` appended to the body.
 std::string beam_scene(const std::string& material_extra = "", const std::string& top_extra = "") {

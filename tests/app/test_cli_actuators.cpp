@@ -27,12 +27,7 @@ namespace {
 const fs::path kRoot = SOFTDIFF_SOURCE_DIR;
 const fs::path kWork = fs::path(SOFTDIFF_TEST_DATA_DIR) / "cli_actuators";
 
-fs::path fresh_dir(const std::string& name) {
-  const fs::path d = kWork / name;
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
+fs::path fresh_dir(const std::string& name) { return softdiff::test::fresh_dir(kWork, name); }
 
 // The shipped beam (0.2 x 0.02 x 0.02 m, groups clamp, tip, beam), with `actuators`
 // (YAML list items, indented for the body) and the mesh replaceable.

@@ -26,6 +26,14 @@ inline void write_text(const std::filesystem::path& p, const std::string& text) 
   std::ofstream(p) << text;
 }
 
+// An empty folder `root / name` (removed and recreated).
+inline std::filesystem::path fresh_dir(const std::filesystem::path& root, const std::string& name) {
+  const std::filesystem::path d = root / name;
+  std::filesystem::remove_all(d);
+  std::filesystem::create_directories(d);
+  return d;
+}
+
 // `args` is appended to the command line as is (quote paths yourself if needed).
 inline CliRun run_cli(const std::string& args, const std::filesystem::path& workdir) {
   std::filesystem::create_directories(workdir);
