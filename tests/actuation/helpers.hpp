@@ -1,6 +1,9 @@
 #pragma once
 // Shared fixtures of the actuation tests: jittered box meshes, deformed positions,
 // and the box's boundary faces found geometrically (independently of the library).
+#include <softdiff/actuation/cable.hpp>
+#include <softdiff/actuation/pressure.hpp>
+#include <softdiff/actuation/servo.hpp>
 #include <softdiff/core/types.hpp>
 #include <support/meshes.hpp>
 
@@ -89,5 +92,35 @@ inline double mesh_volume(const Tets& tets, const VecX& x) {
   }
   return V;
 }
+
+// One of each actuator on a jittered 0.03 x 0.02 x 0.02 m box: a 3-point cable with a
+// pull point, the whole boundary as a closed cavity, a translation servo on 4 nodes.
+struct ActuatorSet {
+  Vec3 size{0.03, 0.02, 0.02};
+  mesh::TetMesh mesh;
+  VecX x_rest;
+  std::vector<actuation::EmbeddedPoint> points;
+  actuation::Cable cable;
+  actuation::Cavity cavity;
+  actuation::Servo translation;
+  bool ok = false;  // the cavity and the servo were created
+
+  explicit ActuatorSet(std::mt19937& rng, const Vec3& servo_direction = Vec3::UnitX())
+      : mesh(jittered_box(3, 2, 2, size[0], size[1], size[2], 0.2, rng)),
+        x_rest(flatten(mesh.X)),
+        points(embed({Vec3(0.001, 0.01, 0.01), Vec3(0.015, 0.017, 0.006), Vec3(0.029, 0.003, 0.009)})),
+        cable(points, Vec3(-0.01, 0.01, 0.01)) {
+    ok = actuation::Cavity::create(mesh.X, mesh.tets, box_boundary(mesh, size), 0, cavity).ok() &&
+         actuation::Servo::translation({0, 1, 2, 5}, servo_direction, x_rest, translation).ok();
+  }
+
+ private:
+  std::vector<actuation::EmbeddedPoint> embed(const std::vector<Vec3>& ps) const {
+    const actuation::PointLocator locator(mesh.X, mesh.tets);
+    std::vector<actuation::EmbeddedPoint> out;
+    for (const Vec3& p : ps) out.push_back(actuation::embedded_point(locator.locate(p).embedding, mesh.tets, 0));
+    return out;
+  }
+};
 
 }  // namespace softdiff::test

@@ -55,18 +55,16 @@ TEST(Allocation, CounterSeesAllocations) {
 
 TEST(Allocation, ActuatorEvaluationsAreAllocationFree) {
   std::mt19937 rng(40);
-  const Vec3 size(0.03, 0.02, 0.02);
-  const mesh::TetMesh m = test::jittered_box(3, 2, 2, size[0], size[1], size[2], 0.2, rng);
+  const test::ActuatorSet set(rng);
+  ASSERT_TRUE(set.ok);
+  const mesh::TetMesh& m = set.mesh;
   const PointLocator locator(m.X, m.tets);
-  std::vector<EmbeddedPoint> points;
-  for (const Vec3& p : {Vec3(0.001, 0.01, 0.01), Vec3(0.015, 0.017, 0.006), Vec3(0.029, 0.003, 0.009)})
-    points.push_back(embedded_point(locator.locate(p).embedding, m.tets, 0));
-  const Cable cable(points, Vec3(-0.01, 0.01, 0.01));
-  Cavity cavity;
-  ASSERT_TRUE(Cavity::create(m.X, m.tets, test::box_boundary(m, size), 0, cavity).ok());
-  const VecX x_rest = test::flatten(m.X);
-  Servo translation, rotation;
-  ASSERT_TRUE(Servo::translation({0, 1, 2, 5}, Vec3::UnitX(), x_rest, translation).ok());
+  const std::vector<EmbeddedPoint>& points = set.points;
+  const Cable& cable = set.cable;
+  const Cavity& cavity = set.cavity;
+  const VecX& x_rest = set.x_rest;
+  const Servo& translation = set.translation;
+  Servo rotation;
   ASSERT_TRUE(Servo::rotation({0, 1, 2, 5, 7}, Vec3::UnitZ(), Vec3(0.01, 0.01, 0), x_rest, rotation).ok());
   const Effector effector(points[1]);
 

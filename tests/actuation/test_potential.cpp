@@ -16,23 +16,15 @@ namespace {
 
 TEST(Potential, ForcesAreMinusItsGradientForConservativeActuators) {
   std::mt19937 rng(12);
-  const Vec3 size(0.03, 0.02, 0.02);
-  const mesh::TetMesh m = test::jittered_box(3, 2, 2, size[0], size[1], size[2], 0.2, rng);
-  const PointLocator locator(m.X, m.tets);
-  std::vector<EmbeddedPoint> points;
-  for (const Vec3& p : {Vec3(0.001, 0.01, 0.01), Vec3(0.015, 0.017, 0.006), Vec3(0.029, 0.003, 0.009)})
-    points.push_back(embedded_point(locator.locate(p).embedding, m.tets, 0));
-  const VecX x_rest = test::flatten(m.X);
+  const test::ActuatorSet set(rng, Vec3(1, 2, -0.5));
+  ASSERT_TRUE(set.ok);
+  ASSERT_TRUE(set.cavity.closed());
+  const VecX& x_rest = set.x_rest;
   ActuationModel model;
   model.actuators.resize(3);
-  model.actuators[0].kind = Cable(points, Vec3(-0.01, 0.01, 0.01));
-  Cavity cavity;
-  ASSERT_TRUE(Cavity::create(m.X, m.tets, test::box_boundary(m, size), 0, cavity).ok());
-  ASSERT_TRUE(cavity.closed());
-  model.actuators[1].kind = cavity;
-  Servo servo;
-  ASSERT_TRUE(Servo::translation({0, 1, 2, 5}, Vec3(1, 2, -0.5), x_rest, servo).ok());
-  model.actuators[2].kind = servo;
+  model.actuators[0].kind = set.cable;
+  model.actuators[1].kind = set.cavity;
+  model.actuators[2].kind = set.translation;
   ASSERT_TRUE(model.conservative());
 
   const VecX x = test::deform(x_rest, 1e-3, rng);

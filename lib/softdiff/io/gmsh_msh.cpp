@@ -427,6 +427,11 @@ class Parser {
   void read_physical_names();
   void read_entities(bool partitioned);
   void read_nodes_v2();
+  struct V4Header {
+    std::size_t start = 0;
+    std::uint64_t blocks = 0, count = 0;
+  };
+  V4Header read_v4_header(const std::string& item);
   void read_nodes_v4();
   void read_elements_v2();
   void read_elements_v4();
@@ -779,17 +784,26 @@ void Parser::read_nodes_v2() {
   expect_end("$EndNodes", "the nodes (is the node count right?)");
 }
 
+// MSH 4 $Nodes / $Elements header: numEntityBlocks numItems minTag maxTag.
+Parser::V4Header Parser::read_v4_header(const std::string& item) {
+  if (!binary_) skip_space();  // binary: the first byte may look like whitespace
+  V4Header h;
+  h.start = pos_;
+  h.blocks = read_size(("number of " + item + " blocks").c_str());
+  h.count = read_size(("number of " + item + "s").c_str());
+  read_size(("minimum " + item + " tag").c_str());
+  read_size(("maximum " + item + " tag").c_str());
+  if (!binary_) end_line(("the " + item + " section header").c_str());
+  return h;
+}
+
 void Parser::read_nodes_v4() {
   // numEntityBlocks numNodes minNodeTag maxNodeTag; per block: entityDim
   // entityTag parametric numNodesInBlock, the block's tags, then its
   // coordinates x y z [u [v [w]]] (parametric nodes: one more per entity dim).
-  if (!binary_) skip_space();  // binary: the first byte may look like whitespace
-  const std::size_t start = pos_;
-  const std::uint64_t blocks = read_size("number of node blocks");
-  const std::uint64_t count = read_size("number of nodes");
-  read_size("minimum node tag");
-  read_size("maximum node tag");
-  if (!binary_) end_line("the node section header");
+  const V4Header header = read_v4_header("node");
+  const std::size_t start = header.start;
+  const std::uint64_t blocks = header.blocks, count = header.count;
   const std::size_t tag_bytes = binary_ ? static_cast<std::size_t>(size_t_bytes_) : 2;
   check_count(blocks, binary_ ? 12 + tag_bytes : 8, start, "node blocks");
   check_count(count, binary_ ? tag_bytes + 24 : 8, start, "nodes");
@@ -957,13 +971,9 @@ void Parser::read_elements_v2() {
 void Parser::read_elements_v4() {
   // numEntityBlocks numElements minTag maxTag; per block: entityDim entityTag
   // elementType numElementsInBlock, then one record per element: tag nodes...
-  if (!binary_) skip_space();  // binary: the first byte may look like whitespace
-  const std::size_t start = pos_;
-  const std::uint64_t blocks = read_size("number of element blocks");
-  const std::uint64_t count = read_size("number of elements");
-  read_size("minimum element tag");
-  read_size("maximum element tag");
-  if (!binary_) end_line("the element section header");
+  const V4Header header = read_v4_header("element");
+  const std::size_t start = header.start;
+  const std::uint64_t blocks = header.blocks, count = header.count;
   const std::size_t sz = binary_ ? static_cast<std::size_t>(size_t_bytes_) : 2;
   check_count(blocks, binary_ ? 12 + sz : 8, start, "element blocks");
   check_count(count, binary_ ? 2 * sz : 4, start, "elements");
