@@ -145,7 +145,7 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
           model.actuation.add_forces(trial, data.lambda_a, 1.0, data.Kv);
           project(model, data.Kv);
           const double r = data.Kv.norm();
-          if (r <= (1 - 1e-4 * alpha) * r0 || r <= 1e-3 * settings.static_tolerance * r0) {
+          if (r <= (1 - 1e-4 * alpha) * r0) {
             accepted = true;
             break;
           }
