@@ -1,0 +1,64 @@
+#pragma once
+// Collision detection: the contacts of a configuration x, with a margin.
+//   - surface vertices of soft bodies against static obstacles (obstacle.hpp);
+//   - vertex against triangle, and edge against edge, between two soft bodies and,
+//     with self-collision, within one body (skipping a vertex's incident triangles
+//     and its one-ring, and edges that share a vertex);
+// Broad phase: FCL dynamic AABB trees over each body's deforming surface (refitted
+// every call) and the static obstacles' boxes (built once). Narrow phase: exact
+// closest points with barycentric weights and the closest-feature record.
+#include <softdiff/contact/contact_set.hpp>
+#include <softdiff/contact/obstacle.hpp>
+#include <softdiff/core/types.hpp>
+
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace softdiff::contact {
+
+// The outward boundary surface of one soft body, in global node indices.
+struct BodySurface {
+  std::string name;
+  Triangles triangles;          // (3, k) outward, global node indices
+  // Filled by prepare_surface(): the surface vertices (sorted), the unique edges
+  // (2, m) with the triangles on each side, and each vertex's one-ring vertices.
+  std::vector<int> vertices;
+  Eigen::Matrix<int, 2, Eigen::Dynamic> edges;
+};
+void prepare_surface(BodySurface& surface);
+
+// Which pairs collide, and with which friction coefficient. Sides are indices into
+// `names` = bodies then obstacles (Contact::side_a/side_b).
+struct PairRule {
+  int a = -1, b = -1;  // a: a body; b: an obstacle, another body, or a (self-collision)
+  double mu = 0;
+};
+
+struct DetectionModel {
+  std::vector<BodySurface> surfaces;  // one per soft body, in body order
+  std::vector<Obstacle> obstacles;    // prepared
+  std::vector<PairRule> pairs;
+  double margin = 1e-3;               // pairs closer than this (signed distance) become contacts
+  std::vector<std::string> names;     // bodies then obstacles
+};
+
+struct DetectionStats {
+  int candidates = 0;  // broad-phase pairs examined by the narrow phase
+  int contacts = 0;
+};
+
+class CollisionDetector {
+ public:
+  explicit CollisionDetector(const DetectionModel& model);
+  ~CollisionDetector();
+  // Fills `out` (cleared first) with every contact of configuration x (3n, node-major),
+  // in a deterministic order (by pair rule, then kind, then feature indices).
+  DetectionStats detect(const VecX& x, ContactSet& out);
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace softdiff::contact

@@ -1,0 +1,68 @@
+#pragma once
+// The contact problem of a step (docs/method.md, paper eq. 2): find lambda with
+//     K_mu  ∋ lambda  ⊥  sigma + Gamma_mu(sigma) ∈ K_mu*,   sigma = G lambda + g,
+// per contact i: K_mu = {||lambda_T|| <= mu_i lambda_N}, Gamma(sigma)_i = (0, 0, mu_i ||sigma_T,i||),
+// each 3-block ordered (t1, t2, n). G is the (3 nc x 3 nc) symmetric positive
+// semi-definite Delassus matrix.
+//
+// Solvers: ADMM (Carpentier, Le Lidec, Montaut, RSS 2024) with the De Saxce
+// correction, adaptive rho and warm start; projected Gauss-Seidel on 3x3 blocks.
+// Both stop when the three scaled residuals are below `tolerance`. Then the
+// solution is polished: with the contact modes fixed, the mode equations are
+// solved exactly (breaking: lambda_i = 0; sticking: sigma_i = 0; sliding:
+// sigma_N,i = 0 and lambda_T,i = -mu_i lambda_N,i sigma_T,i / ||sigma_T,i||), and
+// the polished solution is kept only if it is feasible with the same modes and
+// its residuals are not worse.
+#include <softdiff/core/types.hpp>
+
+#include <algorithm>
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+namespace softdiff::contact {
+
+enum class NcpSolverKind { admm, pgs };
+enum class Mode : std::int8_t { breaking = 0, sticking = 1, sliding = 2 };
+
+struct NcpOptions {
+  NcpSolverKind solver = NcpSolverKind::admm;
+  double tolerance = 1e-8;      // bounds the three scaled residuals
+  int max_iterations = 1000;
+  bool polish = true;
+  double mode_threshold = 1e-6; // eps of the mode classification, relative (see ncp.cpp)
+};
+
+// Scaled residuals (method.md): primal = max_i dist(lambda_i, K_mu) / max(|lambda|_inf, tiny);
+// dual = max_i dist(sigma_i + Gamma_i, K_mu*) / max(|g|_inf, tiny);
+// complementarity = max_i |lambda_i . (sigma_i + Gamma_i)| / (max(|lambda|_inf, tiny) max(|g|_inf, tiny)).
+struct NcpResiduals {
+  double primal = 0, dual = 0, complementarity = 0;
+  double max() const { return std::max(primal, std::max(dual, complementarity)); }
+};
+
+struct NcpResult {
+  int iterations = 0;           // of ADMM or PGS
+  NcpResiduals residuals;       // of the returned lambda
+  bool converged = false;       // residuals.max() <= tolerance
+  bool polished = false;        // the polished solution was kept
+  int rho_updates = 0;          // ADMM: refactorizations of G + rho I
+  int sticking = 0, sliding = 0, breaking = 0;
+};
+
+NcpResiduals ncp_residuals(const MatX& G, const VecX& g, const VecX& mu, const VecX& lambda);
+
+// Solver with a reusable workspace (sized on first use, grows only).
+class NcpSolver {
+ public:
+  // lambda: in, the warm start (size 3 nc; zeros for none); out, the solution.
+  // sigma: out, G lambda + g. modes: out, one per contact.
+  NcpResult solve(const MatX& G, const VecX& g, const VecX& mu, const NcpOptions& options, VecX& lambda,
+                  VecX& sigma, std::vector<Mode>& modes);
+
+ private:
+  struct Workspace;
+  std::shared_ptr<Workspace> work_;
+};
+
+}  // namespace softdiff::contact
