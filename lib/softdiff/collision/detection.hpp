@@ -7,15 +7,15 @@
 // Broad phase: FCL dynamic AABB trees over each body's deforming surface (refitted
 // every call) and the static obstacles' boxes (built once). Narrow phase: exact
 // closest points with barycentric weights and the closest-feature record.
-#include <softdiff/contact/contact_set.hpp>
-#include <softdiff/contact/obstacle.hpp>
+#include <softdiff/collision/contact_set.hpp>
+#include <softdiff/collision/obstacle.hpp>
 #include <softdiff/core/types.hpp>
 
 #include <memory>
 #include <string>
 #include <vector>
 
-namespace softdiff::contact {
+namespace softdiff::collision {
 
 // The outward boundary surface of one soft body, in global node indices.
 struct BodySurface {
@@ -61,4 +61,4 @@ class CollisionDetector {
   std::unique_ptr<Impl> impl_;
 };
 
-}  // namespace softdiff::contact
+}  // namespace softdiff::collision

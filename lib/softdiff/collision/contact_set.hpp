@@ -17,7 +17,7 @@
 #include <cstdint>
 #include <vector>
 
-namespace softdiff::contact {
+namespace softdiff::collision {
 
 enum class ContactKind : std::int8_t {
   vertex_obstacle = 0,  // a surface vertex of a soft body against a static obstacle
@@ -80,4 +80,4 @@ struct ContactSet {
   void clear() { contacts.clear(); }
 };
 
-}  // namespace softdiff::contact
+}  // namespace softdiff::collision

@@ -9,7 +9,7 @@
 // (read from .msh triangles or .stl); its nearest triangle is found through a
 // bounding-volume hierarchy built once (FCL), and the sign through the
 // angle-weighted pseudo-normal of the nearest feature (exact for closed surfaces).
-#include <softdiff/contact/contact_set.hpp>
+#include <softdiff/collision/contact_set.hpp>
 #include <softdiff/core/types.hpp>
 
 #include <Eigen/Geometry>
@@ -17,7 +17,7 @@
 #include <memory>
 #include <string>
 
-namespace softdiff::contact {
+namespace softdiff::collision {
 
 enum class ShapeKind { plane, box, sphere, capsule, cylinder, mesh };
 
@@ -72,4 +72,4 @@ Eigen::AlignedBox3d bounding_box(const Obstacle& obstacle);
 // "FILE: message" for unreadable, empty, open or non-manifold surfaces.
 TriangleSurface read_triangle_surface(const std::filesystem::path& file, double scale);
 
-}  // namespace softdiff::contact
+}  // namespace softdiff::collision
