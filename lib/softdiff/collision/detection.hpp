@@ -21,12 +21,15 @@ namespace softdiff::collision {
 struct BodySurface {
   std::string name;
   Triangles triangles;          // (3, k) outward, global node indices
-  // Filled by prepare_surface(): the surface vertices (sorted), the unique edges
-  // (2, m) with the triangles on each side, and each vertex's one-ring vertices.
+  // Filled by prepare_surface(): the surface vertices (sorted) and the unique edges
+  // (2, m). (The detector builds its own adjacency: edge-triangle, one-rings.)
   std::vector<int> vertices;
   Eigen::Matrix<int, 2, Eigen::Dynamic> edges;
 };
 void prepare_surface(BodySurface& surface);
+// The prepared surface of a body from its boundary triangles in local node indices
+// (the body's nodes start at node_begin in the global numbering).
+BodySurface make_surface(const std::string& name, const Triangles& local_triangles, int node_begin);
 
 // Which pairs collide, and with which friction coefficient. Sides are indices into
 // `names` = bodies then obstacles (Contact::side_a/side_b).
@@ -55,6 +58,9 @@ class CollisionDetector {
   // Fills `out` (cleared first) with every contact of configuration x (3n, node-major),
   // in a deterministic order (by pair rule, then kind, then feature indices).
   DetectionStats detect(const VecX& x, ContactSet& out);
+  // The same with another margin than the model's (the contact step widens it by the
+  // step's predicted motion: contact_step.cpp).
+  DetectionStats detect(const VecX& x, ContactSet& out, double margin);
 
  private:
   struct Impl;

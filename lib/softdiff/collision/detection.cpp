@@ -1,0 +1,646 @@
+// Collision detection: surface vertices against obstacles, and vertex-triangle /
+// edge-edge pairs between soft bodies and within one body (self-contact).
+//
+// Broad phase
+//   - vertex-obstacle: the obstacle's bounding box inflated by the margin against
+//     the body's current bounding box (one test per pair rule), then the obstacle's
+//     own fast reject per vertex (closest_point with max_distance = margin).
+//   - soft-soft and self: one FCL DynamicAABBTreeCollisionManager per body surface
+//     that takes part in such a rule, one leaf per surface triangle. Every call sets
+//     each leaf's box to the triangle's current box inflated by margin / 2 and refits
+//     the tree (manager->update(): refit, and FCL's incremental / top-down rebalance
+//     when the tree degrades, which may allocate inside FCL). FCL's collide calls back
+//     with each overlapping triangle pair; the callback emits the vertex-triangle and
+//     edge-edge candidates whose own boxes (vertex point, triangle box, edge boxes) are
+//     within the margin, minus the self-contact exclusions (two triangles that share an
+//     edge give none; two that share one vertex give at most their two opposite edges).
+//     Candidates are then sorted and de-duplicated, so that the order does not depend
+//     on FCL's traversal. Two features closer than the margin always have overlapping
+//     inflated triangle boxes, so no pair closer than the margin is missed.
+//     Cost: adjacent triangles always overlap, so a self-contact surface costs ~10-20
+//     FCL pairs per triangle even without contacts (about 10 ms for 10k triangles).
+// Narrow phase: exact closest points (distance.hpp). A soft-soft candidate becomes a
+//   contact when its unsigned distance is < margin (deeper penetrations are not seen:
+//   the margin and the time step must keep them shallow).
+//
+// Sign of the gap (soft-soft)
+//   - vertex-triangle: sign of (p - q) . N, N the pseudo-normal of the triangle's
+//     feature that holds q: the face normal, the edge's (sum of its two faces'
+//     normals) or the vertex's angle-weighted normal (Baerentzen & Aanaes), i.e. the
+//     inside / outside test of the closed surface B near q. n = sign (p - q)/|p - q|.
+//   - edge-edge: d = p_a - p_b, sign of d . (N_b - N_a), N_a and N_b the edges'
+//     pseudo-normals: separated and facing surfaces have d along N_b and against N_a;
+//     crossed (penetrating) edges flip both. n = sign d/|d|. When |d| vanishes, n is the
+//     unit cross product of the edge directions oriented along N_b - N_a.
+//   In both cases gap = n . (point - point_b), and n points from B towards A.
+//
+// De-duplication (soft-soft, IPC-style: each primitive pair is reported once)
+//   - edge-edge: only interior-interior closest points (1e-9 < s, t < 1 - 1e-9, so that
+//     an endpoint case perturbed by round-off stays an endpoint case; parallel edges
+//     give an endpoint). Endpoint cases are point-edge or point-point pairs, which the
+//     vertex-triangle tests report.
+//   - vertex-triangle with q in the face: kept.
+//   - q on an edge e of the triangle: kept only for the lowest-index triangle of e
+//     (among those that the self-contact rule does not skip for this vertex).
+//   - q on a vertex w: kept only for the lowest-index triangle incident to w (same).
+//   So a vertex near an edge or a vertex of the other surface gives one point-edge or
+//   one point-point contact, whose weights are the triangle's barycentrics (one or two
+//   of them zero). A point-point pair (v, w) found from both vertices (v against a
+//   triangle of w, w against a triangle of v) is kept once: the first in the order.
+//
+// Self-contact (rule a == a): vertex v against triangle t is skipped when t contains v
+//   or a one-ring neighbour of v; edges e1, e2 are skipped when they share a vertex or
+//   an endpoint of one is a one-ring neighbour of an endpoint of the other. A flat or
+//   smooth undeformed surface then has no self-contact as long as the margin is
+//   smaller than the distance between features two rings apart (about an edge length),
+//   and the body is thicker than the margin (a vertex facing the inside of its own
+//   body's opposite wall would read as penetrating).
+//
+// Memory: the candidate and contact buffers are reused (clear() keeps capacity), so
+//   nothing is allocated per call once they have grown, except inside FCL's update()
+//   when it rebalances its tree.
+//
+// Order: pair rules in model order; within a rule, vertex-obstacle contacts by vertex;
+//   vertex-triangle contacts with A's vertices first (by vertex, then triangle), then
+//   B's vertices against A's triangles; then edge-edge by (edge of A, edge of B).
+//   Serial code: the output does not depend on the thread count.
+#include <softdiff/collision/detection.hpp>
+#include <softdiff/collision/distance.hpp>
+#include <softdiff/core/assert.hpp>
+#include <softdiff/core/error.hpp>
+
+#include <fcl/broadphase/broadphase_dynamic_AABB_tree.h>
+#include <fcl/geometry/shape/sphere.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numeric>
+#include <tuple>
+
+namespace softdiff::collision {
+
+BodySurface make_surface(const std::string& name, const Triangles& local_triangles, int node_begin) {
+  BodySurface s;
+  s.name = name;
+  s.triangles = local_triangles.array() + node_begin;
+  prepare_surface(s);
+  return s;
+}
+
+void prepare_surface(BodySurface& s) {
+  const int nt = static_cast<int>(s.triangles.cols());
+  s.vertices.assign(s.triangles.data(), s.triangles.data() + 3 * nt);
+  std::sort(s.vertices.begin(), s.vertices.end());
+  s.vertices.erase(std::unique(s.vertices.begin(), s.vertices.end()), s.vertices.end());
+  std::vector<std::pair<int, int>> e;
+  e.reserve(3 * static_cast<std::size_t>(nt));
+  for (int t = 0; t < nt; ++t)
+    for (int k = 0; k < 3; ++k) {
+      const int a = s.triangles(k, t), b = s.triangles((k + 1) % 3, t);
+      e.emplace_back(std::min(a, b), std::max(a, b));
+    }
+  std::sort(e.begin(), e.end());
+  e.erase(std::unique(e.begin(), e.end()), e.end());
+  s.edges.resize(2, static_cast<int>(e.size()));
+  for (std::size_t i = 0; i < e.size(); ++i) {
+    s.edges(0, static_cast<int>(i)) = e[i].first;
+    s.edges(1, static_cast<int>(i)) = e[i].second;
+  }
+}
+
+namespace {
+
+// A broad-phase leaf: FCL's CollisionObject with its world box set directly (the
+// geometry is a shared dummy; FCL's manager reads only getAABB()).
+class TriangleLeaf : public fcl::CollisionObjectd {
+ public:
+  explicit TriangleLeaf(const std::shared_ptr<fcl::CollisionGeometryd>& g) : fcl::CollisionObjectd(g) {}
+  void set_box(const Vec3& lo, const Vec3& hi) {
+    aabb.min_ = lo;
+    aabb.max_ = hi;
+  }
+};
+
+struct LeafId {
+  int surface, triangle;
+};
+
+// Per surface: adjacency (built once), normals and broad phase (per call).
+struct SurfaceData {
+  const BodySurface* surface = nullptr;
+  int num_tri = 0;
+  std::vector<std::array<int, 3>> tri_edges;  // edge index of (t0 t1), (t1 t2), (t2 t0)
+  std::vector<std::array<int, 2>> edge_tris;  // the (first two) triangles of each edge, ascending; -1 if none
+  std::vector<int> local;                     // global node -> local vertex index, or -1
+  std::vector<int> ring_begin, ring;          // CSR over local vertices: sorted global neighbours
+  std::vector<int> vt_begin, vt;              // CSR over local vertices: incident triangles, ascending
+  std::vector<Vec3> face_normal;              // (num_tri) unit, per call
+  std::vector<Vec3> tri_lo, tri_hi;           // (num_tri) triangle boxes, per call
+  std::vector<Vec3> edge_lo, edge_hi;         // (num_edges) edge boxes, per call
+  bool broad = false;                         // takes part in a soft-soft or self rule
+  std::vector<LeafId> ids;
+  std::vector<std::unique_ptr<TriangleLeaf>> leaves;
+  std::unique_ptr<fcl::DynamicAABBTreeCollisionManagerd> manager;
+  bool registered = false;
+
+  bool is_neighbor(int v, int w) const {
+    const int lv = local[v];
+    return std::binary_search(ring.begin() + ring_begin[lv], ring.begin() + ring_begin[lv + 1], w);
+  }
+  // Self-contact: skip v against t if t contains v or a neighbour of v.
+  bool skip_vt(int v, int t) const {
+    const auto& T = surface->triangles;
+    for (int k = 0; k < 3; ++k)
+      if (T(k, t) == v || is_neighbor(v, T(k, t))) return true;
+    return false;
+  }
+  bool skip_ee(int e1, int e2) const {
+    const auto& E = surface->edges;
+    for (int i = 0; i < 2; ++i)
+      for (int j = 0; j < 2; ++j)
+        if (E(i, e1) == E(j, e2) || is_neighbor(E(i, e1), E(j, e2))) return true;
+    return false;
+  }
+};
+
+struct VtCandidate {
+  int dir, v, t;  // dir 0: vertex of side a against a triangle of side b; 1: the reverse
+  bool operator<(const VtCandidate& o) const { return std::tie(dir, v, t) < std::tie(o.dir, o.v, o.t); }
+  bool operator==(const VtCandidate& o) const { return dir == o.dir && v == o.v && t == o.t; }
+};
+struct EeCandidate {
+  int ea, eb;
+  bool operator<(const EeCandidate& o) const { return std::tie(ea, eb) < std::tie(o.ea, o.eb); }
+  bool operator==(const EeCandidate& o) const { return ea == o.ea && eb == o.eb; }
+};
+
+Vec3 unit_or(const Vec3& v, const Vec3& fallback) {
+  const double n = v.norm();
+  return n > 0 ? Vec3(v / n) : fallback;
+}
+
+}  // namespace
+
+struct CollisionDetector::Impl {
+  DetectionModel model;
+  int num_bodies = 0;
+  int max_node = -1;  // largest node index on any surface (x must have 3 (max_node + 1) entries)
+  std::vector<SurfaceData> surf;
+  std::shared_ptr<fcl::CollisionGeometryd> dummy;
+  // Reused buffers.
+  std::vector<VtCandidate> vt;
+  std::vector<EeCandidate> ee;
+  std::vector<std::array<int, 3>> pp;  // point-point contacts: (min node, max node, contact index)
+  std::vector<char> drop;
+
+  explicit Impl(const DetectionModel& m);
+  void update_surface(SurfaceData& s, const VecX& x);
+  Vec3 vertex_normal(const SurfaceData& s, const VecX& x, int w) const;
+  Vec3 edge_normal(const SurfaceData& s, int e) const;
+  bool is_flat(const SurfaceData& s, int e) const;  // the edge's two faces are (nearly) coplanar
+  void vertex_obstacle(const PairRule& rule, const VecX& x, ContactSet& out, DetectionStats& stats);
+  void soft_soft(const PairRule& rule, const VecX& x, ContactSet& out, DetectionStats& stats);
+  void add_candidates(bool self, const SurfaceData& A, const SurfaceData& B, int ta, int tb, const VecX& x);
+
+  // FCL's collide callback: the candidates of each overlapping triangle pair.
+  struct PairCollect {
+    Impl* impl;
+    const SurfaceData *A, *B;
+    int sa;  // A's body index
+    bool self;
+    const VecX* x;
+  };
+  static bool collect_pairs(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* data) {
+    auto* c = static_cast<PairCollect*>(data);
+    const auto* i1 = static_cast<const LeafId*>(o1->getUserData());
+    const auto* i2 = static_cast<const LeafId*>(o2->getUserData());
+    if (c->self || i1->surface == c->sa)
+      c->impl->add_candidates(c->self, *c->A, *c->B, i1->triangle, i2->triangle, *c->x);
+    else
+      c->impl->add_candidates(c->self, *c->A, *c->B, i2->triangle, i1->triangle, *c->x);
+    return false;  // never stop
+  }
+};
+
+
+CollisionDetector::Impl::Impl(const DetectionModel& m) : model(m) {
+  num_bodies = static_cast<int>(model.surfaces.size());
+  const int num_obstacles = static_cast<int>(model.obstacles.size());
+  for (auto& s : model.surfaces)
+    if (s.vertices.empty() && s.triangles.cols() > 0) prepare_surface(s);
+  for (const auto& r : model.pairs) {
+    if (r.a < 0 || r.a >= num_bodies || r.b < 0 || r.b >= num_bodies + num_obstacles)
+      throw InputError("contact pair rule (" + std::to_string(r.a) + ", " + std::to_string(r.b) +
+                       "): side out of range (" + std::to_string(num_bodies) + " bodies, " +
+                       std::to_string(num_obstacles) + " obstacles)");
+  }
+  for (const auto& o : model.obstacles)
+    if (o.kind == ShapeKind::mesh && !o.accel)
+      throw InputError("obstacle '" + o.name + "': not prepared (call collision::prepare)");
+  dummy = std::make_shared<fcl::Sphered>(0.0);
+  surf.resize(num_bodies);
+  for (int b = 0; b < num_bodies; ++b) {
+    SurfaceData& s = surf[b];
+    const BodySurface& bs = model.surfaces[b];
+    s.surface = &bs;
+    const auto& T = bs.triangles;
+    const auto& E = bs.edges;
+    s.num_tri = static_cast<int>(T.cols());
+    const int ne = static_cast<int>(E.cols());
+    const int last = bs.vertices.empty() ? -1 : bs.vertices.back();
+    max_node = std::max(max_node, last);
+    s.local.assign(last + 1, -1);
+    const int nv = static_cast<int>(bs.vertices.size());
+    for (int i = 0; i < nv; ++i) s.local[bs.vertices[i]] = i;
+    // Triangle -> edges, edge -> triangles (edges are sorted by (lo, hi)).
+    s.tri_edges.resize(s.num_tri);
+    s.edge_tris.assign(ne, {-1, -1});
+    for (int t = 0; t < s.num_tri; ++t)
+      for (int k = 0; k < 3; ++k) {
+        const int a = T(k, t), c = T((k + 1) % 3, t);
+        const std::pair<int, int> key(std::min(a, c), std::max(a, c));
+        int lo = 0, hi = ne;
+        while (lo < hi) {
+          const int mid = (lo + hi) / 2;
+          if (std::make_pair(E(0, mid), E(1, mid)) < key)
+            lo = mid + 1;
+          else
+            hi = mid;
+        }
+        s.tri_edges[t][k] = lo;
+        auto& et = s.edge_tris[lo];
+        if (et[0] < 0)
+          et[0] = t;
+        else if (et[1] < 0)
+          et[1] = t;
+      }
+    // Vertex -> neighbours, vertex -> triangles.
+    std::vector<std::vector<int>> ring(nv), vts(nv);
+    for (int e = 0; e < ne; ++e) {
+      ring[s.local[E(0, e)]].push_back(E(1, e));
+      ring[s.local[E(1, e)]].push_back(E(0, e));
+    }
+    for (int t = 0; t < s.num_tri; ++t)
+      for (int k = 0; k < 3; ++k) vts[s.local[T(k, t)]].push_back(t);
+    s.ring_begin.assign(1, 0);
+    s.vt_begin.assign(1, 0);
+    for (int i = 0; i < nv; ++i) {
+      std::sort(ring[i].begin(), ring[i].end());
+      s.ring.insert(s.ring.end(), ring[i].begin(), ring[i].end());
+      s.ring_begin.push_back(static_cast<int>(s.ring.size()));
+      s.vt.insert(s.vt.end(), vts[i].begin(), vts[i].end());  // ascending by construction
+      s.vt_begin.push_back(static_cast<int>(s.vt.size()));
+    }
+    s.face_normal.assign(s.num_tri, Vec3::Zero());
+    s.tri_lo.assign(s.num_tri, Vec3::Zero());
+    s.tri_hi.assign(s.num_tri, Vec3::Zero());
+    s.edge_lo.assign(ne, Vec3::Zero());
+    s.edge_hi.assign(ne, Vec3::Zero());
+  }
+  for (const auto& r : model.pairs)
+    if (r.b < num_bodies) surf[r.a].broad = surf[r.b].broad = true;
+  for (int b = 0; b < num_bodies; ++b) {
+    SurfaceData& s = surf[b];
+    if (!s.broad) continue;
+    s.ids.resize(s.num_tri);
+    s.leaves.reserve(s.num_tri);
+    for (int t = 0; t < s.num_tri; ++t) {
+      s.ids[t] = {b, t};
+      s.leaves.push_back(std::make_unique<TriangleLeaf>(dummy));
+      s.leaves.back()->setUserData(&s.ids[t]);
+    }
+    s.manager = std::make_unique<fcl::DynamicAABBTreeCollisionManagerd>();
+  }
+}
+
+void CollisionDetector::Impl::update_surface(SurfaceData& s, const VecX& x) {
+  const auto& T = s.surface->triangles;
+  const double inflate = 0.5 * model.margin;
+  for (int t = 0; t < s.num_tri; ++t) {
+    const Vec3 a = x.segment<3>(3 * T(0, t)), b = x.segment<3>(3 * T(1, t)), c = x.segment<3>(3 * T(2, t));
+    s.face_normal[t] = unit_or((b - a).cross(c - a), Vec3::Zero());
+    s.tri_lo[t] = a.cwiseMin(b).cwiseMin(c);
+    s.tri_hi[t] = a.cwiseMax(b).cwiseMax(c);
+    s.leaves[t]->set_box(s.tri_lo[t].array() - inflate, s.tri_hi[t].array() + inflate);
+  }
+  const auto& E = s.surface->edges;
+  for (int e = 0; e < E.cols(); ++e) {
+    const Vec3 a = x.segment<3>(3 * E(0, e)), b = x.segment<3>(3 * E(1, e));
+    s.edge_lo[e] = a.cwiseMin(b);
+    s.edge_hi[e] = a.cwiseMax(b);
+  }
+  if (!s.registered) {
+    std::vector<fcl::CollisionObjectd*> objs;
+    objs.reserve(s.leaves.size());
+    for (auto& l : s.leaves) objs.push_back(l.get());
+    s.manager->registerObjects(objs);
+    s.manager->setup();
+    s.registered = true;
+  } else {
+    s.manager->update();  // refit (reads every leaf's box)
+  }
+}
+
+Vec3 CollisionDetector::Impl::vertex_normal(const SurfaceData& s, const VecX& x, int w) const {
+  const auto& T = s.surface->triangles;
+  const int lw = s.local[w];
+  Vec3 n = Vec3::Zero();
+  for (int i = s.vt_begin[lw]; i < s.vt_begin[lw + 1]; ++i) {
+    const int t = s.vt[i];
+    int k = 0;
+    while (T(k, t) != w) ++k;
+    const Vec3 p = x.segment<3>(3 * w);
+    const Vec3 e1 = x.segment<3>(3 * T((k + 1) % 3, t)) - p, e2 = x.segment<3>(3 * T((k + 2) % 3, t)) - p;
+    n += std::atan2(e1.cross(e2).norm(), e1.dot(e2)) * s.face_normal[t];
+  }
+  return unit_or(n, Vec3::Zero());
+}
+
+bool CollisionDetector::Impl::is_flat(const SurfaceData& s, int e) const {
+  const auto& et = s.edge_tris[e];
+  return et[0] >= 0 && et[1] >= 0 && s.face_normal[et[0]].dot(s.face_normal[et[1]]) > 0.99;
+}
+
+Vec3 CollisionDetector::Impl::edge_normal(const SurfaceData& s, int e) const {
+  const auto& et = s.edge_tris[e];
+  Vec3 n = Vec3::Zero();
+  if (et[0] >= 0) n += s.face_normal[et[0]];
+  if (et[1] >= 0) n += s.face_normal[et[1]];
+  return unit_or(n, et[0] >= 0 ? s.face_normal[et[0]] : Vec3::Zero());
+}
+
+void CollisionDetector::Impl::vertex_obstacle(const PairRule& rule, const VecX& x, ContactSet& out,
+                                              DetectionStats& stats) {
+  const Obstacle& o = model.obstacles[rule.b - num_bodies];
+  const BodySurface& s = model.surfaces[rule.a];
+  if (s.vertices.empty()) return;
+  const double margin = model.margin;
+  if (o.kind != ShapeKind::plane) {  // body box vs inflated obstacle box
+    Eigen::AlignedBox3d body;
+    body.setEmpty();
+    for (int v : s.vertices) body.extend(Vec3(x.segment<3>(3 * v)));
+    Eigen::AlignedBox3d ob = bounding_box(o);
+    ob.min().array() -= margin;
+    ob.max().array() += margin;
+    if (!ob.intersects(body)) return;
+  }
+  ClosestPoint cp;
+  for (int v : s.vertices) {
+    const Vec3 p = x.segment<3>(3 * v);
+    ++stats.candidates;
+    if (!closest_point(o, p, margin, cp) || !(cp.distance < margin)) continue;
+    Contact& c = out.contacts.emplace_back();
+    c.kind = ContactKind::vertex_obstacle;
+    c.side_a = rule.a;
+    c.side_b = rule.b;
+    c.count = 1;
+    c.nodes = {v, -1, -1, -1};
+    c.weights = {1, 0, 0, 0};
+    c.frame = frame_from_normal(cp.normal);
+    c.point = p;
+    c.point_b = cp.point;
+    c.gap = cp.distance;
+    c.mu = rule.mu;
+    c.feature_a = v;
+    c.feature_b = cp.feature;
+    c.kind_b = cp.feature_kind;
+  }
+}
+
+// The candidates of one overlapping triangle pair (ta of A, tb of B): the features
+// whose own boxes are within the margin (a necessary condition for a distance <
+// margin), minus the self-contact exclusions. Called from FCL's collide callback.
+void CollisionDetector::Impl::add_candidates(bool self, const SurfaceData& A, const SurfaceData& B, int ta, int tb,
+                                             const VecX& x) {
+  const double margin = model.margin;
+  const auto& TA = A.surface->triangles;
+  const auto& TB = B.surface->triangles;
+  auto near_point = [margin](const Vec3& p, const Vec3& lo, const Vec3& hi) {
+    return (p.array() >= lo.array() - margin).all() && (p.array() <= hi.array() + margin).all();
+  };
+  auto near_box = [margin](const Vec3& lo1, const Vec3& hi1, const Vec3& lo2, const Vec3& hi2) {
+    return (lo1.array() <= hi2.array() + margin).all() && (lo2.array() <= hi1.array() + margin).all();
+  };
+  auto X = [&](int node) { return Vec3(x.segment<3>(3 * node)); };
+  if (self) {
+    if (ta == tb) return;
+    int shared = 0, ka = -1, kb = -1;  // shared vertices; local index of the last one in ta, tb
+    for (int k = 0; k < 3; ++k)
+      for (int l = 0; l < 3; ++l)
+        if (TA(k, ta) == TA(l, tb)) {
+          ++shared;
+          ka = k;
+          kb = l;
+        }
+    if (shared >= 2) return;  // every feature pair of two adjacent triangles is skipped
+    auto try_ee = [&](int e1, int e2) {
+      if (near_box(A.edge_lo[e1], A.edge_hi[e1], A.edge_lo[e2], A.edge_hi[e2]) && !A.skip_ee(e1, e2))
+        ee.push_back({std::min(e1, e2), std::max(e1, e2)});
+    };
+    if (shared == 1) {
+      // Vertex-triangle pairs are all skipped (each vertex is the shared vertex or its
+      // neighbour); of the edge pairs only the two edges opposite the shared vertex
+      // can remain (local edge k + 1 is opposite vertex k).
+      try_ee(A.tri_edges[ta][(ka + 1) % 3], A.tri_edges[tb][(kb + 1) % 3]);
+      return;
+    }
+    for (int k = 0; k < 3; ++k) {
+      const int va = TA(k, ta), vb = TA(k, tb);
+      if (near_point(X(va), A.tri_lo[tb], A.tri_hi[tb]) && !A.skip_vt(va, tb)) vt.push_back({0, va, tb});
+      if (near_point(X(vb), A.tri_lo[ta], A.tri_hi[ta]) && !A.skip_vt(vb, ta)) vt.push_back({0, vb, ta});
+    }
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) try_ee(A.tri_edges[ta][i], A.tri_edges[tb][j]);
+  } else {
+    for (int k = 0; k < 3; ++k) {
+      const int va = TA(k, ta), vb = TB(k, tb);
+      if (near_point(X(va), B.tri_lo[tb], B.tri_hi[tb])) vt.push_back({0, va, tb});
+      if (near_point(X(vb), A.tri_lo[ta], A.tri_hi[ta])) vt.push_back({1, vb, ta});
+    }
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) {
+        const int e1 = A.tri_edges[ta][i], e2 = B.tri_edges[tb][j];
+        if (near_box(A.edge_lo[e1], A.edge_hi[e1], B.edge_lo[e2], B.edge_hi[e2])) ee.push_back({e1, e2});
+      }
+  }
+}
+
+void CollisionDetector::Impl::soft_soft(const PairRule& rule, const VecX& x, ContactSet& out, DetectionStats& stats) {
+  const bool self = rule.a == rule.b;
+  SurfaceData& A = surf[rule.a];
+  SurfaceData& B = surf[rule.b];
+  if (A.num_tri == 0 || B.num_tri == 0) return;
+  vt.clear();
+  ee.clear();
+  PairCollect pc{this, &A, &B, rule.a, self, &x};
+  if (self)
+    A.manager->collide(&pc, collect_pairs);
+  else
+    A.manager->collide(B.manager.get(), &pc, collect_pairs);
+  std::sort(vt.begin(), vt.end());
+  vt.erase(std::unique(vt.begin(), vt.end()), vt.end());
+  std::sort(ee.begin(), ee.end());
+  ee.erase(std::unique(ee.begin(), ee.end()), ee.end());
+  stats.candidates += static_cast<int>(vt.size() + ee.size());
+
+  const double margin = model.margin;
+  const double m2 = margin * margin;
+  const double tiny = 1e-9 * margin;
+  auto P = [&](int node) { return Vec3(x.segment<3>(3 * node)); };
+
+  // Vertex-triangle.
+  const int first_contact = out.size();
+  for (const VtCandidate& cand : vt) {
+    const SurfaceData& S = cand.dir == 0 ? B : A;  // the triangle's side
+    const auto& T = S.surface->triangles;
+    const int t = cand.t, v = cand.v;
+    const Vec3 p = P(v);
+    const PointTriangleResult r = point_triangle_closest(p, P(T(0, t)), P(T(1, t)), P(T(2, t)));
+    if (!(r.dist2 < m2)) continue;
+    Vec3 pseudo;
+    if (r.feature == Feature::edge) {
+      const int e = S.tri_edges[t][r.local];
+      int rep = -1;
+      for (int k = 0; k < 2 && rep < 0; ++k) {
+        const int te = S.edge_tris[e][k];
+        if (te >= 0 && !(self && S.skip_vt(v, te))) rep = te;
+      }
+      if (rep != t) continue;
+      pseudo = edge_normal(S, e);
+    } else if (r.feature == Feature::vertex) {
+      const int w = T(r.local, t);
+      const int lw = S.local[w];
+      int rep = -1;
+      for (int i = S.vt_begin[lw]; i < S.vt_begin[lw + 1] && rep < 0; ++i)
+        if (!(self && S.skip_vt(v, S.vt[i]))) rep = S.vt[i];
+      if (rep != t) continue;
+      pseudo = vertex_normal(S, x, w);
+    } else {
+      pseudo = S.face_normal[t];
+    }
+    const Vec3 d = p - r.point;
+    const double dist = std::sqrt(r.dist2);
+    const double sign = d.dot(pseudo) < 0 ? -1.0 : 1.0;
+    const Vec3 n = dist > tiny ? Vec3(sign * d / dist) : unit_or(pseudo, Vec3(0, 0, 1));
+    // The surfaces must face each other along n: the vertex's own (angle-weighted)
+    // normal must point towards the triangle. A vertex on an edge of its surface that
+    // lies in the plane of a side face of the other body (coplanar sides, common with
+    // matching meshes) would otherwise get a sideways contact that conflicts with the
+    // face contact holding it.
+    if (vertex_normal(cand.dir == 0 ? A : B, x, v).dot(n) > 0) continue;
+    Contact& c = out.contacts.emplace_back();
+    c.kind = ContactKind::vertex_triangle;
+    c.side_a = cand.dir == 0 ? rule.a : rule.b;
+    c.side_b = cand.dir == 0 ? rule.b : rule.a;
+    c.count = 4;
+    c.nodes = {v, T(0, t), T(1, t), T(2, t)};
+    c.weights = {1, -r.bary[0], -r.bary[1], -r.bary[2]};
+    c.frame = frame_from_normal(n);
+    c.point = p;
+    c.point_b = r.point;
+    c.gap = n.dot(d);
+    c.mu = rule.mu;
+    c.feature_a = v;
+    c.feature_b = t;
+    c.kind_b = r.feature;
+  }
+
+  // A point-point pair (v, w) can come from both vertices (v against a triangle of w,
+  // and w against a triangle of v): keep the first in the output order.
+  pp.clear();
+  for (int i = first_contact; i < out.size(); ++i) {
+    const Contact& c = out.contacts[i];
+    if (c.kind_b != Feature::vertex) continue;
+    int w = -1;
+    for (int k = 1; k < 4; ++k)
+      if (c.weights[k] == -1) w = c.nodes[k];
+    pp.push_back({std::min(c.nodes[0], w), std::max(c.nodes[0], w), i});
+  }
+  if (!pp.empty()) {
+    std::sort(pp.begin(), pp.end());
+    drop.assign(out.size() - first_contact, 0);
+    for (std::size_t i = 1; i < pp.size(); ++i)
+      if (pp[i][0] == pp[i - 1][0] && pp[i][1] == pp[i - 1][1]) drop[pp[i][2] - first_contact] = 1;
+    int kept = first_contact;
+    for (int i = first_contact; i < out.size(); ++i)
+      if (!drop[i - first_contact]) out.contacts[kept++] = out.contacts[i];
+    out.contacts.resize(kept);
+  }
+
+  // Edge-edge.
+  const auto& EA = A.surface->edges;
+  const auto& EB = B.surface->edges;
+  for (const EeCandidate& cand : ee) {
+    const int a0 = EA(0, cand.ea), a1 = EA(1, cand.ea), b0 = EB(0, cand.eb), b1 = EB(1, cand.eb);
+    const Vec3 pa0 = P(a0), pa1 = P(a1), pb0 = P(b0), pb1 = P(b1);
+    const SegmentSegmentResult r = segment_segment_closest(pa0, pa1, pb0, pb1);
+    if (!(r.dist2 < m2) || !r.interior()) continue;
+    // Two edges that both lie in flat parts of their surfaces (dihedral angle below
+    // ~8 degrees) add nothing that the vertex-triangle contacts of those flat parts do
+    // not already hold; between two flat faces in contact every crossing pair of their
+    // edges would otherwise be one more, redundant row of the NCP.
+    if (is_flat(A, cand.ea) && is_flat(B, cand.eb)) continue;
+    const Vec3 m = edge_normal(B, cand.eb) - edge_normal(A, cand.ea);
+    const Vec3 d = r.point_p - r.point_q;
+    const double dist = std::sqrt(r.dist2);
+    Vec3 n;
+    if (dist > tiny) {
+      n = (d.dot(m) < 0 ? -1.0 : 1.0) * d / dist;
+    } else {
+      const Vec3 cr = (pa1 - pa0).cross(pb1 - pb0);
+      n = cr.norm() > 0 ? Vec3((cr.dot(m) < 0 ? -1.0 : 1.0) * cr.normalized()) : unit_or(m, Vec3(0, 0, 1));
+    }
+    // Facing surfaces only (as for vertex-triangle): A's edge normal towards B, B's
+    // towards A.
+    if (edge_normal(A, cand.ea).dot(n) > 0 || edge_normal(B, cand.eb).dot(n) < 0) continue;
+    Contact& c = out.contacts.emplace_back();
+    c.kind = ContactKind::edge_edge;
+    c.side_a = rule.a;
+    c.side_b = rule.b;
+    c.count = 4;
+    c.nodes = {a0, a1, b0, b1};
+    c.weights = {1 - r.s, r.s, -(1 - r.t), -r.t};
+    c.frame = frame_from_normal(n);
+    c.point = r.point_p;
+    c.point_b = r.point_q;
+    c.gap = n.dot(d);
+    c.mu = rule.mu;
+    c.feature_a = cand.ea;
+    c.feature_b = cand.eb;
+    c.kind_b = Feature::edge;
+  }
+}
+
+CollisionDetector::CollisionDetector(const DetectionModel& model) : impl_(std::make_unique<Impl>(model)) {}
+CollisionDetector::~CollisionDetector() = default;
+
+DetectionStats CollisionDetector::detect(const VecX& x, ContactSet& out, double margin) {
+  SOFTDIFF_DEMAND(margin > 0 && std::isfinite(margin), "the detection margin must be > 0 and finite");
+  const double own = impl_->model.margin;
+  impl_->model.margin = margin;
+  const DetectionStats stats = detect(x, out);
+  impl_->model.margin = own;
+  return stats;
+}
+
+DetectionStats CollisionDetector::detect(const VecX& x, ContactSet& out) {
+  Impl& im = *impl_;
+  SOFTDIFF_DEMAND(x.size() >= 3 * (static_cast<Eigen::Index>(im.max_node) + 1),
+                  "x has " + std::to_string(x.size()) + " entries, the surfaces need " +
+                      std::to_string(3 * (im.max_node + 1)));
+  out.clear();
+  DetectionStats stats;
+  for (auto& s : im.surf)
+    if (s.broad) im.update_surface(s, x);
+  for (const PairRule& rule : im.model.pairs) {
+    if (rule.b >= im.num_bodies)
+      im.vertex_obstacle(rule, x, out, stats);
+    else
+      im.soft_soft(rule, x, out, stats);
+  }
+  stats.contacts = out.size();
+  return stats;
+}
+
+}  // namespace softdiff::collision

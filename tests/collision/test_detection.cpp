@@ -1,0 +1,539 @@
+// Collision detection: vertex-obstacle, soft-soft and self contacts; gaps, weights,
+// frames, the gap rate against finite differences, determinism, refitting, timings.
+#include <softdiff/collision/detection.hpp>
+#include <softdiff/mesh/tet_mesh.hpp>
+
+#include <support/meshes.hpp>
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <chrono>
+#include <cstring>
+#include <iostream>
+#include <map>
+#include <random>
+#include <set>
+
+namespace softdiff::collision {
+namespace {
+
+// Several tet meshes side by side in one global node numbering.
+struct Scene {
+  Mat3X X;
+  std::vector<BodySurface> surfaces;
+  int add(const mesh::TetMesh& m, const Vec3& shift, const std::string& name) {
+    const int offset = static_cast<int>(X.cols());
+    X.conservativeResize(3, offset + m.num_nodes());
+    X.rightCols(m.num_nodes()) = m.X.colwise() + shift;
+    BodySurface s;
+    s.name = name;
+    s.triangles = mesh::boundary_triangles(m.tets).array() + offset;
+    prepare_surface(s);
+    surfaces.push_back(std::move(s));
+    return offset;
+  }
+  VecX x() const { return Eigen::Map<const VecX>(X.data(), X.size()); }
+};
+
+DetectionModel model_of(const Scene& s, std::vector<Obstacle> obstacles, std::vector<PairRule> pairs, double margin) {
+  DetectionModel d;
+  d.surfaces = s.surfaces;
+  for (const auto& b : s.surfaces) d.names.push_back(b.name);
+  for (const auto& o : obstacles) d.names.push_back(o.name);
+  d.obstacles = std::move(obstacles);
+  d.pairs = std::move(pairs);
+  d.margin = margin;
+  return d;
+}
+
+Obstacle floor_plane(double offset = 0) {
+  Obstacle o;
+  o.name = "floor";
+  o.kind = ShapeKind::plane;
+  o.normal = Vec3(0, 0, 1);
+  o.offset = offset;
+  prepare(o);
+  return o;
+}
+
+// H_i v = C^T sum_k w_k v_{n_k}.
+Vec3 relative_velocity(const Contact& c, const VecX& v) {
+  Vec3 r = Vec3::Zero();
+  for (int k = 0; k < c.count; ++k) r += c.weights[k] * v.segment<3>(3 * c.nodes[k]);
+  return c.frame.transpose() * r;
+}
+
+void check_frame(const Mat3& C) {
+  EXPECT_LT((C.transpose() * C - Mat3::Identity()).norm(), 1e-12);
+  EXPECT_NEAR(C.determinant(), 1, 1e-12);
+}
+
+void check_contact(const Contact& c) {
+  check_frame(c.frame);
+  double sum = 0, positive = 0;
+  for (int k = 0; k < c.count; ++k) {
+    sum += c.weights[k];
+    if (c.weights[k] > 0) positive += c.weights[k];
+  }
+  if (c.kind != ContactKind::vertex_obstacle) {
+    EXPECT_EQ(c.count, 4);
+    EXPECT_NEAR(sum, 0, 1e-14);
+    EXPECT_NEAR(positive, 1, 1e-14);
+  } else {
+    EXPECT_EQ(c.count, 1);
+    EXPECT_EQ(c.weights[0], 1);
+  }
+  EXPECT_NEAR(c.gap, c.frame.col(2).dot(c.point - c.point_b), 1e-15);
+}
+
+std::tuple<int, int, int, int> key(const Contact& c) {
+  return {static_cast<int>(c.kind), c.side_a, c.feature_a, c.feature_b};
+}
+
+TEST(Frame, RightHandedAndDeterministic) {
+  std::mt19937 rng(4);
+  std::normal_distribution<double> g;
+  for (int i = 0; i < 1000; ++i) {
+    const Vec3 n = Vec3(g(rng), g(rng), g(rng)).normalized();
+    const Mat3 C = frame_from_normal(n);
+    check_frame(C);
+    EXPECT_LT((C.col(2) - n).norm(), 1e-15);
+    EXPECT_LT((C.col(0).cross(C.col(1)) - n).norm(), 1e-12);
+    EXPECT_EQ(C, frame_from_normal(n));
+  }
+  const Mat3 C = frame_from_normal(Vec3(0, 0, 1));
+  EXPECT_EQ(C.col(0), Vec3(1, 0, 0));
+  EXPECT_EQ(C.col(1), Vec3(0, 1, 0));
+}
+
+TEST(PrepareSurface, VerticesAndEdges) {
+  Scene s;
+  s.add(test::box_mesh(2, 2, 1, 1, 1, 1), Vec3::Zero(), "box");
+  const auto& b = s.surfaces[0];
+  EXPECT_EQ(b.vertices.size(), 3u * 3 * 2);  // every node of a 2x2x1 grid is on the surface
+  EXPECT_TRUE(std::is_sorted(b.vertices.begin(), b.vertices.end()));
+  // Euler: V - E + F = 2.
+  EXPECT_EQ(static_cast<long>(b.vertices.size()) - b.edges.cols() + b.triangles.cols(), 2);
+  for (int e = 0; e < b.edges.cols(); ++e) EXPECT_LT(b.edges(0, e), b.edges(1, e));
+}
+
+TEST(Detection, BoxAbovePlane) {
+  const double margin = 1e-3;
+  for (const double lift : {5e-4, -3e-4, 2e-3}) {
+    Scene s;
+    s.add(test::box_mesh(4, 4, 2, 1, 1, 0.2), Vec3(0, 0, lift), "slab");
+    CollisionDetector det(model_of(s, {floor_plane()}, {{0, 1, 0.4}}, margin));
+    ContactSet cs;
+    const auto stats = det.detect(s.x(), cs);
+    if (lift > margin) {
+      EXPECT_EQ(cs.size(), 0);
+      continue;
+    }
+    ASSERT_EQ(cs.size(), 25);  // the bottom 5 x 5 nodes
+    EXPECT_EQ(stats.contacts, 25);
+    EXPECT_GE(stats.candidates, 25);
+    int last = -1;
+    for (const auto& c : cs.contacts) {
+      check_contact(c);
+      EXPECT_EQ(c.kind, ContactKind::vertex_obstacle);
+      EXPECT_EQ(c.side_a, 0);
+      EXPECT_EQ(c.side_b, 1);
+      EXPECT_EQ(c.mu, 0.4);
+      EXPECT_EQ(c.nodes[0], c.feature_a);
+      EXPECT_GT(c.feature_a, last);  // by vertex
+      last = c.feature_a;
+      EXPECT_NEAR(c.gap, lift, 1e-15);
+      EXPECT_EQ(c.frame.col(2), Vec3(0, 0, 1));
+      EXPECT_EQ(c.point, s.X.col(c.nodes[0]));
+      EXPECT_EQ(c.point_b[2], 0);
+      EXPECT_EQ(c.kind_b, Feature::face);
+    }
+  }
+}
+
+TEST(Detection, BoxObstacleAndMeshObstacleAgree) {
+  // A slab resting across the edge of a box, and the same box as a mesh obstacle.
+  const double margin = 2e-3;
+  Scene s;
+  s.add(test::box_mesh(6, 6, 1, 0.6, 0.6, 0.1), Vec3(0.7, -0.3, 1.0005), "slab");
+  Obstacle box;
+  box.name = "support";
+  box.kind = ShapeKind::box;
+  box.center = Vec3(0.5, 0, 0.5);
+  box.half_extents = Vec3(0.5, 0.5, 0.5);
+  prepare(box);
+  const auto cube = test::box_mesh(1, 1, 1, 1, 1, 1);
+  Obstacle m;
+  m.name = "support_mesh";
+  m.kind = ShapeKind::mesh;
+  m.mesh.vertices = cube.X.colwise() - Vec3(0, 0.5, 0);
+  m.mesh.triangles = mesh::boundary_triangles(cube.tets);
+  prepare(m);
+  ContactSet a, b;
+  CollisionDetector(model_of(s, {box}, {{0, 1, 0}}, margin)).detect(s.x(), a);
+  CollisionDetector(model_of(s, {m}, {{0, 1, 0}}, margin)).detect(s.x(), b);
+  ASSERT_EQ(a.size(), b.size());
+  EXPECT_EQ(a.size(), 4 * 7);  // nodes with x <= 1 on the bottom: columns x = 0.7, 0.8, 0.9, 1.0
+  for (int i = 0; i < a.size(); ++i) {
+    const auto &ca = a.contacts[i], &cb = b.contacts[i];
+    check_contact(ca);
+    check_contact(cb);
+    EXPECT_EQ(ca.nodes[0], cb.nodes[0]);
+    EXPECT_NEAR(ca.gap, cb.gap, 1e-12);
+    EXPECT_NEAR(ca.gap, 5e-4, 1e-12);
+    EXPECT_LT((ca.point_b - cb.point_b).norm(), 1e-12);
+    EXPECT_LT((ca.frame.col(2) - cb.frame.col(2)).norm(), 1e-9);
+  }
+}
+
+TEST(Detection, RotatedBoxEdgeAndVertex) {
+  // A box rotated 45 degrees about y: its top is an edge; a vertex just above it.
+  Scene s;
+  s.add(test::box_mesh(2, 1, 1, 0.1, 0.1, 0.1), Vec3(-0.05, -0.05, 0.5 * std::sqrt(2.0) + 4e-4), "cube");
+  Obstacle box;
+  box.name = "ridge";
+  box.kind = ShapeKind::box;
+  box.rotation = Eigen::AngleAxisd(M_PI / 4, Vec3::UnitY()).toRotationMatrix();
+  box.half_extents = Vec3(0.5, 0.5, 0.5);
+  prepare(box);
+  ContactSet cs;
+  CollisionDetector(model_of(s, {box}, {{0, 1, 0}}, 1e-3)).detect(s.x(), cs);
+  ASSERT_EQ(cs.size(), 2);  // the two bottom nodes at x = 0 (above the ridge line)
+  for (const auto& c : cs.contacts) {
+    EXPECT_EQ(c.kind_b, Feature::edge);
+    EXPECT_NEAR(c.gap, 4e-4, 1e-12);
+    EXPECT_LT((c.frame.col(2) - Vec3(0, 0, 1)).norm(), 1e-12);
+  }
+}
+
+// Two boxes, B above A with a gap (or an overlap) and a lateral shift so that B's
+// bottom grid is not aligned with A's top grid.
+Scene two_boxes(double gap, const Vec3& shift = Vec3(0.013, 0.021, 0)) {
+  Scene s;
+  s.add(test::box_mesh(3, 3, 1, 0.3, 0.3, 0.1), Vec3::Zero(), "a");
+  s.add(test::box_mesh(3, 3, 1, 0.3, 0.3, 0.1), shift + Vec3(0, 0, 0.1 + gap), "b");
+  return s;
+}
+
+TEST(Detection, TwoBoxesFacing) {
+  const double margin = 1e-3;
+  for (const double gap : {4e-4, -2e-4}) {
+    Scene s = two_boxes(gap);
+    CollisionDetector det(model_of(s, {}, {{0, 1, 0.2}}, margin));
+    ContactSet cs;
+    det.detect(s.x(), cs);
+    int vt_a = 0, vt_b = 0, ee = 0;
+    std::set<std::tuple<int, int, int, int>> seen;
+    for (const auto& c : cs.contacts) {
+      check_contact(c);
+      EXPECT_TRUE(seen.insert(key(c)).second) << "duplicate contact";
+      EXPECT_NEAR(c.gap, gap, 1e-12);
+      // n from B (above) to A (below), or from A to B when B's vertex is side A.
+      const double nz = c.frame(2, 2);
+      if (c.kind == ContactKind::vertex_triangle) {
+        EXPECT_EQ(c.kind_b, Feature::face);
+        if (c.side_a == 0) {
+          ++vt_a;
+          EXPECT_NEAR(nz, -1, 1e-12);
+        } else {
+          ++vt_b;
+          EXPECT_EQ(c.side_b, 0);
+          EXPECT_NEAR(nz, 1, 1e-12);
+        }
+      } else {
+        ASSERT_EQ(c.kind, ContactKind::edge_edge);
+        ++ee;
+        EXPECT_EQ(c.side_a, 0);
+        EXPECT_NEAR(nz, -1, 1e-12);
+        for (int k = 0; k < 4; ++k) EXPECT_NE(c.weights[k], 0);
+      }
+    }
+    EXPECT_EQ(vt_a, 9) << "gap " << gap;  // A's top nodes above B's bottom face
+    EXPECT_EQ(vt_b, 9) << "gap " << gap;  // B's bottom nodes above A's top face
+    EXPECT_GT(ee, 0) << "gap " << gap;    // A's top edges crossing B's bottom edges
+    // Order: by kind, then side, then features.
+    for (int i = 1; i < cs.size(); ++i) {
+      const auto &p = cs.contacts[i - 1], &c = cs.contacts[i];
+      const auto kp = std::make_tuple(static_cast<int>(p.kind), p.side_a != 0, p.feature_a, p.feature_b);
+      const auto kc = std::make_tuple(static_cast<int>(c.kind), c.side_a != 0, c.feature_a, c.feature_b);
+      EXPECT_LT(kp, kc);
+    }
+  }
+}
+
+TEST(Detection, RelativeVelocityAndGapRate) {
+  const double margin = 1e-3;
+  for (const double gap : {4e-4, -2e-4}) {
+    Scene s = two_boxes(gap);
+    CollisionDetector det(model_of(s, {}, {{0, 1, 0}}, margin));
+    ContactSet cs;
+    const VecX x = s.x();
+    det.detect(x, cs);
+    ASSERT_GT(cs.size(), 0);
+    // A common rigid translation: no relative velocity.
+    VecX v(x.size());
+    for (int i = 0; i < v.size() / 3; ++i) v.segment<3>(3 * i) = Vec3(0.3, -0.2, 0.7);
+    for (const auto& c : cs.contacts) EXPECT_LT(relative_velocity(c, v).norm(), 1e-14);
+    // B moving down at 1: the normal relative velocity is -1 for B's triangles under A's
+    // nodes (n = -z) ... i.e. n . (v_A - v_B) = n . (0, 0, 1).
+    const int nb = static_cast<int>(test::box_mesh(3, 3, 1, 0.3, 0.3, 0.1).num_nodes());
+    v.setZero();
+    for (int i = nb; i < 2 * nb; ++i) v.segment<3>(3 * i) = Vec3(0, 0, -1);
+    for (const auto& c : cs.contacts) {
+      const double sign = c.side_a == 0 ? 1 : -1;
+      EXPECT_NEAR(relative_velocity(c, v)[2], sign * c.frame.col(2).dot(Vec3(0, 0, 1)), 1e-12);
+    }
+    // Random node velocities: the normal row is the rate of the gap (central differences).
+    std::mt19937 rng(8);
+    std::uniform_real_distribution<double> u(-1, 1);
+    for (int i = 0; i < v.size(); ++i) v[i] = u(rng);
+    const double h = 1e-7;
+    ContactSet plus, minus;
+    det.detect(x + h * v, plus);
+    det.detect(x - h * v, minus);
+    std::map<std::tuple<int, int, int, int>, double> gp, gm;
+    for (const auto& c : plus.contacts) gp[key(c)] = c.gap;
+    for (const auto& c : minus.contacts) gm[key(c)] = c.gap;
+    int checked = 0;
+    for (const auto& c : cs.contacts) {
+      if (!gp.count(key(c)) || !gm.count(key(c))) continue;
+      const double fd = (gp[key(c)] - gm[key(c)]) / (2 * h);
+      EXPECT_NEAR(relative_velocity(c, v)[2], fd, 1e-6) << static_cast<int>(c.kind);
+      ++checked;
+    }
+    EXPECT_GT(checked, cs.size() / 2);
+  }
+}
+
+TEST(Detection, CrossedEdgesOnly) {
+  // Two boxes crossed at 90 degrees about z, B's bottom edge ridge above A's top: a
+  // box rotated 45 degrees about x has a lowest edge along x; A rotated 45 degrees
+  // about y has a highest edge along y. They cross: one edge-edge contact.
+  Scene s;
+  mesh::TetMesh a = test::box_mesh(1, 1, 1, 0.2, 0.2, 0.2), b = a;
+  const Mat3 Ra = Eigen::AngleAxisd(M_PI / 4, Vec3::UnitY()).toRotationMatrix();
+  const Mat3 Rb = Eigen::AngleAxisd(M_PI / 4, Vec3::UnitX()).toRotationMatrix();
+  a.X = Ra * (a.X.colwise() - Vec3(0.1, 0.1, 0.1));
+  b.X = Rb * (b.X.colwise() - Vec3(0.1, 0.1, 0.1));
+  const double ridge = 0.1 * std::sqrt(2.0);
+  const double gap = 3e-4;
+  s.add(a, Vec3::Zero(), "a");
+  s.add(b, Vec3(0, 0, 2 * ridge + gap), "b");
+  ContactSet cs;
+  CollisionDetector(model_of(s, {}, {{0, 1, 0}}, 1e-3)).detect(s.x(), cs);
+  ASSERT_EQ(cs.size(), 1);
+  const auto& c = cs.contacts[0];
+  check_contact(c);
+  EXPECT_EQ(c.kind, ContactKind::edge_edge);
+  EXPECT_NEAR(c.gap, gap, 1e-12);
+  EXPECT_LT((c.frame.col(2) - Vec3(0, 0, -1)).norm(), 1e-9);
+  for (int k = 0; k < 4; ++k) EXPECT_NEAR(std::abs(c.weights[k]), 0.5, 1e-12);
+  // Crossed through each other: a negative gap, same normal.
+  s.X.rightCols(8).row(2).array() -= 2 * gap;
+  CollisionDetector(model_of(s, {}, {{0, 1, 0}}, 1e-3)).detect(s.x(), cs);
+  int ee = 0;
+  for (const auto& k : cs.contacts)
+    if (k.kind == ContactKind::edge_edge) {
+      ++ee;
+      EXPECT_NEAR(k.gap, -gap, 1e-12);
+      EXPECT_LT((k.frame.col(2) - Vec3(0, 0, -1)).norm(), 1e-9);
+    }
+  EXPECT_EQ(ee, 1);
+}
+
+// A U: a 5 x 1 x 5 grid of cells without the cells i = 1..3, k >= 1; then the arms
+// (nodes with z >= 0.4) are pushed towards each other until their inner faces are
+// `inner_gap` apart.
+Scene u_shape(int refine, double inner_gap) {
+  const int nx = 5 * refine, nz = 5 * refine;
+  mesh::TetMesh m = test::box_mesh(nx, refine, nz, 1, 0.2, 1);
+  std::vector<int> keep;
+  for (int e = 0; e < m.num_tets(); ++e) {
+    Vec3 c = Vec3::Zero();
+    for (int k = 0; k < 4; ++k) c += 0.25 * m.X.col(m.tets(k, e));
+    if (c[0] < 0.2 || c[0] > 0.8 || c[2] < 0.2) keep.push_back(e);
+  }
+  Tets t(4, static_cast<int>(keep.size()));
+  for (std::size_t i = 0; i < keep.size(); ++i) t.col(static_cast<int>(i)) = m.tets.col(keep[i]);
+  m.tets = t;
+  const double delta = 0.5 * (0.6 - inner_gap);
+  for (int i = 0; i < m.num_nodes(); ++i)
+    if (m.X(2, i) >= 0.4 - 1e-12) m.X(0, i) += m.X(0, i) < 0.5 ? delta : -delta;
+  Scene s;
+  s.add(m, Vec3::Zero(), "u");
+  return s;
+}
+
+TEST(Detection, SelfContactOfAU) {
+  const double margin = 1e-3, inner_gap = 5e-4;
+  Scene s = u_shape(1, inner_gap);
+  CollisionDetector det(model_of(s, {}, {{0, 0, 0.1}}, margin));
+  ContactSet cs;
+  det.detect(s.x(), cs);
+  // The inner faces' 2 x 4 nodes face the other arm's nodes exactly: point-point pairs,
+  // each reported once.
+  ASSERT_EQ(cs.size(), 8);
+  std::set<std::pair<int, int>> pairs;
+  for (const auto& c : cs.contacts) {
+    check_contact(c);
+    EXPECT_EQ(c.side_a, 0);
+    EXPECT_EQ(c.side_b, 0);
+    EXPECT_EQ(c.kind, ContactKind::vertex_triangle);
+    EXPECT_EQ(c.kind_b, Feature::vertex);
+    EXPECT_NEAR(c.gap, inner_gap, 1e-12);
+    EXPECT_LT((c.point[0] - 0.5) * (c.point_b[0] - 0.5), 0) << "contact within one arm";
+    EXPECT_NEAR(std::abs(c.frame(0, 2)), 1, 1e-12);
+    EXPECT_LT(c.point[2], 1 + 1e-12);
+    EXPECT_GT(c.point[2], 0.4 - 1e-12);
+    int w = -1;
+    for (int k = 1; k < 4; ++k)
+      if (c.weights[k] == -1) w = c.nodes[k];
+    EXPECT_TRUE(pairs.insert({std::min(c.nodes[0], w), std::max(c.nodes[0], w)}).second);
+  }
+  // A finer U: the arms' facing nodes no longer align with a shifted grid; contacts
+  // only between the arms.
+  Scene f = u_shape(2, inner_gap);
+  for (int i = 0; i < f.X.cols(); ++i)
+    if (f.X(0, i) > 0.5 && f.X(2, i) >= 0.4) f.X(1, i) += 0.013;  // shift the right arm along y
+  CollisionDetector detf(model_of(f, {}, {{0, 0, 0.1}}, margin));
+  detf.detect(f.x(), cs);
+  EXPECT_GT(cs.size(), 8);
+  int ee = 0;
+  for (const auto& c : cs.contacts) {
+    check_contact(c);
+    ee += c.kind == ContactKind::edge_edge;
+    EXPECT_LT((c.point[0] - 0.5) * (c.point_b[0] - 0.5), 0) << "contact within one arm";
+    EXPECT_NEAR(c.gap, inner_gap, 1e-12);
+  }
+  EXPECT_GT(ee, 0);
+}
+
+TEST(Detection, NoSelfContactOnUndeformedSurfaces) {
+  // Flat, fine surface with a margin of 0.3 edge lengths: the one-ring rule removes
+  // every adjacent pair; the rest are farther than the margin.
+  Scene s;
+  s.add(test::box_mesh(10, 10, 2, 1, 1, 0.2), Vec3::Zero(), "slab");
+  CollisionDetector det(model_of(s, {}, {{0, 0, 0}}, 0.03));
+  ContactSet cs;
+  const auto stats = det.detect(s.x(), cs);
+  EXPECT_EQ(cs.size(), 0);
+  EXPECT_GT(stats.candidates, 0);  // pairs were examined
+  Scene u = u_shape(2, 0.6);       // the undeformed U
+  CollisionDetector detu(model_of(u, {}, {{0, 0, 0}}, 0.03));
+  detu.detect(u.x(), cs);
+  EXPECT_EQ(cs.size(), 0);
+}
+
+bool same(const ContactSet& a, const ContactSet& b) {
+  if (a.size() != b.size()) return false;
+  for (int i = 0; i < a.size(); ++i) {
+    const auto &x = a.contacts[i], &y = b.contacts[i];
+    if (x.kind != y.kind || x.side_a != y.side_a || x.side_b != y.side_b || x.count != y.count || x.nodes != y.nodes ||
+        x.weights != y.weights || x.frame != y.frame || x.point != y.point || x.point_b != y.point_b ||
+        x.gap != y.gap || x.mu != y.mu || x.feature_a != y.feature_a || x.feature_b != y.feature_b ||
+        x.kind_b != y.kind_b)
+      return false;
+  }
+  return true;
+}
+
+TEST(Detection, DeterministicAndRefitted) {
+  Scene s = two_boxes(4e-4);
+  s.add(test::box_mesh(3, 3, 1, 0.3, 0.3, 0.1), Vec3(0, 0, -0.1 - 2e-4), "c");  // a third body below A
+  const DetectionModel model =
+      model_of(s, {floor_plane(-0.1 - 2e-4 - 5e-4)}, {{0, 1, 0}, {2, 0, 0}, {2, 3, 0.5}, {0, 0, 0}}, 1e-3);
+  CollisionDetector det(model), det2(model);
+  ContactSet a, b, c;
+  det.detect(s.x(), a);
+  det.detect(s.x(), b);
+  det2.detect(s.x(), c);
+  EXPECT_GT(a.size(), 30);
+  EXPECT_TRUE(same(a, b));
+  EXPECT_TRUE(same(a, c));
+  // Pair rules in order.
+  int last_rule = 0;
+  auto rule_of = [&](const Contact& k) {
+    for (int r = 0; r < static_cast<int>(model.pairs.size()); ++r) {
+      const auto& p = model.pairs[r];
+      if ((k.side_a == p.a && k.side_b == p.b) || (k.side_a == p.b && k.side_b == p.a)) return r;
+    }
+    return -1;
+  };
+  for (const auto& k : a.contacts) {
+    const int r = rule_of(k);
+    EXPECT_GE(r, last_rule);
+    last_rule = r;
+  }
+  // No allocation once grown: same buffer.
+  const auto* data = a.contacts.data();
+  det.detect(s.x(), a);
+  EXPECT_EQ(a.contacts.data(), data);
+
+  // Refit: move B away (no A-B contacts), then back with a lateral shift.
+  Scene moved = s;
+  const int nb = test::box_mesh(3, 3, 1, 0.3, 0.3, 0.1).num_nodes();
+  moved.X.middleCols(nb, nb).row(2).array() += 0.05;
+  det.detect(moved.x(), a);
+  for (const auto& k : a.contacts) EXPECT_FALSE(k.side_a + k.side_b == 1 && k.side_a != k.side_b);
+  moved.X.middleCols(nb, nb).row(2).array() -= 0.05;
+  moved.X.middleCols(nb, nb).row(0).array() += 0.05;
+  det.detect(moved.x(), a);
+  CollisionDetector fresh(model);
+  fresh.detect(moved.x(), b);
+  EXPECT_TRUE(same(a, b));  // the refitted tree finds what a new one finds
+  int ab = 0;
+  for (const auto& k : a.contacts)
+    if (k.side_a + k.side_b == 1 && k.side_a != k.side_b) {
+      ++ab;
+      EXPECT_GT(std::max(k.point[0], k.point_b[0]), 0.05 + 0.013 - 1e-12);
+      EXPECT_NEAR(k.gap, 4e-4, 1e-12);
+    }
+  EXPECT_GT(ab, 0);
+}
+
+double time_ms(CollisionDetector& det, const VecX& x, ContactSet& cs, int reps) {
+  det.detect(x, cs);  // warm up (buffers grow)
+  const auto t0 = std::chrono::steady_clock::now();
+  for (int i = 0; i < reps; ++i) det.detect(x, cs);
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count() / reps;
+}
+
+TEST(DetectionTiming, SlabOnPlaneAndSelfContact) {
+  {
+    // 32 x 32 x 2 nodes, all within the margin of the floor: 2048 contacts.
+    Scene s;
+    s.add(test::box_mesh(31, 31, 1, 1, 1, 4e-4), Vec3(0, 0, 1e-4), "slab");
+    CollisionDetector det(model_of(s, {floor_plane()}, {{0, 1, 0}}, 1e-3));
+    ContactSet cs;
+    const double ms = time_ms(det, s.x(), cs, 200);
+    EXPECT_EQ(cs.size(), 2048);
+    std::cout << "[ timing ] vertex-plane, " << s.surfaces[0].vertices.size() << " vertices, " << cs.size()
+              << " contacts: " << ms << " ms\n";
+    EXPECT_LT(ms, 5.0);
+  }
+  {
+    // Self-contact on a 10k-triangle surface (no contacts: the broad phase and the
+    // one-ring filtering only), and a folded U with contacts.
+    Scene s;
+    s.add(test::box_mesh(50, 50, 1, 1, 1, 0.05), Vec3::Zero(), "sheet");
+    CollisionDetector det(model_of(s, {}, {{0, 0, 0}}, 1e-3));
+    ContactSet cs;
+    const double ms = time_ms(det, s.x(), cs, 10);
+    std::cout << "[ timing ] self-contact, flat sheet, " << s.surfaces[0].triangles.cols() << " triangles, "
+              << cs.size() << " contacts: " << ms << " ms\n";
+    EXPECT_EQ(cs.size(), 0);
+    Scene u = u_shape(8, 5e-4);
+    for (int i = 0; i < u.X.cols(); ++i)
+      if (u.X(0, i) > 0.5 && u.X(2, i) >= 0.4) u.X(1, i) += 0.0013;
+    CollisionDetector detu(model_of(u, {}, {{0, 0, 0}}, 1e-3));
+    DetectionStats st = detu.detect(u.x(), cs);
+    const double msu = time_ms(detu, u.x(), cs, 10);
+    std::cout << "[ timing ] self-contact, folded U, " << u.surfaces[0].triangles.cols() << " triangles, "
+              << cs.size() << " contacts, " << st.candidates << " candidates: " << msu << " ms\n";
+    EXPECT_GT(cs.size(), 0);
+  }
+}
+
+}  // namespace
+}  // namespace softdiff::collision
