@@ -1,0 +1,677 @@
+#include <softdiff/core/avx512_gcc12.hpp>  // first: see there
+#include <softdiff/contact/ncp.hpp>
+
+#include <softdiff/core/assert.hpp>
+
+#include <algorithm>
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <Eigen/QR>
+#include <cmath>
+#include <limits>
+#include <optional>
+#include <string>
+
+// The frictional contact NCP (ncp.hpp, method.md "Contact").
+//
+// Cones. K = {||l_T|| <= mu l_N} and its dual K* = {mu ||v_T|| <= v_N}. For
+// v = sigma + Gamma(sigma) = (sigma_T, sigma_N + mu ||sigma_T||), v ∈ K* reads sigma_N >= 0.
+// Residual distances, per contact:
+//   dist(lambda, K)  = ||lambda - P_K(lambda)||,
+//   dist(v, K*)      = ||P_K(-v)||: Moreau's decomposition v = P_K*(v) + P_{(K*)°}(v) with
+//                      the polar (K*)° = -K, so v - P_K*(v) = P_{-K}(v) = -P_K(-v). This needs
+//                      only the projection on K, which is well defined for mu = 0 (the ray
+//                      l_T = 0, l_N >= 0; K* is then the half space v_N >= 0 and the
+//                      distance is max(-v_N, 0)), where P_K* would have an infinite aperture.
+// P_K(x), with t = ||x_T||: x if t <= mu x_N; 0 if mu t <= -x_N; else the point of the
+// boundary p_N = (x_N + mu t) / (1 + mu^2), p_T = mu p_N x_T / t.
+// Scales: lscale = max(|lambda|_inf, tiny), vscale = max(|g|_inf, tiny), tiny = 1e-300
+// (only guards a zero scale: lambda = 0 or g = 0 give zero residuals, not 0/0).
+//
+// Modes, eps = options.mode_threshold (relative):
+//   breaking  ||lambda_i|| <= eps lscale;
+//   sticking  otherwise, if mu_i > 0 and ||sigma_T,i|| <= eps vscale (lambda_N > 0 then
+//             makes sigma_N ~ 0 by complementarity);
+//   sliding   otherwise (then lambda_i is on the cone boundary at a solution). A
+//             frictionless contact (mu_i = 0) that is not breaking is always "sliding":
+//             its equations sigma_N = 0, lambda_T = 0 hold whatever sigma_T is, while
+//             "sticking" (sigma_i = 0, 3 equations) would over-determine it.
+//
+// Non-finite input (G, g or mu not finite, or mu < 0): lambda = 0, sigma = 0 (G 0 + g is
+// not finite), all modes breaking, residuals +inf, converged = false, no iteration.
+// A non-finite warm start is replaced by zeros. If an iterate becomes non-finite (this
+// does not happen with finite input; it is a guard), the solver stops with the last
+// finite iterate and converged = false.
+//
+// Allocation: every buffer of ADMM and PGS lives in the Workspace and is sized when
+// the problem size changes (Eigen resizes are no-ops at equal size); the iterations
+// allocate nothing. The polish sizes its dense system by the number of active
+// contacts, so it may allocate when that number changes (once per solve, not per
+// iteration).
+
+namespace softdiff::contact {
+
+namespace {
+
+constexpr double tiny = 1e-300;
+constexpr double infinity = std::numeric_limits<double>::infinity();
+// ADMM over-relaxation factor (1: none). Measured on the 415-contact self-contact
+// dump: 1.6 cuts the iterations 1.6x at a fixed rho but not with the adaptive rho and
+// the PGS fallback, so it is off.
+constexpr double admm_relaxation = 1.0;
+// ADMM stall test window (iterations), see admm().
+constexpr int admm_stall_window = 100;
+
+// P_K(x) for the cone ||x_T|| <= mu x_N (mu >= 0).
+Vec3 project_cone(const Vec3& x, double mu) {
+  const double t = x.head<2>().norm();
+  if (t <= mu * x[2]) return x;
+  if (mu * t <= -x[2]) return Vec3::Zero();
+  // t > 0 here: t = 0 satisfies one of the two tests above.
+  const double pN = (x[2] + mu * t) / (1 + mu * mu);
+  Vec3 p;
+  p.head<2>() = (mu * pN / t) * x.head<2>();
+  p[2] = pN;
+  return p;
+}
+
+// sigma + Gamma(sigma) of one contact.
+Vec3 de_saxce(const Vec3& s, double mu) { return {s[0], s[1], s[2] + mu * s.head<2>().norm()}; }
+
+// The residuals of (lambda, sigma) with the scales of the header.
+using VecCRef = Eigen::Ref<const VecX>;
+
+NcpResiduals residuals_of(const VecCRef& lambda, const VecCRef& sigma, const VecCRef& mu, double vscale) {
+  const int nc = static_cast<int>(mu.size());
+  const double lscale = std::max(lambda.size() ? lambda.cwiseAbs().maxCoeff() : 0.0, tiny);
+  double primal = 0, dual = 0, comp = 0;
+  for (int i = 0; i < nc; ++i) {
+    const Vec3 l = lambda.segment<3>(3 * i);
+    const Vec3 v = de_saxce(sigma.segment<3>(3 * i), mu[i]);
+    primal = std::max(primal, (l - project_cone(l, mu[i])).norm());
+    dual = std::max(dual, project_cone(-v, mu[i]).norm());
+    comp = std::max(comp, std::abs(l.dot(v)));
+  }
+  NcpResiduals r;
+  r.primal = primal / lscale;
+  r.dual = dual / vscale;
+  r.complementarity = comp / (lscale * vscale);
+  // NaN compares false everywhere: make it visible as "not converged".
+  if (!std::isfinite(r.primal)) r.primal = infinity;
+  if (!std::isfinite(r.dual)) r.dual = infinity;
+  if (!std::isfinite(r.complementarity)) r.complementarity = infinity;
+  return r;
+}
+
+double g_scale(const VecX& g) { return std::max(g.size() ? g.cwiseAbs().maxCoeff() : 0.0, tiny); }
+
+// The 2x2 disk-constrained quadratic (a trust-region subproblem, convex since A is PSD):
+//     min 1/2 l^T A l + c^T l   s.t. ||l|| <= r.
+// KKT: (A + nu I) l = -c, nu >= 0, nu (||l|| - r) = 0. If the unconstrained minimizer is
+// inside the disk it is the answer (nu = 0); otherwise nu > 0 solves the secular
+// equation ||(A + nu I)^{-1} c|| = r, found by Newton on psi(nu) = 1/||l(nu)|| - 1/r
+// (concave and increasing: Newton from a point left of the root increases monotonically
+// to it, More & Sorensen 1983), safeguarded by the bracket
+// ||c|| / (a_max + nu) <= ||l(nu)|| <= ||c|| / (a_min + nu).
+Eigen::Vector2d disk_quadratic(const Eigen::Matrix2d& A, const Eigen::Vector2d& c, double r) {
+  if (!(r > 0)) return Eigen::Vector2d::Zero();
+  const double cn = c.norm();
+  if (cn == 0) return Eigen::Vector2d::Zero();
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> eig;
+  eig.computeDirect(A);
+  const Eigen::Vector2d a = eig.eigenvalues().cwiseMax(0.0);  // ascending
+  const Eigen::Vector2d q = eig.eigenvectors().transpose() * c;
+  // Directions with a (numerically) zero curvature.
+  const double a_floor = 1e-14 * std::max(a[1], tiny);
+  // nu = 0 is admissible if the minimizer exists (q has no component along zero
+  // curvature) and lies inside the disk; the minimum-norm minimizer is taken.
+  bool inside = true;
+  Eigen::Vector2d w;
+  for (int k = 0; k < 2; ++k) {
+    if (a[k] > a_floor)
+      w[k] = -q[k] / a[k];
+    else if (std::abs(q[k]) <= 1e-14 * cn)
+      w[k] = 0;
+    else
+      inside = false;
+  }
+  if (inside && w.norm() <= r) return eig.eigenvectors() * w;
+  double lo = std::max(0.0, cn / r - a[1]), hi = std::max(lo, cn / r - a[0]);
+  double nu = lo;
+  for (int it = 0; it < 60; ++it) {
+    const Eigen::Vector2d d = (a.array() + nu).max(tiny).matrix();
+    const Eigen::Vector2d wk = -q.cwiseQuotient(d);
+    const double n = wk.norm();
+    const double psi = 1 / n - 1 / r;
+    if (psi < 0)
+      lo = std::max(lo, nu);
+    else
+      hi = std::min(hi, nu);
+    // psi'(nu) = (sum q_k^2 / d_k^3) / n^3.
+    const double dpsi = (q.array().square() / d.array().cube()).sum() / (n * n * n);
+    double next = nu - psi / dpsi;
+    if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
+    if (std::abs(next - nu) <= 1e-15 * std::max(nu, a[1]) || hi - lo <= 1e-15 * std::max(hi, a[1])) {
+      nu = next;
+      break;
+    }
+    nu = next;
+  }
+  Eigen::Vector2d l = eig.eigenvectors() * (-q.cwiseQuotient((a.array() + nu).max(tiny).matrix()));
+  // Land exactly in the disk (the secular equation holds to rounding).
+  const double ln = l.norm();
+  if (ln > r) l *= r / ln;
+  return l;
+}
+
+}  // namespace
+
+NcpResiduals ncp_residuals(const MatX& G, const VecX& g, const VecX& mu, const VecX& lambda) {
+  SOFTDIFF_DEMAND(g.size() == 3 * mu.size() && G.rows() == g.size() && G.cols() == g.size() &&
+                      lambda.size() == g.size(),
+                  "sizes: expected G (3nc x 3nc), g and lambda (3nc), mu (nc); got G " + std::to_string(G.rows()) +
+                      "x" + std::to_string(G.cols()) + ", g " + std::to_string(g.size()) + ", lambda " +
+                      std::to_string(lambda.size()) + ", mu " + std::to_string(mu.size()));
+  const VecX sigma = G * lambda + g;
+  return residuals_of(lambda, sigma, mu, g_scale(g));
+}
+
+namespace {
+
+// Every buffer of a solve; shapes in terms of n = 3 nc. (NcpSolver::Workspace is this;
+// the solvers below take the base, which needs no access to NcpSolver's private part.)
+struct Buffers {
+  // ADMM (written by admm())
+  MatX A;                        // (n x n) storage of G_W + (rho + eta) I, then its Cholesky factor (in place)
+  VecX x, y, z, s, rhs;          // (n) ADMM iterates: x linear, y in K, z in K*, s = Gamma(z)
+  VecX x_prev, y_prev;           // (n) the previous x, y (dual residual)
+  VecX power;                    // (n) power iteration vector (largest eigenvalue of G)
+  // PGS and shared
+  VecX lambda_best;              // (n) last finite iterate (guard)
+  // polish (written by polish())
+  std::vector<int> active;       // active contact ids (not breaking)
+  MatX J;                        // (3 na x 3 na) Newton matrix of the mode equations
+  VecX F, du, lambda_p, sigma_p; // (3 na), (3 na), (n), (n)
+  Eigen::CompleteOrthogonalDecomposition<MatX> cod;
+  // working set (written by working_set_solve()); the reduced problem lives in the
+  // leading part of these buffers, (3 nw x 3 nw) and (3 nw), nw <= nc
+  std::vector<int> set;          // the working set's contact ids, ascending
+  std::vector<char> in_set;      // (nc) membership
+  VecX Gw;                       // (n n) storage of G_W (column-major, leading dimension 3 nw)
+  VecX gw, muw, lw, sw;          // (n), (nc), (n), (n)
+
+  void resize(Eigen::Index n) {
+    if (x.size() == n) return;
+    A.resize(n, n);
+    Gw.resize(n * n);
+    for (VecX* v : {&x, &y, &z, &s, &rhs, &x_prev, &y_prev, &power, &lambda_best, &lambda_p, &sigma_p, &gw, &lw, &sw})
+      v->resize(n);
+    muw.resize(n / 3);
+    set.reserve(static_cast<std::size_t>(n / 3));
+    in_set.resize(static_cast<std::size_t>(n / 3));
+  }
+};
+
+// One solver run's shared inputs.
+struct Problem {
+  Eigen::Ref<const MatX> G;      // bound without copy to a MatX or to a contiguous Map
+  Eigen::Ref<const VecX> g;
+  Eigen::Ref<const VecX> mu;
+  int nc;
+  double vscale;
+  double tolerance;
+  int max_iterations;
+};
+
+using VecRef = Eigen::Ref<VecX>;
+
+template <typename V>
+bool all_finite(const V& v) {
+  return v.allFinite();
+}
+
+// Largest eigenvalue of the PSD G by power iteration (a few steps: only its order of
+// magnitude sets rho's initial value and range).
+double largest_eigenvalue(const Eigen::Ref<const MatX>& G, VecRef v, VecRef w) {
+  const Eigen::Index n = G.rows();
+  for (Eigen::Index k = 0; k < n; ++k) v[k] = 1.0 + 0.01 * static_cast<double>(k % 7);  // not orthogonal to much
+  v /= v.norm();
+  double L = 0;
+  for (int it = 0; it < 20; ++it) {
+    w.noalias() = G * v;
+    const double nw = w.norm();
+    if (!(nw > 0)) break;
+    L = nw;
+    v = w / nw;
+  }
+  return L;
+}
+
+// ADMM with the De Saxce correction (Carpentier, Le Lidec, Montaut 2024, Alg. 1; as in
+// Pinocchio's ADMMContactSolverTpl). Variables: x (the linear-step force), y = P_K(.)
+// (the force in the cone, returned), z (the multiplier: z -> sigma + Gamma(sigma) in
+// K*). With penalty rho and proximal weight eta (so that the x-step is well posed and
+// the iteration converges for a singular G):
+//   s = Gamma(z)                                   (De Saxce shift, frozen for the step)
+//   x = (G + (rho + eta) I)^{-1} (rho y + eta x + z - g - s)
+//   y = P_K(x - z / rho)
+//   z = z - rho (x - y)                            (= rho (y - w), w = x - z/rho: in K*
+//                                                    and orthogonal to y, by Moreau)
+// A fixed point has x = y, z = G y + g + Gamma(z) with z_T = sigma_T, so z = sigma +
+// Gamma(sigma), and y = P_K(y - z / rho): K ∋ y ⊥ z ∈ K*, the NCP.
+// Parameters as Pinocchio's defaults, made relative to L = lambda_max(G) so that the
+// iteration is invariant to the units of G: eta = 1e-6 L, rho_0 = sqrt(L m) (L/m)^0.2
+// with m = eta ("spectral" rule), and residual balancing: if the scaled primal residual
+// ||x - y|| / lscale exceeds 10 times the scaled dual one ||rho dy + eta dx|| / vscale,
+// rho *= (L/m)^0.05 (~2), and the converse; each change refactors A (rho_updates).
+// Stall fallback (options.admm_fallback): on a strongly rank-deficient G (self-contact,
+// most contacts breaking) ADMM converges slowly (the small non-zero eigenvalues of G);
+// if the NCP residual drops by less than 10x over a window of admm_stall_window
+// iterations, ADMM stops and PGS continues from its iterate with the remaining budget
+// (counted in iterations and in fallback_iterations). 415-contact self-contact dump,
+// tolerance 1e-8: ADMM alone 3248 iterations / 3.5 s, hybrid 100 + 1882 / 0.26 s.
+// The NCP residuals of y are checked every iteration (one product G y, cheaper than
+// the two triangular solves of the x-step).
+NcpResult admm(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma, int stall_window) {
+  NcpResult result;
+  const Eigen::Index n = 3 * static_cast<Eigen::Index>(p.nc);
+  // Views on the workspace's leading parts (the problem may be a reduced one).
+  auto x = w.x.head(n), y = w.y.head(n), z = w.z.head(n), s = w.s.head(n), rhs = w.rhs.head(n);
+  auto x_prev = w.x_prev.head(n), y_prev = w.y_prev.head(n), xr = w.power.head(n);
+  double L = largest_eigenvalue(p.G, w.power.head(n), rhs);
+  if (!(L > 0) || !std::isfinite(L)) L = 1;  // G = 0: any scale (sigma = g does not depend on lambda)
+  const double eta = 1e-6 * L;
+  const double cond = L / eta;
+  const double rho_increment = std::pow(cond, 0.05);
+  const double rho_min = 1e-8 * L, rho_max = 1e8 * L;
+  double rho = std::sqrt(L * eta) * std::pow(cond, 0.2);
+
+  // G + (rho + eta) I, factorized in place in w.A's storage (no allocation).
+  Eigen::Map<MatX> A(w.A.data(), n, n);
+  std::optional<Eigen::LLT<Eigen::Ref<MatX>>> llt;
+  auto factorize = [&]() {
+    A = p.G;
+    A.diagonal().array() += rho + eta;
+    llt.emplace(A);
+    ++result.rho_updates;
+    return llt->info() == Eigen::Success;
+  };
+
+  // Warm start: y = P_K(lambda), z = P_K*(sigma + Gamma(sigma)) at y.
+  x = lambda;
+  for (int i = 0; i < p.nc; ++i) y.segment<3>(3 * i) = project_cone(x.segment<3>(3 * i), p.mu[i]);
+  sigma.noalias() = p.G * y;
+  sigma += p.g;
+  for (int i = 0; i < p.nc; ++i) {
+    const Vec3 v = de_saxce(sigma.segment<3>(3 * i), p.mu[i]);
+    z.segment<3>(3 * i) = v + project_cone(-v, p.mu[i]);  // P_K*(v) = v + P_K(-v) (Moreau)
+  }
+  x = y;
+  lambda = y;
+  result.residuals = residuals_of(lambda, sigma, p.mu, p.vscale);
+  if (result.residuals.max() <= p.tolerance) return result;
+  if (!factorize()) return result;
+  double window_start = result.residuals.max();
+
+  for (int it = 1; it <= p.max_iterations; ++it) {
+    x_prev = x;
+    y_prev = y;
+    for (int i = 0; i < p.nc; ++i) {
+      s.segment<3>(3 * i).setZero();
+      s[3 * i + 2] = p.mu[i] * z.segment<2>(3 * i).norm();
+    }
+    rhs = rho * y + eta * x + z - p.g - s;
+    llt->solveInPlace(rhs);
+    x = rhs;
+    // Over-relaxation (Boyd et al. 2011, sec. 3.4.3): the y- and z-steps see
+    // alpha x + (1 - alpha) y_prev instead of x.
+    xr = admm_relaxation * x + (1 - admm_relaxation) * y_prev;
+    rhs = xr - z / rho;
+    for (int i = 0; i < p.nc; ++i) y.segment<3>(3 * i) = project_cone(rhs.segment<3>(3 * i), p.mu[i]);
+    z -= rho * (xr - y);
+
+    sigma.noalias() = p.G * y;
+    sigma += p.g;
+    result.iterations = it;
+    if (!all_finite(y) || !all_finite(sigma)) break;  // guard; lambda keeps the last finite iterate
+    lambda = y;
+    result.residuals = residuals_of(lambda, sigma, p.mu, p.vscale);
+    if (result.residuals.max() <= p.tolerance) break;
+    // Stall: less than a factor 10 of progress over the last stall_window iterations.
+    if (stall_window > 0 && it % stall_window == 0) {
+      const double now = result.residuals.max();
+      if (now > 0.1 * window_start) {
+        result.fallback_iterations = -1;  // tells the caller (set to the PGS count there)
+        break;
+      }
+      window_start = now;
+    }
+
+    // Residual balancing (scaled, see above). Reuses rhs as scratch.
+    const double lscale = std::max(y.cwiseAbs().maxCoeff(), tiny);
+    const double primal = (x - y).cwiseAbs().maxCoeff() / lscale;
+    rhs = rho * (y - y_prev) + eta * (x - x_prev);
+    const double dual = rhs.cwiseAbs().maxCoeff() / p.vscale;
+    double rho_new = rho;
+    if (primal > 10 * dual)
+      rho_new = std::min(rho * rho_increment, rho_max);
+    else if (dual > 10 * primal)
+      rho_new = std::max(rho / rho_increment, rho_min);
+    if (rho_new != rho) {
+      rho = rho_new;
+      if (!factorize()) break;
+    }
+  }
+  // sigma of the returned lambda (it is already, unless the guard stopped the loop).
+  sigma.noalias() = p.G * lambda;
+  sigma += p.g;
+  return result;
+}
+
+// Projected Gauss-Seidel on the contacts, each contact's block split into its normal
+// and its tangential part, each solved exactly with the rest fixed (the "blocked"
+// nonsmooth Gauss-Seidel of Jean & Moreau; Pinocchio's PGSContactSolverTpl uses the
+// same split with a diagonal tangential step; cf. Acary et al. 2018, "Solving the
+// frictional contact problem: a comparison", for NSGS variants):
+//   lambda_N <- max(0, lambda_N - sigma_N / G_NN)                 (exact 1-D LCP)
+//   lambda_T <- argmin_{||l|| <= mu lambda_N} 1/2 l^T G_TT l + (sigma_T - G_TT lambda_T)^T l
+//                                                                   (exact 2-D disk QP)
+// A fixed point satisfies 0 <= lambda_N ⊥ sigma_N >= 0 and the maximal dissipation law
+// lambda_T ∈ argmin_{||l|| <= mu lambda_N} l . sigma_T (sticking with sigma_T = 0
+// inside the disk, or lambda_T = -mu lambda_N sigma_T / ||sigma_T||): Coulomb's law,
+// whose solutions are exactly those of the De Saxce NCP, so the De Saxce shift
+// Gamma(sigma) is not needed inside the split (the normal step sees sigma_N, not
+// sigma_N + mu ||sigma_T||, which is what makes it exact rather than a cone projection
+// with a step size). sigma is updated incrementally by the changed columns of G (one
+// sweep costs O(nnz(G))), and recomputed exactly every 50 sweeps and before accepting
+// convergence, so rounding does not accumulate into the residuals.
+NcpResult pgs(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma) {
+  auto lambda_best = w.lambda_best.head(lambda.size());
+  NcpResult result;
+  // Project the warm start into the cone (the sweeps keep it there).
+  for (int i = 0; i < p.nc; ++i) lambda.segment<3>(3 * i) = project_cone(lambda.segment<3>(3 * i), p.mu[i]);
+  sigma.noalias() = p.G * lambda;
+  sigma += p.g;
+  result.residuals = residuals_of(lambda, sigma, p.mu, p.vscale);
+  if (result.residuals.max() <= p.tolerance) return result;
+  const double Gmax = std::max(p.G.diagonal().cwiseAbs().maxCoeff(), tiny);
+  lambda_best = lambda;
+  for (int it = 1; it <= p.max_iterations; ++it) {
+    for (int i = 0; i < p.nc; ++i) {
+      const int k = 3 * i;
+      // Normal.
+      const double GNN = p.G(k + 2, k + 2);
+      const double lN = lambda[k + 2];
+      double lN_new = lN;
+      if (GNN > 1e-14 * Gmax)
+        lN_new = std::max(0.0, lN - sigma[k + 2] / GNN);
+      else if (sigma[k + 2] >= 0)
+        lN_new = 0;  // G_NN ~ 0: the row of G is ~0 (PSD), lambda_N cannot change sigma_N
+      if (lN_new != lN) {
+        sigma.noalias() += (lN_new - lN) * p.G.col(k + 2);
+        lambda[k + 2] = lN_new;
+      }
+      // Tangent.
+      const Eigen::Matrix2d GTT = p.G.block<2, 2>(k, k);
+      const Eigen::Vector2d lT = lambda.segment<2>(k);
+      const Eigen::Vector2d c = sigma.segment<2>(k) - GTT * lT;
+      const Eigen::Vector2d lT_new = disk_quadratic(GTT, c, p.mu[i] * lN_new);
+      const Eigen::Vector2d d = lT_new - lT;
+      if (d[0] != 0 || d[1] != 0) {
+        sigma.noalias() += p.G.middleCols<2>(k) * d;
+        lambda.segment<2>(k) = lT_new;
+      }
+    }
+    result.iterations = it;
+    if (!all_finite(lambda)) {  // guard
+      lambda = lambda_best;
+      break;
+    }
+    lambda_best = lambda;
+    if (it % 50 == 0) {
+      sigma.noalias() = p.G * lambda;
+      sigma += p.g;
+    }
+    result.residuals = residuals_of(lambda, sigma, p.mu, p.vscale);
+    if (result.residuals.max() <= p.tolerance) {
+      sigma.noalias() = p.G * lambda;  // confirm on the exact sigma
+      sigma += p.g;
+      result.residuals = residuals_of(lambda, sigma, p.mu, p.vscale);
+      if (result.residuals.max() <= p.tolerance) break;
+    }
+  }
+  sigma.noalias() = p.G * lambda;
+  sigma += p.g;
+  return result;
+}
+
+void classify(const Problem& p, const VecX& lambda, const VecX& sigma, double eps, std::vector<Mode>& modes) {
+  const double lscale = std::max(lambda.cwiseAbs().maxCoeff(), tiny);
+  modes.resize(static_cast<std::size_t>(p.nc));
+  for (int i = 0; i < p.nc; ++i) {
+    if (lambda.segment<3>(3 * i).norm() <= eps * lscale)
+      modes[i] = Mode::breaking;
+    else if (p.mu[i] > 0 && sigma.segment<2>(3 * i).norm() <= eps * p.vscale)
+      modes[i] = Mode::sticking;
+    else
+      modes[i] = Mode::sliding;
+  }
+}
+
+// Polish: Newton on the mode equations F(u) = 0 over the forces u of the active
+// (non-breaking) contacts, breaking forces fixed at 0:
+//   sticking  sigma_i = 0                                              (3 rows of G)
+//   sliding   sigma_N,i = 0,  L (lambda_T,i + mu_i lambda_N,i t_i) = 0, t_i = sigma_T,i/||sigma_T,i||
+// with dF_T/du = L (I_T + mu t e_N^T + mu lambda_N (I - t t^T) / ||sigma_T|| G_T,:); the
+// force rows are scaled by L = max diag G so that all rows are velocities (the rank
+// decision of the QR is relative). The system is square but may be singular (G
+// rank-deficient: more sticking rows than dofs); the complete orthogonal decomposition
+// gives the least-squares step of minimum norm, i.e. the smallest change of the
+// solver's forces. Sticking and breaking equations are linear: one step is exact;
+// sliding ones converge quadratically from the solver's solution (a few steps).
+// The result goes to w.lambda_p / w.sigma_p; returns false if it is not usable.
+bool polish(Buffers& w, const Problem& p, const VecX& lambda, const std::vector<Mode>& modes) {
+  w.active.clear();
+  for (int i = 0; i < p.nc; ++i)
+    if (modes[i] != Mode::breaking) w.active.push_back(i);
+  const int na = static_cast<int>(w.active.size());
+  const int m = 3 * na;
+  w.lambda_p = lambda;
+  for (int i = 0; i < p.nc; ++i)
+    if (modes[i] == Mode::breaking) w.lambda_p.segment<3>(3 * i).setZero();
+  if (na == 0) {
+    w.sigma_p = p.g;
+    return true;
+  }
+  const double L = std::max(p.G.diagonal().maxCoeff(), tiny);
+  w.J.resize(m, m);
+  w.F.resize(m);
+  w.cod.setThreshold(1e-13);
+  double previous = infinity;
+  for (int newton = 0; newton < 8; ++newton) {
+    w.sigma_p.noalias() = p.G * w.lambda_p;
+    w.sigma_p += p.g;
+    for (int a = 0; a < na; ++a) {
+      const int i = w.active[a];
+      for (int r = 0; r < 3; ++r)
+        for (int b = 0; b < na; ++b) w.J.block<1, 3>(3 * a + r, 3 * b) = p.G.block<1, 3>(3 * i + r, 3 * w.active[b]);
+      if (modes[i] == Mode::sticking) {
+        w.F.segment<3>(3 * a) = w.sigma_p.segment<3>(3 * i);
+        continue;
+      }
+      // Sliding: the normal row stays the G row; the tangential rows are replaced.
+      w.F[3 * a + 2] = w.sigma_p[3 * i + 2];
+      const double mu = p.mu[i];
+      const double lN = w.lambda_p[3 * i + 2];
+      const Eigen::Vector2d sT = w.sigma_p.segment<2>(3 * i);
+      const double sn = sT.norm();
+      const bool has_direction = mu > 0 && sn > 0;
+      const Eigen::Vector2d t = has_direction ? Eigen::Vector2d(sT / sn) : Eigen::Vector2d::Zero();
+      w.F.segment<2>(3 * a) = L * (w.lambda_p.segment<2>(3 * i) + mu * lN * t);
+      if (has_direction) {
+        const Eigen::Matrix2d P = (mu * lN / sn) * (Eigen::Matrix2d::Identity() - t * t.transpose());
+        for (int b = 0; b < na; ++b)
+          w.J.block<2, 3>(3 * a, 3 * b) = L * P * p.G.block<2, 3>(3 * i, 3 * w.active[b]);
+      } else {
+        w.J.middleRows<2>(3 * a).setZero();
+      }
+      w.J.block<2, 2>(3 * a, 3 * a) += L * Eigen::Matrix2d::Identity();
+      w.J.block<2, 1>(3 * a, 3 * a + 2) += L * mu * t;
+    }
+    const double norm = w.F.cwiseAbs().maxCoeff();
+    if (!std::isfinite(norm)) return false;
+    // Converged to rounding: the equations' own size is ~eps L |lambda|.
+    if (norm >= previous) {  // no progress: back to the previous iterate
+      for (int a = 0; a < na; ++a) w.lambda_p.segment<3>(3 * w.active[a]) -= w.du.segment<3>(3 * a);
+      break;
+    }
+    if (norm <= 1e-15 * std::max(p.vscale, L * w.lambda_p.cwiseAbs().maxCoeff())) break;
+    previous = norm;
+    w.cod.compute(w.J);
+    w.du = w.cod.solve(-w.F);
+    if (!w.du.allFinite()) return false;
+    for (int a = 0; a < na; ++a) w.lambda_p.segment<3>(3 * w.active[a]) += w.du.segment<3>(3 * a);
+  }
+  w.sigma_p.noalias() = p.G * w.lambda_p;
+  w.sigma_p += p.g;
+  return w.lambda_p.allFinite() && w.sigma_p.allFinite();
+}
+
+// Dual-cone violation of one contact at sigma: dist(sigma_i + Gamma_i, K*) (> 0 iff sigma_N < 0).
+double dual_violation(const VecX& sigma, int i, double mu) {
+  return project_cone(-de_saxce(sigma.segment<3>(3 * i), mu), mu).norm();
+}
+
+// The working set (exact constraint screening). A contact outside the set W has
+// lambda_i = 0; the NCP restricted to W (G_WW, g_W, same scales) is solved by the
+// chosen solver, and then the whole sigma = G_{:,W} lambda_W + g is checked: the
+// contacts outside W are complementary (lambda_i = 0) and in K (0 is), so the full
+// residuals are those of the reduced problem and the dual violations outside W. If
+// some contact outside W violates (dist(sigma_i + Gamma_i, K*) > tolerance vscale),
+// all such contacts join W and the reduced problem is solved again, warm-started
+// from the current lambda. W only grows, so this ends after at most nc rounds; it
+// is exact (nothing is assumed about the contacts left out: the check is the full
+// residual). W starts as the contacts with a non-zero warm start or with sigma_N < 0
+// at the warm start. The iterations and refactorizations of all rounds are summed
+// and bounded by max_iterations in total. lambda: in, the warm start, projected;
+// sigma: in, G lambda + g; both out.
+NcpResult working_set_solve(Buffers& w, const Problem& p, NcpSolverKind kind, VecX& lambda, VecX& sigma) {
+  NcpResult result;
+  std::fill(w.in_set.begin(), w.in_set.end(), 0);
+  w.set.clear();
+  for (int i = 0; i < p.nc; ++i)
+    if (lambda.segment<3>(3 * i).squaredNorm() > 0 || dual_violation(sigma, i, p.mu[i]) > 0) w.in_set[i] = 1;
+  for (;;) {
+    w.set.clear();
+    for (int i = 0; i < p.nc; ++i)
+      if (w.in_set[i]) w.set.push_back(i);
+    const int nw = static_cast<int>(w.set.size());
+    const Eigen::Index m = 3 * static_cast<Eigen::Index>(nw);
+    ++result.working_set_rounds;
+    result.working_set_size = nw;
+    // Gather the reduced problem into the leading parts of the buffers.
+    Eigen::Map<MatX> Gw(w.Gw.data(), m, m);
+    for (int b = 0; b < nw; ++b) {
+      for (int a = 0; a < nw; ++a) Gw.block<3, 3>(3 * a, 3 * b) = p.G.block<3, 3>(3 * w.set[a], 3 * w.set[b]);
+      w.gw.segment<3>(3 * b) = p.g.segment<3>(3 * w.set[b]);
+      w.lw.segment<3>(3 * b) = lambda.segment<3>(3 * w.set[b]);
+      w.muw[b] = p.mu[w.set[b]];
+    }
+    const Problem r{Gw, w.gw.head(m), w.muw.head(nw), nw, p.vscale, p.tolerance,
+                    p.max_iterations - result.iterations};
+    const NcpResult sub = kind == NcpSolverKind::admm ? admm(w, r, w.lw.head(m), w.sw.head(m), 0)
+                                                      : pgs(w, r, w.lw.head(m), w.sw.head(m));
+    result.iterations += sub.iterations;
+    result.rho_updates += sub.rho_updates;
+    // Scatter (lambda is 0 outside W) and the full sigma, O(n m).
+    sigma = p.g;
+    for (int b = 0; b < nw; ++b) {
+      lambda.segment<3>(3 * w.set[b]) = w.lw.segment<3>(3 * b);
+      sigma.noalias() += p.G.middleCols<3>(3 * w.set[b]) * w.lw.segment<3>(3 * b);
+    }
+    result.residuals = residuals_of(lambda, sigma, p.mu, p.vscale);
+    if (result.residuals.max() <= p.tolerance || sub.residuals.max() > p.tolerance ||
+        result.iterations >= p.max_iterations || !all_finite(lambda))
+      break;  // solved, or the reduced solve failed / ran out of iterations: report as is
+    bool grown = false;
+    for (int i = 0; i < p.nc; ++i)
+      if (!w.in_set[i] && dual_violation(sigma, i, p.mu[i]) > p.tolerance * p.vscale) w.in_set[i] = grown = true;
+    if (!grown) break;  // (not reached: the full residual exceeds the tolerance only through a violator)
+  }
+  return result;
+}
+
+}  // namespace
+
+struct NcpSolver::Workspace : Buffers {};
+
+NcpResult NcpSolver::solve(const MatX& G, const VecX& g, const VecX& mu, const NcpOptions& options, VecX& lambda,
+                           VecX& sigma, std::vector<Mode>& modes) {
+  const Eigen::Index n = g.size();
+  SOFTDIFF_DEMAND(n == 3 * mu.size() && G.rows() == n && G.cols() == n,
+                  "sizes: expected G (3nc x 3nc), g (3nc), mu (nc); got G " + std::to_string(G.rows()) + "x" +
+                      std::to_string(G.cols()) + ", g " + std::to_string(n) + ", mu " + std::to_string(mu.size()) +
+                      " (hint: one (t1, t2, n) block per contact)");
+  if (!work_) work_ = std::make_shared<Workspace>();
+  Workspace& w = *work_;
+  w.resize(n);
+  const int nc = static_cast<int>(mu.size());
+  if (lambda.size() != n || !lambda.allFinite()) lambda.setZero(n);
+  sigma.resize(n);
+
+  NcpResult result;
+  if (!G.allFinite() || !g.allFinite() || !mu.allFinite() || (nc > 0 && mu.minCoeff() < 0)) {
+    lambda.setZero();
+    sigma.setZero();
+    modes.assign(static_cast<std::size_t>(nc), Mode::breaking);
+    result.residuals = {infinity, infinity, infinity};
+    result.breaking = nc;
+    return result;
+  }
+  const Problem p{G, g, mu, nc, g_scale(g), options.tolerance, options.max_iterations};
+  if (options.working_set) {
+    for (int i = 0; i < nc; ++i) lambda.segment<3>(3 * i) = project_cone(lambda.segment<3>(3 * i), mu[i]);
+    sigma.noalias() = G * lambda;
+    sigma += g;
+    result.residuals = residuals_of(lambda, sigma, mu, p.vscale);
+    if (result.residuals.max() > options.tolerance) result = working_set_solve(w, p, options.solver, lambda, sigma);
+  } else {
+    result = options.solver == NcpSolverKind::admm
+                 ? admm(w, p, lambda, sigma, options.admm_fallback ? admm_stall_window : 0)
+                 : pgs(w, p, lambda, sigma);
+    if (result.fallback_iterations < 0) {  // ADMM stalled: PGS from its iterate, the remaining budget
+      const Problem rest{G, g, mu, nc, p.vscale, options.tolerance, options.max_iterations - result.iterations};
+      const NcpResult q = pgs(w, rest, lambda, sigma);
+      result.fallback_iterations = q.iterations;
+      result.iterations += q.iterations;
+      result.residuals = q.residuals;
+    }
+  }
+
+  classify(p, lambda, sigma, options.mode_threshold, modes);
+  const int active = nc - static_cast<int>(std::count(modes.begin(), modes.end(), Mode::breaking));
+  if (options.polish && nc > 0 && active <= options.polish_max_active && polish(w, p, lambda, modes)) {
+    const NcpResiduals r = residuals_of(w.lambda_p, w.sigma_p, mu, p.vscale);
+    // Feasible with the same modes: the residuals (cone membership of lambda, sigma_N >= 0,
+    // complementarity) are not worse, and no sliding contact reversed its direction.
+    bool same_modes = true;
+    for (int i = 0; i < nc && same_modes; ++i)
+      if (modes[i] == Mode::sliding && mu[i] > 0)
+        same_modes = w.sigma_p.segment<2>(3 * i).dot(sigma.segment<2>(3 * i)) > 0;
+    if (same_modes && r.max() <= result.residuals.max()) {
+      lambda = w.lambda_p;
+      sigma = w.sigma_p;
+      result.residuals = r;
+      result.polished = true;
+    }
+  }
+  result.converged = result.residuals.max() <= options.tolerance;
+  for (const Mode mode : modes) {
+    if (mode == Mode::sticking) ++result.sticking;
+    if (mode == Mode::sliding) ++result.sliding;
+    if (mode == Mode::breaking) ++result.breaking;
+  }
+  return result;
+}
+
+}  // namespace softdiff::contact

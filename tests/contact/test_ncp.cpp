@@ -1,0 +1,588 @@
+#include <softdiff/core/avx512_gcc12.hpp>  // first: see there
+// The frictional contact NCP solvers (contact/ncp.hpp): analytic single contacts,
+// random Delassus problems (full rank and rank-deficient, mu in {0, 0.3, 10}), warm
+// start, failure reporting, the residual check itself, and the polish.
+#include <softdiff/contact/ncp.hpp>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <cmath>
+#include <gtest/gtest.h>
+#include <iostream>
+#include <limits>
+#include <random>
+#include <string>
+
+// Allocation counter: this executable's malloc/calloc/realloc count and forward to
+// glibc's (symbol interposition; sanitizer builds bring their own allocator, so the
+// counter is off there and the allocation test is skipped).
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define SOFTDIFF_NCP_COUNT_MALLOC 0
+#else
+#define SOFTDIFF_NCP_COUNT_MALLOC 1
+namespace {
+long g_mallocs = 0;
+}
+extern "C" {
+void* __libc_malloc(size_t);
+void* __libc_calloc(size_t, size_t);
+void* __libc_realloc(void*, size_t);
+void* malloc(size_t n) {
+  ++g_mallocs;
+  return __libc_malloc(n);
+}
+void* calloc(size_t a, size_t b) {
+  ++g_mallocs;
+  return __libc_calloc(a, b);
+}
+void* realloc(void* p, size_t n) {
+  ++g_mallocs;
+  return __libc_realloc(p, n);
+}
+}
+#endif
+
+namespace softdiff::contact {
+namespace {
+
+struct Problem {
+  MatX G;
+  VecX g, mu;
+};
+
+struct Solved {
+  NcpResult result;
+  VecX lambda, sigma;
+  std::vector<Mode> modes;
+};
+
+const char* name(NcpSolverKind kind) { return kind == NcpSolverKind::admm ? "admm" : "pgs"; }
+
+Solved solve(const Problem& p, NcpSolverKind kind, double tolerance, bool polish, int max_iterations = 20000,
+             const VecX* warm = nullptr) {
+  NcpOptions o;
+  o.solver = kind;
+  o.tolerance = tolerance;
+  o.polish = polish;
+  o.max_iterations = max_iterations;
+  Solved s;
+  s.lambda = warm ? *warm : VecX::Zero(p.g.size());
+  NcpSolver solver;
+  s.result = solver.solve(p.G, p.g, p.mu, o, s.lambda, s.sigma, s.modes);
+  return s;
+}
+
+// The NCP conditions checked directly (not through ncp_residuals): per contact,
+// lambda in K (lambda_N >= 0, ||lambda_T|| <= mu lambda_N), sigma + Gamma in K*
+// (equivalent to sigma_N >= 0), complementarity lambda . (sigma + Gamma) = 0
+// (= lambda_N sigma_N + (lambda_T . sigma_T + mu lambda_N ||sigma_T||): both terms are
+// >= 0 for a feasible pair, so both vanish separately at a solution), with the scales
+// of ncp.hpp. The residual bounds dist(sigma + Gamma, K*) = -sigma_N / sqrt(1 + mu^2)
+// (distance to the cone's boundary plane), hence the factor sqrt(1 + mu^2) on sigma_N
+// and, through it, on the split products. Also sigma is G lambda + g.
+void expect_ncp_solution(const Problem& p, const Solved& s, double tol, const std::string& where) {
+  const int nc = static_cast<int>(p.mu.size());
+  ASSERT_EQ(s.lambda.size(), 3 * nc) << where;
+  ASSERT_TRUE(s.lambda.allFinite()) << where;
+  const VecX sigma = p.G * s.lambda + p.g;
+  const double ls = std::max(s.lambda.cwiseAbs().maxCoeff(), 1e-300);
+  const double vs = std::max(p.g.cwiseAbs().maxCoeff(), 1e-300);
+  EXPECT_LE((sigma - s.sigma).cwiseAbs().maxCoeff(), 1e-12 * vs) << where << ": sigma is not G lambda + g";
+  for (int i = 0; i < nc; ++i) {
+    const Vec3 l = s.lambda.segment<3>(3 * i), v = sigma.segment<3>(3 * i);
+    const double mu = p.mu[i];
+    const double f = std::sqrt(1 + mu * mu);
+    EXPECT_GE(l[2], -tol * ls) << where << " contact " << i;
+    EXPECT_LE(l.head<2>().norm(), mu * l[2] + tol * ls) << where << " contact " << i;
+    EXPECT_GE(v[2], -f * tol * vs) << where << " contact " << i;
+    EXPECT_LE(std::abs(l[2] * v[2]), 2 * f * tol * ls * vs) << where << " contact " << i;
+    EXPECT_LE(std::abs(l.head<2>().dot(v.head<2>()) + mu * l[2] * v.head<2>().norm()), 2 * f * tol * ls * vs)
+        << where << " contact " << i;
+  }
+}
+
+// ---------------------------------------------------------------------------
+// One contact, analytic solutions.
+
+// A diagonally dominant SPD block (a point mass near a stiff coupling).
+MatX block_G() {
+  MatX G(3, 3);
+  G << 2.0, 0.3, -0.2,  //
+      0.3, 1.5, 0.25,   //
+      -0.2, 0.25, 1.8;
+  return G;
+}
+
+Problem single(const MatX& G, const Vec3& g, double mu) { return {G, g, VecX::Constant(1, mu)}; }
+
+class SingleContact : public ::testing::TestWithParam<NcpSolverKind> {};
+
+TEST_P(SingleContact, FreeIsBreaking) {
+  const Problem p = single(block_G(), Vec3(0.1, -0.2, 0.5), 0.5);
+  const Solved s = solve(p, GetParam(), 1e-12, true);
+  EXPECT_TRUE(s.result.converged);
+  EXPECT_LE(s.result.residuals.max(), 1e-12);
+  EXPECT_EQ(s.lambda, VecX::Zero(3));
+  EXPECT_EQ(s.modes[0], Mode::breaking);
+  EXPECT_EQ(s.result.breaking, 1);
+  EXPECT_LE((s.sigma - p.g).norm(), 1e-15);
+}
+
+TEST_P(SingleContact, FrictionlessImpact) {
+  const Problem p = single(block_G(), Vec3(0.3, 0.1, -1.0), 0.0);
+  const Solved s = solve(p, GetParam(), 1e-12, true);
+  EXPECT_TRUE(s.result.converged);
+  EXPECT_LE(s.result.residuals.max(), 1e-12);
+  const Vec3 expected(0, 0, 1.0 / 1.8);  // lambda_N = -g_N / G_NN, lambda_T = 0 (mu = 0)
+  EXPECT_LE((s.lambda - expected).norm(), 1e-10) << s.lambda.transpose();
+  EXPECT_NEAR(s.sigma[2], 0, 1e-12);
+  EXPECT_EQ(s.modes[0], Mode::sliding);  // mu = 0: the tangential velocity is free
+  std::cout << name(GetParam()) << " impact: " << s.result.iterations << " iterations, residual "
+            << s.result.residuals.max() << (s.result.polished ? " (polished)" : "") << "\n";
+}
+
+TEST_P(SingleContact, Sticking) {
+  const MatX G = block_G();
+  const Vec3 g(0.05, -0.04, -1.0);
+  const double mu = 0.5;
+  const Vec3 expected = -Mat3(G).llt().solve(g);  // sigma = 0
+  ASSERT_GT(expected[2], 0);
+  ASSERT_LT(expected.head<2>().norm(), 0.5 * mu * expected[2]);  // strictly inside: sticking is the solution
+  const Problem p = single(G, g, mu);
+  const Solved s = solve(p, GetParam(), 1e-12, true);
+  EXPECT_TRUE(s.result.converged);
+  EXPECT_LE(s.result.residuals.max(), 1e-12);
+  EXPECT_LE((s.lambda - expected).norm(), 1e-10) << s.lambda.transpose();
+  EXPECT_LE(s.sigma.norm(), 1e-12);
+  EXPECT_EQ(s.modes[0], Mode::sticking);
+  std::cout << name(GetParam()) << " sticking: " << s.result.iterations << " iterations, residual "
+            << s.result.residuals.max() << (s.result.polished ? " (polished)" : "") << "\n";
+}
+
+TEST_P(SingleContact, Sliding) {
+  // G = I / m: lambda_N = -m g_N, lambda_T = -mu lambda_N g_T / |g_T| (the tangential
+  // velocity keeps its direction: sigma_T = g_T (1 - mu |g_N| / |g_T|)), sigma_N = 0.
+  const double m = 2.0, mu = 0.3;
+  const Vec3 g(1.0, 0.5, -1.0);
+  const Problem p = single(MatX::Identity(3, 3) / m, g, mu);
+  Vec3 expected;
+  expected[2] = -m * g[2];
+  expected.head<2>() = -mu * expected[2] * g.head<2>() / g.head<2>().norm();
+  const Solved s = solve(p, GetParam(), 1e-12, true);
+  EXPECT_TRUE(s.result.converged);
+  EXPECT_LE(s.result.residuals.max(), 1e-12);
+  EXPECT_LE((s.lambda - expected).norm(), 1e-10) << s.lambda.transpose();
+  EXPECT_NEAR(s.sigma[2], 0, 1e-12);
+  EXPECT_GT(s.sigma.head<2>().dot(g.head<2>()), 0);
+  EXPECT_EQ(s.modes[0], Mode::sliding);
+  std::cout << name(GetParam()) << " sliding: " << s.result.iterations << " iterations, residual "
+            << s.result.residuals.max() << (s.result.polished ? " (polished)" : "") << "\n";
+}
+
+INSTANTIATE_TEST_SUITE_P(Solvers, SingleContact, ::testing::Values(NcpSolverKind::admm, NcpSolverKind::pgs),
+                         [](const auto& tp) { return std::string(name(tp.param)); });
+
+// ---------------------------------------------------------------------------
+// Random Delassus problems G = J M^-1 J^T: J (3 nc x ndof) random, M diagonal with
+// masses in [0.5, 2]; g = J v + (0, 0, phi_i) with v random and gaps phi_i in
+// [-0.5, 0.2] (a physical free velocity plus penetration: most contacts active, some
+// separating). rank(G) = min(3 nc, ndof). mu_value < 0 draws each mu from {0, 0.3, 10}.
+Problem random_problem(unsigned seed, int nc, int ndof, double mu_value) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1), mass(0.5, 2), gap(-0.5, 0.2);
+  std::uniform_int_distribution<int> pick(0, 2);
+  MatX J(3 * nc, ndof);
+  for (Eigen::Index k = 0; k < J.size(); ++k) J.data()[k] = u(rng);
+  VecX Minv(ndof), v(ndof);
+  for (int k = 0; k < ndof; ++k) Minv[k] = 1 / mass(rng);
+  for (int k = 0; k < ndof; ++k) v[k] = u(rng);
+  Problem p;
+  p.G = J * Minv.asDiagonal() * J.transpose();
+  p.G = 0.5 * (p.G + p.G.transpose()).eval();
+  p.g = J * v;
+  p.mu.resize(nc);
+  const double choices[3] = {0.0, 0.3, 10.0};
+  for (int i = 0; i < nc; ++i) {
+    p.g[3 * i + 2] += gap(rng);
+    p.mu[i] = mu_value >= 0 ? mu_value : choices[pick(rng)];
+  }
+  return p;
+}
+
+// Physically structured: each contact on 1-3 of nn nodes (barycentric weights), with
+// an orthonormal frame whose normal is within max_angle of +z; nodal masses in
+// [0.5, 2]. J^T's block of a contact is sum_k w_k C^T on its nodes, as in
+// contact_jacobian_transpose. rank(G) <= 3 nn: more contacts than nodes make G
+// singular (shared nodes). A solution exists when some velocity puts every contact
+// strictly inside the dual cone (mu ||u_T|| < u_N); a uniform +z velocity does if
+// mu tan(max_angle) < 1, so max_angle = 0.09 covers mu = 10 even on singular G.
+// (Dense random J with mu = 10 and many contacts per dof has no such guarantee.)
+Problem physical_problem(unsigned seed, int nc, int nn, double mu_value, double max_angle = 0.09) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1), u01(0, 1), mass(0.5, 2), gap(-0.5, 0.2);
+  std::uniform_int_distribution<int> node(0, nn - 1), count(1, 3), pick(0, 2);
+  const double two_pi = 6.283185307179586;
+  MatX J = MatX::Zero(3 * nc, 3 * nn);
+  for (int i = 0; i < nc; ++i) {
+    const double th = max_angle * u01(rng), ph = two_pi * u01(rng), rot = two_pi * u01(rng);
+    const Vec3 n(std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph), std::cos(th));
+    const Vec3 a = std::abs(n[0]) < 0.9 ? Vec3::UnitX() : Vec3::UnitY();
+    const Vec3 t1 = n.cross(a).normalized(), t2 = n.cross(t1);
+    const Vec3 s1 = std::cos(rot) * t1 + std::sin(rot) * t2;
+    Mat3 C;
+    C << s1, n.cross(s1), n;
+    const int k = count(rng);
+    double w[3], sum = 0;
+    for (int q = 0; q < k; ++q) sum += (w[q] = 0.1 + u01(rng));
+    for (int q = 0; q < k; ++q) J.block<3, 3>(3 * i, 3 * node(rng)) += (w[q] / sum) * C.transpose();
+  }
+  VecX Minv(3 * nn), v(3 * nn);
+  for (int b = 0; b < nn; ++b) Minv.segment<3>(3 * b).setConstant(1 / mass(rng));
+  for (int k = 0; k < 3 * nn; ++k) v[k] = u(rng);
+  Problem p;
+  p.G = J * Minv.asDiagonal() * J.transpose();
+  p.G = 0.5 * (p.G + p.G.transpose()).eval();
+  p.g = J * v;
+  p.mu.resize(nc);
+  const double choices[3] = {0.0, 0.3, 10.0};
+  for (int i = 0; i < nc; ++i) {
+    p.g[3 * i + 2] += gap(rng);
+    p.mu[i] = mu_value >= 0 ? mu_value : choices[pick(rng)];
+  }
+  return p;
+}
+
+struct RandomCase {
+  int nc, ndof;
+  double mu;
+  unsigned seed;
+  bool physical;  // physical_problem (ndof = 3 nn) instead of a dense random J
+};
+
+Problem make(const RandomCase& c) {
+  return c.physical ? physical_problem(c.seed, c.nc, c.ndof / 3, c.mu) : random_problem(c.seed, c.nc, c.ndof, c.mu);
+}
+
+class RandomProblems : public ::testing::TestWithParam<RandomCase> {};
+
+// Both solvers converge to tolerance 1e-10 without polish (the iteration itself, not
+// the polish, must converge) and the solution satisfies the NCP conditions checked
+// independently. Then with the polish on, still a solution.
+TEST_P(RandomProblems, BothSolversConverge) {
+  const RandomCase c = GetParam();
+  const Problem p = make(c);
+  for (const NcpSolverKind kind : {NcpSolverKind::admm, NcpSolverKind::pgs}) {
+    const std::string where = std::string(name(kind)) + (c.physical ? " physical" : " dense") + " nc " + std::to_string(c.nc) + " ndof " +
+                              std::to_string(c.ndof) + " mu " + std::to_string(c.mu);
+    const Solved s = solve(p, kind, 1e-10, false);
+    EXPECT_TRUE(s.result.converged) << where << ": residual " << s.result.residuals.max() << " after "
+                                    << s.result.iterations;
+    expect_ncp_solution(p, s, 1e-10, where);
+    const Solved sp = solve(p, kind, 1e-10, true);
+    EXPECT_TRUE(sp.result.converged) << where << " polished";
+    expect_ncp_solution(p, sp, 1e-10, where + " polished");
+    EXPECT_EQ(sp.result.sticking + sp.result.sliding + sp.result.breaking, c.nc);
+    std::cout << where << ": " << s.result.iterations << " iterations (rho updates " << s.result.rho_updates
+              << "), residual " << s.result.residuals.max() << "; with polish " << sp.result.residuals.max()
+              << (sp.result.polished ? " (polished)" : " (not kept)") << "; modes stick/slide/break "
+              << sp.result.sticking << "/" << sp.result.sliding << "/" << sp.result.breaking << "\n";
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    Delassus, RandomProblems,
+    ::testing::Values(
+        // dense random J, mu in {0, 0.3}: full rank (60 rows, 90 dofs) and rank 30 < 60
+        RandomCase{20, 90, 0.0, 1, false}, RandomCase{20, 90, 0.3, 2, false},  //
+        RandomCase{20, 30, 0.0, 5, false}, RandomCase{20, 30, 0.3, 6, false},
+        // physical J, all mu: full rank (30 nodes) and rank <= 30 < 60 (10 nodes)
+        RandomCase{20, 90, 0.3, 2, true}, RandomCase{20, 90, 10.0, 3, true}, RandomCase{20, 90, -1, 4, true},
+        RandomCase{20, 30, 0.0, 5, true}, RandomCase{20, 30, 10.0, 7, true}, RandomCase{20, 30, -1, 8, true},
+        RandomCase{40, 30, 10.0, 31, true}),
+    [](const auto& tp) {
+      const RandomCase& c = tp.param;
+      return std::string(c.physical ? "physical" : "dense") + "_nc" + std::to_string(c.nc) + "_ndof" +
+             std::to_string(c.ndof) + "_" +
+             (c.mu < 0 ? std::string("mixed") : "mu" + std::to_string(static_cast<int>(10 * c.mu)));
+    });
+
+// Frictionless (mu = 0): the NCP is the KKT system of the convex QP
+// min 1/2 l^T G l + g^T l over l_N >= 0, l_T = 0. Two minimizers l1, l2 of a convex
+// quadratic give the same value along their segment, so (l1 - l2)^T G (l1 - l2) = 0,
+// i.e. G l1 = G l2 (G PSD): sigma is unique even when G is singular and lambda is
+// not. Both solvers must therefore give the same sigma, to the accuracy the
+// residuals allow.
+TEST(NcpSolvers, FrictionlessSigmaIsUniqueOnSingularG) {
+  const Problem p = random_problem(11, 20, 30, 0.0);
+  const Solved a = solve(p, NcpSolverKind::admm, 1e-12, true);
+  const Solved b = solve(p, NcpSolverKind::pgs, 1e-12, true);
+  ASSERT_TRUE(a.result.converged && b.result.converged);
+  EXPECT_LE((a.sigma - b.sigma).cwiseAbs().maxCoeff(), 1e-8 * p.g.cwiseAbs().maxCoeff());
+}
+
+// With friction the NCP may have several solutions in general; uniqueness holds when
+// mu is small relative to the anisotropy of a well-conditioned, full-rank G (the
+// fixed-point map is then a contraction). Here: few contacts on many dofs (cond(G) of
+// order 10) and mu = 0.3, so both solvers must find the same point.
+TEST(NcpSolvers, AdmmAndPgsAgreeOnFullRankFriction) {
+  const Problem p = random_problem(12, 10, 200, 0.3);
+  Eigen::SelfAdjointEigenSolver<MatX> eig(p.G);
+  ASSERT_LT(eig.eigenvalues().maxCoeff() / eig.eigenvalues().minCoeff(), 50);
+  const Solved a = solve(p, NcpSolverKind::admm, 1e-12, true);
+  const Solved b = solve(p, NcpSolverKind::pgs, 1e-12, true);
+  ASSERT_TRUE(a.result.converged && b.result.converged);
+  EXPECT_LE((a.lambda - b.lambda).cwiseAbs().maxCoeff(), 1e-8 * a.lambda.cwiseAbs().maxCoeff());
+  EXPECT_LE((a.sigma - b.sigma).cwiseAbs().maxCoeff(), 1e-8 * p.g.cwiseAbs().maxCoeff());
+  EXPECT_EQ(a.modes, b.modes);
+}
+
+// The iteration counts of the two solvers on 100-contact problems, mixed mu (reported):
+// 200 nodes (G 300 x 300 of full rank) and 50 nodes (rank <= 150).
+TEST(NcpSolvers, HundredContacts) {
+  for (const int nn : {200, 50}) {
+    const Problem p = physical_problem(13, 100, nn, -1);
+    for (const NcpSolverKind kind : {NcpSolverKind::admm, NcpSolverKind::pgs}) {
+      const Solved s = solve(p, kind, 1e-10, false);
+      EXPECT_TRUE(s.result.converged) << name(kind) << " residual " << s.result.residuals.max();
+      expect_ncp_solution(p, s, 1e-10, name(kind));
+      std::cout << name(kind) << " 100 contacts on " << nn << " nodes: " << s.result.iterations
+                << " iterations, rho updates " << s.result.rho_updates << ", residual " << s.result.residuals.max()
+                << "\n";
+    }
+  }
+}
+
+// Self-contact-like: many vertex-triangle contacts (each on 4 of nn nodes: the vertex
+// with weight 1, the triangle's 3 with -barycentric weights), 3 nc = 600 rows on
+// 3 nn = 60 dofs (G of rank <= 60), mu = 0.2, most contacts separating (gap in
+// [0.05, 1]) and 5% penetrating (gap in [-0.2, 0]): most end up breaking, as in a
+// folding soft body. This is where plain ADMM needs thousands of iterations (the
+// small non-zero eigenvalues of G); ADMM now hands over to PGS when it stalls.
+Problem self_contact_problem(unsigned seed, int nc, int nn) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1), u01(0, 1), mass(0.5, 2), sep(0.05, 1), pen(-0.2, 0);
+  std::uniform_int_distribution<int> node(0, nn - 1);
+  const double two_pi = 6.283185307179586;
+  MatX J = MatX::Zero(3 * nc, 3 * nn);
+  for (int i = 0; i < nc; ++i) {
+    const double th = 3.14159 * u01(rng), ph = two_pi * u01(rng);
+    const Vec3 n(std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph), std::cos(th));
+    const Vec3 a = std::abs(n[0]) < 0.9 ? Vec3::UnitX() : Vec3::UnitY();
+    const Vec3 t1 = n.cross(a).normalized(), t2 = n.cross(t1);
+    Mat3 C;
+    C << t1, t2, n;
+    double b[3], sum = 0;
+    for (double& bk : b) sum += (bk = 0.1 + u01(rng));
+    int nodes[4];
+    for (int q = 0; q < 4; ++q) {
+      bool fresh;
+      do {
+        nodes[q] = node(rng);
+        fresh = true;
+        for (int r = 0; r < q; ++r) fresh = fresh && nodes[r] != nodes[q];
+      } while (!fresh);
+    }
+    J.block<3, 3>(3 * i, 3 * nodes[0]) += C.transpose();
+    for (int q = 0; q < 3; ++q) J.block<3, 3>(3 * i, 3 * nodes[q + 1]) -= (b[q] / sum) * C.transpose();
+  }
+  VecX Minv(3 * nn), v(3 * nn);
+  for (int k = 0; k < nn; ++k) Minv.segment<3>(3 * k).setConstant(1 / mass(rng));
+  for (int k = 0; k < 3 * nn; ++k) v[k] = 0.05 * u(rng);
+  Problem p;
+  p.G = J * Minv.asDiagonal() * J.transpose();
+  p.G = 0.5 * (p.G + p.G.transpose()).eval();
+  p.g = J * v;
+  p.mu = VecX::Constant(nc, 0.2);
+  for (int i = 0; i < nc; ++i) p.g[3 * i + 2] += u01(rng) < 0.05 ? pen(rng) : sep(rng);
+  return p;
+}
+
+TEST(NcpSolvers, RankDeficientManyBreaking) {
+  const Problem p = self_contact_problem(91, 200, 20);
+  for (const NcpSolverKind kind : {NcpSolverKind::admm, NcpSolverKind::pgs}) {
+    const Solved s = solve(p, kind, 1e-10, false, 20000);
+    EXPECT_TRUE(s.result.converged) << name(kind) << " residual " << s.result.residuals.max();
+    // Measured: ADMM 327, PGS 75 iterations; 1000 (the default budget) leaves a 3x margin.
+    EXPECT_LE(s.result.iterations, 1000) << name(kind);
+    expect_ncp_solution(p, s, 1e-10, std::string(name(kind)) + " self-contact");
+    std::cout << name(kind) << " self-contact 200 contacts on 20 nodes: " << s.result.iterations
+              << " iterations (PGS fallback " << s.result.fallback_iterations << "), rho updates "
+              << s.result.rho_updates << ", residual " << s.result.residuals.max() << ", |lambda| "
+              << s.lambda.cwiseAbs().maxCoeff() << "\n";
+    const Solved sp = solve(p, kind, 1e-10, true, 20000);
+    EXPECT_TRUE(sp.result.converged) << name(kind) << " polished";
+    expect_ncp_solution(p, sp, 1e-10, std::string(name(kind)) + " self-contact polished");
+    std::cout << "  modes stick/slide/break " << sp.result.sticking << "/" << sp.result.sliding << "/"
+              << sp.result.breaking << "\n";
+  }
+}
+
+// ---------------------------------------------------------------------------
+// Warm start: from the solution, no (or one) iteration.
+TEST(NcpSolvers, WarmStartFromTheSolution) {
+  const Problem p = physical_problem(21, 20, 10, -1);
+  for (const NcpSolverKind kind : {NcpSolverKind::admm, NcpSolverKind::pgs}) {
+    const Solved s = solve(p, kind, 1e-10, true);
+    ASSERT_TRUE(s.result.converged) << name(kind);
+    const Solved w = solve(p, kind, 1e-10, true, 20000, &s.lambda);
+    EXPECT_TRUE(w.result.converged) << name(kind);
+    EXPECT_LE(w.result.iterations, 1) << name(kind);
+    EXPECT_LE((w.lambda - s.lambda).cwiseAbs().maxCoeff(), 1e-9 * s.lambda.cwiseAbs().maxCoeff()) << name(kind);
+  }
+}
+
+// Failure is reported: two iterations on a hard problem (rank-deficient, mu = 10,
+// polish off so that it cannot rescue the iterate) do not converge; the residuals are
+// those of the returned, finite lambda.
+TEST(NcpSolvers, NotConvergedIsReported) {
+  const Problem p = random_problem(31, 40, 30, 10.0);
+  for (const NcpSolverKind kind : {NcpSolverKind::admm, NcpSolverKind::pgs}) {
+    const Solved s = solve(p, kind, 1e-10, false, 2);
+    EXPECT_FALSE(s.result.converged) << name(kind);
+    EXPECT_EQ(s.result.iterations, 2) << name(kind);
+    EXPECT_TRUE(s.lambda.allFinite()) << name(kind);
+    EXPECT_GT(s.result.residuals.max(), 1e-10) << name(kind);
+    const NcpResiduals r = ncp_residuals(p.G, p.g, p.mu, s.lambda);
+    EXPECT_NEAR(r.max(), s.result.residuals.max(), 1e-12 * r.max()) << name(kind);
+  }
+}
+
+TEST(NcpSolvers, NonFiniteInput) {
+  const Problem ok = random_problem(41, 5, 30, 0.3);
+  const double nan = std::numeric_limits<double>::quiet_NaN(), inf = std::numeric_limits<double>::infinity();
+  for (int which = 0; which < 3; ++which)
+    for (const NcpSolverKind kind : {NcpSolverKind::admm, NcpSolverKind::pgs}) {
+      Problem p = ok;
+      if (which == 0) p.G(3, 4) = nan;
+      if (which == 1) p.g[2] = inf;
+      if (which == 2) p.mu[1] = nan;
+      const Solved s = solve(p, kind, 1e-10, true);
+      EXPECT_FALSE(s.result.converged) << name(kind) << " case " << which;
+      EXPECT_TRUE(s.lambda.allFinite() && s.sigma.allFinite()) << name(kind) << " case " << which;
+      EXPECT_EQ(s.lambda, VecX::Zero(15));
+      EXPECT_EQ(s.modes.size(), 5u);
+    }
+  // A non-finite warm start is dropped, not propagated.
+  VecX warm = VecX::Zero(15);
+  warm[5] = nan;
+  const Solved s = solve(ok, NcpSolverKind::admm, 1e-10, true, 20000, &warm);
+  EXPECT_TRUE(s.result.converged);
+  EXPECT_TRUE(s.lambda.allFinite());
+}
+
+// ncp_residuals can fail: perturbing a solution raises each residual.
+TEST(NcpResidualsCheck, DetectsWrongSolutions) {
+  const Problem p = random_problem(51, 20, 90, 0.3);
+  const Solved s = solve(p, NcpSolverKind::admm, 1e-12, true);
+  ASSERT_TRUE(s.result.converged);
+  const NcpResiduals r0 = ncp_residuals(p.G, p.g, p.mu, s.lambda);
+  EXPECT_LE(r0.max(), 1e-12);
+  // Find an active and a breaking contact.
+  int active = -1, breaking = -1;
+  for (int i = 0; i < 20; ++i) {
+    if (s.modes[i] != Mode::breaking && active < 0) active = i;
+    if (s.modes[i] == Mode::breaking && breaking < 0) breaking = i;
+  }
+  ASSERT_GE(active, 0);
+  ASSERT_GE(breaking, 0);
+  const double ls = s.lambda.cwiseAbs().maxCoeff();
+  {  // out of the cone: primal
+    VecX l = s.lambda;
+    l[3 * active + 2] = -0.01 * ls;
+    const NcpResiduals r = ncp_residuals(p.G, p.g, p.mu, l);
+    EXPECT_GT(r.primal, 1e-4);
+  }
+  {  // too little normal force: the contact penetrates, dual
+    VecX l = s.lambda;
+    l.segment<3>(3 * active) *= 0.9;
+    const NcpResiduals r = ncp_residuals(p.G, p.g, p.mu, l);
+    EXPECT_GT(r.max(), 1e-4);
+  }
+  {  // a force on a separating contact: complementarity
+    VecX l = s.lambda;
+    l[3 * breaking + 2] += 0.01 * ls;
+    const NcpResiduals r = ncp_residuals(p.G, p.g, p.mu, l);
+    EXPECT_GT(r.complementarity, 1e-5);
+  }
+  {  // the dual-cone distance: mu = 0, a single contact with sigma_N = -1 is at distance 1
+    const NcpResiduals r = ncp_residuals(MatX::Zero(3, 3), Vec3(0.5, 0, -1), VecX::Zero(1), VecX::Zero(3));
+    EXPECT_DOUBLE_EQ(r.dual, 1.0);
+    EXPECT_EQ(r.primal, 0.0);
+  }
+}
+
+// The polish brings a loosely converged mixed sticking / sliding / breaking solution
+// to machine precision.
+TEST(NcpSolvers, PolishReachesMachinePrecision) {
+  const Problem p = physical_problem(61, 30, 50, -1);
+  for (const NcpSolverKind kind : {NcpSolverKind::admm, NcpSolverKind::pgs}) {
+    const Solved rough = solve(p, kind, 1e-7, false);
+    const Solved fine = solve(p, kind, 1e-7, true);
+    ASSERT_TRUE(rough.result.converged && fine.result.converged) << name(kind);
+    EXPECT_GT(fine.result.sticking, 0) << name(kind);
+    EXPECT_GT(fine.result.sliding, 0) << name(kind);
+    EXPECT_GT(fine.result.breaking, 0) << name(kind);
+    EXPECT_TRUE(fine.result.polished) << name(kind);
+    EXPECT_LE(fine.result.residuals.max(), 1e-13) << name(kind);
+    EXPECT_LT(fine.result.residuals.max(), rough.result.residuals.max()) << name(kind);
+    expect_ncp_solution(p, fine, 1e-13, std::string(name(kind)) + " polished");
+    std::cout << name(kind) << " polish: " << rough.result.residuals.max() << " -> " << fine.result.residuals.max()
+              << " (stick/slide/break " << fine.result.sticking << "/" << fine.result.sliding << "/"
+              << fine.result.breaking << ")\n";
+  }
+}
+
+// The solver object is reusable: a second solve of another problem of the same size
+// gives the result a fresh solver gives (the workspace carries no state but buffers).
+TEST(NcpSolvers, ReusedWorkspace) {
+  const Problem a = random_problem(71, 20, 90, -1), b = random_problem(72, 20, 90, -1);
+  NcpSolver solver;
+  NcpOptions o;
+  o.tolerance = 1e-10;
+  for (const NcpSolverKind kind : {NcpSolverKind::admm, NcpSolverKind::pgs}) {
+    o.solver = kind;
+    VecX la = VecX::Zero(60), lb = VecX::Zero(60), sa, sb;
+    std::vector<Mode> ma, mb;
+    solver.solve(a.G, a.g, a.mu, o, la, sa, ma);
+    const NcpResult rb = solver.solve(b.G, b.g, b.mu, o, lb, sb, mb);
+    const Solved fresh = solve(b, kind, 1e-10, true);
+    EXPECT_EQ(rb.iterations, fresh.result.iterations);
+    EXPECT_EQ(lb, fresh.lambda);
+  }
+}
+
+// The iterations allocate nothing: after a first solve sized the workspace, solves of
+// the same size make no heap allocation, whatever their number of iterations (the
+// polish is off: its dense system is sized by the number of active contacts).
+TEST(NcpSolvers, NoAllocationAfterFirstSolve) {
+#if SOFTDIFF_NCP_COUNT_MALLOC
+  const Problem p = physical_problem(81, 20, 10, -1);
+  NcpSolver solver;
+  VecX lambda, sigma;
+  std::vector<Mode> modes;
+  NcpOptions o;
+  o.polish = false;
+  o.tolerance = 1e-30;  // never met: run all iterations
+  bool first = true;  // the first solve sizes the workspace (and sigma, modes)
+  for (const NcpSolverKind kind : {NcpSolverKind::admm, NcpSolverKind::pgs}) {
+    o.solver = kind;
+    for (const int iterations : {5, 5, 50, 500}) {
+      o.max_iterations = iterations;
+      lambda.setZero(p.g.size());
+      const long before = g_mallocs;
+      const NcpResult r = solver.solve(p.G, p.g, p.mu, o, lambda, sigma, modes);
+      const long count = g_mallocs - before;
+      EXPECT_EQ(r.iterations, iterations) << name(kind);
+      if (!first) {
+        EXPECT_EQ(count, 0) << name(kind) << " " << iterations << " iterations";
+      }
+      first = false;
+    }
+  }
+#else
+  GTEST_SKIP() << "allocation counter off under sanitizers";
+#endif
+}
+
+}  // namespace
+}  // namespace softdiff::contact
