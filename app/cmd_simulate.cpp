@@ -115,8 +115,60 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
   for (const auto& e : model.actuation.effectors)
     effector_series.push_back(
         writer.add_series("/bodies/" + model.fem.bodies[e.body].name + "/effectors/" + e.name, 3));
-  auto write_frame = [&](const State& st, double step_seconds) {
+  // Contacts (output.md /contact/*, /solver/contact_*): the contacts of the step
+  // that produced each frame (none at frame 0).
+  struct ContactOutput {
+    int offsets = -1, point = -1, frame = -1, force = -1, mode = -1, pair = -1, iterations = -1, residual = -1;
+    std::int64_t rows = 0;
+    std::vector<double> buffer;
+    std::vector<std::int32_t> pairs;
+    std::vector<std::int8_t> modes;
+  } co;
+  if (model.contact.enabled) {
+    using E = io::Hdf5Writer::Element;
+    writer.write_strings("/contact/names", model.contact.detection.names);
+    co.offsets = writer.add_table("/contact/offsets", {}, E::i64);
+    co.point = writer.add_table("/contact/point", {3}, E::f64);
+    co.frame = writer.add_table("/contact/frame", {3, 3}, E::f64);
+    co.force = writer.add_table("/contact/force", {3}, E::f64);
+    co.mode = writer.add_table("/contact/mode", {}, E::i8);
+    co.pair = writer.add_table("/contact/pair", {2}, E::i32);
+    co.iterations = writer.add_table("/solver/contact_iterations", {}, E::i32);
+    co.residual = writer.add_table("/solver/contact_residual", {}, E::f64);
+    writer.append_rows(co.offsets, &co.rows, 1);
+  }
+  auto write_contacts = [&](bool first) {
+    if (!model.contact.enabled) return;
+    const auto& cd = data.contact;
+    const long nc = first ? 0 : cd.contacts.size();
+    if (nc > 0) {
+      co.buffer.resize(static_cast<std::size_t>(9 * nc));
+      for (long i = 0; i < nc; ++i) Eigen::Map<Vec3>(&co.buffer[3 * i]) = cd.contacts.contacts[i].point;
+      writer.append_rows(co.point, co.buffer.data(), nc);
+      for (long i = 0; i < nc; ++i)  // row-major (3, 3): row r holds component r of t1, t2, n
+        Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(&co.buffer[9 * i]) = cd.contacts.contacts[i].frame;
+      writer.append_rows(co.frame, co.buffer.data(), nc);
+      writer.append_rows(co.force, cd.lambda.data(), nc);
+      co.modes.resize(static_cast<std::size_t>(nc));
+      co.pairs.resize(static_cast<std::size_t>(2 * nc));
+      for (long i = 0; i < nc; ++i) {
+        co.modes[i] = static_cast<std::int8_t>(cd.modes[i]);
+        co.pairs[2 * i] = cd.contacts.contacts[i].side_a;
+        co.pairs[2 * i + 1] = cd.contacts.contacts[i].side_b;
+      }
+      writer.append_rows(co.mode, co.modes.data(), nc);
+      writer.append_rows(co.pair, co.pairs.data(), nc);
+    }
+    co.rows += nc;
+    writer.append_rows(co.offsets, &co.rows, 1);
+    const std::int32_t iterations = first ? 0 : cd.result.iterations;
+    const double residual = first || nc == 0 ? 0.0 : cd.result.residuals.max();
+    writer.append_rows(co.iterations, &iterations, 1);
+    writer.append_rows(co.residual, &residual, 1);
+  };
+  auto write_frame = [&](const State& st, double step_seconds, bool first = false) {
     writer.append_frame(st.t, st.x, &st.v, step_seconds);
+    write_contacts(first);
     for (size_t a = 0; a < actuator_series.size(); ++a) {
       const auto& act = model.actuation.actuators[a];
       double value = act.value.at(st.t);
@@ -132,11 +184,12 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
       writer.append_series(effector_series[e], p.data());
     }
   };
-  write_frame(state, 0.0);
+  write_frame(state, 0.0, true);
 
   StepTimings timings;
   double output_seconds = 0;
-  long steps_done = 0, warnings_newton = 0;
+  long steps_done = 0, warnings_newton = 0, warnings_contact = 0, contacts_total = 0, contacts_max = 0,
+       contact_iterations = 0;
   StepStatus failure;
   std::string status = "complete";
   Progress progress(total, !o.quiet);
@@ -174,6 +227,28 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
       } else if (!s.ok()) {
         failure = s;
       }
+      if (s.ok() && model.contact.enabled) {
+        const auto& cd = data.contact;
+        contacts_total += cd.contacts.size();
+        contacts_max = std::max<long>(contacts_max, cd.contacts.size());
+        contact_iterations += cd.result.iterations;
+        if (!cd.result.converged) {
+          StepStatus c;
+          c.code = StepStatus::Code::contact_not_converged;
+          c.step = k;
+          std::ostringstream d;
+          d.precision(3);
+          d << (model.contact.ncp.solver == contact::NcpSolverKind::admm ? "ADMM" : "PGS") << ", "
+            << cd.contacts.size() << " contacts, " << cd.result.iterations << " iterations: residuals primal "
+            << cd.result.residuals.primal << ", dual " << cd.result.residuals.dual << ", complementarity "
+            << cd.result.residuals.complementarity << " > tolerance " << model.contact.ncp.tolerance;
+          c.detail = d.str();
+          if (o.strict)
+            failure = c;
+          else if (warnings_contact++ == 0)
+            warn(describe(model, c) + " (further such warnings are counted, not shown; --strict makes it an error)");
+        }
+      }
       timings += data.timings;
       if (!failure.ok()) break;
       std::swap(state, next);
@@ -209,11 +284,13 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
     s.precision(3);
     s << steps_done << (is_static ? " load steps" : " steps") << " in " << run_seconds << " s (setup "
       << setup_seconds << " s); ms/step: assembly " << fmt_ms(timings.assembly, n) << ", factorization "
-      << fmt_ms(timings.factorization, n) << ", solve " << fmt_ms(timings.solve, n) << ", contact 0, derivatives 0, output "
+      << fmt_ms(timings.factorization, n) << ", solve " << fmt_ms(timings.solve, n) << ", contact "
+      << fmt_ms(timings.contact(), n) << ", derivatives 0, output "
       << fmt_ms(output_seconds, n) << " -> " << writer.final_path().string();
     note(s.str());
   }
   if (warnings_newton > 1) warn(std::to_string(warnings_newton) + " steps did not reach newton_tolerance");
+  if (warnings_contact > 1) warn(std::to_string(warnings_contact) + " contact solves did not reach the contact tolerance");
 
   if (o.json) {
     Json j;
@@ -226,12 +303,24 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
         .value("factorization", 1e3 * timings.factorization / n)
         .value("solve", 1e3 * timings.solve / n)
         .value("other", 1e3 * timings.other / n)
-        .value("contact", 0.0)
+        .value("contact", 1e3 * timings.contact() / n)
+        .value("detection", 1e3 * timings.detection / n)
+        .value("delassus", 1e3 * timings.delassus / n)
+        .value("ncp", 1e3 * timings.ncp / n)
+        .value("correction", 1e3 * timings.correction / n)
         .value("derivatives", 0.0)
         .value("output", 1e3 * output_seconds / n)
         .end_object();
     j.value("factorizations", data.factorizations);
     j.value("newton_not_converged_steps", warnings_newton);
+    if (model.contact.enabled) {
+      j.begin_object("contact")
+          .value("contacts_mean", static_cast<double>(contacts_total) / n)
+          .value("contacts_max", contacts_max)
+          .value("iterations_mean", static_cast<double>(contact_iterations) / n)
+          .value("not_converged_steps", warnings_contact)
+          .end_object();
+    }
     j.begin_object("bodies");
     for (const auto& b : model.fem.bodies) {
       double max_disp = 0;

@@ -19,6 +19,12 @@ Data::Data(const Model& model) {
   lambda_a = VecX::Zero(static_cast<Eigen::Index>(model.actuation.actuators.size()));
   f_act = VecX::Zero(ndof);
   solver = integrator::make_linear_solver(model.solver);
+  if (model.contact.enabled) {
+    contact.detector = std::make_unique<collision::CollisionDetector>(model.contact.detection);
+    contact.v_free = VecX::Zero(ndof);
+    contact.correction = VecX::Zero(ndof);
+    contact.rhs = VecX::Zero(ndof);
+  }
 }
 
 namespace {
@@ -77,6 +83,7 @@ std::string describe(const Model& model, const StepStatus& st) {
       s << "Newton did not converge in " << st.iterations << " iterations (relative residual " << st.residual << ")";
       break;
     case StepStatus::Code::solver_failed: s << "linear solver failed"; break;
+    case StepStatus::Code::contact_not_converged: s << "contact solver did not converge"; break;
   }
   if (!st.detail.empty() && st.code != StepStatus::Code::not_positive_definite) s << ": " << st.detail;
   return s.str();

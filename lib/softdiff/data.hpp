@@ -1,6 +1,9 @@
 #pragma once
 // Data: the preallocated workspace of a step and the record its derivative needs.
 // Sized once by Data::Data(model); no allocation per step afterwards.
+#include <softdiff/collision/contact_set.hpp>
+#include <softdiff/collision/detection.hpp>
+#include <softdiff/contact/ncp.hpp>
 #include <softdiff/fem/assembly.hpp>
 #include <softdiff/integrator/linear_solver.hpp>
 #include <softdiff/model.hpp>
@@ -13,7 +16,8 @@ namespace softdiff {
 // Outcome of a step or a static solve. Never thrown from the inner loop: the
 // caller turns it into a message and an exit code.
 struct StepStatus {
-  enum class Code { ok, inverted_element, not_positive_definite, non_finite, diverged, not_converged, solver_failed };
+  enum class Code { ok, inverted_element, not_positive_definite, non_finite, diverged, not_converged, solver_failed,
+                    contact_not_converged };
   Code code = Code::ok;
   long step = -1;        // 1-based step (static: load step) where it happened
   int element = -1;      // global element index, if one is concerned
@@ -25,14 +29,43 @@ struct StepStatus {
   bool ok() const { return code == Code::ok; }
 };
 
-// Wall time of the last step, by stage (seconds).
+// Wall time of the last step, by stage (seconds). Contact: detection, Delassus
+// (H_c, G, g), NCP solve (with polish), correction (one more solve).
 struct StepTimings {
   double assembly = 0, factorization = 0, solve = 0, other = 0;
-  double total() const { return assembly + factorization + solve + other; }
+  double detection = 0, delassus = 0, ncp = 0, correction = 0;
+  double contact() const { return detection + delassus + ncp + correction; }
+  double total() const { return assembly + factorization + solve + other + contact(); }
   StepTimings& operator+=(const StepTimings& o) {
     assembly += o.assembly; factorization += o.factorization; solve += o.solve; other += o.other;
+    detection += o.detection; delassus += o.delassus; ncp += o.ncp; correction += o.correction;
     return *this;
   }
+};
+
+// The contact stage's record of the last step (docs/method.md "Contact"). nc is
+// the number of contacts of that step; every field is written by
+// contact::resolve_contacts().
+struct ContactData {
+  std::unique_ptr<collision::CollisionDetector> detector;  // built once (model.contact.enabled)
+  collision::ContactSet contacts;   // (nc) detected at x_i, with frames, gaps, features
+  collision::DetectionStats stats;
+  double margin = 0;                // detection margin of the step: max(margin, 2 h max|v|)
+  SparseMatrix Ht;                  // (3n, 3nc) H_c^T, projected (no fixed dof)
+  MatX G;                           // (3nc, 3nc) Delassus h H_c A^{-1} H_c^T
+  VecX g;                           // (3nc) H_c v_free + (0, 0, phi_i / h)
+  VecX mu;                          // (nc)
+  VecX lambda;                      // (3nc) contact forces (N) in each frame (t1, t2, n)
+  VecX sigma;                       // (3nc) G lambda + g: contact velocities
+  std::vector<contact::Mode> modes; // (nc)
+  contact::NcpResult result;        // iterations, residuals, converged, polished
+  contact::NcpSolver solver;        // workspace (grows only)
+  VecX v_free;                      // (3n) v_i + A^{-1}(b + h H_a^T lambda_a)
+  VecX correction;                  // (3n) h A^{-1} H_c^T lambda_c
+  VecX rhs;                         // (3n) scratch
+  // Warm start: the previous step's contacts (by key) and forces.
+  std::vector<std::array<int, 6>> previous_keys;  // sorted (key, index into previous_lambda)
+  VecX previous_lambda;
 };
 
 struct Data {
@@ -53,6 +86,7 @@ struct Data {
   bool factor_is_current = false;   // the factor matches A (constant matrices are factorized once)
   int newton_iterations_used = 0;
   double newton_residual = 0;
+  ContactData contact;              // contact stage (model.contact.enabled)
   StepTimings timings;              // of the last step
   long factorizations = 0;          // count over the run
 };

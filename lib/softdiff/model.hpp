@@ -2,6 +2,8 @@
 // Model / State: the aggregate of every stage's constant part, and the state of a
 // frame. See data.hpp for the per-step workspace and record.
 #include <softdiff/actuation/actuation_model.hpp>
+#include <softdiff/collision/detection.hpp>
+#include <softdiff/contact/ncp.hpp>
 #include <softdiff/core/types.hpp>
 #include <softdiff/fem/fem_model.hpp>
 #include <softdiff/integrator/linear_solver.hpp>
@@ -32,12 +34,21 @@ struct State {
   VecX v;  // (3n) velocities
 };
 
+// Contact (scene.md `contact`): collision detection and the NCP solver settings.
+// Disabled: no detection, no Delassus, nothing of the contact stage runs.
+struct ContactSettings {
+  bool enabled = false;
+  collision::DetectionModel detection;  // surfaces, obstacles, pair rules, margin, names
+  contact::NcpOptions ncp;
+};
+
 struct Model {
   std::string name;
   fem::FemModel fem;
   actuation::ActuationModel actuation;  // actuators (values over time) and effectors
   StepSettings step;
   integrator::SolverOptions solver;
+  ContactSettings contact;
   State initial;  // x = rest positions, v = initial velocities (0 on fixed dofs)
 
   // True when the system matrix A does not depend on the state: every body uses

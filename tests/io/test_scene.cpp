@@ -454,15 +454,127 @@ TEST_F(Scene, CgOptionsNeedCg) {
 }
 
 TEST_F(Scene, FeaturesNotSupportedYet) {
-  expect_error(kBase + "obstacles:\n  - {name: floor, type: plane}\n", ":12:1: obstacles: not supported yet (planned: obstacles)");
-  expect_error(kBase + "contact: {enabled: true}\n",
-               ":12:1: contact: not supported yet (planned: contact); only 'enabled: false' is accepted");
-  expect_error(kBase + "contact: {enabled: no}\n", ":12:11: contact.enabled: expected true or false, got 'no'");
-  expect_error(kBase + "contact: {friction: 0.3}\n",
-               ":12:1: contact: not supported yet (planned: contact); only 'enabled: false' is accepted");
   expect_error(kBase + "output: {jacobians: [young]}\n", ":12:10: output.jacobians: not supported yet (planned: jacobians)");
-  expect_error(kBase + "output: {fields: [x, contact]}\n",
-               ":12:22: output.fields[1]: 'contact' is not supported yet (planned: contact)");
+  expect_error(kBase + "contact: {enabled: no}\n", ":12:11: contact.enabled: expected true or false, got 'no'");
+  expect_error(edit("  steps: 10", "  steps: 10\n  newton_iterations: 3") + "contact: {friction: 0.3}\n",
+               ":5:3: simulation.newton_iterations: contact with newton_iterations > 1 is not supported yet (the contact "
+               "step is the paper's linearized step)");
+  expect_error(edit("  dt: 0.01\n  steps: 10", "  integrator: static") + "contact: {friction: 0.3}\n",
+               ":3:3: simulation.integrator: contact with integrator 'static' is not supported yet (use implicit_euler "
+               "with damping, or contact: {enabled: false})");
+}
+
+// ---------------------------------------------------------------------------
+// Obstacles and contact
+
+TEST_F(Scene, ObstaclesAndContactParse) {
+  write_file(kDir / "meshes" / "key.stl", "solid key\nendsolid key\n");  // load_scene only checks that it exists
+  const SceneDesc s = load(kBase + R"(obstacles:
+  - {name: floor, type: plane, normal: [0, 0, 2], offset: -0.1}
+  - {name: support, type: box, center: [0, 0, 0], half_extents: [0.1, 0.2, 0.3], rotate_deg: [0, 0, 45]}
+  - {name: ball, type: sphere, center: [1, 2, 3], radius: 0.01}
+  - {name: rod, type: capsule, center: [0, 0, 1], radius: 0.02, half_length: 0.5}
+  - {name: can, type: cylinder, center: [0, 1, 0], radius: 0.03, half_length: 0.1, rotate_deg: [90, 0, 0]}
+  - {name: key, type: mesh, mesh: meshes/key.stl, mesh_scale: 0.001}
+contact:
+  friction: 0.4
+  pairs: [[beam, floor, 0.5], [beam, beam, 0.1]]
+  self_collision: true
+  margin: 2.0e-3
+  solver: pgs
+  tolerance: 1.0e-9
+  max_iterations: 77
+  polish: false
+output: {fields: [x, contact]}
+)");
+  ASSERT_EQ(s.obstacles.size(), 6u);
+  using K = ObstacleDesc::Kind;
+  EXPECT_EQ(s.obstacles[0].kind, K::plane);
+  EXPECT_EQ(s.obstacles[0].normal, Vec3(0, 0, 2));
+  EXPECT_EQ(s.obstacles[0].offset, -0.1);
+  EXPECT_EQ(s.obstacles[1].kind, K::box);
+  EXPECT_EQ(s.obstacles[1].half_extents, Vec3(0.1, 0.2, 0.3));
+  EXPECT_EQ(s.obstacles[1].rotate_deg, Vec3(0, 0, 45));
+  EXPECT_EQ(s.obstacles[2].kind, K::sphere);
+  EXPECT_EQ(s.obstacles[2].radius, 0.01);
+  EXPECT_EQ(s.obstacles[3].kind, K::capsule);
+  EXPECT_EQ(s.obstacles[3].half_length, 0.5);
+  EXPECT_EQ(s.obstacles[4].kind, K::cylinder);
+  EXPECT_EQ(s.obstacles[5].kind, K::mesh);
+  EXPECT_EQ(s.obstacles[5].mesh, kDir / "meshes" / "key.stl");
+  EXPECT_EQ(s.obstacles[5].mesh_scale, 0.001);
+  EXPECT_TRUE(s.contact.enabled);
+  EXPECT_EQ(s.contact.friction, 0.4);
+  ASSERT_EQ(s.contact.pairs.size(), 2u);
+  EXPECT_EQ(s.contact.pairs[0].first, "beam");
+  EXPECT_EQ(s.contact.pairs[0].second, "floor");
+  EXPECT_EQ(s.contact.pairs[0].mu, 0.5);
+  EXPECT_EQ(s.contact.pairs[1].second, "beam");
+  EXPECT_TRUE(s.contact.self_collision);
+  EXPECT_EQ(s.contact.margin, 2e-3);
+  EXPECT_EQ(s.contact.solver, ContactDesc::Solver::pgs);
+  EXPECT_EQ(s.contact.tolerance, 1e-9);
+  EXPECT_EQ(s.contact.max_iterations, 77);
+  EXPECT_FALSE(s.contact.polish);
+  EXPECT_TRUE(s.output.contact);
+}
+
+TEST_F(Scene, ContactDefaults) {
+  const SceneDesc s = load(kBase + "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: 0}]\ncontact: {}\n");
+  EXPECT_TRUE(s.contact.enabled);
+  EXPECT_EQ(s.contact.friction, 0.0);
+  EXPECT_TRUE(s.contact.pairs.empty());
+  EXPECT_FALSE(s.contact.self_collision);
+  EXPECT_EQ(s.contact.margin, 1e-3);
+  EXPECT_EQ(s.contact.solver, ContactDesc::Solver::admm);
+  EXPECT_EQ(s.contact.tolerance, 1e-8);
+  EXPECT_EQ(s.contact.max_iterations, 1000);
+  EXPECT_TRUE(s.contact.polish);
+  EXPECT_FALSE(load(kBase + "contact: {enabled: false, friction: 0.3}\n").contact.enabled);
+  EXPECT_FALSE(load(kBase).contact.enabled);
+}
+
+TEST_F(Scene, ObstacleErrors) {
+  expect_error(kBase + "obstacles:\n  - {name: floor, type: plane}\n", ":13:5: obstacles[0]: a plane obstacle needs 'normal'");
+  expect_error(kBase + "obstacles:\n  - {name: floor, type: plane, normal: [0, 0, 1], offset: 0, radius: 1}\n",
+               ":13:62: obstacles[0].radius: not used by a plane obstacle");
+  expect_error(kBase + "obstacles:\n  - {name: floor, type: plane, normal: [0, 0, 0], offset: 0}\n",
+               ":13:32: obstacles[0].normal: must not be the zero vector");
+  expect_error(kBase + "obstacles:\n  - {name: b, type: box, center: [0, 0, 0], half_extents: [1, 0, 1]}\n",
+               ":13:45: obstacles[0].half_extents: must be > 0 on every axis, got 0");
+  expect_error(kBase + "obstacles:\n  - {name: c, type: cylinder, center: [0, 0, 0], radius: 1}\n",
+               ":13:5: obstacles[0]: a cylinder obstacle needs 'half_length'");
+  expect_error(kBase + "obstacles:\n  - {name: s, type: sphere, center: [0, 0, 0], radius: -1}\n",
+               ":13:48: obstacles[0].radius: must be > 0, got -1");
+  expect_error(kBase + "obstacles:\n  - {name: k, type: mesh, mesh: meshes/nokey.stl}\n",
+               ":13:27: obstacles[0].mesh: mesh file not found: " + (kDir / "meshes" / "nokey.stl").string());
+  expect_error(kBase + "obstacles:\n  - {name: beam, type: sphere, center: [0, 0, 0], radius: 1}\n",
+               ":13:6: obstacles[0].name: obstacle name 'beam' is also a body's name (contact pairs refer to either)");
+  expect_error(kBase + "obstacles:\n  - {name: s, type: sphere, center: [0, 0, 0], radius: 1}\n"
+                       "  - {name: s, type: sphere, center: [0, 0, 0], radius: 1}\n",
+               ":14:6: obstacles[1].name: duplicate obstacle name 's' (also obstacles[0])");
+  expect_error(kBase + "obstacles:\n  - {name: s, type: cone, center: [0, 0, 0], radius: 1}\n",
+               ":13:15: obstacles[0].type: must be one of: plane, box, sphere, capsule, cylinder, mesh; got 'cone'");
+}
+
+TEST_F(Scene, ContactErrors) {
+  const std::string base = kBase + "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: 0}]\n";
+  expect_error(base + "contact: {pairs: [[beam, flor, 0.3]]}\n",
+               ":13:26: contact.pairs[0][1]: unknown body or obstacle 'flor'");
+  expect_error(base + "contact: {pairs: [[floor, beam, 0.3]]}\n",
+               ":13:20: contact.pairs[0][0]: must be a body (put the obstacle 'floor' second)");
+  expect_error(base + "contact: {pairs: [[beam, floor, -1]]}\n",
+               ":13:33: contact.pairs[0][2]: friction must be a number >= 0, got -1");
+  expect_error(base + "contact: {pairs: [[beam, floor, high]]}\n",
+               ":13:33: contact.pairs[0][2]: friction must be a number >= 0, got 'high'");
+  expect_error(base + "contact: {pairs: [[beam, floor]]}\n",
+               ":13:19: contact.pairs[0]: expected a list of 3 [body, obstacle-or-body, mu], got a list of 2 items");
+  expect_error(base + "contact: {pairs: [[beam, floor, 0.1], [beam, floor, 0.2]]}\n",
+               ":13:39: contact.pairs[1]: duplicate pair [beam, floor] (also contact.pairs[0])");
+  expect_error(base + "contact: {friction: -0.1}\n", ":13:11: contact.friction: must be >= 0, got -0.1");
+  expect_error(base + "contact: {solver: lcp}\n", ":13:11: contact.solver: must be one of: admm, pgs; got 'lcp'");
+  expect_error(base + "contact: {tolerance: 0}\n", ":13:11: contact.tolerance: must be > 0, got 0");
+  expect_error(base + "contact: {max_iterations: 0}\n", ":13:11: contact.max_iterations: must be >= 1, got 0");
 }
 
 // ---------------------------------------------------------------------------
@@ -614,8 +726,7 @@ TEST_F(Scene, SetErrors) {
   EXPECT_EQ(error(kBase, {"bodies.beam.material.law=neohookean"}),
             "--set: bodies[0].material.law: must be one of: corotational, stvk, neo_hookean, linear; got 'neohookean' (did you mean "
             "'neo_hookean'?)");
-  EXPECT_EQ(error(kBase, {"contact.enabled=true"}),
-            "--set: contact: not supported yet (planned: contact); only 'enabled: false' is accepted");
+  EXPECT_EQ(error(kBase, {"contact.solver=lcp"}), "--set: contact.solver: must be one of: admm, pgs; got 'lcp'");
   EXPECT_EQ(error(kBase, {"softdiff=2"}), "--set: softdiff: unsupported format version '2' (supported: 1)");
 }
 

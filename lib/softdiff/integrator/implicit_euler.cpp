@@ -2,6 +2,7 @@
 
 #include <softdiff/core/assert.hpp>
 
+#include <softdiff/contact/contact_step.hpp>
 #include <softdiff/core/timer.hpp>
 
 #include <chrono>
@@ -175,6 +176,13 @@ StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, 
   data.timings.solve += seconds_since(t0);
   data.newton_iterations_used = 1;
   data.newton_residual = 0;
+
+  // Contact (paper eq. 2): out.v = v_free on entry, v_f on return.
+  if (model.contact.enabled) {
+    SOFTDIFF_DEMAND(model.step.newton_iterations == 1, "contact needs the linearized step (newton_iterations = 1)");
+    status = contact::resolve_contacts(model, data, in, out.v, step_index);
+    if (!status.ok()) return status;
+  }
 
   // 3. Newton iterations on the nonlinear implicit Euler equations (optional).
   if (model.step.newton_iterations > 1) {

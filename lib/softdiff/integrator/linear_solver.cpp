@@ -5,7 +5,9 @@
 #include <Eigen/IterativeLinearSolvers>
 #include <Eigen/SparseCholesky>
 #include <cholmod.h>
+#include <algorithm>
 #include <string>
+#include <vector>
 
 namespace softdiff::integrator {
 
@@ -18,6 +20,23 @@ bool LinearSolver::solve(const MatX& B, MatX& X) {
     ok = solve(b, x) && ok;
     X.col(k) = x;
   }
+  return ok;
+}
+
+bool LinearSolver::inverse_congruence(const SparseMatrix& B, MatX& G) {
+  const Eigen::Index m = B.cols();
+  G.resize(m, m);
+  if (m == 0) return true;
+  constexpr Eigen::Index block = 64;
+  MatX rhs, X;
+  bool ok = true;
+  for (Eigen::Index c0 = 0; c0 < m; c0 += block) {
+    const Eigen::Index bs = std::min(block, m - c0);
+    rhs = MatX(B.middleCols(c0, bs));
+    ok = solve(rhs, X) && ok;
+    G.middleCols(c0, bs).noalias() = B.transpose() * X;
+  }
+  G = 0.5 * (G + G.transpose()).eval();
   return ok;
 }
 
@@ -41,6 +60,9 @@ class CholmodSolver final : public LinearSolver {
     if (X_) cholmod_free_dense(&X_, &common_);
     if (Y_) cholmod_free_dense(&Y_, &common_);
     if (E_) cholmod_free_dense(&E_, &common_);
+    if (Xb_) cholmod_free_dense(&Xb_, &common_);
+    if (Yb_) cholmod_free_dense(&Yb_, &common_);
+    if (Eb_) cholmod_free_dense(&Eb_, &common_);
     cholmod_finish(&common_);
   }
   std::string name() const override { return "cholmod"; }
@@ -89,6 +111,48 @@ class CholmodSolver final : public LinearSolver {
     return true;
   }
 
+  // G = B^T A^{-1} B by blocks of columns: X = A^{-1} B_block with one supernodal
+  // solve of a dense (n x 64) right-hand side (BLAS-3 in the supernodes), then
+  // G(:, block) = B^T X (B has a few entries per column). The cost is
+  // (m / 64) solves, i.e. it grows with the number of contacts, never with n^2; no
+  // n x m matrix is ever stored. The upper triangle is computed and mirrored, so G
+  // is exactly symmetric.
+  bool inverse_congruence(const SparseMatrix& B, MatX& G) override {
+    SOFTDIFF_DEMAND(factored_, "inverse_congruence() without a valid factorization");
+    const Eigen::Index n = B.rows(), m = B.cols();
+    G.resize(m, m);
+    if (m == 0) return true;
+    constexpr Eigen::Index block = 64;
+    const Eigen::Index bs_max = std::min(block, m);
+    if (block_.rows() != n || block_.cols() != bs_max) block_.resize(n, bs_max);
+    Bt_ = B.transpose();  // (m x n) row access to B's columns' dual
+    for (Eigen::Index c0 = 0; c0 < m; c0 += block) {
+      const Eigen::Index bs = std::min(block, m - c0);
+      auto rhs = block_.leftCols(bs);
+      rhs.setZero();
+      for (Eigen::Index j = 0; j < bs; ++j)
+        for (SparseMatrix::InnerIterator it(B, c0 + j); it; ++it) rhs(it.row(), j) = it.value();
+      cholmod_dense D;
+      D.nrow = n;
+      D.ncol = bs;
+      D.nzmax = n * bs;
+      D.d = n;
+      D.x = block_.data();
+      D.z = nullptr;
+      D.xtype = CHOLMOD_REAL;
+      D.dtype = CHOLMOD_DOUBLE;
+      const int ok = cholmod_solve2(CHOLMOD_A, factor_, &D, nullptr, &Xb_, nullptr, &Yb_, &Eb_, &common_);
+      SOFTDIFF_DEMAND(ok, "cholmod_solve2 failed (status " + std::to_string(common_.status) + ")");
+      const Eigen::Map<const MatX, 0, Eigen::OuterStride<>> X(static_cast<const double*>(Xb_->x), n, bs,
+                                                               Eigen::OuterStride<>(static_cast<Eigen::Index>(Xb_->d)));
+      // Rows 0 .. c0 + bs of G(:, block): the upper triangle and the diagonal block.
+      G.block(0, c0, c0 + bs, bs).noalias() = Bt_.topRows(c0 + bs) * X;
+    }
+    for (Eigen::Index j = 0; j < m; ++j)
+      for (Eigen::Index i = j + 1; i < m; ++i) G(i, j) = G(j, i);
+    return true;
+  }
+
   double factor_nonzeros() const override { return common_.lnz; }
   double factor_flops() const override { return common_.fl; }
 
@@ -118,6 +182,9 @@ class CholmodSolver final : public LinearSolver {
   cholmod_dense* X_ = nullptr;
   cholmod_dense* Y_ = nullptr;
   cholmod_dense* E_ = nullptr;
+  cholmod_dense *Xb_ = nullptr, *Yb_ = nullptr, *Eb_ = nullptr;  // inverse_congruence's blocks
+  MatX block_;                     // inverse_congruence's right-hand sides (n x 64)
+  Eigen::SparseMatrix<double, Eigen::RowMajor, int> Bt_;  // B^T, rows = columns of B
   bool factored_ = false;
 };
 

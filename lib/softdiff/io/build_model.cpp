@@ -194,6 +194,72 @@ void build_actuation(const SceneDesc& scene, const std::vector<fem::BodyModel>& 
 
 }  // namespace
 
+collision::Obstacle build_obstacle(const ObstacleDesc& d) {
+  collision::Obstacle o;
+  o.name = d.name;
+  using K = ObstacleDesc::Kind;
+  using S = collision::ShapeKind;
+  switch (d.kind) {
+    case K::plane: o.kind = S::plane; break;
+    case K::box: o.kind = S::box; break;
+    case K::sphere: o.kind = S::sphere; break;
+    case K::capsule: o.kind = S::capsule; break;
+    case K::cylinder: o.kind = S::cylinder; break;
+    case K::mesh: o.kind = S::mesh; break;
+  }
+  o.normal = d.normal;
+  o.offset = d.offset;
+  o.center = d.center;
+  o.rotation = rotation_from_euler_deg(d.rotate_deg);
+  o.half_extents = d.half_extents;
+  o.radius = d.radius;
+  o.half_length = d.half_length;
+  try {
+    if (d.kind == K::mesh) o.mesh = collision::read_triangle_surface(d.mesh, d.mesh_scale);
+    collision::prepare(o);
+  } catch (const InputError& e) {
+    fail(d.where, e.what());
+  }
+  return o;
+}
+
+// Contact: obstacles, body surfaces in global node indices, pair rules (scene.md
+// `contact`; the rules of scene.cpp's header), solver options.
+void build_contact(const SceneDesc& scene, Model& model) {
+  const ContactDesc& c = scene.contact;
+  if (!c.enabled) return;
+  auto& settings = model.contact;
+  settings.enabled = true;
+  auto& det = settings.detection;
+  det.margin = c.margin;
+  for (const auto& b : model.fem.bodies) {
+    collision::BodySurface s = collision::make_surface(b.name, b.surface, b.node_begin);
+    det.surfaces.push_back(std::move(s));
+    det.names.push_back(b.name);
+  }
+  for (const auto& od : scene.obstacles) {
+    det.obstacles.push_back(build_obstacle(od));
+    det.names.push_back(od.name);
+  }
+  auto index_of = [&](const std::string& name) {
+    return static_cast<int>(std::find(det.names.begin(), det.names.end(), name) - det.names.begin());
+  };
+  const int num_bodies = static_cast<int>(model.fem.bodies.size());
+  if (c.pairs.empty())
+    for (int b = 0; b < num_bodies; ++b)
+      for (int o = 0; o < static_cast<int>(scene.obstacles.size()); ++o) det.pairs.push_back({b, num_bodies + o, c.friction});
+  for (const auto& p : c.pairs) det.pairs.push_back({index_of(p.first), index_of(p.second), p.mu});
+  if (c.self_collision)
+    for (int b = 0; b < num_bodies; ++b) {
+      const bool listed = std::any_of(det.pairs.begin(), det.pairs.end(), [&](const auto& r) { return r.a == b && r.b == b; });
+      if (!listed) det.pairs.push_back({b, b, c.friction});
+    }
+  settings.ncp.solver = c.solver == ContactDesc::Solver::pgs ? contact::NcpSolverKind::pgs : contact::NcpSolverKind::admm;
+  settings.ncp.tolerance = c.tolerance;
+  settings.ncp.max_iterations = c.max_iterations;
+  settings.ncp.polish = c.polish;
+}
+
 Model build_model(const SceneDesc& scene, BuildReport* report) {
   Model model;
   model.name = scene.name;
@@ -268,6 +334,8 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
   const bool is_static = sim.integrator == Integrator::static_equilibrium;
   fem::build_fem_model(std::move(bodies), fixed, sim.gravity, model.fem,
                        is_static ? model.actuation.stiffness_cliques() : std::vector<std::vector<int>>{});
+
+  build_contact(scene, model);
 
   const int ndof = 3 * model.fem.num_nodes;
   model.initial.t = 0;

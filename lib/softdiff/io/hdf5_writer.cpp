@@ -144,10 +144,12 @@ Handle dataset_access(bool direct) {
   return access;
 }
 
-// A float64 dataset of shape (rows, d1[, d2]) that grows by one row at a time.
+// A dataset of shape (rows, d1[, d2]) that grows by one row (or by any number of
+// rows, for tables) at a time. Float64 unless created as a table of another type.
 struct Appendable {
   std::string path;
   bool direct = false;
+  hid_t memory_type = H5T_NATIVE_DOUBLE;
   int rank = 1;
   std::array<hsize_t, 3> dims{0, 0, 0};  // dims[0]: rows written
   std::array<hsize_t, 3> row{1, 0, 0};   // shape of one row: (1, d1, d2)
@@ -166,8 +168,28 @@ struct Appendable {
     if (H5Sset_extent_simple(file_space.get(), rank, grown.data(), max_dims.data()) < 0) return false;
     if (H5Sselect_hyperslab(file_space.get(), H5S_SELECT_SET, start.data(), nullptr, row.data(), nullptr) < 0)
       return false;
-    if (H5Dwrite(dataset.get(), H5T_NATIVE_DOUBLE, memory_space.get(), file_space.get(), H5P_DEFAULT, values) < 0)
+    if (H5Dwrite(dataset.get(), memory_type, memory_space.get(), file_space.get(), H5P_DEFAULT, values) < 0)
       return false;
+    dims = grown;
+    return true;
+  }
+
+  // Appends `count` rows at once (count >= 1).
+  bool append_rows(const void* values, hsize_t count) {
+    std::array<hsize_t, 3> grown = dims;
+    grown[0] += count;
+    const std::array<hsize_t, 3> start{dims[0], 0, 0};
+    std::array<hsize_t, 3> block = row;
+    block[0] = count;
+    std::array<hsize_t, 3> max_dims = dims;
+    max_dims[0] = H5S_UNLIMITED;
+    if (H5Dset_extent(dataset.get(), grown.data()) < 0) return false;
+    if (H5Sset_extent_simple(file_space.get(), rank, grown.data(), max_dims.data()) < 0) return false;
+    if (H5Sselect_hyperslab(file_space.get(), H5S_SELECT_SET, start.data(), nullptr, block.data(), nullptr) < 0)
+      return false;
+    Handle memory(H5Screate_simple(rank, block.data(), nullptr), H5Sclose);
+    if (!memory.valid()) return false;
+    if (H5Dwrite(dataset.get(), memory_type, memory.get(), file_space.get(), H5P_DEFAULT, values) < 0) return false;
     dims = grown;
     return true;
   }
@@ -325,9 +347,11 @@ struct Hdf5Writer::Impl {
   // An empty (0, d1[, d2]) float64 dataset, unlimited along its first dimension.
   // `direct`: one row per chunk, written straight from the caller's memory.
   Appendable create_appendable(const std::string& path, std::vector<hsize_t> row_shape, hsize_t chunk_rows,
-                               hsize_t chunk_cols, bool direct) {
+                               hsize_t chunk_cols, bool direct, hid_t file_type = H5T_IEEE_F64LE,
+                               hid_t memory_type = H5T_NATIVE_DOUBLE) {
     Appendable out;
     out.path = path;
+    out.memory_type = memory_type;
     out.rank = 1 + static_cast<int>(row_shape.size());
     SOFTDIFF_DEMAND(out.rank <= 3, "appendable datasets have at most 3 dimensions");
     std::array<hsize_t, 3> max_dims{H5S_UNLIMITED, 0, 0};
@@ -351,7 +375,7 @@ struct Hdf5Writer::Impl {
     // H5Dwrite then writes the caller's buffer to the file without a copy.
     if (direct && H5Pset_fill_time(creation.get(), H5D_FILL_TIME_NEVER) < 0)
       fail("cannot set up the fill value of " + path);
-    out.dataset = create_dataset(path, H5T_IEEE_F64LE, out.file_space.get(), creation.get(), access.get());
+    out.dataset = create_dataset(path, file_type, out.file_space.get(), creation.get(), access.get());
     return out;
   }
 
@@ -544,6 +568,64 @@ struct Hdf5Writer::Impl {
     }
   }
 
+  int add_table(const std::string& path, const std::vector<int>& row_shape, Hdf5Writer::Element type) {
+    SOFTDIFF_DEMAND(!finished, "add_table after finish");
+    SOFTDIFF_DEMAND(row_shape.size() <= 2, "tables have at most 3 dimensions");
+    require_new_path(path);
+    hid_t file_type = H5T_IEEE_F64LE, memory_type = H5T_NATIVE_DOUBLE;
+    std::size_t element_bytes = 8;
+    switch (type) {
+      case Hdf5Writer::Element::f64: break;
+      case Hdf5Writer::Element::i64: file_type = H5T_STD_I64LE; memory_type = H5T_NATIVE_INT64; break;
+      case Hdf5Writer::Element::i32: file_type = H5T_STD_I32LE; memory_type = H5T_NATIVE_INT32; element_bytes = 4; break;
+      case Hdf5Writer::Element::i8: file_type = H5T_STD_I8LE; memory_type = H5T_NATIVE_INT8; element_bytes = 1; break;
+    }
+    std::size_t row_bytes = element_bytes;
+    std::vector<hsize_t> shape;
+    for (int d : row_shape) {
+      SOFTDIFF_DEMAND(d > 0, "table row dimensions must be positive");
+      shape.push_back(static_cast<hsize_t>(d));
+      row_bytes *= static_cast<std::size_t>(d);
+    }
+    const hsize_t chunk_rows = rows_per_chunk(row_bytes, kSeriesChunkBytes, kMaxChunkRows);
+    const hsize_t chunk_cols = shape.empty() ? 1 : shape[0];
+    series.push_back(create_appendable(path, shape, chunk_rows, chunk_cols, false, file_type, memory_type));
+    return static_cast<int>(series.size()) - 1;
+  }
+
+  void append_rows(int handle, const void* rows, long count) {
+    SOFTDIFF_DEMAND(!finished, "append_rows after finish");
+    SOFTDIFF_DEMAND(handle >= 0 && handle < static_cast<int>(series.size()), "unknown table handle");
+    SOFTDIFF_DEMAND(count >= 0 && (count == 0 || rows != nullptr), "bad rows");
+    if (count == 0) return;
+    Appendable& target = series[static_cast<std::size_t>(handle)];
+    const hsize_t before = target.dims[0];
+    if (!target.append_rows(rows, static_cast<hsize_t>(count))) {
+      const std::string reason = hdf5_reason();
+      target.roll_back(file.get(), before);
+      H5Eclear2(H5E_DEFAULT);
+      throw ComputationError(partial_name() + ": cannot append " + std::to_string(count) + " rows to " +
+                             target.path + ": " + reason);
+    }
+  }
+
+  void write_strings(const std::string& path, const std::vector<std::string>& values) {
+    SOFTDIFF_DEMAND(!finished, "write_strings after finish");
+    require_new_path(path);
+    Handle type(H5Tcopy(H5T_C_S1), H5Tclose);
+    if (!type.valid() || H5Tset_size(type.get(), H5T_VARIABLE) < 0 || H5Tset_cset(type.get(), H5T_CSET_UTF8) < 0)
+      fail("cannot create the string type of " + path);
+    const std::array<hsize_t, 1> shape{values.size()};
+    Handle space(H5Screate_simple(1, shape.data(), nullptr), H5Sclose);
+    if (!space.valid()) fail("cannot create the dataspace of " + path);
+    Handle dataset = create_dataset(path, type.get(), space.get(), H5P_DEFAULT, H5P_DEFAULT);
+    std::vector<const char*> pointers;
+    for (const auto& v : values) pointers.push_back(v.c_str());
+    if (!values.empty() && H5Dwrite(dataset.get(), type.get(), H5S_ALL, H5S_ALL, H5P_DEFAULT, pointers.data()) < 0)
+      fail("cannot write " + path);
+    if (!dataset.reset()) fail("cannot close " + path);
+  }
+
   void write_matrix(const std::string& path, const MatX& value,
                     const std::vector<std::pair<std::string, std::string>>& attributes) {
     SOFTDIFF_DEMAND(!finished, "write_matrix after finish");
@@ -638,6 +720,16 @@ void Hdf5Writer::append_frame(double time, const VecX& x, const VecX* v, double 
 int Hdf5Writer::add_series(const std::string& path, int width) { return impl_->add_series(path, width); }
 
 void Hdf5Writer::append_series(int handle, const double* row) { impl_->append_series(handle, row); }
+
+int Hdf5Writer::add_table(const std::string& path, const std::vector<int>& row_shape, Element type) {
+  return impl_->add_table(path, row_shape, type);
+}
+
+void Hdf5Writer::append_rows(int handle, const void* rows, long count) { impl_->append_rows(handle, rows, count); }
+
+void Hdf5Writer::write_strings(const std::string& path, const std::vector<std::string>& values) {
+  impl_->write_strings(path, values);
+}
 
 void Hdf5Writer::write_matrix(const std::string& path, const MatX& value,
                               const std::vector<std::pair<std::string, std::string>>& attributes) {

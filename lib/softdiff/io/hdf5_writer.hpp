@@ -57,6 +57,15 @@ class Hdf5Writer {
   int add_series(const std::string& path, int width);
   void append_series(int handle, const double* row);
 
+  // Ragged per-frame tables (e.g. /contact/*): a dataset of shape (N, row_shape...)
+  // of the given element type that grows by any number of rows per call (rows
+  // given row-major, of the element type: double, int64_t, int32_t, int8_t).
+  enum class Element { f64, i64, i32, i8 };
+  int add_table(const std::string& path, const std::vector<int>& row_shape, Element type);
+  void append_rows(int handle, const void* rows, long count);
+  // A 1-D dataset of variable-length UTF-8 strings, written once.
+  void write_strings(const std::string& path, const std::vector<std::string>& values);
+
   // A dense matrix written once (e.g. /jacobians/<theta>), with string attributes.
   void write_matrix(const std::string& path, const MatX& value,
                     const std::vector<std::pair<std::string, std::string>>& attributes = {});

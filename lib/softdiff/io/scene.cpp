@@ -33,8 +33,20 @@
 //     body type to soft; damping values are >= 0.
 //   - implicit_euler needs exactly one of steps/duration; with integrator static,
 //     dt, steps and duration are errors (they mean nothing there).
-//   - A present `contact` section without `enabled: false` asks for contact: not
-//     supported yet. Empty actuators/effectors/obstacles/jacobians lists are accepted.
+//   - Empty actuators/effectors/obstacles/jacobians lists are accepted. A `contact`
+//     section is enabled unless it says `enabled: false`; `contact: {enabled: false}`
+//     or no section: no collision detection at all.
+//   - Obstacle keys are per type: plane {normal, offset}; box {center, half_extents,
+//     rotate_deg}; sphere {center, radius}; capsule and cylinder {center, radius,
+//     half_length (extension), rotate_deg} (axis: local z); mesh {mesh, mesh_scale}.
+//     A key of another type is an error. Obstacle names share one namespace with
+//     body names (contact pairs refer to either).
+//   - contact.pairs [a, b, mu]: a is a body; b an obstacle, another body (soft-soft
+//     contact) or a itself (self-contact for that body only). Without pairs: every
+//     body vs every obstacle with `friction`. self_collision: true adds every body
+//     against itself with `friction`.
+//   - contact with integrator static, or with newton_iterations > 1: not supported
+//     yet (an error naming the key).
 //   - Numbers are plain YAML numbers: a quoted "1e5" is a string, not a number.
 //     Integers may be written 1e3. Booleans are true/false.
 //   - A map key given with no value (`damping:`) is an empty map; an empty list key
@@ -128,6 +140,8 @@ class Reader {
                              "' (also " + desc.actuators[q].where.path + ")");
       scene.bodies.push_back(std::move(desc));
     }
+    read_obstacles(root, scene);
+    read_contact(root, scene);
     read_output(root, scene.output);
   }
 
@@ -395,6 +409,123 @@ class Reader {
       for (const Node& a : axes->items) f.axes[static_cast<std::size_t>(a.scalar[0] - 'x')] = true;
     }
     return f;
+  }
+
+  void read_obstacles(const Node& root, SceneDesc& scene) const {
+    const Node* list = root.get("obstacles");
+    if (!list) return;
+    for (std::size_t i = 0; i < list->items.size(); ++i) {
+      const Node& item = list->items[i];
+      const std::string path = yaml::index_path("obstacles", i);
+      ObstacleDesc o;
+      o.where = ctx_.where(item.mark, path);
+      o.name = get(item, "name")->scalar;
+      const std::string type = get(item, "type")->scalar;
+      using K = ObstacleDesc::Kind;
+      std::vector<std::string> allowed = {"name", "type"}, needed;
+      if (type == "plane") { o.kind = K::plane; needed = {"normal", "offset"}; }
+      else if (type == "box") { o.kind = K::box; needed = {"center", "half_extents"}; allowed.push_back("rotate_deg"); }
+      else if (type == "sphere") { o.kind = K::sphere; needed = {"center", "radius"}; }
+      else if (type == "capsule") { o.kind = K::capsule; needed = {"center", "radius", "half_length"}; allowed.push_back("rotate_deg"); }
+      else if (type == "cylinder") { o.kind = K::cylinder; needed = {"center", "radius", "half_length"}; allowed.push_back("rotate_deg"); }
+      else { o.kind = K::mesh; needed = {"mesh"}; allowed.push_back("mesh_scale"); }
+      allowed.insert(allowed.end(), needed.begin(), needed.end());
+      for (const Entry& e : item.entries)
+        if (std::find(allowed.begin(), allowed.end(), e.key) == allowed.end())
+          ctx_.fail(e.key_mark, path + "." + e.key, "not used by a " + type + " obstacle");
+      for (const std::string& k : needed)
+        if (!item.find(k)) ctx_.fail(item.mark, path, "a " + type + " obstacle needs '" + k + "'");
+      o.normal = vec3(get(item, "normal"), o.normal);
+      o.offset = number(get(item, "offset"), o.offset);
+      o.center = vec3(get(item, "center"), o.center);
+      o.half_extents = vec3(get(item, "half_extents"), o.half_extents);
+      o.rotate_deg = vec3(get(item, "rotate_deg"), o.rotate_deg);
+      o.radius = number(get(item, "radius"), o.radius);
+      o.half_length = number(get(item, "half_length"), o.half_length);
+      o.mesh_scale = number(get(item, "mesh_scale"), o.mesh_scale);
+      if (o.kind == K::plane && !(o.normal.norm() > 0))
+        ctx_.fail(item.find("normal")->key_mark, path + ".normal", "must not be the zero vector");
+      if (o.kind == K::box)
+        for (int k = 0; k < 3; ++k)
+          if (!(o.half_extents[k] > 0))
+            ctx_.fail(item.find("half_extents")->key_mark, path + ".half_extents",
+                      "must be > 0 on every axis, got " + format_number(o.half_extents[k]));
+      if (o.kind == K::mesh) {
+        const Entry* mesh = item.find("mesh");
+        o.mesh = (folder_ / fs::path(mesh->value.scalar)).lexically_normal();
+        std::error_code ec;
+        const fs::file_status status = fs::status(o.mesh, ec);
+        if (!fs::exists(status)) ctx_.fail(mesh->key_mark, path + ".mesh", "mesh file not found: " + o.mesh.string());
+        if (fs::is_directory(status))
+          ctx_.fail(mesh->key_mark, path + ".mesh", "is a directory, not a mesh file: " + o.mesh.string());
+      }
+      for (const auto& b : scene.bodies)
+        if (b.name == o.name)
+          ctx_.fail(item.find("name")->key_mark, path + ".name",
+                    "obstacle name '" + o.name + "' is also a body's name (contact pairs refer to either)");
+      for (const auto& other : scene.obstacles)
+        if (other.name == o.name)
+          ctx_.fail(item.find("name")->key_mark, path + ".name",
+                    "duplicate obstacle name '" + o.name + "' (also " + other.where.path + ")");
+      scene.obstacles.push_back(std::move(o));
+    }
+  }
+
+  void read_contact(const Node& root, SceneDesc& scene) const {
+    const Entry* section = root.find("contact");
+    if (!section || section->value.is_null()) return;
+    const Node& c = section->value;
+    ContactDesc& d = scene.contact;
+    d.where = where(*section, "contact");
+    d.enabled = boolean(get(c, "enabled"), true);
+    if (!d.enabled) return;
+    d.friction = number(get(c, "friction"), d.friction);
+    d.self_collision = boolean(get(c, "self_collision"), d.self_collision);
+    d.margin = number(get(c, "margin"), d.margin);
+    if (const Node* solver = get(c, "solver")) d.solver = solver->scalar == "pgs" ? ContactDesc::Solver::pgs : ContactDesc::Solver::admm;
+    d.tolerance = number(get(c, "tolerance"), d.tolerance);
+    d.max_iterations = static_cast<int>(integer(get(c, "max_iterations"), d.max_iterations));
+    d.polish = boolean(get(c, "polish"), d.polish);
+    auto is_body = [&](const std::string& n) {
+      return std::any_of(scene.bodies.begin(), scene.bodies.end(), [&](const BodyDesc& b) { return b.name == n; });
+    };
+    auto is_obstacle = [&](const std::string& n) {
+      return std::any_of(scene.obstacles.begin(), scene.obstacles.end(), [&](const ObstacleDesc& o) { return o.name == n; });
+    };
+    if (const Node* pairs = get(c, "pairs"))
+      for (std::size_t i = 0; i < pairs->items.size(); ++i) {
+        const Node& item = pairs->items[i];
+        const std::string path = yaml::index_path("contact.pairs", i);
+        ContactPairDesc p;
+        p.where = ctx_.where(item.mark, path);
+        p.first = item.items[0].scalar;
+        p.second = item.items[1].scalar;
+        if (!is_body(p.first))
+          ctx_.fail(item.items[0].mark, path + "[0]",
+                    is_obstacle(p.first) ? "must be a body (put the obstacle '" + p.first + "' second)"
+                                         : "unknown body '" + p.first + "'");
+        if (!is_body(p.second) && !is_obstacle(p.second))
+          ctx_.fail(item.items[1].mark, path + "[1]", "unknown body or obstacle '" + p.second + "'");
+        const std::optional<double> mu = yaml::to_number(item.items[2]);
+        if (!mu || !(*mu >= 0) || !std::isfinite(*mu))
+          ctx_.fail(item.items[2].mark, path + "[2]",
+                    "friction must be a number >= 0, got " + (mu ? format_number(*mu) : yaml::describe(item.items[2])));
+        p.mu = *mu;
+        for (const auto& q : d.pairs)
+          if ((q.first == p.first && q.second == p.second) || (q.first == p.second && q.second == p.first))
+            ctx_.fail(item.mark, path, "duplicate pair [" + p.first + ", " + p.second + "] (also " + q.where.path + ")");
+        d.pairs.push_back(p);
+      }
+    const Entry* integrator = nullptr;
+    if (const Node* sim = root.get("simulation"); sim && sim->is_map()) integrator = sim->find("integrator");
+    if (scene.simulation.integrator == Integrator::static_equilibrium)
+      ctx_.fail(integrator ? integrator->key_mark : section->key_mark, "simulation.integrator",
+                "contact with integrator 'static' is not supported yet (use implicit_euler with damping, or contact: {enabled: false})");
+    if (scene.simulation.newton_iterations > 1) {
+      const Entry* n = root.get("simulation")->find("newton_iterations");
+      ctx_.fail(n->key_mark, "simulation.newton_iterations",
+                "contact with newton_iterations > 1 is not supported yet (the contact step is the paper's linearized step)");
+    }
   }
 
   void read_output(const Node& root, OutputDesc& out) const {

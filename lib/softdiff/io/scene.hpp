@@ -83,6 +83,42 @@ struct BodyDesc {
   Where where;
 };
 
+// A static rigid obstacle (scene.md `obstacles`), world coordinates.
+struct ObstacleDesc {
+  enum class Kind { plane, box, sphere, capsule, cylinder, mesh } kind = Kind::plane;
+  std::string name;
+  Vec3 normal{0, 0, 1};          // plane (not yet normalized)
+  double offset = 0;             // plane
+  Vec3 center = Vec3::Zero();    // box, sphere, capsule, cylinder
+  Vec3 half_extents = Vec3::Zero();  // box
+  Vec3 rotate_deg = Vec3::Zero();    // box, capsule, cylinder (XYZ Euler, R = Rz Ry Rx)
+  double radius = 0;             // sphere, capsule, cylinder
+  double half_length = 0;        // capsule, cylinder (extension): along the local z axis
+  std::filesystem::path mesh;    // mesh: .stl or .msh, resolved against the scene folder
+  double mesh_scale = 1.0;       // mesh
+  Where where;
+};
+
+// One `contact.pairs` entry: [body, obstacle-or-body, mu].
+struct ContactPairDesc {
+  std::string first, second;
+  double mu = 0;
+  Where where;
+};
+
+struct ContactDesc {
+  bool enabled = false;
+  double friction = 0;           // default Coulomb mu
+  std::vector<ContactPairDesc> pairs;  // empty: every soft body vs every obstacle
+  bool self_collision = false;
+  double margin = 1e-3;
+  enum class Solver { admm, pgs } solver = Solver::admm;
+  double tolerance = 1e-8;
+  int max_iterations = 1000;
+  bool polish = true;            // extension
+  Where where;
+};
+
 enum class Integrator { implicit_euler, static_equilibrium };
 enum class LinearSolverKind { cholmod, ldlt, cg };
 
@@ -118,6 +154,8 @@ struct SceneDesc {
   SimulationDesc simulation;
   LinearSolverDesc linear_solver;
   std::vector<BodyDesc> bodies;
+  std::vector<ObstacleDesc> obstacles;
+  ContactDesc contact;
   OutputDesc output;
 };
 

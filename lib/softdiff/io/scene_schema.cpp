@@ -11,14 +11,6 @@ using yaml::Node;
 
 bool empty_list(const Node& n) { return n.is_null() || (n.is_sequence() && n.items.empty()); }
 
-// contact absent, empty, or {enabled: false, ...}: no collision detection. An
-// `enabled` that is not a boolean passes here so that validation names its type.
-bool contact_disabled(const Node& n) {
-  if (n.is_null()) return true;
-  const Node* enabled = n.is_map() ? n.get("enabled") : nullptr;
-  return enabled && yaml::to_bool(*enabled) != true;
-}
-
 SpecPtr box6() { return numbers(6, "a list of 6 numbers [xmin, ymin, zmin, xmax, ymax, zmax]"); }
 
 // {box: [...]} | {group: name} | {nodes: [...]}, for `fixed` with optional axes.
@@ -87,6 +79,7 @@ SpecPtr obstacle() {
       key("radius", number(gt(0))),
       key("mesh", text(true)),
       key("mesh_scale", number(gt(0))),
+      key("half_length", number(gt(0))),  // extension: capsule, cylinder
   });
 }
 
@@ -102,6 +95,7 @@ SpecPtr contact() {
       key("solver", choice({"admm", "pgs"})),
       key("tolerance", number(gt(0))),
       key("max_iterations", integer(ge(1))),
+      key("polish", boolean()),  // extension
   });
 }
 
@@ -157,7 +151,7 @@ SpecPtr linear_solver() {
 
 SpecPtr output() {
   const auto field_names =
-      choice({"x", "v", "actuation", "effectors"}, {}, {{"contact", "contact"}});
+      choice({"x", "v", "contact", "actuation", "effectors"});
   const auto parameters =
       choice({"young", "poisson", "density", "rayleigh_mass", "rayleigh_stiffness", "friction", "actuation", "x0", "v0"});
   return map({
@@ -175,8 +169,8 @@ SpecPtr scene() {
       key("simulation", simulation()),
       key("linear_solver", linear_solver()),
       required("bodies", list(body(), "a list", 1, false, "body")),
-      planned(key("obstacles", list(obstacle(), "a list", 0, false, "obstacle")), "obstacles", empty_list),
-      planned(key("contact", contact()), "contact", contact_disabled, "only 'enabled: false' is accepted"),
+      key("obstacles", list(obstacle(), "a list", 0, false, "obstacle")),
+      key("contact", contact()),
       key("output", output()),
   });
 }

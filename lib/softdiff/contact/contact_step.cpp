@@ -1,0 +1,177 @@
+#include <softdiff/contact/contact_step.hpp>
+
+#include <softdiff/core/timer.hpp>
+
+#include <algorithm>
+#include <cmath>
+
+namespace softdiff::contact {
+
+namespace {
+
+// Identity of a contact across steps: kind, sides, nodes (the warm start key).
+std::array<int, 6> key_of(const collision::Contact& c) {
+  return {static_cast<int>(c.kind) * 1000003 + c.side_a * 1009 + c.side_b, c.nodes[0], c.nodes[1], c.nodes[2], c.nodes[3],
+          -1};
+}
+
+}  // namespace
+
+void contact_jacobian_transpose(const Model& model, const collision::ContactSet& contacts, SparseMatrix& Ht) {
+  const int ndof = 3 * model.fem.num_nodes;
+  const int nc = contacts.size();
+  Ht.resize(ndof, 3 * nc);
+  Ht.setZero();
+  // Each column holds 3 entries per node of the contact.
+  Eigen::VectorXi per_column(3 * nc);
+  for (int i = 0; i < nc; ++i) per_column.segment<3>(3 * i).setConstant(3 * contacts.contacts[i].count);
+  Ht.reserve(per_column);
+  const auto& fixed = model.fem.fixed;
+  for (int i = 0; i < nc; ++i) {
+    const auto& c = contacts.contacts[i];
+    for (int r = 0; r < 3; ++r) {
+      const Vec3 axis = c.frame.col(r);
+      // Sorted rows within a column: nodes in increasing order.
+      std::array<int, 4> order{0, 1, 2, 3};
+      for (int a = 1; a < c.count; ++a)  // insertion sort of at most 4
+        for (int b = a; b > 0 && c.nodes[order[b]] < c.nodes[order[b - 1]]; --b) std::swap(order[b], order[b - 1]);
+      for (int q = 0; q < c.count; ++q) {
+        const int k = order[q];
+        for (int d = 0; d < 3; ++d) {
+          const int dof = 3 * c.nodes[k] + d;
+          const double value = c.weights[k] * axis[d];
+          if (!fixed[dof] && value != 0) Ht.coeffRef(dof, 3 * i + r) += value;
+        }
+      }
+    }
+  }
+  Ht.makeCompressed();
+}
+
+StepStatus resolve_contacts(const Model& model, Data& data, const State& in, VecX& v, long step_index) {
+  auto& cd = data.contact;
+  const double h = model.step.dt;
+  StepStatus status;
+  status.step = step_index;
+
+  auto t0 = Clock::now();
+  // Speculative margin: a pair further apart than the margin at x_i may still close
+  // within the step. Widening the margin to twice the largest node displacement the
+  // step predicts (h max |v| over v_i and v_free; twice for two moving sides) keeps
+  // every such pair in the NCP: its gap term phi / h lets it approach by exactly phi,
+  // and it carries no force unless it closes (docs/method.md "Contact").
+  double speed = 0;
+  for (Eigen::Index k = 0; k + 2 < v.size(); k += 3)
+    speed = std::max({speed, v.segment<3>(k).squaredNorm(), in.v.segment<3>(k).squaredNorm()});
+  const double margin = std::max(model.contact.detection.margin, 2 * h * std::sqrt(speed));
+  cd.margin = margin;
+  cd.stats = cd.detector->detect(in.x, cd.contacts, margin);
+  // Keep the widened pairs only where their own motion can close the gap: a contact
+  // further than the margin stays if gap < margin + 2 h |v_rel| (v_rel, the relative
+  // velocity of its two points under v_i or v_free, whichever is faster; the factor 2
+  // covers the acceleration the contact forces themselves may cause).
+  // A contact none of whose nodes can move (all their dofs fixed) has H_i = 0: its
+  // row of the NCP would read sigma_i = g_i whatever lambda_i, infeasible if the two
+  // fixed parts overlap (a self-contact inside a clamped region). It is dropped.
+  {
+    const auto& fixed = model.fem.fixed;
+    auto& list = cd.contacts.contacts;
+    const double base = model.contact.detection.margin;
+    const bool widened = margin > base;
+    list.erase(std::remove_if(list.begin(), list.end(),
+                              [&](const collision::Contact& c) {
+                                bool movable = false;
+                                for (int k = 0; k < c.count && !movable; ++k)
+                                  movable = c.weights[k] != 0 && !(fixed[3 * c.nodes[k]] && fixed[3 * c.nodes[k] + 1] &&
+                                                                   fixed[3 * c.nodes[k] + 2]);
+                                if (!movable) return true;
+                                if (!widened) return false;
+                                // Between soft surfaces only the model's margin counts on the
+                                // penetrating side: a vertex behind a triangle of the same
+                                // body by more than that is the other face of a thin part,
+                                // not a contact.
+                                if (c.kind != collision::ContactKind::vertex_obstacle && c.gap <= -base) return true;
+                                if (c.gap < base) return false;
+                                Vec3 a = Vec3::Zero(), b = Vec3::Zero();
+                                for (int k = 0; k < c.count; ++k) {
+                                  a += c.weights[k] * v.segment<3>(3 * c.nodes[k]);
+                                  b += c.weights[k] * in.v.segment<3>(3 * c.nodes[k]);
+                                }
+                                return !(c.gap < base + 2 * h * std::max(a.norm(), b.norm()));
+                              }),
+               list.end());
+  }
+  data.timings.detection += seconds_since(t0);
+  const int nc = cd.contacts.size();
+  cd.v_free = v;
+  if (nc == 0) {
+    cd.result = {};
+    cd.result.converged = true;
+    cd.lambda.resize(0);
+    cd.sigma.resize(0);
+    cd.modes.clear();
+    cd.previous_keys.clear();
+    cd.previous_lambda.resize(0);
+    return status;
+  }
+
+  // H_c^T, G = h H A^{-1} H^T, g = H v_free + phi / h on normal rows.
+  t0 = Clock::now();
+  contact_jacobian_transpose(model, cd.contacts, cd.Ht);
+  if (!data.solver->inverse_congruence(cd.Ht, cd.G)) {
+    status.code = StepStatus::Code::solver_failed;
+    status.detail = "iterative linear solver did not reach its tolerance (Delassus matrix)";
+    return status;
+  }
+  cd.G *= h;
+  cd.g.noalias() = cd.Ht.transpose() * v;
+  cd.mu.resize(nc);
+  for (int i = 0; i < nc; ++i) {
+    const auto& c = cd.contacts.contacts[i];
+    cd.g[3 * i + 2] += c.gap / h;
+    cd.mu[i] = c.mu;
+  }
+  data.timings.delassus += seconds_since(t0);
+
+  // Warm start from the previous step's forces of the same contacts.
+  t0 = Clock::now();
+  cd.lambda.setZero(3 * nc);
+  for (int i = 0; i < nc; ++i) {
+    auto key = key_of(cd.contacts.contacts[i]);
+    const auto it = std::lower_bound(cd.previous_keys.begin(), cd.previous_keys.end(), key);
+    if (it != cd.previous_keys.end() && std::equal(key.begin(), key.end() - 1, it->begin()))
+      cd.lambda.segment<3>(3 * i) = cd.previous_lambda.segment<3>(3 * (*it)[5]);
+  }
+  cd.result = cd.solver.solve(cd.G, cd.g, cd.mu, model.contact.ncp, cd.lambda, cd.sigma, cd.modes);
+  data.timings.ncp += seconds_since(t0);
+  for (int k = 0; k < cd.lambda.size(); ++k)
+    if (!std::isfinite(cd.lambda[k])) {
+      status.code = StepStatus::Code::non_finite;
+      status.detail = "contact force of contact " + std::to_string(k / 3) + " is not finite";
+      return status;
+    }
+
+  // The correction: v_f = v_free + h A^{-1} H^T lambda.
+  t0 = Clock::now();
+  cd.rhs.noalias() = h * (cd.Ht * cd.lambda);
+  if (!data.solver->solve(cd.rhs, cd.correction)) {
+    status.code = StepStatus::Code::solver_failed;
+    status.detail = "iterative linear solver did not reach its tolerance (contact correction)";
+    return status;
+  }
+  v += cd.correction;
+  for (int k = 0; k < v.size(); ++k)
+    if (model.fem.fixed[k]) v[k] = 0;
+
+  cd.previous_keys.resize(static_cast<std::size_t>(nc));
+  for (int i = 0; i < nc; ++i) {
+    cd.previous_keys[i] = key_of(cd.contacts.contacts[i]);
+    cd.previous_keys[i][5] = i;
+  }
+  std::sort(cd.previous_keys.begin(), cd.previous_keys.end());
+  cd.previous_lambda = cd.lambda;
+  data.timings.correction += seconds_since(t0);
+  return status;
+}
+
+}  // namespace softdiff::contact

@@ -1,0 +1,26 @@
+#pragma once
+// The contact stage of the step (docs/method.md "Contact", paper eq. 2), between
+// the free solve and the final update:
+//   1. collision detection at x_i (contacts with frames, gaps, Jacobian weights);
+//   2. H_c^T (3n x 3nc, projected on the free dofs), the Delassus matrix
+//      G = h H_c A^{-1} H_c^T from the step's factorization (LinearSolver::
+//      inverse_congruence), g = H_c v_free + (0, 0, phi_i / h);
+//   3. the NCP (ADMM or PGS, then polish), warm-started from the previous step's
+//      forces of the same contacts (same kind, sides and nodes);
+//   4. the correction v_f = v_free + h A^{-1} H_c^T lambda_c (one more solve).
+// With no contact detected, v_f = v_free and nothing else runs.
+#include <softdiff/data.hpp>
+#include <softdiff/model.hpp>
+
+namespace softdiff::contact {
+
+// v: in, v_free; out, v_f. Returns not ok for a failed solve. A contact solve that
+// misses its tolerance is not a failure here: data.contact.result.converged tells
+// (the caller warns, or stops with --strict).
+StepStatus resolve_contacts(const Model& model, Data& data, const State& in, VecX& v, long step_index);
+
+// H_c^T (3n x 3nc) of a contact set: column 3i+r is row r of H_i = C_i^T sum_k w_k E_k,
+// with the fixed dofs' rows removed (H_c <- H_c Pi).
+void contact_jacobian_transpose(const Model& model, const collision::ContactSet& contacts, SparseMatrix& Ht);
+
+}  // namespace softdiff::contact

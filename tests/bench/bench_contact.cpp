@@ -1,0 +1,131 @@
+// The contact stage of the step (issue "Frictional contact"): a slab pressed onto a
+// plane by gravity with 10, 100 and 1000 active vertex contacts, for ADMM and PGS.
+// After 5 warm-up steps (contacts established, warm start in place), each iteration
+// is one step. Counters (per step): contacts, step_ms and its split detection_ms,
+// delassus_ms (H_c, G from forward solves, g), ncp_ms (solver + polish),
+// correction_ms (one more solve), fem_ms (assembly + factorization + free solve);
+// iterations (ADMM/PGS); floor_ms: a bare CHOLMOD factorize + solve of the same A in
+// the same run; ratio = step_ms / floor_ms. BM_Gripper: the same counters on the
+// shipped gripper scene (soft fingers, self-contact, a fixed object).
+#include <softdiff/collision/obstacle.hpp>
+#include <softdiff/data.hpp>
+#include <softdiff/integrator/implicit_euler.hpp>
+#include <softdiff/integrator/linear_solver.hpp>
+#include <softdiff/io/build_model.hpp>
+#include <softdiff/io/scene.hpp>
+#include <support/contact.hpp>
+#include <support/meshes.hpp>
+#include <support/model_builder.hpp>
+
+#include <benchmark/benchmark.h>
+
+#include <chrono>
+#include <string>
+
+using namespace softdiff;
+
+namespace {
+
+constexpr long kGripperWarmup = 100;  // steps until the fingers hold the object (configs/gripper.yaml)
+
+Model slab(int contacts, contact::NcpSolverKind solver) {
+  int nx = 4, ny = 1;  // (nx + 1)(ny + 1) bottom vertices
+  if (contacts == 100) nx = ny = 9;
+  if (contacts == 1000) { nx = 39; ny = 24; }
+  test::BodySpec spec;
+  spec.young = 1e5;
+  spec.poisson = 0.3;
+  spec.density = 1000;
+  spec.rayleigh_stiffness = 1e-3;
+  const double cell = 0.01;
+  Model model = test::make_model(test::box_mesh(nx, ny, 2, nx * cell, ny * cell, 2 * cell), spec, Vec3(0, 0, -9.81), 0.005);
+  test::ContactSpec cs;
+  cs.mu = 0.5;
+  cs.ncp.solver = solver;
+  cs.ncp.tolerance = 1e-8;
+  cs.ncp.max_iterations = 5000;
+  test::enable_contact(model, {test::plane(Vec3(0, 0, 1), 0)}, cs);
+  return model;
+}
+
+// Runs `warmup` steps, then one step per benchmark iteration (the state advances),
+// and sets the counters of the header.
+void time_contact_steps(benchmark::State& st, const Model& model, long warmup) {
+  using Clock = std::chrono::steady_clock;
+  Data data(model);
+  State s = model.initial, next;
+  long k = 0;
+  for (; k < warmup; ++k) {
+    const auto status = integrator::implicit_euler_step(model, data, s, next, k + 1);
+    if (!status.ok()) {
+      st.SkipWithError(describe(model, status).c_str());
+      return;
+    }
+    std::swap(s, next);
+  }
+  StepTimings total;
+  double wall = 0, iterations = 0, contacts = 0;
+  long steps = 0;
+  for (auto _ : st) {
+    const auto t0 = Clock::now();
+    const auto status = integrator::implicit_euler_step(model, data, s, next, ++k);
+    wall += std::chrono::duration<double>(Clock::now() - t0).count();
+    if (!status.ok()) {
+      st.SkipWithError(describe(model, status).c_str());
+      break;
+    }
+    std::swap(s, next);
+    total += data.timings;
+    iterations += data.contact.result.iterations;
+    contacts += data.contact.contacts.size();
+    ++steps;
+  }
+  if (steps == 0) return;
+  auto floor_solver = integrator::make_linear_solver({integrator::SolverKind::cholmod});
+  floor_solver->analyze(data.A);
+  VecX x;
+  double floor = 0;
+  for (int r = 0; r < 5; ++r) {
+    const auto t0 = Clock::now();
+    floor_solver->factorize(data.A);
+    floor_solver->solve(data.rhs, x);
+    floor += std::chrono::duration<double>(Clock::now() - t0).count() / 5;
+  }
+  const double per = 1e3 / static_cast<double>(steps);
+  st.counters["contacts"] = contacts / steps;
+  st.counters["dofs"] = 3.0 * model.fem.num_nodes;
+  st.counters["step_ms"] = wall * per;
+  st.counters["fem_ms"] = (total.assembly + total.factorization + total.solve + total.other) * per;
+  st.counters["detection_ms"] = total.detection * per;
+  st.counters["delassus_ms"] = total.delassus * per;
+  st.counters["ncp_ms"] = total.ncp * per;
+  st.counters["correction_ms"] = total.correction * per;
+  st.counters["iterations"] = iterations / steps;
+  st.counters["floor_ms"] = 1e3 * floor;
+  st.counters["ratio"] = wall / steps / floor;
+  st.SetLabel(model.contact.ncp.solver == contact::NcpSolverKind::admm ? "admm" : "pgs");
+}
+
+void BM_Contact(benchmark::State& st) {
+  const auto solver = st.range(1) == 0 ? contact::NcpSolverKind::admm : contact::NcpSolverKind::pgs;
+  time_contact_steps(st, slab(static_cast<int>(st.range(0)), solver), 5);
+}
+
+BENCHMARK(BM_Contact)
+    ->ArgsProduct({{10, 100, 1000}, {0, 1}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MinTime(0.5);
+
+// The shipped gripper (configs/gripper.yaml) once its fingers hold the object:
+// GRIPPER_WARMUP steps first (the time the servos need to close them), then as above.
+void BM_Gripper(benchmark::State& st) {
+  const auto solver = st.range(0) == 0 ? "admm" : "pgs";
+  const Model model = io::build_model(io::load_scene(std::string(SOFTDIFF_SOURCE_DIR) + "/configs/gripper.yaml",
+                                                     {std::string("contact.solver=") + solver}));
+  time_contact_steps(st, model, kGripperWarmup);
+}
+
+BENCHMARK(BM_Gripper)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
+
+}  // namespace
