@@ -241,12 +241,16 @@ TEST(Cli, ShippedScenesRunAsShipped) {
     const std::string stem = entry.path().stem().string();
     SCOPED_TRACE(stem);
     const auto dir = fresh_dir("shipped_" + stem);
-    const auto r = run_cli("simulate " + entry.path().string() + " -o out.h5 --force --quiet", dir);
+    // The gripper runs its first 0.8 s here: the self-contact (from 0.6 s) and the first
+    // touches of the object (0.78 s). Its whole 1.6 s (~500-650 contacts a step, 3-7 s
+    // a step on one core) is BM_Gripper's and the scene's own business, not the suite's.
+    const std::string limit = stem == "gripper" ? " --duration 0.8" : "";
+    const auto r = run_cli("simulate " + entry.path().string() + " -o out.h5 --force --quiet" + limit, dir);
     EXPECT_EQ(r.code, 0) << r.err;
     EXPECT_EQ(r.err.find("warning"), std::string::npos) << r.err;
     EXPECT_EQ(status_attribute(dir / "out.h5"), "complete");
   }
-  EXPECT_GE(scenes, 4);
+  EXPECT_GE(scenes, 6);
 }
 
 TEST(Cli, RobotScenesWriteActuatorsAndEffectors) {
