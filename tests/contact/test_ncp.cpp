@@ -187,15 +187,12 @@ INSTANTIATE_TEST_SUITE_P(Solvers, SingleContact, ::testing::Values(NcpSolverKind
 // masses in [0.5, 2]; g = J v + (0, 0, phi_i) with v random and gaps phi_i in
 // [-0.5, 0.2] (a physical free velocity plus penetration: most contacts active, some
 // separating). rank(G) = min(3 nc, ndof). mu_value < 0 draws each mu from {0, 0.3, 10}.
-Problem random_problem(unsigned seed, int nc, int ndof, double mu_value) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(-1, 1), mass(0.5, 2), gap(-0.5, 0.2);
+// G = J M^{-1} J^T, g = J v with the normal rows shifted by a gap in [-0.5, 0.2], and mu
+// = mu_value, or (mu_value < 0) drawn from {0, 0.3, 10}: the common end of the generators.
+Problem delassus_problem(const MatX& J, const VecX& Minv, const VecX& v, double mu_value, std::mt19937& rng) {
+  std::uniform_real_distribution<double> gap(-0.5, 0.2);
   std::uniform_int_distribution<int> pick(0, 2);
-  MatX J(3 * nc, ndof);
-  for (Eigen::Index k = 0; k < J.size(); ++k) J.data()[k] = u(rng);
-  VecX Minv(ndof), v(ndof);
-  for (int k = 0; k < ndof; ++k) Minv[k] = 1 / mass(rng);
-  for (int k = 0; k < ndof; ++k) v[k] = u(rng);
+  const int nc = static_cast<int>(J.rows() / 3);
   Problem p;
   p.G = J * Minv.asDiagonal() * J.transpose();
   p.G = 0.5 * (p.G + p.G.transpose()).eval();
@@ -209,6 +206,17 @@ Problem random_problem(unsigned seed, int nc, int ndof, double mu_value) {
   return p;
 }
 
+Problem random_problem(unsigned seed, int nc, int ndof, double mu_value) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1), mass(0.5, 2);
+  MatX J(3 * nc, ndof);
+  for (Eigen::Index k = 0; k < J.size(); ++k) J.data()[k] = u(rng);
+  VecX Minv(ndof), v(ndof);
+  for (int k = 0; k < ndof; ++k) Minv[k] = 1 / mass(rng);
+  for (int k = 0; k < ndof; ++k) v[k] = u(rng);
+  return delassus_problem(J, Minv, v, mu_value, rng);
+}
+
 // Physically structured: each contact on 1-3 of nn nodes (barycentric weights), with
 // an orthonormal frame whose normal is within max_angle of +z; nodal masses in
 // [0.5, 2]. J^T's block of a contact is sum_k w_k C^T on its nodes, as in
@@ -219,8 +227,8 @@ Problem random_problem(unsigned seed, int nc, int ndof, double mu_value) {
 // (Dense random J with mu = 10 and many contacts per dof has no such guarantee.)
 Problem physical_problem(unsigned seed, int nc, int nn, double mu_value, double max_angle = 0.09) {
   std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(-1, 1), u01(0, 1), mass(0.5, 2), gap(-0.5, 0.2);
-  std::uniform_int_distribution<int> node(0, nn - 1), count(1, 3), pick(0, 2);
+  std::uniform_real_distribution<double> u(-1, 1), u01(0, 1), mass(0.5, 2);
+  std::uniform_int_distribution<int> node(0, nn - 1), count(1, 3);
   const double two_pi = 6.283185307179586;
   MatX J = MatX::Zero(3 * nc, 3 * nn);
   for (int i = 0; i < nc; ++i) {
@@ -239,17 +247,7 @@ Problem physical_problem(unsigned seed, int nc, int nn, double mu_value, double 
   VecX Minv(3 * nn), v(3 * nn);
   for (int b = 0; b < nn; ++b) Minv.segment<3>(3 * b).setConstant(1 / mass(rng));
   for (int k = 0; k < 3 * nn; ++k) v[k] = u(rng);
-  Problem p;
-  p.G = J * Minv.asDiagonal() * J.transpose();
-  p.G = 0.5 * (p.G + p.G.transpose()).eval();
-  p.g = J * v;
-  p.mu.resize(nc);
-  const double choices[3] = {0.0, 0.3, 10.0};
-  for (int i = 0; i < nc; ++i) {
-    p.g[3 * i + 2] += gap(rng);
-    p.mu[i] = mu_value >= 0 ? mu_value : choices[pick(rng)];
-  }
-  return p;
+  return delassus_problem(J, Minv, v, mu_value, rng);
 }
 
 struct RandomCase {
