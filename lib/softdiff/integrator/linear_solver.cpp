@@ -1,5 +1,7 @@
 #include <softdiff/integrator/linear_solver.hpp>
 
+#include <softdiff/integrator/cholmod_congruence.hpp>
+
 #include <softdiff/core/assert.hpp>
 
 #include <Eigen/IterativeLinearSolvers>
@@ -72,6 +74,7 @@ class CholmodSolver final : public LinearSolver {
     if (factor_) cholmod_free_factor(&factor_, &common_);
     factor_ = cholmod_analyze(&view, &common_);
     SOFTDIFF_DEMAND(factor_ != nullptr, "cholmod_analyze failed (status " + std::to_string(common_.status) + ")");
+    congruence_.reset();  // a new symbolic structure
   }
 
   FactorStatus factorize(const SparseMatrix& A) override {
@@ -117,8 +120,16 @@ class CholmodSolver final : public LinearSolver {
   // (m / 64) solves, i.e. it grows with the number of contacts, never with n^2; no
   // n x m matrix is ever stored. The upper triangle is computed and mirrored, so G
   // is exactly symmetric.
+  // G = B^T A^{-1} B: forward solves on the etree reach of B's distinct rows
+  // (SupernodalCongruence), or, where that declines, dense blocks of right-hand sides.
   bool inverse_congruence(const SparseMatrix& B, MatX& G) override {
     SOFTDIFF_DEMAND(factored_, "inverse_congruence() without a valid factorization");
+    if (congruence_.compute(factor_, B, G)) return true;
+    return dense_block_congruence(B, G);
+  }
+
+  // Blocks of 64 columns of B as dense right-hand sides, full solves, G block = B^T X.
+  bool dense_block_congruence(const SparseMatrix& B, MatX& G) {
     const Eigen::Index n = B.rows(), m = B.cols();
     G.resize(m, m);
     if (m == 0) return true;
@@ -184,6 +195,7 @@ class CholmodSolver final : public LinearSolver {
   cholmod_dense* E_ = nullptr;
   cholmod_dense *Xb_ = nullptr, *Yb_ = nullptr, *Eb_ = nullptr;  // inverse_congruence's blocks
   MatX block_;                     // inverse_congruence's right-hand sides (n x 64)
+  SupernodalCongruence congruence_;  // inverse_congruence's reach solves (buffers grow only)
   Eigen::SparseMatrix<double, Eigen::RowMajor, int> Bt_;  // B^T, rows = columns of B
   bool factored_ = false;
 };

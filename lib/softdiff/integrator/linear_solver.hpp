@@ -38,8 +38,10 @@ class LinearSolver {
   virtual bool solve(const MatX& B, MatX& X);
   // The congruence G = B^T A^{-1} B (m x m, dense, symmetric) for a sparse B (n x m)
   // with the last factorization: the Delassus matrix of the contacts (B = H_c^T).
-  // CHOLMOD: W = L^{-1} P B by forward solves on blocks of columns, kept sparse, then
-  // G = W^T W: the cost grows with the number of columns of B, not with n^2.
+  // CHOLMOD: forward solves Y = L^{-1} P E restricted to the elimination-tree reach of
+  // the distinct rows E of B, Z = Y^T Y, G = W^T Z W (cholmod_congruence.hpp); where
+  // that would cost more (rows not shared), dense blocks of 64 columns of B, full
+  // solves. Either way the cost grows with the number of columns of B, not with n^2.
   // Others: m solves. Returns false if an iterative solve missed its tolerance.
   virtual bool inverse_congruence(const SparseMatrix& B, MatX& G);
   // Figures of the last factorization, for reports: nonzeros in L, flops.
