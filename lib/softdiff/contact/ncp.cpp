@@ -28,14 +28,19 @@
 // Scales: lscale = max(|lambda|_inf, tiny), vscale = max(|g|_inf, tiny), tiny = 1e-300
 // (only guards a zero scale: lambda = 0 or g = 0 give zero residuals, not 0/0).
 //
-// Modes, eps = options.mode_threshold (relative):
-//   breaking  ||lambda_i|| <= eps lscale;
-//   sticking  otherwise, if mu_i > 0 and ||sigma_T,i|| <= eps vscale (lambda_N > 0 then
-//             makes sigma_N ~ 0 by complementarity);
-//   sliding   otherwise (then lambda_i is on the cone boundary at a solution). A
+// Modes, from the natural map of the NCP: with z_i = lambda_i - rho_i (sigma_i + Gamma_i),
+// rho_i = 1 / G_NN,i (a compliance, so z is a force), a solution satisfies
+// lambda_i = P_K(z_i) for every rho_i > 0, and the mode is the face of K that P_K(z_i)
+// lands on:
+//   breaking  mu ||z_T|| <= -z_N (z in the polar cone, P_K(z) = 0);
+//   sticking  mu > 0 and ||z_T|| <= mu z_N (z inside K, so sigma = 0);
+//   sliding   otherwise (P_K(z) on the boundary: lambda_T = -mu lambda_N t). A
 //             frictionless contact (mu_i = 0) that is not breaking is always "sliding":
 //             its equations sigma_N = 0, lambda_T = 0 hold whatever sigma_T is, while
 //             "sticking" (sigma_i = 0, 3 equations) would over-determine it.
+// Near a solution this compares lambda with sigma in the same units, so it needs no
+// threshold: an iterate at residual 1e-4 mostly has the right modes, and the polish
+// rounds correct the others (polish_rounds()).
 //
 // Non-finite input (G, g or mu not finite, or mu < 0): lambda = 0, sigma = 0 (G 0 + g is
 // not finite), all modes breaking, residuals +inf, converged = false, no iteration.
@@ -192,6 +197,9 @@ struct Buffers {
   std::vector<int> active;       // active contact ids (not breaking)
   MatX J;                        // (3 na x 3 na) Newton matrix of the mode equations
   VecX F, du, lambda_p, sigma_p; // (3 na), (3 na), (n), (n)
+  VecX lambda_kept, sigma_kept;                       // (n) polish rounds
+  std::vector<Mode> modes_try, modes_next, modes_kept;  // (nc) polish rounds
+  int newton_budget = 0;                              // Newton steps left to the polish rounds
   Eigen::CompleteOrthogonalDecomposition<MatX> cod;
   // working set (written by working_set_solve()); the reduced problem lives in the
   // leading part of these buffers, (3 nw x 3 nw) and (3 nw), nw <= nc
@@ -204,7 +212,8 @@ struct Buffers {
     if (x.size() == n) return;
     A.resize(n, n);
     Gw.resize(n * n);
-    for (VecX* v : {&x, &y, &z, &s, &rhs, &x_prev, &y_prev, &power, &lambda_best, &lambda_p, &sigma_p, &gw, &lw, &sw})
+    for (VecX* v : {&x, &y, &z, &s, &rhs, &x_prev, &y_prev, &power, &lambda_best, &lambda_p, &sigma_p, &lambda_kept,
+                     &sigma_kept, &gw, &lw, &sw})
       v->resize(n);
     muw.resize(n / 3);
     set.reserve(static_cast<std::size_t>(n / 3));
@@ -445,16 +454,19 @@ NcpResult pgs(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma) {
   return result;
 }
 
-void classify(const Problem& p, const VecX& lambda, const VecX& sigma, double eps, std::vector<Mode>& modes) {
-  const double lscale = std::max(lambda.cwiseAbs().maxCoeff(), tiny);
+void classify(const Problem& p, const VecX& lambda, const VecX& sigma, std::vector<Mode>& modes) {
+  const double Gmax = std::max(p.G.diagonal().maxCoeff(), tiny);
   modes.resize(static_cast<std::size_t>(p.nc));
   for (int i = 0; i < p.nc; ++i) {
-    if (lambda.segment<3>(3 * i).norm() <= eps * lscale)
-      modes[i] = Mode::breaking;
-    else if (p.mu[i] > 0 && sigma.segment<2>(3 * i).norm() <= eps * p.vscale)
-      modes[i] = Mode::sticking;
+    const double rho = 1 / std::max(p.G(3 * i + 2, 3 * i + 2), 1e-12 * Gmax);
+    const Vec3 z = lambda.segment<3>(3 * i) - rho * de_saxce(sigma.segment<3>(3 * i), p.mu[i]);
+    const double t = z.head<2>().norm();
+    if (p.mu[i] * t <= -z[2])
+      modes[i] = Mode::breaking;  // z in the polar cone of K, P_K(z) = 0 (mu = 0: z_N <= 0)
+    else if (p.mu[i] > 0 && t <= p.mu[i] * z[2])
+      modes[i] = Mode::sticking;  // z inside K
     else
-      modes[i] = Mode::sliding;
+      modes[i] = Mode::sliding;   // P_K(z) on the boundary (mu = 0: the ray)
   }
 }
 
@@ -487,14 +499,15 @@ bool polish(Buffers& w, const Problem& p, const VecX& lambda, const std::vector<
   w.J.resize(m, m);
   w.F.resize(m);
   w.cod.setThreshold(1e-13);
-  double previous = infinity;
-  for (int newton = 0; newton < 8; ++newton) {
+  // F (and J if asked) of the mode equations at w.lambda_p; returns max |F|.
+  auto evaluate = [&](bool jacobian) {
     w.sigma_p.noalias() = p.G * w.lambda_p;
     w.sigma_p += p.g;
     for (int a = 0; a < na; ++a) {
       const int i = w.active[a];
-      for (int r = 0; r < 3; ++r)
-        for (int b = 0; b < na; ++b) w.J.block<1, 3>(3 * a + r, 3 * b) = p.G.block<1, 3>(3 * i + r, 3 * w.active[b]);
+      if (jacobian)
+        for (int r = 0; r < 3; ++r)
+          for (int b = 0; b < na; ++b) w.J.block<1, 3>(3 * a + r, 3 * b) = p.G.block<1, 3>(3 * i + r, 3 * w.active[b]);
       if (modes[i] == Mode::sticking) {
         w.F.segment<3>(3 * a) = w.sigma_p.segment<3>(3 * i);
         continue;
@@ -508,6 +521,7 @@ bool polish(Buffers& w, const Problem& p, const VecX& lambda, const std::vector<
       const bool has_direction = mu > 0 && sn > 0;
       const Eigen::Vector2d t = has_direction ? Eigen::Vector2d(sT / sn) : Eigen::Vector2d::Zero();
       w.F.segment<2>(3 * a) = L * (w.lambda_p.segment<2>(3 * i) + mu * lN * t);
+      if (!jacobian) continue;
       if (has_direction) {
         const Eigen::Matrix2d P = (mu * lN / sn) * (Eigen::Matrix2d::Identity() - t * t.transpose());
         for (int b = 0; b < na; ++b)
@@ -518,19 +532,35 @@ bool polish(Buffers& w, const Problem& p, const VecX& lambda, const std::vector<
       w.J.block<2, 2>(3 * a, 3 * a) += L * Eigen::Matrix2d::Identity();
       w.J.block<2, 1>(3 * a, 3 * a + 2) += L * mu * t;
     }
-    const double norm = w.F.cwiseAbs().maxCoeff();
+    return w.F.cwiseAbs().maxCoeff();
+  };
+  double norm = evaluate(true);
+  for (int newton = 0; newton < 8 && w.newton_budget > 0; ++newton) {
     if (!std::isfinite(norm)) return false;
     // Converged to rounding: the equations' own size is ~eps L |lambda|.
-    if (norm >= previous) {  // no progress: back to the previous iterate
-      for (int a = 0; a < na; ++a) w.lambda_p.segment<3>(3 * w.active[a]) -= w.du.segment<3>(3 * a);
-      break;
-    }
     if (norm <= 1e-15 * std::max(p.vscale, L * w.lambda_p.cwiseAbs().maxCoeff())) break;
-    previous = norm;
+    --w.newton_budget;
     w.cod.compute(w.J);
     w.du = w.cod.solve(-w.F);
     if (!w.du.allFinite()) return false;
-    for (int a = 0; a < na; ++a) w.lambda_p.segment<3>(3 * w.active[a]) += w.du.segment<3>(3 * a);
+    // Backtracking on max |F| (the sliding equations are nonlinear; their Jacobian
+    // grows like 1 / ||sigma_T|| at a slowly sliding contact): halve the step until
+    // |F| decreases, at most 10 times. No decrease means that the mode equations have
+    // no solution near here (wrong modes: the least-squares step of a singular,
+    // inconsistent system): the full step is taken and the iteration ends, so that the
+    // modes of the resulting state can correct the guess (polish_rounds()).
+    double step = 1, next = infinity;
+    for (int half = 0; half <= 10; ++half, step *= 0.5) {
+      for (int a = 0; a < na; ++a) w.lambda_p.segment<3>(3 * w.active[a]) += step * w.du.segment<3>(3 * a);
+      next = evaluate(false);
+      if (next < norm) break;
+      for (int a = 0; a < na; ++a) w.lambda_p.segment<3>(3 * w.active[a]) -= step * w.du.segment<3>(3 * a);
+    }
+    if (!(next < norm)) {
+      for (int a = 0; a < na; ++a) w.lambda_p.segment<3>(3 * w.active[a]) += w.du.segment<3>(3 * a);
+      break;
+    }
+    norm = evaluate(true);
   }
   w.sigma_p.noalias() = p.G * w.lambda_p;
   w.sigma_p += p.g;
@@ -601,6 +631,60 @@ NcpResult working_set_solve(Buffers& w, const Problem& p, NcpSolverKind kind, Ve
   return result;
 }
 
+// The polish with mode corrections: polish with the solver's modes; while the result
+// is not within tolerance and the modes of the polished state (classify()) differ
+// from those used, polish again with them from the solver's lambda (at most
+// polish_max_rounds polishes and polish_max_newton Newton steps in all). The best polished solution is kept if its residuals
+// are below the solver's (`residuals`, updated); lambda, sigma, modes are then
+// replaced. Returns whether a polished solution was kept. A wrong mode guess costs
+// only time: acceptance is on the NCP residuals, which do not depend on the modes.
+constexpr int polish_max_rounds = 6;
+// Newton steps (factorizations of the 3 na x 3 na system) over all rounds of one call:
+// bounds the polish's cost at twice that of the one-shot polish (8 steps).
+constexpr int polish_max_newton = 16;
+bool polish_rounds(Buffers& w, const Problem& p, VecX& lambda, VecX& sigma, std::vector<Mode>& modes,
+                   NcpResiduals& residuals) {
+  w.modes_try = modes;
+  w.newton_budget = polish_max_newton;
+  bool kept = false;
+  for (int round = 0; round < polish_max_rounds; ++round) {
+    if (!polish(w, p, lambda, w.modes_try)) break;
+    const NcpResiduals r = residuals_of(w.lambda_p, w.sigma_p, p.mu, p.vscale);
+    if (r.max() < residuals.max() || (!kept && r.max() <= residuals.max())) {
+      w.lambda_kept = w.lambda_p;
+      w.sigma_kept = w.sigma_p;
+      w.modes_kept = w.modes_try;
+      residuals = r;
+      kept = true;
+    }
+    if (r.max() <= p.tolerance) break;
+    // The modes of the polished state (an active-set step: a contact whose polished
+    // state contradicts its mode, e.g. a breaking one with sigma_N < 0 or an active
+    // one with lambda_N < 0, gets the mode the state indicates).
+    classify(p, w.lambda_p, w.sigma_p, w.modes_next);
+    if (w.modes_next == w.modes_try) break;
+    std::swap(w.modes_next, w.modes_try);
+  }
+  if (kept) {
+    lambda = w.lambda_kept;
+    sigma = w.sigma_kept;
+    modes = w.modes_kept;
+  }
+  return kept;
+}
+
+// Classify (lambda, sigma), then polish with mode corrections if the polish is on and
+// the active contacts are at most polish_max_active; result.residuals and .polished
+// are updated when a polished solution is kept.
+void polish_if_small(Buffers& w, const Problem& p, const NcpOptions& options, VecX& lambda, VecX& sigma,
+                     std::vector<Mode>& modes, NcpResult& result) {
+  classify(p, lambda, sigma, modes);
+  const int active = p.nc - static_cast<int>(std::count(modes.begin(), modes.end(), Mode::breaking));
+  if (options.polish && p.nc > 0 && active <= options.polish_max_active &&
+      polish_rounds(w, p, lambda, sigma, modes, result.residuals))
+    result.polished = true;
+}
+
 }  // namespace
 
 struct NcpSolver::Workspace : Buffers {};
@@ -629,6 +713,7 @@ NcpResult NcpSolver::solve(const MatX& G, const VecX& g, const VecX& mu, const N
     return result;
   }
   const Problem p{G, g, mu, nc, g_scale(g), options.tolerance, options.max_iterations};
+  bool polish_done = false;
   if (options.working_set) {
     for (int i = 0; i < nc; ++i) lambda.segment<3>(3 * i) = project_cone(lambda.segment<3>(3 * i), mu[i]);
     sigma.noalias() = G * lambda;
@@ -639,32 +724,24 @@ NcpResult NcpSolver::solve(const MatX& G, const VecX& g, const VecX& mu, const N
     result = options.solver == NcpSolverKind::admm
                  ? admm(w, p, lambda, sigma, options.admm_fallback ? admm_stall_window : 0)
                  : pgs(w, p, lambda, sigma);
-    if (result.fallback_iterations < 0) {  // ADMM stalled: PGS from its iterate, the remaining budget
-      const Problem rest{G, g, mu, nc, p.vscale, options.tolerance, options.max_iterations - result.iterations};
-      const NcpResult q = pgs(w, rest, lambda, sigma);
-      result.fallback_iterations = q.iterations;
-      result.iterations += q.iterations;
-      result.residuals = q.residuals;
+    if (result.fallback_iterations < 0) {
+      // ADMM stalled. Its iterate usually has the right modes already: polish it first;
+      // if that does not reach the tolerance, PGS continues from ADMM's iterate with
+      // the remaining budget (and is polished in turn below).
+      result.fallback_iterations = 0;
+      polish_if_small(w, p, options, lambda, sigma, modes, result);
+      polish_done = result.residuals.max() <= options.tolerance;
+      if (!polish_done) {
+        result.polished = false;  // PGS starts from the better of ADMM's and the polished iterate
+        const Problem rest{G, g, mu, nc, p.vscale, options.tolerance, options.max_iterations - result.iterations};
+        const NcpResult q = pgs(w, rest, lambda, sigma);
+        result.fallback_iterations = q.iterations;
+        result.iterations += q.iterations;
+        result.residuals = q.residuals;
+      }
     }
   }
-
-  classify(p, lambda, sigma, options.mode_threshold, modes);
-  const int active = nc - static_cast<int>(std::count(modes.begin(), modes.end(), Mode::breaking));
-  if (options.polish && nc > 0 && active <= options.polish_max_active && polish(w, p, lambda, modes)) {
-    const NcpResiduals r = residuals_of(w.lambda_p, w.sigma_p, mu, p.vscale);
-    // Feasible with the same modes: the residuals (cone membership of lambda, sigma_N >= 0,
-    // complementarity) are not worse, and no sliding contact reversed its direction.
-    bool same_modes = true;
-    for (int i = 0; i < nc && same_modes; ++i)
-      if (modes[i] == Mode::sliding && mu[i] > 0)
-        same_modes = w.sigma_p.segment<2>(3 * i).dot(sigma.segment<2>(3 * i)) > 0;
-    if (same_modes && r.max() <= result.residuals.max()) {
-      lambda = w.lambda_p;
-      sigma = w.sigma_p;
-      result.residuals = r;
-      result.polished = true;
-    }
-  }
+  if (!polish_done) polish_if_small(w, p, options, lambda, sigma, modes, result);
   result.converged = result.residuals.max() <= options.tolerance;
   for (const Mode mode : modes) {
     if (mode == Mode::sticking) ++result.sticking;

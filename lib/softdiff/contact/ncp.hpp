@@ -10,9 +10,11 @@
 // Both stop when the three scaled residuals are below `tolerance`. Then the
 // solution is polished: with the contact modes fixed, the mode equations are
 // solved exactly (breaking: lambda_i = 0; sticking: sigma_i = 0; sliding:
-// sigma_N,i = 0 and lambda_T,i = -mu_i lambda_N,i sigma_T,i / ||sigma_T,i||), and
-// the polished solution is kept only if it is feasible with the same modes and
-// its residuals are not worse.
+// sigma_N,i = 0 and lambda_T,i = -mu_i lambda_N,i sigma_T,i / ||sigma_T,i||); when
+// the polished state contradicts some modes, they are corrected and the polish is
+// repeated (an active-set method, a few rounds). The best polished solution is kept
+// if its residuals are below the solver's. When ADMM stalls, the polish is tried
+// on its iterate before the PGS fallback.
 #include <softdiff/core/types.hpp>
 
 #include <algorithm>
@@ -30,7 +32,6 @@ struct NcpOptions {
   double tolerance = 1e-8;      // bounds the three scaled residuals
   int max_iterations = 1000;
   bool polish = true;
-  double mode_threshold = 1e-6; // eps of the mode classification, relative (see ncp.cpp)
   bool working_set = false;     // solve on a growing working set of contacts (exact; experimental, see ncp.cpp)
   bool admm_fallback = true;    // ADMM: finish with PGS from ADMM's iterate when ADMM stalls (see ncp.cpp)
   // The polish factorizes a dense (3 na x 3 na) system over the na non-breaking
