@@ -10,6 +10,7 @@
 
 #include <memory>
 #include <string>
+#include <utility>
 
 namespace softdiff {
 
@@ -64,7 +65,7 @@ struct ContactData {
   VecX correction;                  // (3n) h A^{-1} H_c^T lambda_c
   VecX rhs;                         // (3n) scratch
   // Warm start: the previous step's contacts (by key) and forces.
-  std::vector<std::array<int, 6>> previous_keys;  // sorted (key, index into previous_lambda)
+  std::vector<std::pair<collision::Contact::Key, int>> previous_keys;  // sorted (key, index into previous_lambda)
   VecX previous_lambda;
 };
 

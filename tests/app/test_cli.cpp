@@ -242,8 +242,8 @@ TEST(Cli, ShippedScenesRunAsShipped) {
     SCOPED_TRACE(stem);
     const auto dir = fresh_dir("shipped_" + stem);
     // The gripper runs its first 0.8 s here: the self-contact (from 0.6 s) and the first
-    // touches of the object (0.78 s). Its whole 1.6 s (~500-650 contacts a step, 3-7 s
-    // a step on one core) is BM_Gripper's and the scene's own business, not the suite's.
+    // touches of the object (0.78 s). Its whole 1.6 s (~500-680 contacts a step, ~1 s
+    // a step) is BM_Gripper's and the scene's own business, not the suite's.
     // The pianist runs its first 0.6 s: the keys at rest on their rails and finger1's
     // first touch of key1 (0.47 s, soft-soft); its whole 4.5 s is the scene's.
     const std::string limit = stem == "gripper" ? " --duration 0.8" : stem == "pianist" ? " --duration 0.6" : "";

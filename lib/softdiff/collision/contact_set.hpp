@@ -51,6 +51,10 @@ struct Contact {
   int feature_a = -1;
   int feature_b = -1;
   Feature kind_b = Feature::face;          // the kind of B's feature that holds point_b
+
+  // Identity across steps (kind, sides, nodes): the contact stage's warm-start key.
+  using Key = std::array<int, 7>;
+  Key key() const { return {static_cast<int>(kind), side_a, side_b, nodes[0], nodes[1], nodes[2], nodes[3]}; }
 };
 
 // A frame built deterministically from the unit normal n: t1 is the unit projection

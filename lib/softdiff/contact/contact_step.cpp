@@ -9,10 +9,40 @@ namespace softdiff::contact {
 
 namespace {
 
-// Identity of a contact across steps: kind, sides, nodes (the warm start key).
-std::array<int, 6> key_of(const collision::Contact& c) {
-  return {static_cast<int>(c.kind) * 1000003 + c.side_a * 1009 + c.side_b, c.nodes[0], c.nodes[1], c.nodes[2], c.nodes[3],
-          -1};
+// Keep the widened pairs only where their own motion can close the gap: a contact
+// further than the model's margin stays if gap < margin + 2 h |v_rel| (v_rel, the
+// relative velocity of its two points under v_i or v_free, whichever is faster; the
+// factor 2 covers the acceleration the contact forces themselves may cause).
+// A contact none of whose nodes can move (all their dofs fixed) has H_i = 0: its row
+// of the NCP would read sigma_i = g_i whatever lambda_i, infeasible if the two fixed
+// parts overlap (a self-contact inside a clamped region). It is dropped.
+// Between soft surfaces only the model's margin counts on the penetrating side: a
+// vertex behind a triangle by more than that is the other face of a thin part, not a
+// contact. margin: the (widened) margin detection used; v_i, v_free: the velocities.
+void drop_inert_contacts(const Model& model, double margin, const VecX& v_i, const VecX& v_free,
+                         std::vector<collision::Contact>& list) {
+  const auto& fixed = model.fem.fixed;
+  const double h = model.step.dt;
+  const double base = model.contact.detection.margin;
+  const bool widened = margin > base;
+  list.erase(std::remove_if(list.begin(), list.end(),
+                            [&](const collision::Contact& c) {
+                              bool movable = false;
+                              for (int k = 0; k < c.count && !movable; ++k)
+                                movable = c.weights[k] != 0 && !(fixed[3 * c.nodes[k]] && fixed[3 * c.nodes[k] + 1] &&
+                                                                 fixed[3 * c.nodes[k] + 2]);
+                              if (!movable) return true;
+                              if (!widened) return false;
+                              if (c.kind != collision::ContactKind::vertex_obstacle && c.gap <= -base) return true;
+                              if (c.gap < base) return false;
+                              Vec3 a = Vec3::Zero(), b = Vec3::Zero();
+                              for (int k = 0; k < c.count; ++k) {
+                                a += c.weights[k] * v_free.segment<3>(3 * c.nodes[k]);
+                                b += c.weights[k] * v_i.segment<3>(3 * c.nodes[k]);
+                              }
+                              return !(c.gap < base + 2 * h * std::max(a.norm(), b.norm()));
+                            }),
+             list.end());
 }
 
 }  // namespace
@@ -66,41 +96,7 @@ StepStatus resolve_contacts(const Model& model, Data& data, const State& in, Vec
   const double margin = std::max(model.contact.detection.margin, 2 * h * std::sqrt(speed));
   cd.margin = margin;
   cd.stats = cd.detector->detect(in.x, cd.contacts, margin);
-  // Keep the widened pairs only where their own motion can close the gap: a contact
-  // further than the margin stays if gap < margin + 2 h |v_rel| (v_rel, the relative
-  // velocity of its two points under v_i or v_free, whichever is faster; the factor 2
-  // covers the acceleration the contact forces themselves may cause).
-  // A contact none of whose nodes can move (all their dofs fixed) has H_i = 0: its
-  // row of the NCP would read sigma_i = g_i whatever lambda_i, infeasible if the two
-  // fixed parts overlap (a self-contact inside a clamped region). It is dropped.
-  {
-    const auto& fixed = model.fem.fixed;
-    auto& list = cd.contacts.contacts;
-    const double base = model.contact.detection.margin;
-    const bool widened = margin > base;
-    list.erase(std::remove_if(list.begin(), list.end(),
-                              [&](const collision::Contact& c) {
-                                bool movable = false;
-                                for (int k = 0; k < c.count && !movable; ++k)
-                                  movable = c.weights[k] != 0 && !(fixed[3 * c.nodes[k]] && fixed[3 * c.nodes[k] + 1] &&
-                                                                   fixed[3 * c.nodes[k] + 2]);
-                                if (!movable) return true;
-                                if (!widened) return false;
-                                // Between soft surfaces only the model's margin counts on the
-                                // penetrating side: a vertex behind a triangle of the same
-                                // body by more than that is the other face of a thin part,
-                                // not a contact.
-                                if (c.kind != collision::ContactKind::vertex_obstacle && c.gap <= -base) return true;
-                                if (c.gap < base) return false;
-                                Vec3 a = Vec3::Zero(), b = Vec3::Zero();
-                                for (int k = 0; k < c.count; ++k) {
-                                  a += c.weights[k] * v.segment<3>(3 * c.nodes[k]);
-                                  b += c.weights[k] * in.v.segment<3>(3 * c.nodes[k]);
-                                }
-                                return !(c.gap < base + 2 * h * std::max(a.norm(), b.norm()));
-                              }),
-               list.end());
-  }
+  drop_inert_contacts(model, margin, in.v, v, cd.contacts.contacts);
   data.timings.detection += seconds_since(t0);
   const int nc = cd.contacts.size();
   cd.v_free = v;
@@ -137,10 +133,11 @@ StepStatus resolve_contacts(const Model& model, Data& data, const State& in, Vec
   t0 = Clock::now();
   cd.lambda.setZero(3 * nc);
   for (int i = 0; i < nc; ++i) {
-    auto key = key_of(cd.contacts.contacts[i]);
-    const auto it = std::lower_bound(cd.previous_keys.begin(), cd.previous_keys.end(), key);
-    if (it != cd.previous_keys.end() && std::equal(key.begin(), key.end() - 1, it->begin()))
-      cd.lambda.segment<3>(3 * i) = cd.previous_lambda.segment<3>(3 * (*it)[5]);
+    const collision::Contact::Key key = cd.contacts.contacts[i].key();
+    const auto it = std::lower_bound(cd.previous_keys.begin(), cd.previous_keys.end(), key,
+                                     [](const auto& entry, const collision::Contact::Key& k) { return entry.first < k; });
+    if (it != cd.previous_keys.end() && it->first == key)
+      cd.lambda.segment<3>(3 * i) = cd.previous_lambda.segment<3>(3 * it->second);
   }
   cd.result = cd.solver.solve(cd.G, cd.g, cd.mu, model.contact.ncp, cd.lambda, cd.sigma, cd.modes);
   data.timings.ncp += seconds_since(t0);
@@ -164,10 +161,7 @@ StepStatus resolve_contacts(const Model& model, Data& data, const State& in, Vec
     if (model.fem.fixed[k]) v[k] = 0;
 
   cd.previous_keys.resize(static_cast<std::size_t>(nc));
-  for (int i = 0; i < nc; ++i) {
-    cd.previous_keys[i] = key_of(cd.contacts.contacts[i]);
-    cd.previous_keys[i][5] = i;
-  }
+  for (int i = 0; i < nc; ++i) cd.previous_keys[i] = {cd.contacts.contacts[i].key(), i};
   std::sort(cd.previous_keys.begin(), cd.previous_keys.end());
   cd.previous_lambda = cd.lambda;
   data.timings.correction += seconds_since(t0);

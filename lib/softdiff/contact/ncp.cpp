@@ -187,7 +187,7 @@ namespace {
 // the solvers below take the base, which needs no access to NcpSolver's private part.)
 struct Buffers {
   // ADMM (written by admm())
-  MatX A;                        // (n x n) storage of G_W + (rho + eta) I, then its Cholesky factor (in place)
+  MatX A;                        // (n x n) storage of G + (rho + eta) I, then its Cholesky factor (in place)
   VecX x, y, z, s, rhs;          // (n) ADMM iterates: x linear, y in K, z in K*, s = Gamma(z)
   VecX x_prev, y_prev;           // (n) the previous x, y (dual residual)
   VecX power;                    // (n) power iteration vector (largest eigenvalue of G)
@@ -201,23 +201,13 @@ struct Buffers {
   std::vector<Mode> modes_try, modes_next, modes_kept;  // (nc) polish rounds
   int newton_budget = 0;                              // Newton steps left to the polish rounds
   Eigen::CompleteOrthogonalDecomposition<MatX> cod;
-  // working set (written by working_set_solve()); the reduced problem lives in the
-  // leading part of these buffers, (3 nw x 3 nw) and (3 nw), nw <= nc
-  std::vector<int> set;          // the working set's contact ids, ascending
-  std::vector<char> in_set;      // (nc) membership
-  VecX Gw;                       // (n n) storage of G_W (column-major, leading dimension 3 nw)
-  VecX gw, muw, lw, sw;          // (n), (nc), (n), (n)
 
   void resize(Eigen::Index n) {
     if (x.size() == n) return;
     A.resize(n, n);
-    Gw.resize(n * n);
     for (VecX* v : {&x, &y, &z, &s, &rhs, &x_prev, &y_prev, &power, &lambda_best, &lambda_p, &sigma_p, &lambda_kept,
-                     &sigma_kept, &gw, &lw, &sw})
+                     &sigma_kept})
       v->resize(n);
-    muw.resize(n / 3);
-    set.reserve(static_cast<std::size_t>(n / 3));
-    in_set.resize(static_cast<std::size_t>(n / 3));
   }
 };
 
@@ -284,7 +274,7 @@ double largest_eigenvalue(const Eigen::Ref<const MatX>& G, VecRef v, VecRef w) {
 NcpResult admm(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma, int stall_window) {
   NcpResult result;
   const Eigen::Index n = 3 * static_cast<Eigen::Index>(p.nc);
-  // Views on the workspace's leading parts (the problem may be a reduced one).
+  // Views on the leading parts of the workspace (its buffers only grow).
   auto x = w.x.head(n), y = w.y.head(n), z = w.z.head(n), s = w.s.head(n), rhs = w.rhs.head(n);
   auto x_prev = w.x_prev.head(n), y_prev = w.y_prev.head(n), xr = w.power.head(n);
   double L = largest_eigenvalue(p.G, w.power.head(n), rhs);
@@ -567,70 +557,6 @@ bool polish(Buffers& w, const Problem& p, const VecX& lambda, const std::vector<
   return w.lambda_p.allFinite() && w.sigma_p.allFinite();
 }
 
-// Dual-cone violation of one contact at sigma: dist(sigma_i + Gamma_i, K*) (> 0 iff sigma_N < 0).
-double dual_violation(const VecX& sigma, int i, double mu) {
-  return project_cone(-de_saxce(sigma.segment<3>(3 * i), mu), mu).norm();
-}
-
-// The working set (exact constraint screening). A contact outside the set W has
-// lambda_i = 0; the NCP restricted to W (G_WW, g_W, same scales) is solved by the
-// chosen solver, and then the whole sigma = G_{:,W} lambda_W + g is checked: the
-// contacts outside W are complementary (lambda_i = 0) and in K (0 is), so the full
-// residuals are those of the reduced problem and the dual violations outside W. If
-// some contact outside W violates (dist(sigma_i + Gamma_i, K*) > tolerance vscale),
-// all such contacts join W and the reduced problem is solved again, warm-started
-// from the current lambda. W only grows, so this ends after at most nc rounds; it
-// is exact (nothing is assumed about the contacts left out: the check is the full
-// residual). W starts as the contacts with a non-zero warm start or with sigma_N < 0
-// at the warm start. The iterations and refactorizations of all rounds are summed
-// and bounded by max_iterations in total. lambda: in, the warm start, projected;
-// sigma: in, G lambda + g; both out.
-NcpResult working_set_solve(Buffers& w, const Problem& p, NcpSolverKind kind, VecX& lambda, VecX& sigma) {
-  NcpResult result;
-  std::fill(w.in_set.begin(), w.in_set.end(), 0);
-  w.set.clear();
-  for (int i = 0; i < p.nc; ++i)
-    if (lambda.segment<3>(3 * i).squaredNorm() > 0 || dual_violation(sigma, i, p.mu[i]) > 0) w.in_set[i] = 1;
-  for (;;) {
-    w.set.clear();
-    for (int i = 0; i < p.nc; ++i)
-      if (w.in_set[i]) w.set.push_back(i);
-    const int nw = static_cast<int>(w.set.size());
-    const Eigen::Index m = 3 * static_cast<Eigen::Index>(nw);
-    ++result.working_set_rounds;
-    result.working_set_size = nw;
-    // Gather the reduced problem into the leading parts of the buffers.
-    Eigen::Map<MatX> Gw(w.Gw.data(), m, m);
-    for (int b = 0; b < nw; ++b) {
-      for (int a = 0; a < nw; ++a) Gw.block<3, 3>(3 * a, 3 * b) = p.G.block<3, 3>(3 * w.set[a], 3 * w.set[b]);
-      w.gw.segment<3>(3 * b) = p.g.segment<3>(3 * w.set[b]);
-      w.lw.segment<3>(3 * b) = lambda.segment<3>(3 * w.set[b]);
-      w.muw[b] = p.mu[w.set[b]];
-    }
-    const Problem r{Gw, w.gw.head(m), w.muw.head(nw), nw, p.vscale, p.tolerance,
-                    p.max_iterations - result.iterations};
-    const NcpResult sub = kind == NcpSolverKind::admm ? admm(w, r, w.lw.head(m), w.sw.head(m), 0)
-                                                      : pgs(w, r, w.lw.head(m), w.sw.head(m));
-    result.iterations += sub.iterations;
-    result.rho_updates += sub.rho_updates;
-    // Scatter (lambda is 0 outside W) and the full sigma, O(n m).
-    sigma = p.g;
-    for (int b = 0; b < nw; ++b) {
-      lambda.segment<3>(3 * w.set[b]) = w.lw.segment<3>(3 * b);
-      sigma.noalias() += p.G.middleCols<3>(3 * w.set[b]) * w.lw.segment<3>(3 * b);
-    }
-    result.residuals = residuals_of(lambda, sigma, p.mu, p.vscale);
-    if (result.residuals.max() <= p.tolerance || sub.residuals.max() > p.tolerance ||
-        result.iterations >= p.max_iterations || !all_finite(lambda))
-      break;  // solved, or the reduced solve failed / ran out of iterations: report as is
-    bool grown = false;
-    for (int i = 0; i < p.nc; ++i)
-      if (!w.in_set[i] && dual_violation(sigma, i, p.mu[i]) > p.tolerance * p.vscale) w.in_set[i] = grown = true;
-    if (!grown) break;  // (not reached: the full residual exceeds the tolerance only through a violator)
-  }
-  return result;
-}
-
 // The polish with mode corrections: polish with the solver's modes; while the result
 // is not within tolerance and the modes of the polished state (classify()) differ
 // from those used, polish again with them from the solver's lambda (at most
@@ -713,32 +639,24 @@ NcpResult NcpSolver::solve(const MatX& G, const VecX& g, const VecX& mu, const N
     return result;
   }
   const Problem p{G, g, mu, nc, g_scale(g), options.tolerance, options.max_iterations};
+  result = options.solver == NcpSolverKind::admm
+               ? admm(w, p, lambda, sigma, options.admm_fallback ? admm_stall_window : 0)
+               : pgs(w, p, lambda, sigma);
   bool polish_done = false;
-  if (options.working_set) {
-    for (int i = 0; i < nc; ++i) lambda.segment<3>(3 * i) = project_cone(lambda.segment<3>(3 * i), mu[i]);
-    sigma.noalias() = G * lambda;
-    sigma += g;
-    result.residuals = residuals_of(lambda, sigma, mu, p.vscale);
-    if (result.residuals.max() > options.tolerance) result = working_set_solve(w, p, options.solver, lambda, sigma);
-  } else {
-    result = options.solver == NcpSolverKind::admm
-                 ? admm(w, p, lambda, sigma, options.admm_fallback ? admm_stall_window : 0)
-                 : pgs(w, p, lambda, sigma);
-    if (result.fallback_iterations < 0) {
-      // ADMM stalled. Its iterate usually has the right modes already: polish it first;
-      // if that does not reach the tolerance, PGS continues from ADMM's iterate with
-      // the remaining budget (and is polished in turn below).
-      result.fallback_iterations = 0;
-      polish_if_small(w, p, options, lambda, sigma, modes, result);
-      polish_done = result.residuals.max() <= options.tolerance;
-      if (!polish_done) {
-        result.polished = false;  // PGS starts from the better of ADMM's and the polished iterate
-        const Problem rest{G, g, mu, nc, p.vscale, options.tolerance, options.max_iterations - result.iterations};
-        const NcpResult q = pgs(w, rest, lambda, sigma);
-        result.fallback_iterations = q.iterations;
-        result.iterations += q.iterations;
-        result.residuals = q.residuals;
-      }
+  if (result.fallback_iterations < 0) {
+    // ADMM stalled. Its iterate usually has the right modes already: polish it first;
+    // if that does not reach the tolerance, PGS continues from ADMM's iterate with
+    // the remaining budget (and is polished in turn below).
+    result.fallback_iterations = 0;
+    polish_if_small(w, p, options, lambda, sigma, modes, result);
+    polish_done = result.residuals.max() <= options.tolerance;
+    if (!polish_done) {
+      result.polished = false;  // PGS starts from the better of ADMM's and the polished iterate
+      const Problem rest{G, g, mu, nc, p.vscale, options.tolerance, options.max_iterations - result.iterations};
+      const NcpResult q = pgs(w, rest, lambda, sigma);
+      result.fallback_iterations = q.iterations;
+      result.iterations += q.iterations;
+      result.residuals = q.residuals;
     }
   }
   if (!polish_done) polish_if_small(w, p, options, lambda, sigma, modes, result);

@@ -32,7 +32,6 @@ struct NcpOptions {
   double tolerance = 1e-8;      // bounds the three scaled residuals
   int max_iterations = 1000;
   bool polish = true;
-  bool working_set = false;     // solve on a growing working set of contacts (exact; experimental, see ncp.cpp)
   bool admm_fallback = true;    // ADMM: finish with PGS from ADMM's iterate when ADMM stalls (see ncp.cpp)
   // The polish factorizes a dense (3 na x 3 na) system over the na non-breaking
   // contacts (a few times): beyond this many it is skipped (O(na^3) would exceed the
@@ -55,8 +54,6 @@ struct NcpResult {
   bool polished = false;        // the polished solution was kept
   int rho_updates = 0;          // ADMM: refactorizations of G + rho I
   int sticking = 0, sliding = 0, breaking = 0;
-  int working_set_rounds = 0;   // reduced solves of the working set (0: none needed or option off)
-  int working_set_size = 0;     // contacts in the final working set
   int fallback_iterations = 0;  // ADMM: PGS sweeps after ADMM stalled (included in iterations)
 };
 
