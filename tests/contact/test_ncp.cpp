@@ -58,9 +58,12 @@ struct Solved {
 
 const char* name(NcpSolverKind kind) { return kind == NcpSolverKind::admm ? "admm" : "pgs"; }
 
+// The solvers themselves (ADMM, PGS, polish) on the whole problem: the working set is
+// off here (its tests below turn it on), so that iteration counts are the solver's.
 Solved solve(const Problem& p, NcpSolverKind kind, double tolerance, bool polish, int max_iterations = 20000,
-             const VecX* warm = nullptr) {
+             const VecX* warm = nullptr, bool working_set = false) {
   NcpOptions o;
+  o.working_set = working_set;
   o.solver = kind;
   o.tolerance = tolerance;
   o.polish = polish;
@@ -537,6 +540,7 @@ TEST(NcpSolvers, ReusedWorkspace) {
   NcpSolver solver;
   NcpOptions o;
   o.tolerance = 1e-10;
+  o.working_set = false;
   for (const NcpSolverKind kind : {NcpSolverKind::admm, NcpSolverKind::pgs}) {
     o.solver = kind;
     VecX la = VecX::Zero(60), lb = VecX::Zero(60), sa, sb;
@@ -560,6 +564,7 @@ TEST(NcpSolvers, NoAllocationAfterFirstSolve) {
   std::vector<Mode> modes;
   NcpOptions o;
   o.polish = false;
+  o.working_set = false;  // the solver's own iterations (the working set sizes its reduced problem per set)
   o.tolerance = 1e-30;  // never met: run all iterations
   bool first = true;  // the first solve sizes the workspace (and sigma, modes)
   for (const NcpSolverKind kind : {NcpSolverKind::admm, NcpSolverKind::pgs}) {
@@ -580,6 +585,103 @@ TEST(NcpSolvers, NoAllocationAfterFirstSolve) {
 #else
   GTEST_SKIP() << "allocation counter off under sanitizers";
 #endif
+}
+
+// ---------------------------------------------------------------------------
+// The working set (ncp.cpp): contacts are screened exactly, so with it on the
+// solution is a solution of the whole NCP (checked independently), with the same
+// tolerance. Many contacts far from touching (g_N > 0 by 1 to 2 units, most of them
+// breaking) and a few pressed ones: the reduced problem is much smaller than the
+// whole, it is solved in a few rounds, and the breaking contacts are outside it.
+Problem mostly_breaking_problem(unsigned seed) {
+  Problem p = physical_problem(seed, 120, 40, 0.3);
+  std::mt19937 rng(seed + 1);
+  std::uniform_real_distribution<double> far(1.0, 2.0);
+  for (int i = 10; i < 120; ++i) p.g[3 * i + 2] = far(rng) + std::abs(p.g[3 * i + 2]);
+  return p;
+}
+
+// Contacts just apart (g_N = +0.05) coupled with pressed ones (g_N = -1) through a
+// dense random J (couplings of both signs): pushing the pressed contacts closes some
+// of the others, so the set has to grow (round 2 and later).
+Problem growing_problem(unsigned seed) {
+  Problem p = random_problem(seed, 60, 90, 0.3);
+  for (int i = 0; i < 60; ++i) p.g[3 * i + 2] = i < 6 ? -1.0 : 0.05;
+  return p;
+}
+
+TEST(NcpWorkingSet, SolvesTheWholeProblemOnAFewContacts) {
+  const Problem p = mostly_breaking_problem(101);
+  for (const NcpSolverKind kind : {NcpSolverKind::admm, NcpSolverKind::pgs}) {
+    const Solved direct = solve(p, kind, 1e-10, true, 20000, nullptr, false);
+    const Solved ws = solve(p, kind, 1e-10, true, 20000, nullptr, true);
+    ASSERT_TRUE(direct.result.converged) << name(kind);
+    EXPECT_TRUE(ws.result.converged) << name(kind);
+    EXPECT_FALSE(ws.result.working_set_fallback) << name(kind);
+    EXPECT_GE(ws.result.working_set_rounds, 1) << name(kind);
+    EXPECT_LT(ws.result.working_set_size, 60) << name(kind);  // of 120
+    expect_ncp_solution(p, ws, 1e-10, std::string(name(kind)) + " working set");
+    // sigma is unique where G is definite on the active contacts; compare the velocities.
+    EXPECT_LE((ws.sigma - direct.sigma).cwiseAbs().maxCoeff(), 1e-7 * p.g.cwiseAbs().maxCoeff()) << name(kind);
+    std::cout << name(kind) << " working set: " << ws.result.working_set_rounds << " rounds, "
+              << ws.result.working_set_size << " of 120 contacts, " << ws.result.iterations
+              << " iterations (whole problem: " << direct.result.iterations << ")\n";
+  }
+}
+
+TEST(NcpWorkingSet, GrowsUntilNoContactOutsideIsViolated) {
+  const Problem p = growing_problem(103);
+  for (const NcpSolverKind kind : {NcpSolverKind::admm, NcpSolverKind::pgs}) {
+    const Solved ws = solve(p, kind, 1e-10, true, 20000, nullptr, true);
+    EXPECT_TRUE(ws.result.converged) << name(kind);
+    EXPECT_FALSE(ws.result.working_set_fallback) << name(kind);
+    EXPECT_GE(ws.result.working_set_rounds, 2) << name(kind);
+    expect_ncp_solution(p, ws, 1e-10, std::string(name(kind)) + " growing working set");
+    std::cout << name(kind) << " growing working set: " << ws.result.working_set_rounds << " rounds, "
+              << ws.result.working_set_size << " of 60 contacts\n";
+  }
+}
+
+// Nothing pushes in (every g_N > 0, cold start): the set is empty, lambda = 0 solves
+// the whole problem, no iteration.
+TEST(NcpWorkingSet, EmptySetWhenNothingTouches) {
+  Problem p = mostly_breaking_problem(104);
+  for (int i = 0; i < 10; ++i) p.g[3 * i + 2] = 1.0 + std::abs(p.g[3 * i + 2]);
+  const Solved s = solve(p, NcpSolverKind::admm, 1e-10, true, 20000, nullptr, true);
+  EXPECT_TRUE(s.result.converged);
+  EXPECT_EQ(s.result.working_set_rounds, 1);
+  EXPECT_EQ(s.result.working_set_size, 0);
+  EXPECT_EQ(s.result.iterations, 0);
+  EXPECT_EQ(s.lambda, VecX::Zero(p.g.size()));
+  EXPECT_EQ(s.result.breaking, 120);
+}
+
+// Warm-started from the solution, the set is the contacts that carry force: one round.
+TEST(NcpWorkingSet, WarmStartFromTheSolutionIsOneRound) {
+  const Problem p = mostly_breaking_problem(102);
+  const Solved s = solve(p, NcpSolverKind::admm, 1e-10, true);
+  ASSERT_TRUE(s.result.converged);
+  const Solved w = solve(p, NcpSolverKind::admm, 1e-10, true, 20000, &s.lambda, true);
+  EXPECT_TRUE(w.result.converged);
+  EXPECT_EQ(w.result.working_set_rounds, 1);
+  EXPECT_LE(w.result.iterations, 1);
+}
+
+// A working set that does not converge hands over to the whole problem (from its
+// lambda, with a budget of its own: the iterations add up), and the failure of both is
+// reported with the residuals of the returned lambda.
+TEST(NcpWorkingSet, FailureFallsBackToTheWholeProblem) {
+  const Problem p = random_problem(31, 40, 30, 10.0);
+  for (const NcpSolverKind kind : {NcpSolverKind::admm, NcpSolverKind::pgs}) {
+    const Solved s = solve(p, kind, 1e-10, false, 2, nullptr, true);
+    EXPECT_FALSE(s.result.converged) << name(kind);
+    EXPECT_TRUE(s.result.working_set_fallback) << name(kind);
+    EXPECT_GT(s.result.iterations, 2) << name(kind);
+    EXPECT_LE(s.result.iterations, 4) << name(kind);
+    EXPECT_TRUE(s.lambda.allFinite()) << name(kind);
+    const NcpResiduals r = ncp_residuals(p.G, p.g, p.mu, s.lambda);
+    EXPECT_NEAR(r.max(), s.result.residuals.max(), 1e-12 * r.max()) << name(kind);
+  }
 }
 
 }  // namespace

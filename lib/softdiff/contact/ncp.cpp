@@ -52,7 +52,7 @@
 // the problem size changes (Eigen resizes are no-ops at equal size); the iterations
 // allocate nothing. The polish sizes its dense system by the number of active
 // contacts, so it may allocate when that number changes (once per solve, not per
-// iteration).
+// iteration); so may the working set when it grows (its reduced G_W, once per round).
 
 namespace softdiff::contact {
 
@@ -200,13 +200,21 @@ struct Buffers {
   VecX lambda_kept, sigma_kept;                       // (n) polish rounds
   std::vector<Mode> modes_try, modes_next, modes_kept;  // (nc) polish rounds
   int newton_budget = 0;                              // Newton steps left to the polish rounds
+  // working set (working_set_solve()): the reduced problem, (3 nw x 3 nw) and (3 nw)
+  std::vector<int> set;          // the working set's contact ids, ascending
+  std::vector<char> in_set;      // (nc) membership
+  std::vector<Mode> modes_set;   // (nw) modes of the reduced problem
+  VecX Gw;                       // storage of G_W (column-major, 9 nw^2; grown when a set needs it)
+  VecX gw, muw, lw, sw;          // (n), (nc), (n), (n)
   Eigen::CompleteOrthogonalDecomposition<MatX> cod;
 
   void resize(Eigen::Index n) {
     if (x.size() == n) return;
     A.resize(n, n);
+    muw.resize(n / 3);
+    in_set.resize(static_cast<std::size_t>(n / 3));
     for (VecX* v : {&x, &y, &z, &s, &rhs, &x_prev, &y_prev, &power, &lambda_best, &lambda_p, &sigma_p, &lambda_kept,
-                     &sigma_kept})
+                     &sigma_kept, &gw, &lw, &sw})
       v->resize(n);
   }
 };
@@ -444,7 +452,7 @@ NcpResult pgs(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma) {
   return result;
 }
 
-void classify(const Problem& p, const VecX& lambda, const VecX& sigma, std::vector<Mode>& modes) {
+void classify(const Problem& p, const VecCRef& lambda, const VecCRef& sigma, std::vector<Mode>& modes) {
   const double Gmax = std::max(p.G.diagonal().maxCoeff(), tiny);
   modes.resize(static_cast<std::size_t>(p.nc));
   for (int i = 0; i < p.nc; ++i) {
@@ -472,7 +480,7 @@ void classify(const Problem& p, const VecX& lambda, const VecX& sigma, std::vect
 // solver's forces. Sticking and breaking equations are linear: one step is exact;
 // sliding ones converge quadratically from the solver's solution (a few steps).
 // The result goes to w.lambda_p / w.sigma_p; returns false if it is not usable.
-bool polish(Buffers& w, const Problem& p, const VecX& lambda, const std::vector<Mode>& modes) {
+bool polish(Buffers& w, const Problem& p, const VecCRef& lambda, const std::vector<Mode>& modes) {
   w.active.clear();
   for (int i = 0; i < p.nc; ++i)
     if (modes[i] != Mode::breaking) w.active.push_back(i);
@@ -568,7 +576,7 @@ constexpr int polish_max_rounds = 6;
 // Newton steps (factorizations of the 3 na x 3 na system) over all rounds of one call:
 // bounds the polish's cost at twice that of the one-shot polish (8 steps).
 constexpr int polish_max_newton = 16;
-bool polish_rounds(Buffers& w, const Problem& p, VecX& lambda, VecX& sigma, std::vector<Mode>& modes,
+bool polish_rounds(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma, std::vector<Mode>& modes,
                    NcpResiduals& residuals) {
   w.modes_try = modes;
   w.newton_budget = polish_max_newton;
@@ -602,13 +610,102 @@ bool polish_rounds(Buffers& w, const Problem& p, VecX& lambda, VecX& sigma, std:
 // Classify (lambda, sigma), then polish with mode corrections if the polish is on and
 // the active contacts are at most polish_max_active; result.residuals and .polished
 // are updated when a polished solution is kept.
-void polish_if_small(Buffers& w, const Problem& p, const NcpOptions& options, VecX& lambda, VecX& sigma,
+void polish_if_small(Buffers& w, const Problem& p, const NcpOptions& options, VecRef lambda, VecRef sigma,
                      std::vector<Mode>& modes, NcpResult& result) {
   classify(p, lambda, sigma, modes);
   const int active = p.nc - static_cast<int>(std::count(modes.begin(), modes.end(), Mode::breaking));
   if (options.polish && p.nc > 0 && active <= options.polish_max_active &&
       polish_rounds(w, p, lambda, sigma, modes, result.residuals))
     result.polished = true;
+}
+
+// ADMM (when it stalls: the polish, then PGS from there) or PGS on p, then the polish.
+NcpResult solve_core(Buffers& w, const Problem& p, const NcpOptions& options, VecRef lambda, VecRef sigma,
+                     std::vector<Mode>& modes) {
+  NcpResult result = options.solver == NcpSolverKind::admm
+                         ? admm(w, p, lambda, sigma, options.admm_fallback ? admm_stall_window : 0)
+                         : pgs(w, p, lambda, sigma);
+  bool polish_done = false;
+  if (result.fallback_iterations < 0) {
+    // ADMM stalled. Its iterate usually has the right modes already: polish it first;
+    // if that does not reach the tolerance, PGS continues from ADMM's iterate with
+    // the remaining budget (and is polished in turn below).
+    result.fallback_iterations = 0;
+    polish_if_small(w, p, options, lambda, sigma, modes, result);
+    polish_done = result.residuals.max() <= p.tolerance;
+    if (!polish_done) {
+      result.polished = false;  // PGS starts from the better of ADMM's and the polished iterate
+      const Problem rest{p.G, p.g, p.mu, p.nc, p.vscale, p.tolerance, p.max_iterations - result.iterations};
+      const NcpResult q = pgs(w, rest, lambda, sigma);
+      result.fallback_iterations = q.iterations;
+      result.iterations += q.iterations;
+      result.residuals = q.residuals;
+    }
+  }
+  if (!polish_done) polish_if_small(w, p, options, lambda, sigma, modes, result);
+  return result;
+}
+
+// The working set (exact constraint screening). A contact outside the set W has
+// lambda_i = 0; the NCP restricted to W (G_WW, g_W, the full problem's scales) is
+// solved by solve_core, and then the whole sigma = G_{:,W} lambda_W + g is checked:
+// the contacts outside W are complementary (lambda_i = 0) and in K (0 is), so the
+// full residuals are those of the reduced problem and the dual violations outside W.
+// If some contact outside W violates (dist(sigma_i + Gamma_i, K*) > tolerance vscale),
+// they all join W and the reduced problem is solved again, warm-started from the
+// current lambda. W only grows. W starts as the contacts with a non-zero warm start
+// or with a violation at the warm start. The rounds share max_iterations. Returns
+// with converged = false if a reduced solve does not reach the tolerance (the caller
+// then solves the full problem). lambda: in, the warm start, projected; sigma: in,
+// G lambda + g; both out.
+NcpResult working_set_solve(Buffers& w, const Problem& p, const NcpOptions& options, VecX& lambda, VecX& sigma) {
+  NcpResult result;
+  auto violates = [&](int i) {
+    return project_cone(-de_saxce(sigma.segment<3>(3 * i), p.mu[i]), p.mu[i]).norm() > p.tolerance * p.vscale;
+  };
+  std::fill(w.in_set.begin(), w.in_set.end(), 0);
+  for (int i = 0; i < p.nc; ++i)
+    if (lambda.segment<3>(3 * i).squaredNorm() > 0 || violates(i)) w.in_set[i] = 1;
+  for (;;) {
+    w.set.clear();
+    for (int i = 0; i < p.nc; ++i)
+      if (w.in_set[i]) w.set.push_back(i);
+    const int nw = static_cast<int>(w.set.size());
+    const Eigen::Index m = 3 * static_cast<Eigen::Index>(nw);
+    ++result.working_set_rounds;
+    result.working_set_size = nw;
+    if (w.Gw.size() < m * m) w.Gw.resize(m * m);  // grows with the largest set seen
+    Eigen::Map<MatX> Gw(w.Gw.data(), m, m);
+    for (int b = 0; b < nw; ++b) {
+      for (int a = 0; a < nw; ++a) Gw.block<3, 3>(3 * a, 3 * b) = p.G.block<3, 3>(3 * w.set[a], 3 * w.set[b]);
+      w.gw.segment<3>(3 * b) = p.g.segment<3>(3 * w.set[b]);
+      w.lw.segment<3>(3 * b) = lambda.segment<3>(3 * w.set[b]);
+      w.muw[b] = p.mu[w.set[b]];
+    }
+    const Problem r{Gw, w.gw.head(m), w.muw.head(nw), nw, p.vscale, p.tolerance, p.max_iterations - result.iterations};
+    // An empty set (nothing pushes in at the warm start) is solved by lambda = 0.
+    const NcpResult sub = nw > 0 ? solve_core(w, r, options, w.lw.head(m), w.sw.head(m), w.modes_set) : NcpResult{};
+    result.iterations += sub.iterations;
+    result.rho_updates += sub.rho_updates;
+    result.fallback_iterations += sub.fallback_iterations;
+    result.polished = sub.polished;
+    // Scatter (lambda is 0 outside W) and the full sigma, O(n m).
+    sigma = p.g;
+    for (int b = 0; b < nw; ++b) {
+      lambda.segment<3>(3 * w.set[b]) = w.lw.segment<3>(3 * b);
+      sigma.noalias() += p.G.middleCols<3>(3 * w.set[b]) * w.lw.segment<3>(3 * b);
+    }
+    result.residuals = residuals_of(lambda, sigma, p.mu, p.vscale);
+    result.converged = result.residuals.max() <= p.tolerance;
+    if (result.converged || sub.residuals.max() > p.tolerance || result.iterations >= p.max_iterations ||
+        !all_finite(lambda))
+      break;  // solved, or the reduced solve failed / ran out of iterations
+    bool grown = false;
+    for (int i = 0; i < p.nc; ++i)
+      if (!w.in_set[i] && violates(i)) w.in_set[i] = grown = true;
+    if (!grown) break;  // (not reached: the full residual exceeds the tolerance only through a violator)
+  }
+  return result;
 }
 
 }  // namespace
@@ -639,27 +736,26 @@ NcpResult NcpSolver::solve(const MatX& G, const VecX& g, const VecX& mu, const N
     return result;
   }
   const Problem p{G, g, mu, nc, g_scale(g), options.tolerance, options.max_iterations};
-  result = options.solver == NcpSolverKind::admm
-               ? admm(w, p, lambda, sigma, options.admm_fallback ? admm_stall_window : 0)
-               : pgs(w, p, lambda, sigma);
-  bool polish_done = false;
-  if (result.fallback_iterations < 0) {
-    // ADMM stalled. Its iterate usually has the right modes already: polish it first;
-    // if that does not reach the tolerance, PGS continues from ADMM's iterate with
-    // the remaining budget (and is polished in turn below).
-    result.fallback_iterations = 0;
-    polish_if_small(w, p, options, lambda, sigma, modes, result);
-    polish_done = result.residuals.max() <= options.tolerance;
-    if (!polish_done) {
-      result.polished = false;  // PGS starts from the better of ADMM's and the polished iterate
-      const Problem rest{G, g, mu, nc, p.vscale, options.tolerance, options.max_iterations - result.iterations};
-      const NcpResult q = pgs(w, rest, lambda, sigma);
-      result.fallback_iterations = q.iterations;
-      result.iterations += q.iterations;
-      result.residuals = q.residuals;
-    }
+  bool done = false;
+  if (options.working_set) {
+    for (int i = 0; i < nc; ++i) lambda.segment<3>(3 * i) = project_cone(lambda.segment<3>(3 * i), mu[i]);
+    sigma.noalias() = G * lambda;
+    sigma += g;
+    result = working_set_solve(w, p, options, lambda, sigma);
+    done = result.converged;
+    if (done) classify(p, lambda, sigma, modes);  // all contacts (breaking outside the set)
   }
-  if (!polish_done) polish_if_small(w, p, options, lambda, sigma, modes, result);
+  if (!done) {
+    // The full problem (directly, or after a failed working set: from its lambda, with
+    // a budget of its own; the iterations add up).
+    const NcpResult ws = result;
+    result = solve_core(w, p, options, lambda, sigma, modes);
+    result.iterations += ws.iterations;
+    result.rho_updates += ws.rho_updates;
+    result.working_set_rounds = ws.working_set_rounds;
+    result.working_set_size = ws.working_set_size;
+    result.working_set_fallback = options.working_set;
+  }
   result.converged = result.residuals.max() <= options.tolerance;
   for (const Mode mode : modes) {
     if (mode == Mode::sticking) ++result.sticking;

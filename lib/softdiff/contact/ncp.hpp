@@ -32,6 +32,10 @@ struct NcpOptions {
   double tolerance = 1e-8;      // bounds the three scaled residuals
   int max_iterations = 1000;
   bool polish = true;
+  // Solve on a working set of contacts first (exact screening, see ncp.cpp): the
+  // contacts with a warm-start force or a violation at the warm start, grown by the
+  // contacts that the reduced solution violates; the full problem only if that fails.
+  bool working_set = true;
   bool admm_fallback = true;    // ADMM: finish with PGS from ADMM's iterate when ADMM stalls (see ncp.cpp)
   // The polish factorizes a dense (3 na x 3 na) system over the na non-breaking
   // contacts (a few times): beyond this many it is skipped (O(na^3) would exceed the
@@ -54,6 +58,9 @@ struct NcpResult {
   bool polished = false;        // the polished solution was kept
   int rho_updates = 0;          // ADMM: refactorizations of G + rho I
   int sticking = 0, sliding = 0, breaking = 0;
+  int working_set_rounds = 0;   // reduced solves (0: the full problem was solved directly)
+  int working_set_size = 0;     // contacts in the last working set
+  bool working_set_fallback = false;  // the working set failed; the full problem was solved
   int fallback_iterations = 0;  // ADMM: PGS sweeps after ADMM stalled (included in iterations)
 };
 
