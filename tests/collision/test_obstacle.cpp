@@ -1,6 +1,6 @@
 // Obstacles: closed-form signed distances against independent formulas and dense
 // surface sampling; box features; validation errors; mesh obstacles (STL binary and
-// ASCII, Gmsh .msh) against the analytic box and sphere.
+// ASCII, Gmsh .msh ASCII and binary) against the analytic box and sphere.
 #include <softdiff/collision/obstacle.hpp>
 #include <softdiff/core/error.hpp>
 
@@ -453,23 +453,24 @@ TEST(MeshObstacle, BinaryAndAsciiStlAgainstBox) {
   EXPECT_NEAR(cp.distance, 0.05, 1e-12);
 }
 
-bool run_gmsh(const std::string& geo, const fs::path& out, const std::string& format) {
+bool run_gmsh(const std::string& geo, const fs::path& out, const std::string& format, bool binary = false) {
   const fs::path g = out.parent_path() / (out.stem().string() + ".geo");
   std::ofstream(g) << geo;
-  const std::string cmd = std::string(GMSH_EXECUTABLE) + " -2 -format " + format + " \"" + g.string() + "\" -o \"" +
-                          out.string() + "\" > /dev/null 2>&1";
+  const std::string cmd = std::string(GMSH_EXECUTABLE) + " -2 -format " + format + (binary ? " -bin" : "") + " \"" +
+                          g.string() + "\" -o \"" + out.string() + "\" > /dev/null 2>&1";
   return std::system(cmd.c_str()) == 0 && fs::exists(out);
 }
 
 TEST(MeshObstacle, GmshMshAgainstBoxAndSphere) {
   const Vec3 h(0.5, 0.75, 1.0);
   const std::string box_geo = "SetFactory(\"OpenCASCADE\");\nBox(1) = {-0.5, -0.75, -1, 1, 1.5, 2};\nMesh.MeshSizeMax = 0.3;\n";
-  for (const std::string format : {"msh22", "msh41"}) {
-    const fs::path f = temp_dir() / ("box_" + format + ".msh");
-    ASSERT_TRUE(run_gmsh(box_geo, f, format)) << "gmsh failed";
-    const Obstacle m = mesh_obstacle(f);
-    compare_with_box(m, h, 1e-12);
-  }
+  for (const std::string format : {"msh22", "msh41"})
+    for (const bool binary : {false, true}) {  // the bodies' Gmsh reader: every version and encoding
+      const fs::path f = temp_dir() / ("box_" + format + (binary ? "_bin" : "") + ".msh");
+      ASSERT_TRUE(run_gmsh(box_geo, f, format, binary)) << "gmsh failed";
+      const Obstacle m = mesh_obstacle(f);
+      compare_with_box(m, h, 1e-12);
+    }
   // A sphere: the polyhedron is within the chord error of the sphere; signs exact.
   const std::string sphere_geo = "SetFactory(\"OpenCASCADE\");\nSphere(1) = {0, 0, 0, 1};\nMesh.MeshSizeMax = 0.08;\n";
   const fs::path f = temp_dir() / "sphere.msh";
@@ -526,6 +527,11 @@ TEST(MeshObstacle, BadFiles) {
   expect_read_error(temp_dir() / "garbage.stl", "not an STL");
   std::ofstream(temp_dir() / "garbage.msh") << "hello\n";
   expect_read_error(temp_dir() / "garbage.msh", "MSH");
+  // A valid Gmsh file with a tetrahedron but no triangle is not a surface.
+  std::ofstream(temp_dir() / "tet_only.msh") << "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n4\n1 0 0 0\n"
+                                                "2 1 0 0\n3 0 1 0\n4 0 0 1\n$EndNodes\n$Elements\n1\n"
+                                                "1 4 0 1 2 3 4\n$EndElements\n";
+  expect_read_error(temp_dir() / "tet_only.msh", "no triangles");
   std::ofstream(temp_dir() / "solid_empty.stl") << "solid x\nendsolid x\n";
   expect_read_error(temp_dir() / "solid_empty.stl", "empty");
   expect_read_error(temp_dir() / "does_not_exist.stl", "cannot open");

@@ -22,6 +22,7 @@
 #include <softdiff/collision/distance.hpp>
 #include <softdiff/collision/obstacle.hpp>
 #include <softdiff/core/error.hpp>
+#include <softdiff/io/gmsh_msh.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -589,132 +590,6 @@ TriangleSurface read_stl(const std::string& data, const SurfaceReader& rd) {
   return weld(soup);
 }
 
-// ASCII MSH 2.2 and 4.1: nodes and the triangles (element type 2) of the file.
-TriangleSurface read_msh(const std::string& data, const SurfaceReader& rd) {
-  std::istringstream in(data);
-  std::string tok;
-  double version = 0;
-  std::map<long, int> node_id;
-  std::vector<Vec3> nodes;
-  std::vector<std::array<long, 3>> tris;
-  auto expect = [&](const char* what) {
-    if (!in) rd.fail(std::string("truncated or malformed ") + what + " section");
-  };
-  while (in >> tok) {
-    if (tok == "$MeshFormat") {
-      int file_type = 0, size = 0;
-      in >> version >> file_type >> size;
-      expect("$MeshFormat");
-      if (file_type != 0) rd.fail("binary MSH is not supported for obstacle surfaces; save it as ASCII or use .stl");
-      if (!(version >= 2 && version < 3) && !(version >= 4 && version < 5))
-        rd.fail("unsupported MSH version " + num(version));
-    } else if (tok == "$Nodes") {
-      if (version >= 4) {
-        long blocks = 0, total = 0, lo = 0, hi = 0;
-        in >> blocks >> total >> lo >> hi;
-        expect("$Nodes");
-        for (long b = 0; b < blocks; ++b) {
-          long dim = 0, tag = 0, param = 0, count = 0;
-          in >> dim >> tag >> param >> count;
-          expect("$Nodes");
-          std::vector<long> tags(count);
-          for (auto& t : tags) in >> t;
-          for (long i = 0; i < count; ++i) {
-            Vec3 p;
-            in >> p[0] >> p[1] >> p[2];
-            if (param) {
-              double skip;
-              for (long d = 0; d < dim; ++d) in >> skip;
-            }
-            expect("$Nodes");
-            node_id[tags[i]] = static_cast<int>(nodes.size());
-            nodes.push_back(p);
-          }
-        }
-      } else {
-        long count = 0;
-        in >> count;
-        for (long i = 0; i < count; ++i) {
-          long tag;
-          Vec3 p;
-          in >> tag >> p[0] >> p[1] >> p[2];
-          expect("$Nodes");
-          node_id[tag] = static_cast<int>(nodes.size());
-          nodes.push_back(p);
-        }
-      }
-    } else if (tok == "$Elements") {
-      if (version >= 4) {
-        long blocks = 0, total = 0, lo = 0, hi = 0;
-        in >> blocks >> total >> lo >> hi;
-        expect("$Elements");
-        for (long b = 0; b < blocks; ++b) {
-          long dim = 0, tag = 0, type = 0, count = 0;
-          in >> dim >> tag >> type >> count;
-          expect("$Elements");
-          std::string line;
-          std::getline(in, line);
-          for (long i = 0; i < count; ++i) {
-            std::getline(in, line);
-            std::istringstream ls(line);
-            long etag, a, bb, c;
-            if (type == 2) {
-              if (!(ls >> etag >> a >> bb >> c)) rd.fail("malformed triangle in $Elements");
-              tris.push_back({a, bb, c});
-            }
-          }
-        }
-      } else {
-        long count = 0;
-        in >> count;
-        std::string line;
-        std::getline(in, line);
-        for (long i = 0; i < count; ++i) {
-          std::getline(in, line);
-          std::istringstream ls(line);
-          long etag, type, ntags;
-          if (!(ls >> etag >> type >> ntags)) rd.fail("malformed element in $Elements");
-          for (long k = 0; k < ntags; ++k) {
-            long skip;
-            ls >> skip;
-          }
-          if (type == 2) {
-            long a, b, c;
-            if (!(ls >> a >> b >> c)) rd.fail("malformed triangle in $Elements");
-            tris.push_back({a, b, c});
-          }
-        }
-      }
-    }
-  }
-  if (version == 0) rd.fail("not a Gmsh MSH file (no $MeshFormat)");
-  if (tris.empty()) rd.fail("empty: no triangles (element type 2) in the file");
-  // MSH 2 lists an element once per physical group: keep one triangle per node set.
-  std::vector<std::array<long, 3>> kept;
-  std::map<std::array<long, 3>, int> seen;
-  for (const auto& t : tris) {
-    std::array<long, 3> k = t;
-    std::sort(k.begin(), k.end());
-    if (seen.emplace(k, 0).second) kept.push_back(t);
-  }
-  // Compact the used nodes.
-  std::map<int, int> used;
-  TriangleSurface s;
-  s.triangles.resize(3, static_cast<int>(kept.size()));
-  std::vector<Vec3> verts;
-  for (std::size_t t = 0; t < kept.size(); ++t)
-    for (int k = 0; k < 3; ++k) {
-      const auto it = node_id.find(kept[t][k]);
-      if (it == node_id.end()) rd.fail("triangle refers to undefined node " + std::to_string(kept[t][k]));
-      auto [u, inserted] = used.try_emplace(it->second, static_cast<int>(verts.size()));
-      if (inserted) verts.push_back(nodes[it->second]);
-      s.triangles(k, static_cast<int>(t)) = u->second;
-    }
-  s.vertices.resize(3, static_cast<int>(verts.size()));
-  for (std::size_t i = 0; i < verts.size(); ++i) s.vertices.col(static_cast<int>(i)) = verts[i];
-  return s;
-}
-
 }  // namespace
 
 TriangleSurface read_triangle_surface(const std::filesystem::path& file, double scale) {
@@ -729,12 +604,16 @@ TriangleSurface read_triangle_surface(const std::filesystem::path& file, double 
   std::string ext = file.extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
   TriangleSurface s;
-  if (ext == ".stl")
+  if (ext == ".stl") {
     s = read_stl(data, rd);
-  else if (ext == ".msh")
-    s = read_msh(data, rd);
-  else
+  } else if (ext == ".msh") {
+    // The Gmsh reader of the bodies' meshes (all versions and encodings, its messages).
+    io::GmshTriangles t = io::read_gmsh_triangles(file);
+    s.vertices = std::move(t.points);
+    s.triangles = std::move(t.triangles);
+  } else {
     rd.fail("unknown surface format '" + ext + "' (expected .stl or .msh)");
+  }
   s.vertices *= scale;
   const std::string problem = surface_problem(s);
   if (!problem.empty()) rd.fail(problem);

@@ -1328,4 +1328,37 @@ mesh::TetMesh read_gmsh(const std::filesystem::path& file, const GmshReadOptions
   return build_mesh(std::move(raw), options, parser, path);
 }
 
+GmshTriangles read_gmsh_triangles(const std::filesystem::path& file) {
+  const std::string path = file.string();
+  Parser parser(path, read_whole_file(file, path));
+  const RawMesh raw = parser.parse();
+  const std::size_t nt = raw.tri_tag.size();
+  if (nt == 0) throw InputError(path + ": empty: no triangles (element type 2) in the file");
+  std::vector<std::array<int, 3>> kept;
+  std::map<std::array<int, 3>, int> seen;
+  for (std::size_t t = 0; t < nt; ++t) {
+    const std::array<int, 3> tri{raw.tri_nodes[3 * t], raw.tri_nodes[3 * t + 1], raw.tri_nodes[3 * t + 2]};
+    std::array<int, 3> key = tri;
+    std::sort(key.begin(), key.end());
+    if (seen.emplace(key, 0).second) kept.push_back(tri);
+  }
+  std::vector<int> id(raw.node_tag.size(), -1);
+  std::vector<int> order;
+  GmshTriangles out;
+  out.triangles.resize(3, static_cast<int>(kept.size()));
+  for (std::size_t t = 0; t < kept.size(); ++t)
+    for (int k = 0; k < 3; ++k) {
+      int& i = id[static_cast<std::size_t>(kept[t][k])];
+      if (i < 0) {
+        i = static_cast<int>(order.size());
+        order.push_back(kept[t][k]);
+      }
+      out.triangles(k, static_cast<int>(t)) = i;
+    }
+  out.points.resize(3, static_cast<int>(order.size()));
+  for (std::size_t i = 0; i < order.size(); ++i)
+    for (int d = 0; d < 3; ++d) out.points(d, static_cast<int>(i)) = raw.node_xyz[3 * static_cast<std::size_t>(order[i]) + d];
+  return out;
+}
+
 }  // namespace softdiff::io

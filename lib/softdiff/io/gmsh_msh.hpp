@@ -39,4 +39,15 @@ struct GmshReadOptions {
 
 mesh::TetMesh read_gmsh(const std::filesystem::path& file, const GmshReadOptions& options = {});
 
+// The triangles (element type 2) of a Gmsh file, for surfaces (obstacles): same
+// versions, encodings and messages as read_gmsh, no tetrahedra needed. A triangle
+// listed more than once with the same node set (once per physical group, MSH 2) is
+// kept once, in its first occurrence's order; the points are the nodes the triangles
+// use, in order of first use. No triangle is an InputError.
+struct GmshTriangles {
+  Mat3X points;
+  Eigen::Matrix<int, 3, Eigen::Dynamic> triangles;
+};
+GmshTriangles read_gmsh_triangles(const std::filesystem::path& file);
+
 }  // namespace softdiff::io
