@@ -184,6 +184,7 @@ Vec3 unit_or(const Vec3& v, const Vec3& fallback) {
 
 struct CollisionDetector::Impl {
   DetectionModel model;
+  double margin = 0;  // of the current detect() call (model.margin unless widened)
   int num_bodies = 0;
   int max_node = -1;  // largest node index on any surface (x must have 3 (max_node + 1) entries)
   std::vector<SurfaceData> surf;
@@ -316,7 +317,7 @@ CollisionDetector::Impl::Impl(const DetectionModel& m) : model(m) {
 
 void CollisionDetector::Impl::update_surface(SurfaceData& s, const VecX& x) {
   const auto& T = s.surface->triangles;
-  const double inflate = 0.5 * model.margin;
+  const double inflate = 0.5 * margin;
   for (int t = 0; t < s.num_tri; ++t) {
     const Vec3 a = x.segment<3>(3 * T(0, t)), b = x.segment<3>(3 * T(1, t)), c = x.segment<3>(3 * T(2, t));
     s.face_normal[t] = unit_or((b - a).cross(c - a), Vec3::Zero());
@@ -375,7 +376,6 @@ void CollisionDetector::Impl::vertex_obstacle(const PairRule& rule, const VecX& 
   const Obstacle& o = model.obstacles[rule.b - num_bodies];
   const BodySurface& s = model.surfaces[rule.a];
   if (s.vertices.empty()) return;
-  const double margin = model.margin;
   if (o.kind != ShapeKind::plane) {  // body box vs inflated obstacle box
     Eigen::AlignedBox3d body;
     body.setEmpty();
@@ -413,14 +413,13 @@ void CollisionDetector::Impl::vertex_obstacle(const PairRule& rule, const VecX& 
 // margin), minus the self-contact exclusions. Called from FCL's collide callback.
 void CollisionDetector::Impl::add_candidates(bool self, const SurfaceData& A, const SurfaceData& B, int ta, int tb,
                                              const VecX& x) {
-  const double margin = model.margin;
   const auto& TA = A.surface->triangles;
   const auto& TB = B.surface->triangles;
-  auto near_point = [margin](const Vec3& p, const Vec3& lo, const Vec3& hi) {
-    return (p.array() >= lo.array() - margin).all() && (p.array() <= hi.array() + margin).all();
+  auto near_point = [m = margin](const Vec3& p, const Vec3& lo, const Vec3& hi) {
+    return (p.array() >= lo.array() - m).all() && (p.array() <= hi.array() + m).all();
   };
-  auto near_box = [margin](const Vec3& lo1, const Vec3& hi1, const Vec3& lo2, const Vec3& hi2) {
-    return (lo1.array() <= hi2.array() + margin).all() && (lo2.array() <= hi1.array() + margin).all();
+  auto near_box = [m = margin](const Vec3& lo1, const Vec3& hi1, const Vec3& lo2, const Vec3& hi2) {
+    return (lo1.array() <= hi2.array() + m).all() && (lo2.array() <= hi1.array() + m).all();
   };
   auto X = [&](int node) { return Vec3(x.segment<3>(3 * node)); };
   if (self) {
@@ -484,7 +483,6 @@ void CollisionDetector::Impl::soft_soft(const PairRule& rule, const VecX& x, Con
   ee.erase(std::unique(ee.begin(), ee.end()), ee.end());
   stats.candidates += static_cast<int>(vt.size() + ee.size());
 
-  const double margin = model.margin;
   const double m2 = margin * margin;
   const double tiny = 1e-9 * margin;
   auto P = [&](int node) { return Vec3(x.segment<3>(3 * node)); };
@@ -615,17 +613,12 @@ void CollisionDetector::Impl::soft_soft(const PairRule& rule, const VecX& x, Con
 CollisionDetector::CollisionDetector(const DetectionModel& model) : impl_(std::make_unique<Impl>(model)) {}
 CollisionDetector::~CollisionDetector() = default;
 
+DetectionStats CollisionDetector::detect(const VecX& x, ContactSet& out) { return detect(x, out, impl_->model.margin); }
+
 DetectionStats CollisionDetector::detect(const VecX& x, ContactSet& out, double margin) {
   SOFTDIFF_DEMAND(margin > 0 && std::isfinite(margin), "the detection margin must be > 0 and finite");
-  const double own = impl_->model.margin;
-  impl_->model.margin = margin;
-  const DetectionStats stats = detect(x, out);
-  impl_->model.margin = own;
-  return stats;
-}
-
-DetectionStats CollisionDetector::detect(const VecX& x, ContactSet& out) {
   Impl& im = *impl_;
+  im.margin = margin;
   SOFTDIFF_DEMAND(x.size() >= 3 * (static_cast<Eigen::Index>(im.max_node) + 1),
                   "x has " + std::to_string(x.size()) + " entries, the surfaces need " +
                       std::to_string(3 * (im.max_node + 1)));

@@ -187,7 +187,8 @@ namespace {
 // the solvers below take the base, which needs no access to NcpSolver's private part.)
 struct Buffers {
   // ADMM (written by admm())
-  MatX A;                        // (n x n) storage of G + (rho + eta) I, then its Cholesky factor (in place)
+  VecX A;                        // (n n) storage of G + (rho + eta) I, then its Cholesky factor (in place);
+                                 // grown by admm() only (PGS and a small working set need none of it)
   VecX x, y, z, s, rhs;          // (n) ADMM iterates: x linear, y in K, z in K*, s = Gamma(z)
   VecX x_prev, y_prev;           // (n) the previous x, y (dual residual)
   VecX power;                    // (n) power iteration vector (largest eigenvalue of G)
@@ -210,7 +211,6 @@ struct Buffers {
 
   void resize(Eigen::Index n) {
     if (x.size() == n) return;
-    A.resize(n, n);
     muw.resize(n / 3);
     in_set.resize(static_cast<std::size_t>(n / 3));
     for (VecX* v : {&x, &y, &z, &s, &rhs, &x_prev, &y_prev, &power, &lambda_best, &lambda_p, &sigma_p, &lambda_kept,
@@ -293,7 +293,8 @@ NcpResult admm(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma, int st
   const double rho_min = 1e-8 * L, rho_max = 1e8 * L;
   double rho = std::sqrt(L * eta) * std::pow(cond, 0.2);
 
-  // G + (rho + eta) I, factorized in place in w.A's storage (no allocation).
+  // G + (rho + eta) I, factorized in place in w.A's storage (grown once to the largest n seen).
+  if (w.A.size() < n * n) w.A.resize(n * n);
   Eigen::Map<MatX> A(w.A.data(), n, n);
   std::optional<Eigen::LLT<Eigen::Ref<MatX>>> llt;
   auto factorize = [&]() {
