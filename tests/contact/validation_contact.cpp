@@ -406,13 +406,22 @@ TEST(ContactValidation, SelfContactFoldedBeamDoesNotPassThroughItself) {
     if (model.fem.X(2, i) > 0.04 - 1e-9 && model.fem.X(0, i) > 0.03) upper.push_back(i);
   long contact_steps = 0;
   double lowest = 1;
-  // ~150 contacts (vertex-triangle and edge-edge from both sides), ~120 of them
-  // sticking, rank-deficient and with friction: ADMM + PGS + polish reach 1e-8 to 1e-6
-  // on most steps, and up to ~5e-5 at the impact (measured over 156 steps), not always
-  // 1e-8 in 2000 iterations: the solution is checked at 1e-4 (and counted).
+  // ~145 contacts (vertex-triangle and edge-edge from both sides) on ~48 free nodes,
+  // rank-deficient (288 of 432 eigenvalues of G zero) and with friction: ADMM + PGS +
+  // polish do not always reach 1e-8 in 2000 iterations (measured: 49 of the 80 solves
+  // stop between 1e-8 and 3.2e-6; with tolerance 1e-5 instead, the trajectory changes
+  // and one solve stops at 2.7e-5): docs/method.md, "Limits". Such a solve must still
+  // return its best iterate with residuals that the independent check confirms: the
+  // solution is checked at 1e-4 (about 4x the worst measured) and the count printed.
   long unconverged = 0;
   run(model, data, model.initial, 80, 1e-4, [&](long k, const State& s) {
     unconverged += !data.contact.result.converged;
+    if (!data.contact.contacts.empty()) {
+      // The converged flag (and so the warning) tells the truth about the returned forces.
+      const auto& cd = data.contact;
+      const double r = contact::ncp_residuals(cd.G, cd.g, cd.mu, cd.lambda).max();
+      EXPECT_EQ(cd.result.converged, r <= 1e-8) << "step " << k << " residual " << r;
+    }
     contact_steps += data.contact.contacts.size() > 0;
     for (int i : upper) {
       lowest = std::min(lowest, s.x[3 * i + 2]);
