@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <limits>
+#include <string>
 
 namespace softdiff::actuation {
 
@@ -44,6 +45,10 @@ void ActuatorModel::add_force_derivative(const VecX& x, double lambda, const Vec
   std::visit([&](const auto& a) { a.add_force_derivative(x, lambda, dx, out); }, kind);
 }
 
+void ActuatorModel::add_force_derivative_transpose(const VecX& x, double lambda, const VecX& y, VecX& out) const {
+  std::visit([&](const auto& a) { a.add_force_derivative_transpose(x, lambda, y, out); }, kind);
+}
+
 bool ActuatorModel::has_measure() const {
   if (std::holds_alternative<Cable>(kind)) return true;
   if (const auto* c = std::get_if<Cavity>(&kind)) return c->closed();
@@ -81,10 +86,10 @@ double ActuationModel::potential(const VecX& x, const VecX& lambda) const {
     const double l = lambda[static_cast<Eigen::Index>(k)];
     if (l == 0) continue;
     const auto& a = actuators[k];
-    if (const auto* c = std::get_if<Cable>(&a.kind)) {
-      U += l * c->length(x);  // H_a = -dL/dx: f = -d(lambda L)/dx
-    } else if (const auto* c = std::get_if<Cavity>(&a.kind)) {
-      U -= l * c->volume(x);  // H_a = dV/dx (closed)
+    if (const auto* cable = std::get_if<Cable>(&a.kind)) {
+      U += l * cable->length(x);  // H_a = -dL/dx: f = -d(lambda L)/dx
+    } else if (const auto* cavity = std::get_if<Cavity>(&a.kind)) {
+      U -= l * cavity->volume(x);  // H_a = dV/dx (closed)
     } else if (const auto* s = std::get_if<Servo>(&a.kind)) {
       Vec3 mean = Vec3::Zero();
       for (int i : s->nodes()) mean += x.segment<3>(3 * i);
@@ -99,6 +104,44 @@ void ActuationModel::add_forces(const VecX& x, const VecX& lambda, double scale,
   for (size_t a = 0; a < actuators.size(); ++a) {
     const double l = lambda[static_cast<Eigen::Index>(a)];
     if (l != 0) actuators[a].add_force(x, l, scale, f);
+  }
+}
+
+void ActuationModel::add_force_derivatives(const VecX& x, const VecX& lambda, const VecX& dx, double scale,
+                                           VecX& out) const {
+  // d(H_a^T lambda)/dx is linear in lambda: scale it into lambda.
+  for (size_t a = 0; a < actuators.size(); ++a) {
+    const double l = scale * lambda[static_cast<Eigen::Index>(a)];
+    if (l != 0) actuators[a].add_force_derivative(x, l, dx, out);
+  }
+}
+
+void ActuationModel::add_force_derivatives_transpose(const VecX& x, const VecX& lambda, const VecX& y, double scale,
+                                                     VecX& out) const {
+  for (size_t a = 0; a < actuators.size(); ++a) {
+    const double l = scale * lambda[static_cast<Eigen::Index>(a)];
+    if (l != 0) actuators[a].add_force_derivative_transpose(x, l, y, out);
+  }
+}
+
+void ActuationModel::add_jacobian_product(const VecX& x, const VecX& y, double scale, VecX& out) const {
+  SOFTDIFF_DEMAND(out.size() == static_cast<Eigen::Index>(actuators.size()),
+                  "out: expected one value per actuator (" + std::to_string(actuators.size()) + "), got " +
+                      std::to_string(out.size()));
+  SOFTDIFF_DEMAND(y.size() == x.size(), "y must be sized like x");
+  Mat3X values;
+  for (size_t a = 0; a < actuators.size(); ++a) {
+    double dot = 0;
+    std::visit(
+        [&](const auto& k) {
+          const auto& nodes = k.nodes();
+          values.resize(3, static_cast<Eigen::Index>(nodes.size()));
+          k.gradient_sparse(x, values);
+          for (size_t j = 0; j < nodes.size(); ++j)
+            dot += values.col(static_cast<Eigen::Index>(j)).dot(y.segment<3>(3 * nodes[j]));
+        },
+        actuators[a].kind);
+    out[static_cast<Eigen::Index>(a)] += scale * dot;
   }
 }
 

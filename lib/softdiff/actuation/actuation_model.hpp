@@ -36,6 +36,8 @@ struct ActuatorModel {
   void add_force(const VecX& x, double lambda, double scale, VecX& f) const;
   // out += d(H_a^T lambda)/dx . dx
   void add_force_derivative(const VecX& x, double lambda, const VecX& dx, VecX& out) const;
+  // out += (d(H_a^T lambda)/dx)^T y
+  void add_force_derivative_transpose(const VecX& x, double lambda, const VecX& y, VecX& out) const;
   // The measured quantity written to the output: cable length, closed-cavity volume;
   // NaN for others.
   double measure(const VecX& x) const;
@@ -64,6 +66,13 @@ struct ActuationModel {
   double potential(const VecX& x, const VecX& lambda) const;
   // f += scale * sum_a lambda_a H_a(x)^T
   void add_forces(const VecX& x, const VecX& lambda, double scale, VecX& f) const;
+  // out += scale * sum_a d(H_a^T lambda_a)/dx . dx
+  void add_force_derivatives(const VecX& x, const VecX& lambda, const VecX& dx, double scale, VecX& out) const;
+  // out += scale * sum_a (d(H_a^T lambda_a)/dx)^T y
+  void add_force_derivatives_transpose(const VecX& x, const VecX& lambda, const VecX& y, double scale,
+                                       VecX& out) const;
+  // out (n_a) += scale * H_a(x) y, i.e. out_a += scale * y . H_a^T (the reverse of f += H_a^T dlambda).
+  void add_jacobian_product(const VecX& x, const VecX& y, double scale, VecX& out) const;
 
   // Actuation stiffness in the static tangent: -sum_a d(H_a^T lambda_a)/dx restricted
   // to the cables, sum_cables lambda d^2L/dx^2 (exact, symmetric positive

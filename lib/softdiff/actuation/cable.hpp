@@ -60,6 +60,10 @@ class Cable {
   // Per segment d = p_{k+1} - p_k (or p_0 - q), u = d/|d|, the Hessian of |d| is
   // (I - u u^T)/|d| applied to dd = dp_{k+1} - dp_k, with dp = J dx.
   void add_force_derivative(const VecX& x, double lambda, const VecX& dx, VecX& out) const;
+  // out += (d(H_a^T lambda)/dx)^T y: the same map (-lambda d^2L/dx^2 is symmetric).
+  void add_force_derivative_transpose(const VecX& x, double lambda, const VecX& y, VecX& out) const {
+    add_force_derivative(x, lambda, y, out);
+  }
 
   // Segments, numbered s = 0 .. num_segments() - 1 in cable order: with a pull point,
   // segment 0 is q -> p_0 and segment s joins p_{s-1} and p_s; without, segment s

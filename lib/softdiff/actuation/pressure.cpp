@@ -199,4 +199,19 @@ void Cavity::add_force_derivative(const VecX& x, double p, const VecX& dx, VecX&
   }
 }
 
+void Cavity::add_force_derivative_transpose(const VecX& x, double p, const VecX& y, VecX& out) const {
+  check_sizes(x, out);
+  SOFTDIFF_DEMAND(y.size() == x.size(), "y must be sized like x");
+  const double s = p / 6;
+  for (int t = 0; t < triangles_.cols(); ++t) {
+    const int i0 = 3 * triangles_(0, t), i1 = 3 * triangles_(1, t), i2 = 3 * triangles_(2, t);
+    const Vec3 e1 = x.segment<3>(i1) - x.segment<3>(i0), e2 = x.segment<3>(i2) - x.segment<3>(i0);
+    const Vec3 Y = y.segment<3>(i0) + y.segment<3>(i1) + y.segment<3>(i2);
+    const Vec3 g1 = s * e2.cross(Y), g2 = s * Y.cross(e1);  // d/d(de1), d/d(de2)
+    out.segment<3>(i1) += g1;
+    out.segment<3>(i2) += g2;
+    out.segment<3>(i0) -= g1 + g2;
+  }
+}
+
 }  // namespace softdiff::actuation

@@ -79,6 +79,9 @@ class Cavity {
   // dn = ((db - da) x (c - a) + (b - a) x (dc - da)) / 2. For a closed cavity this is
   // p (d^2V/dx^2) dx (symmetric); for an open face it is not symmetric in general.
   void add_force_derivative(const VecX& x, double p, const VecX& dx, VecX& out) const;
+  // out += (d(H_a^T p)/dx)^T y: per triangle, with Y = y_a + y_b + y_c (the three nodes
+  // get the same dn_t / 3), Y . dn_t = (p/2) [de1 . (e2 x Y) + de2 . (Y x e1)].
+  void add_force_derivative_transpose(const VecX& x, double p, const VecX& y, VecX& out) const;
 
  private:
   void check_sizes(const VecX& x, const VecX& out) const;

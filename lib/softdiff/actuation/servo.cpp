@@ -142,4 +142,19 @@ void Servo::add_force_derivative(const VecX& x, double lambda, const VecX& dx, V
   for (int i : nodes_) out.segment<3>(3 * i) += s * d_.cross(dx.segment<3>(3 * i)) - t * d_.cross(arm(x, i));
 }
 
+void Servo::add_force_derivative_transpose(const VecX& x, double lambda, const VecX& y, VecX& out) const {
+  check_sizes(x, out);
+  SOFTDIFF_DEMAND(y.size() == x.size(), "y must be sized like x");
+  if (!rotation_) return;
+  double S = 0, k = 0;
+  for (int i : nodes_) {
+    const Vec3 r = arm(x, i);
+    S += r.squaredNorm();
+    k += y.segment<3>(3 * i).dot(d_.cross(r));
+  }
+  if (!(S > 0)) return;
+  const double s = lambda / S, t = 2 * lambda * k / (S * S);
+  for (int i : nodes_) out.segment<3>(3 * i) += s * y.segment<3>(3 * i).cross(d_) - t * arm(x, i);
+}
+
 }  // namespace softdiff::actuation

@@ -73,6 +73,9 @@ class Servo {
   void gradient_sparse(const VecX& x, Mat3X& values) const;
   // out += d(H_a^T lambda)/dx . dx (exact; zero for a translation servo).
   void add_force_derivative(const VecX& x, double lambda, const VecX& dx, VecX& out) const;
+  // out += (d(H_a^T lambda)/dx)^T y: node j gets lambda [ (y_j x a) / S - 2 r_j k / S^2 ],
+  // k = sum_i y_i . (a x r_i) (zero for a translation servo).
+  void add_force_derivative_transpose(const VecX& x, double lambda, const VecX& y, VecX& out) const;
 
  private:
   Vec3 arm(const VecX& x, int node) const {  // r_i

@@ -1,4 +1,5 @@
 #include <softdiff/fem/assembly.hpp>
+#include <softdiff/fem/element_loop.hpp>
 
 #include <Eigen/LU>
 #include <algorithm>
@@ -12,6 +13,17 @@ void FemData::resize(const FemModel& model) {
   element_energy = VecX::Zero(model.num_tets);
   f_int = VecX::Zero(3 * model.num_nodes);
   K_values = VecX::Zero(model.pattern.nnz());
+}
+
+void element_stiffness_from_tangent(const Mat9& C, const Eigen::Matrix<double, 3, 4>& G, double volume, Mat12& K_e) {
+  // K(3a+i, 3b+k) = V sum_{j,l} C(i+3j, k+3l) G(j,a) G(l,b)
+  Eigen::Matrix<double, 9, 12> T;  // T(:, 3b+k) = sum_l C(:, k+3l) G(l,b)
+  for (int b = 0; b < 4; ++b)
+    for (int k = 0; k < 3; ++k)
+      T.col(3 * b + k) = C.col(k) * G(0, b) + C.col(k + 3) * G(1, b) + C.col(k + 6) * G(2, b);
+  for (int a = 0; a < 4; ++a)
+    for (int i = 0; i < 3; ++i)
+      K_e.row(3 * a + i) = volume * (G(0, a) * T.row(i) + G(1, a) * T.row(i + 3) + G(2, a) * T.row(i + 6));
 }
 
 bool element_forces_stiffness(material::Law law, const material::Lame& lame, double volume, const Mat3& Dm_inv,
@@ -33,14 +45,7 @@ bool element_forces_stiffness(material::Law law, const material::Lame& lame, dou
   // f_a = -V P g_a
   Eigen::Map<Eigen::Matrix<double, 3, 4>>(f_e.data()).noalias() = -volume * P * G;
   if (K_e) {
-    // K(3a+i, 3b+k) = V sum_{j,l} dP_dF(i+3j, k+3l) G(j,a) G(l,b)
-    Eigen::Matrix<double, 9, 12> T;  // T(:, 3b+k) = sum_l dP_dF(:, k+3l) G(l,b)
-    for (int b = 0; b < 4; ++b)
-      for (int k = 0; k < 3; ++k)
-        T.col(3 * b + k) = dP_dF.col(k) * G(0, b) + dP_dF.col(k + 3) * G(1, b) + dP_dF.col(k + 6) * G(2, b);
-    for (int a = 0; a < 4; ++a)
-      for (int i = 0; i < 3; ++i)
-        K_e->row(3 * a + i) = volume * (G(0, a) * T.row(i) + G(1, a) * T.row(i + 3) + G(2, a) * T.row(i + 6));
+    element_stiffness_from_tangent(dP_dF, G, volume, *K_e);
     if (psd_projection) material::project_psd(*K_e);
   }
   return true;
@@ -50,40 +55,28 @@ bool evaluate(const FemModel& model, const VecX& x, const EvalRequest& request, 
   const auto& pattern = model.pattern;
   if (request.forces) data.f_int.setZero();
   if (request.stiffness) data.K_values.setZero();
-  int bad = std::numeric_limits<int>::max();
-  const int num_colors = static_cast<int>(pattern.color_begin.size()) - 1;
-  for (int c = 0; c < num_colors; ++c) {
-    const int begin = pattern.color_begin[c], end = pattern.color_begin[c + 1];
-    // The last color may hold elements that share nodes (overflow of the coloring):
-    // it is small and assembled serially.
-    const bool serial = (c == num_colors - 1) && pattern.last_color_shares_nodes;
-#pragma omp parallel for schedule(static) reduction(min : bad) if (!serial && end - begin > 256)
-    for (int k = begin; k < end; ++k) {
-      const int e = pattern.color_elements[k];
-      const auto& body = model.bodies[model.tet_body[e]];
-      Eigen::Matrix<double, 3, 4> x_e;
-      for (int a = 0; a < 4; ++a) x_e.col(a) = x.segment<3>(3 * model.tets(a, e));
-      Vec12 f_e;
-      Mat12 K_e;
-      double psi_e = 0;
-      if (!element_forces_stiffness(body.law, body.lame, model.rest_volume[e], model.Dm_inv[e], x_e,
-                                    body.psd_projection, data.F[e], f_e, request.stiffness ? &K_e : nullptr,
-                                    request.energy ? &psi_e : nullptr, &data.R[e])) {
-        bad = std::min(bad, e);
-        continue;
-      }
-      if (request.energy) data.element_energy[e] = psi_e;
-      if (request.forces)
-        for (int a = 0; a < 4; ++a) data.f_int.segment<3>(3 * model.tets(a, e)) += f_e.segment<3>(3 * a);
-      if (request.stiffness) {
-        const int* scatter = pattern.element_scatter.data() + 78 * static_cast<size_t>(e);
-        int s = 0;
-        for (int i = 0; i < 12; ++i)
-          for (int j = i; j < 12; ++j) data.K_values[scatter[s++]] += K_e(i, j);
-      }
+  const int bad = for_each_element_by_color(model, [&](int e) {
+    const auto& body = model.bodies[model.tet_body[e]];
+    const Eigen::Matrix<double, 3, 4> x_e = gather(model, x, e);
+    Vec12 f_e;
+    Mat12 K_e;
+    double psi_e = 0;
+    if (!element_forces_stiffness(body.law, body.lame, model.rest_volume[e], model.Dm_inv[e], x_e,
+                                  body.psd_projection, data.F[e], f_e, request.stiffness ? &K_e : nullptr,
+                                  request.energy ? &psi_e : nullptr, &data.R[e]))
+      return false;
+    if (request.energy) data.element_energy[e] = psi_e;
+    if (request.forces)
+      for (int a = 0; a < 4; ++a) data.f_int.segment<3>(3 * model.tets(a, e)) += f_e.segment<3>(3 * a);
+    if (request.stiffness) {
+      const int* scatter = pattern.element_scatter.data() + 78 * static_cast<size_t>(e);
+      int s = 0;
+      for (int i = 0; i < 12; ++i)
+        for (int j = i; j < 12; ++j) data.K_values[scatter[s++]] += K_e(i, j);
     }
-  }
-  if (bad != std::numeric_limits<int>::max()) {
+    return true;
+  });
+  if (bad >= 0) {
     data.bad_element = bad;
     data.bad_det = data.F[bad].determinant();
     return false;

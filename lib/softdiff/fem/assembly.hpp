@@ -38,6 +38,11 @@ int find_inverted_element(const FemModel& model, const VecX& x, double* det_F = 
 // y = S x for a symmetric matrix S stored as upper-triangle values in the pattern.
 void symmetric_multiply(const FemModel& model, const VecX& values, const VecX& x, VecX& y);
 
+// K_e = V B^T C B for a 9x9 tangent C (dP/dF, or its directional derivative for dK_e),
+// with vec(F) = B x_e: K(3a+i, 3b+k) = V sum_{j,l} C(i+3j, k+3l) G(j,a) G(l,b),
+// G = shape_gradients(Dm_inv).
+void element_stiffness_from_tangent(const Mat9& C, const Eigen::Matrix<double, 3, 4>& G, double volume, Mat12& K_e);
+
 // Element kernel (exposed for tests): forces (12) and stiffness (12x12) of one tet.
 // Returns false when the law is undefined at F.
 bool element_forces_stiffness(material::Law law, const material::Lame& lame, double volume,

@@ -1,0 +1,210 @@
+// Derivatives of the FEM stage: see fem_derivatives.hpp for the formulas.
+#include <softdiff/core/avx512_gcc12.hpp>  // first: see there
+#include <softdiff/fem/fem_derivatives.hpp>
+
+#include <softdiff/core/assert.hpp>
+#include <softdiff/fem/assembly.hpp>
+#include <softdiff/fem/element_loop.hpp>
+#include <softdiff/material/psd.hpp>
+
+namespace softdiff::fem {
+
+namespace {
+
+using Mat34 = Eigen::Matrix<double, 3, 4>;
+using Mat9x12 = Eigen::Matrix<double, 9, 12>;
+
+Vec9 vec9(const Mat3& A) { return Eigen::Map<const Vec9>(A.data()); }
+Mat3 mat3(const Vec9& v) { return Eigen::Map<const Mat3>(v.data()); }
+
+// The element at x: F, C = dP/dF, the shape gradients; with projection, the derivative
+// of the projection at K_e. Fixed size, on the stack.
+struct ElementPoint {
+  Mat34 G;
+  double V = 0;
+  Mat3 F;
+  Mat9 C;
+  material::Law law{};
+  material::Lame lame;
+  bool projected = false;  // psd_projection and K_e not PSD: dK~ = D(dK)
+  material::PsdProjectionDerivative<12> projection;
+
+  bool compute(const FemModel& model, const VecX& x, int e, bool need_projection) {
+    const auto& body = model.bodies[model.tet_body[e]];
+    law = body.law;
+    lame = body.lame;
+    V = model.rest_volume[e];
+    G = shape_gradients(model.Dm_inv[e]);
+    const Mat34 x_e = gather(model, x, e);
+    Mat3 Ds;
+    for (int k = 0; k < 3; ++k) Ds.col(k) = x_e.col(k + 1) - x_e.col(0);
+    F.noalias() = Ds * model.Dm_inv[e];  // as element_forces_stiffness computes it
+    if (!(F.determinant() > 0)) return false;
+    Mat3 P;
+    if (!material::stress(law, F, lame, P, &C)) return false;
+    projected = false;
+    if (need_projection && body.psd_projection) {
+      Mat12 K;
+      element_stiffness_from_tangent(C, G, V, K);
+      projection.compute(K);
+      projected = !projection.identity;
+    }
+    return true;
+  }
+
+  // dF for node values u_e (3 x 4).
+  Mat3 dF(const Mat34& u_e) const { return u_e * G.transpose(); }
+  // Node forces-like values V mat(s) G of a 9-vector s (the action of B^T, times V).
+  Mat34 spread(const Vec9& s) const { return V * mat3(s) * G; }
+  // B (9 x 12): vec(dF_u) = B vec(u_e).
+  Mat9x12 B() const {
+    Mat9x12 b = Mat9x12::Zero();
+    for (int a = 0; a < 4; ++a)
+      for (int j = 0; j < 3; ++j)
+        for (int i = 0; i < 3; ++i) b(3 * j + i, 3 * a + i) = G(j, a);
+    return b;
+  }
+};
+
+Vec12 as12(const Mat34& m) { return Eigen::Map<const Vec12>(m.data()); }
+Mat34 as34(const Vec12& v) { return Eigen::Map<const Mat34>(v.data()); }
+
+void check_sizes(const FemModel& model, const VecX& v, const char* name) {
+  SOFTDIFF_DEMAND(v.size() == 3L * model.num_nodes, std::string(name) + ": expected size 3n = " +
+                                                          std::to_string(3L * model.num_nodes) + ", got " +
+                                                          std::to_string(v.size()));
+}
+
+void check_body_scalars(const FemModel& model, const VecX& s, const char* name) {
+  SOFTDIFF_DEMAND(s.size() == static_cast<Eigen::Index>(model.bodies.size()),
+                  std::string(name) + ": expected one value per body (" + std::to_string(model.bodies.size()) +
+                      "), got " + std::to_string(s.size()));
+}
+
+}  // namespace
+
+int add_stiffness_jvp(const FemModel& model, const VecX& x, const VecX& u, const VecX& w, const VecX& a,
+                      const VecX& c, VecX& out) {
+  check_sizes(model, x, "x");
+  check_sizes(model, u, "u");
+  check_sizes(model, w, "w");
+  check_sizes(model, out, "out");
+  check_body_scalars(model, a, "a");
+  check_body_scalars(model, c, "c");
+  return for_each_element_by_color(model, [&](int e) {
+    const int b = model.tet_body[e];
+    const double ab = a[b], cb = c[b];
+    if (ab == 0 && cb == 0) return true;
+    ElementPoint p;
+    if (!p.compute(model, x, e, cb != 0)) return false;
+    const Mat3 dF_u = p.dF(gather(model, u, e));
+    Mat34 r = Mat34::Zero();
+    if (ab != 0) r += ab * p.spread(p.C * vec9(dF_u));
+    if (cb != 0) {
+      Mat9 dC;
+      if (!material::stress_hessian_directional(p.law, p.F, p.lame, dF_u, dC)) return false;
+      const Mat34 w_e = gather(model, w, e);
+      if (!p.projected) {
+        r += cb * p.spread(dC * vec9(p.dF(w_e)));
+      } else {
+        Mat12 dK;
+        element_stiffness_from_tangent(dC, p.G, p.V, dK);
+        r += cb * as34(p.projection.apply(dK) * as12(w_e));
+      }
+    }
+    scatter_add(model, e, r, out);
+    return true;
+  });
+}
+
+int add_stiffness_vjp(const FemModel& model, const VecX& x, const VecX& y, const VecX& w, const VecX& a,
+                      const VecX& c, VecX& out) {
+  check_sizes(model, x, "x");
+  check_sizes(model, y, "y");
+  check_sizes(model, w, "w");
+  check_sizes(model, out, "out");
+  check_body_scalars(model, a, "a");
+  check_body_scalars(model, c, "c");
+  return for_each_element_by_color(model, [&](int e) {
+    const int b = model.tet_body[e];
+    const double ab = a[b], cb = c[b];
+    if (ab == 0 && cb == 0) return true;
+    ElementPoint p;
+    if (!p.compute(model, x, e, cb != 0)) return false;
+    const Mat34 y_e = gather(model, y, e);
+    const Mat3 dF_y = p.dF(y_e);
+    Mat34 r = Mat34::Zero();
+    if (ab != 0) r += ab * p.spread(p.C * vec9(dF_y));
+    if (cb != 0) {
+      const Mat34 w_e = gather(model, w, e);
+      if (!p.projected) {
+        Mat9 dC;
+        if (!material::stress_hessian_directional(p.law, p.F, p.lame, dF_y, dC)) return false;
+        r += cb * p.spread(dC * vec9(p.dF(w_e)));
+      } else {
+        const Vec12 yv = as12(y_e), wv = as12(w_e);
+        const Mat12 Y = 0.5 * (yv * wv.transpose() + wv * yv.transpose());
+        const Mat12 S = p.projection.apply(Y);
+        const Mat9x12 B = p.B();
+        const Mat9 S_hat = B * S * B.transpose();
+        Vec9 g;
+        for (int m = 0; m < 9; ++m) {
+          Mat3 E = Mat3::Zero();
+          E(m % 3, m / 3) = 1;
+          Mat9 dC;
+          if (!material::stress_hessian_directional(p.law, p.F, p.lame, E, dC)) return false;
+          g[m] = S_hat.cwiseProduct(dC).sum();
+        }
+        r += cb * p.spread(g);
+      }
+    }
+    scatter_add(model, e, r, out);
+    return true;
+  });
+}
+
+material::Lame lame_derivative(const BodyModel& body, ElasticParameter p) {
+  const double E = body.young, nu = body.poisson;
+  material::Lame d;
+  if (p == ElasticParameter::young) {
+    // mu and lambda are proportional to E.
+    d.mu = body.lame.mu / E;
+    d.lambda = body.lame.lambda / E;
+  } else {
+    // mu = E / (2 (1 + nu)), lambda = E nu / ((1 + nu)(1 - 2 nu)) = E nu / D, D' = -1 - 4 nu.
+    const double D = (1 + nu) * (1 - 2 * nu);
+    d.mu = -E / (2 * (1 + nu) * (1 + nu));
+    d.lambda = E * (1 + 2 * nu * nu) / (D * D);
+  }
+  return d;
+}
+
+int add_elastic_parameter_derivative(const FemModel& model, const VecX& x, int body, ElasticParameter param,
+                                     const VecX& w, VecX& df, VecX& dKw) {
+  check_sizes(model, x, "x");
+  check_sizes(model, w, "w");
+  check_sizes(model, df, "df");
+  check_sizes(model, dKw, "dKw");
+  SOFTDIFF_DEMAND(body >= 0 && body < static_cast<int>(model.bodies.size()), "body index out of range");
+  const material::Lame dlame = lame_derivative(model.bodies[body], param);
+  return for_each_element_by_color(model, [&](int e) {
+    if (model.tet_body[e] != body) return true;
+    ElementPoint p;
+    if (!p.compute(model, x, e, true)) return false;
+    Mat3 P_d;
+    Mat9 C_d;
+    if (!material::stress(p.law, p.F, dlame, P_d, &C_d)) return false;
+    scatter_add(model, e, -p.V * P_d * p.G, df);
+    const Mat34 w_e = gather(model, w, e);
+    if (!p.projected) {
+      scatter_add(model, e, p.spread(C_d * vec9(p.dF(w_e))), dKw);
+    } else {
+      Mat12 dK;
+      element_stiffness_from_tangent(C_d, p.G, p.V, dK);
+      scatter_add(model, e, as34(p.projection.apply(dK) * as12(w_e)), dKw);
+    }
+    return true;
+  });
+}
+
+}  // namespace softdiff::fem

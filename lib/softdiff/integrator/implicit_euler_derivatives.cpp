@@ -1,0 +1,178 @@
+// Derivatives of the implicit Euler step: see implicit_euler_derivatives.hpp.
+#include <softdiff/integrator/implicit_euler_derivatives.hpp>
+
+#include <softdiff/core/assert.hpp>
+#include <softdiff/fem/assembly.hpp>
+#include <softdiff/fem/fem_derivatives.hpp>
+#include <softdiff/integrator/implicit_euler.hpp>
+
+#include <string>
+
+namespace softdiff::integrator {
+
+namespace {
+
+void demand_supported(const Model& model) {
+  SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler,
+                  "step derivatives: only the implicit_euler integrator is differentiated in this version");
+  SOFTDIFF_DEMAND(model.step.newton_iterations == 1,
+                  "step derivatives: only the linearized step (newton_iterations = 1) is differentiated in this version");
+  SOFTDIFF_DEMAND(!model.contact.enabled, "step derivatives: contact is not differentiated in this version");
+}
+
+void demand_size(const VecX& v, Eigen::Index n, const char* name) {
+  SOFTDIFF_DEMAND(v.size() == 0 || v.size() == n, std::string(name) + ": expected size " + std::to_string(n) +
+                                                      " (or empty for zero), got " + std::to_string(v.size()));
+}
+
+}  // namespace
+
+StepDerivatives::StepDerivatives(const Model& model, std::vector<ParameterId> parameters)
+    : parameters_(std::move(parameters)) {
+  const auto nb = static_cast<Eigen::Index>(model.fem.bodies.size());
+  const double h = model.step.dt;
+  h_alpha_.resize(nb);
+  k_coef_.resize(nb);
+  for (Eigen::Index b = 0; b < nb; ++b) {
+    h_alpha_[b] = h * model.fem.bodies[b].rayleigh_mass;
+    k_coef_[b] = h * model.fem.bodies[b].rayleigh_stiffness + h * h;
+  }
+  minus_h_ = VecX::Constant(nb, -h);
+  minus_k_coef_ = -k_coef_;
+  for (const auto& p : parameters_) {
+    SOFTDIFF_DEMAND(p.body >= 0 && p.body < nb, "parameter " + std::string(parameter_name(p.kind)) + ": body " +
+                                                    std::to_string(p.body) + " does not exist");
+    SOFTDIFF_DEMAND(p.kind != Parameter::friction, "step derivatives: friction needs contact, not differentiated in this version");
+  }
+  const Eigen::Index n = 3L * model.fem.num_nodes;
+  for (VecX* v : {&r_, &y_, &q_, &w_, &delta_, &tmp_, &tmp2_, &zero_}) *v = VecX::Zero(n);
+}
+
+void StepDerivatives::body_scaled_product(const Model& model, const VecX& values, const VecX& w, const VecX& scale,
+                                          VecX& out) {
+  fem::symmetric_multiply(model.fem, values, w, out);  // bodies share no node: S is block diagonal per body
+  for (std::size_t b = 0; b < model.fem.bodies.size(); ++b) {
+    const auto& body = model.fem.bodies[b];
+    out.segment(3 * body.node_begin, 3 * body.num_nodes) *= scale[static_cast<Eigen::Index>(b)];
+  }
+}
+
+bool StepDerivatives::parameter_column(const Model& model, const Data& data, const State& in, const State& out,
+                                       int j, VecX& q) {
+  const ParameterId& id = parameters_[static_cast<std::size_t>(j)];
+  const auto& fem = model.fem;
+  const auto& body = fem.bodies[static_cast<std::size_t>(id.body)];
+  const double h = model.step.dt;
+  const Eigen::Index begin = 3 * body.node_begin, len = 3 * body.num_nodes;
+  q.setZero();
+  switch (id.kind) {
+    case Parameter::young:
+    case Parameter::poisson: {
+      tmp_.setZero();
+      tmp2_.setZero();
+      const auto p = id.kind == Parameter::young ? fem::ElasticParameter::young : fem::ElasticParameter::poisson;
+      if (fem::add_elastic_parameter_derivative(fem, in.x, id.body, p, out.v, tmp_, tmp2_) >= 0) return false;
+      q = h * tmp_ - k_coef_[id.body] * tmp2_;
+      return true;
+    }
+    case Parameter::density: {
+      // M and P = M g are proportional to rho.
+      w_ = h_alpha_[id.body] * out.v + delta_;
+      fem::symmetric_multiply(fem, fem.mass_values, w_, tmp_);
+      q.segment(begin, len) = (h * fem.gravity_force.segment(begin, len) - tmp_.segment(begin, len)) / body.density;
+      return true;
+    }
+    case Parameter::rayleigh_mass:
+      fem::symmetric_multiply(fem, fem.mass_values, out.v, tmp_);
+      q.segment(begin, len) = -h * tmp_.segment(begin, len);
+      return true;
+    case Parameter::rayleigh_stiffness:
+      fem::symmetric_multiply(fem, data.fem.K_values, out.v, tmp_);
+      q.segment(begin, len) = -h * tmp_.segment(begin, len);
+      return true;
+    case Parameter::friction: return false;
+  }
+  return false;
+}
+
+bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in, const State& out,
+                          const StepTangent& d, StateTangent& d_out) {
+  demand_supported(model);
+  const auto& fem = model.fem;
+  const Eigen::Index n = 3L * fem.num_nodes;
+  const auto na = static_cast<Eigen::Index>(model.actuation.actuators.size());
+  demand_size(d.x, n, "tangent x");
+  demand_size(d.v, n, "tangent v");
+  demand_size(d.lambda_a, na, "tangent lambda_a");
+  demand_size(d.p, static_cast<Eigen::Index>(parameters_.size()), "tangent p");
+  const double h = model.step.dt;
+  const VecX& dx = d.x.size() ? d.x : zero_;
+  const VecX& dv = d.v.size() ? d.v : zero_;
+  delta_ = out.v - in.v;
+
+  r_.setZero();
+  // -h K dx - (h beta + h^2) dK~[dx] w
+  if (d.x.size() && fem::add_stiffness_jvp(fem, in.x, dx, out.v, minus_h_, minus_k_coef_, r_) >= 0) return false;
+  if (na > 0) {
+    if (d.x.size()) model.actuation.add_force_derivatives(in.x, data.lambda_a, dx, h, r_);
+    if (d.lambda_a.size()) model.actuation.add_forces(in.x, d.lambda_a, h, r_);
+  }
+  if (d.v.size()) {
+    body_scaled_product(model, fem.mass_values, dv, h_alpha_, tmp_);
+    r_ -= tmp_;
+    body_scaled_product(model, data.fem.K_values, dv, k_coef_, tmp_);
+    r_ -= tmp_;
+  }
+  for (int j = 0; j < static_cast<int>(parameters_.size()); ++j) {
+    if (!d.p.size() || d.p[j] == 0) continue;
+    if (!parameter_column(model, data, in, out, j, q_)) return false;
+    r_ += d.p[j] * q_;
+  }
+  project(model, r_);
+  if (!data.solver->solve(r_, y_)) return false;
+  d_out.v = dv + y_;
+  project(model, d_out.v);
+  d_out.x = dx + h * d_out.v;
+  return d_out.x.allFinite() && d_out.v.allFinite();
+}
+
+bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in, const State& out,
+                          const StateTangent& bar_out, StepCotangent& bar_in) {
+  demand_supported(model);
+  const auto& fem = model.fem;
+  const Eigen::Index n = 3L * fem.num_nodes;
+  const auto na = static_cast<Eigen::Index>(model.actuation.actuators.size());
+  demand_size(bar_out.x, n, "cotangent x");
+  demand_size(bar_out.v, n, "cotangent v");
+  const double h = model.step.dt;
+  delta_ = out.v - in.v;
+
+  // v~ = Pi (bar_v_f + h bar_x_f), y = A^{-1} v~.
+  tmp_ = bar_out.v.size() ? bar_out.v : zero_;
+  if (bar_out.x.size()) tmp_ += h * bar_out.x;
+  project(model, tmp_);
+  if (!data.solver->solve(tmp_, y_)) return false;
+  project(model, y_);
+
+  bar_in.v = tmp_;
+  body_scaled_product(model, fem.mass_values, y_, h_alpha_, tmp2_);
+  bar_in.v -= tmp2_;
+  body_scaled_product(model, data.fem.K_values, y_, k_coef_, tmp2_);
+  bar_in.v -= tmp2_;
+
+  bar_in.x = bar_out.x.size() ? bar_out.x : zero_;
+  if (fem::add_stiffness_vjp(fem, in.x, y_, out.v, minus_h_, minus_k_coef_, bar_in.x) >= 0) return false;
+  bar_in.lambda_a = VecX::Zero(na);
+  if (na > 0) {
+    model.actuation.add_force_derivatives_transpose(in.x, data.lambda_a, y_, h, bar_in.x);
+    model.actuation.add_jacobian_product(in.x, y_, h, bar_in.lambda_a);
+  }
+  bar_in.p = VecX::Zero(static_cast<Eigen::Index>(parameters_.size()));
+  for (int j = 0; j < static_cast<int>(parameters_.size()); ++j) {
+    if (!parameter_column(model, data, in, out, j, q_)) return false;
+    bar_in.p[j] = y_.dot(q_);
+  }
+  return bar_in.x.allFinite() && bar_in.v.allFinite() && bar_in.lambda_a.allFinite() && bar_in.p.allFinite();
+}
+
+}  // namespace softdiff::integrator

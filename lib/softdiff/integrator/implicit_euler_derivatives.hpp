@@ -1,0 +1,81 @@
+#pragma once
+// Derivatives of the implicit Euler step (method.md "Derivatives"; sibling of
+// implicit_euler.hpp): forward (JVP) and reverse (VJP) products of
+//     (x_f, v_f) = Phi(x_i, v_i, lambda_a, p)
+// for the linearized step (newton_iterations = 1) without contact.
+//
+// With Delta = v_f - v_i, w = v_f, per body b (alpha, beta its Rayleigh factors),
+// differentiating A Delta = b:
+//   A dDelta = Pi r,
+//   r = -h K dx_i + h d(H_a^T lambda_a)/dx dx_i + h H_a^T dlambda_a
+//       - h alpha M dv_i - (h beta + h^2) K~ dv_i - (h beta + h^2) dK~[dx_i] w
+//       + sum_j dp_j q_j,
+//   dv_f = Pi (dv_i + dDelta),  dx_f = dx_i + h dv_f,
+// K = -df_int/dx the true Hessian, K~ the stiffness the step uses (K, or its per-element
+// PSD projection), and the parameter columns q_j (body b):
+//   young, poisson      h df_int/dp - (h beta + h^2) (dK~/dp) w
+//   density             h P_b / rho - M_b (h alpha w + Delta) / rho   (M, P = M g scale with rho)
+//   rayleigh_mass       -h M_b w
+//   rayleigh_stiffness  -h K~_b w
+// The reverse mode transposes this: with v~ = Pi (bar_v_f + h bar_x_f) and one solve
+// y = A^{-1} v~ (A symmetric),
+//   bar_x_i = bar_x_f - h K y + h (d(H_a^T lambda_a)/dx)^T y - (h beta + h^2) grad_x(y^T K~ w)
+//   bar_v_i = v~ - h alpha M y - (h beta + h^2) K~ y
+//   bar_lambda_a = h H_a y,   bar_p_j = y . q_j.
+// Every solve uses the step's factorization (data.solver): k JVP columns cost k
+// solves, a VJP one. Fixed dofs: Pi as in the step (their dx_i still moves the
+// elastic forces; their velocity stays 0).
+//
+// Not covered yet (SOFTDIFF_DEMAND with a message): contact, newton_iterations > 1,
+// the static integrator.
+#include <softdiff/core/parameters.hpp>
+#include <softdiff/data.hpp>
+#include <softdiff/model.hpp>
+
+#include <vector>
+
+namespace softdiff::integrator {
+
+// A direction in the step's inputs. An empty vector stands for zero.
+struct StepTangent {
+  VecX x, v;       // (3n)
+  VecX lambda_a;   // (n_a) actuation values of the step (at t_i + h)
+  VecX p;          // (parameters().size())
+};
+
+// A tangent or cotangent of a state.
+struct StateTangent {
+  VecX x, v;       // (3n); empty: zero
+};
+
+// Cotangents of the step's inputs (all sized by vjp()).
+struct StepCotangent {
+  VecX x, v, lambda_a, p;
+};
+
+class StepDerivatives {
+ public:
+  StepDerivatives(const Model& model, std::vector<ParameterId> parameters);
+  const std::vector<ParameterId>& parameters() const { return parameters_; }
+
+  // Valid when data holds the record of the step in -> out: right after
+  // implicit_euler_step(model, data, in, out) returned ok. Returns false (outputs
+  // unspecified) if a solve failed or an element is inverted at x_i.
+  bool jvp(const Model& model, const Data& data, const State& in, const State& out, const StepTangent& d,
+           StateTangent& d_out);
+  bool vjp(const Model& model, const Data& data, const State& in, const State& out, const StateTangent& bar_out,
+           StepCotangent& bar_in);
+
+ private:
+  // q = the column of parameter j (see above) at the step's record.
+  bool parameter_column(const Model& model, const Data& data, const State& in, const State& out, int j, VecX& q);
+  // out = scale_b * (S w) per body, S the symmetric pattern matrix `values` (M or K~).
+  void body_scaled_product(const Model& model, const VecX& values, const VecX& w, const VecX& scale, VecX& out);
+
+  std::vector<ParameterId> parameters_;
+  VecX h_alpha_, k_coef_;            // (bodies) h alpha_b, h beta_b + h^2
+  VecX minus_h_, minus_k_coef_;      // (bodies) -h, -(h beta_b + h^2)
+  VecX r_, y_, q_, w_, delta_, tmp_, tmp2_, zero_;  // (3n) workspace
+};
+
+}  // namespace softdiff::integrator
