@@ -7,6 +7,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <string>
 
 namespace softdiff {
 
@@ -120,7 +121,8 @@ StepStatus check_state(const Model& model, const State& state, long step_index) 
   return s;
 }
 
-StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, State& out, long step_index) {
+StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, State& out, long step_index,
+                               const VecX* lambda_a) {
   const auto& fem = model.fem;
   const double h = model.step.dt;
   data.timings = {};
@@ -150,7 +152,14 @@ StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, 
   }
   // Actuation: + h H_a(x_i)^T lambda_a, lambda_a at the end of the step (t_i + h).
   if (!model.actuation.empty()) {
-    model.actuation.values(in.t + h, data.lambda_a);
+    if (lambda_a) {
+      SOFTDIFF_DEMAND(lambda_a->size() == data.lambda_a.size(),
+                      "lambda_a: expected one value per actuator (" + std::to_string(data.lambda_a.size()) +
+                          "), got " + std::to_string(lambda_a->size()));
+      data.lambda_a = *lambda_a;
+    } else {
+      model.actuation.values(in.t + h, data.lambda_a);
+    }
     data.f_act.setZero();
     model.actuation.add_forces(in.x, data.lambda_a, 1.0, data.f_act);
     data.rhs += h * data.f_act;

@@ -19,7 +19,10 @@ namespace softdiff::integrator {
 
 // One time step from `in` to `out` (out may not alias in). `step_index` (1-based)
 // is recorded in the status. Fills data's record (F, K, factor, timings).
-StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, State& out, long step_index);
+// lambda_a: the actuation values of this step (n_a), or nullptr for the model's
+// schedules at t_i + h (a controller or an optimizer sets them step by step).
+StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, State& out, long step_index,
+                               const VecX* lambda_a = nullptr);
 
 // Assembles data.A = (1 + h alpha) M + h beta K_damping + h^2 K, projected, per body.
 void assemble_system_matrix(const Model& model, double h, const VecX& K_damping, const VecX& K, Data& data);

@@ -1,0 +1,148 @@
+// Trajectory derivatives: see trajectory.hpp.
+#include <softdiff/diff/trajectory.hpp>
+
+#include <softdiff/core/assert.hpp>
+#include <softdiff/integrator/implicit_euler.hpp>
+#include <softdiff/integrator/implicit_euler_derivatives.hpp>
+
+namespace softdiff::diff {
+
+namespace {
+
+Eigen::Index num_actuators(const Model& model) { return static_cast<Eigen::Index>(model.actuation.actuators.size()); }
+Eigen::Index num_dofs(const Model& model) { return 3L * model.fem.num_nodes; }
+
+StepStatus derivative_failed(long k) {
+  StepStatus s;
+  s.code = StepStatus::Code::solver_failed;
+  s.step = k;
+  s.detail = "the derivative of the step failed (a linear solve did not succeed or produced non-finite values)";
+  return s;
+}
+
+}  // namespace
+
+Eigen::Index ThetaLayout::size(const Model& model) const {
+  return static_cast<Eigen::Index>(parameters.size()) + (actuation ? num_actuators(model) : 0) +
+         (x0 ? num_dofs(model) : 0) + (v0 ? num_dofs(model) : 0);
+}
+
+Eigen::Index ThetaLayout::x0_offset(const Model& model) const {
+  return actuation_offset() + (actuation ? num_actuators(model) : 0);
+}
+
+Eigen::Index ThetaLayout::v0_offset(const Model& model) const { return x0_offset(model) + (x0 ? num_dofs(model) : 0); }
+
+std::vector<std::string> ThetaLayout::column_names(const Model& model) const {
+  std::vector<std::string> names;
+  for (const auto& p : parameters)
+    names.push_back(std::string(parameter_name(p.kind)) + "[" + model.fem.bodies[static_cast<std::size_t>(p.body)].name + "]");
+  if (actuation)
+    for (const auto& a : model.actuation.actuators) names.push_back("actuation[" + a.name + "]");
+  if (x0) names.emplace_back("x0");
+  if (v0) names.emplace_back("v0");
+  return names;
+}
+
+StepStatus forward_sensitivities(const Model& model, Data& data, const State& initial, long steps,
+                                 const ThetaLayout& theta, State& final, MatX& dx_dtheta, MatX& dv_dtheta,
+                                 const SensitivityObserver& observer) {
+  const Eigen::Index n = num_dofs(model), k = theta.size(model), np = theta.actuation_offset();
+  const Eigen::Index na = theta.actuation ? num_actuators(model) : 0;
+  dx_dtheta = MatX::Zero(n, k);
+  dv_dtheta = MatX::Zero(n, k);
+  if (theta.x0) dx_dtheta.middleCols(theta.x0_offset(model), n).setIdentity();
+  if (theta.v0) dv_dtheta.middleCols(theta.v0_offset(model), n).setIdentity();
+  integrator::StepDerivatives derivatives(model, theta.parameters);
+  integrator::StepTangent t;
+  integrator::StateTangent r;
+  State s = initial, next = initial;
+  for (long step = 1; step <= steps; ++step) {
+    const StepStatus st = integrator::implicit_euler_step(model, data, s, next, step);
+    if (!st.ok()) return st;
+    for (Eigen::Index c = 0; c < k; ++c) {
+      t.x = dx_dtheta.col(c);
+      t.v = dv_dtheta.col(c);
+      t.p.resize(0);
+      t.lambda_a.resize(0);
+      if (c < np) t.p = VecX::Unit(np, c);
+      else if (c < np + na) t.lambda_a = VecX::Unit(num_actuators(model), c - np);
+      if (!derivatives.jvp(model, data, s, next, t, r)) return derivative_failed(step);
+      dx_dtheta.col(c) = r.x;
+      dv_dtheta.col(c) = r.v;
+    }
+    std::swap(s, next);
+    if (observer) observer(step, s, dx_dtheta, dv_dtheta);
+  }
+  final = s;
+  return {};
+}
+
+std::size_t Tape::bytes() const {
+  std::size_t b = 0;
+  for (const auto& f : frames) b += sizeof(double) * static_cast<std::size_t>(f.x.size() + f.v.size() + 1);
+  for (const auto& l : lambda_a) b += sizeof(double) * static_cast<std::size_t>(l.size());
+  return b;
+}
+
+StepStatus record(const Model& model, Data& data, const State& initial, long steps, Tape& tape, const MatX& actuation) {
+  const Eigen::Index na = num_actuators(model);
+  SOFTDIFF_DEMAND(actuation.size() == 0 || (actuation.rows() == na && actuation.cols() == steps),
+                  "actuation: expected (" + std::to_string(na) + " x " + std::to_string(steps) + ") values, got (" +
+                      std::to_string(actuation.rows()) + " x " + std::to_string(actuation.cols()) + ")");
+  tape.frames.assign(1, initial);
+  tape.frames.reserve(static_cast<std::size_t>(steps) + 1);
+  tape.lambda_a.clear();
+  tape.lambda_a.reserve(static_cast<std::size_t>(steps));
+  State next = initial;
+  VecX lambda;
+  for (long step = 1; step <= steps; ++step) {
+    const VecX* override_values = nullptr;
+    if (actuation.size()) {
+      lambda = actuation.col(step - 1);
+      override_values = &lambda;
+    }
+    const StepStatus st = integrator::implicit_euler_step(model, data, tape.frames.back(), next, step, override_values);
+    if (!st.ok()) return st;
+    tape.frames.push_back(next);
+    tape.lambda_a.push_back(data.lambda_a);
+  }
+  return {};
+}
+
+StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const ThetaLayout& theta,
+                   const LossCotangent& loss, AdjointResult& result) {
+  const long T = tape.steps();
+  SOFTDIFF_DEMAND(T >= 0 && static_cast<long>(tape.lambda_a.size()) == T, "adjoint: the tape is inconsistent");
+  const Eigen::Index n = num_dofs(model), np = theta.actuation_offset(), na = num_actuators(model);
+  integrator::StepDerivatives derivatives(model, theta.parameters);
+  result.theta = VecX::Zero(theta.size(model));
+  result.lambda_a = MatX::Zero(na, T);
+  integrator::StateTangent bar;
+  bar.x = VecX::Zero(n);
+  bar.v = VecX::Zero(n);
+  if (loss) loss(T, tape.frames[static_cast<std::size_t>(T)], bar.x, bar.v);
+  integrator::StepCotangent cot;
+  State out;
+  for (long step = T; step >= 1; --step) {
+    const State& in = tape.frames[static_cast<std::size_t>(step - 1)];
+    // Recompute the step's record (linearization, factorization) from its input state.
+    const StepStatus st =
+        integrator::implicit_euler_step(model, data, in, out, step, &tape.lambda_a[static_cast<std::size_t>(step - 1)]);
+    if (!st.ok()) return st;
+    if (!derivatives.vjp(model, data, in, out, bar, cot)) return derivative_failed(step);
+    result.theta.head(np) += cot.p;
+    result.lambda_a.col(step - 1) = cot.lambda_a;
+    if (theta.actuation) result.theta.segment(np, na) += cot.lambda_a;
+    bar.x = cot.x;
+    bar.v = cot.v;
+    if (loss) loss(step - 1, in, bar.x, bar.v);
+  }
+  result.x0 = bar.x;
+  result.v0 = bar.v;
+  if (theta.x0) result.theta.segment(theta.x0_offset(model), n) = bar.x;
+  if (theta.v0) result.theta.segment(theta.v0_offset(model), n) = bar.v;
+  return {};
+}
+
+}  // namespace softdiff::diff

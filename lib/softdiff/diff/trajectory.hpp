@@ -1,0 +1,89 @@
+#pragma once
+// Derivatives over a trajectory (method.md "Derivatives", paper section 3): the step's
+// JVP and VJP (integrator/implicit_euler_derivatives.hpp) chained over T steps.
+//
+// theta, the inputs a trajectory is differentiated with respect to, in column order:
+//   1. parameters, in the order given (ParameterId: kind and body);
+//   2. if `actuation`: one column per actuator, a constant offset added to its value
+//      at every step (d/d lambda_a of a constant actuation);
+//   3. if `x0`: the initial positions (3n), 4. if `v0`: the initial velocities (3n).
+// Per-step actuation values (the whole sequence lambda_a(t_1..t_T)) are inputs of the
+// reverse mode (adjoint()), which returns their gradient step by step.
+//
+// Forward sensitivities: S_x = d x_t / d theta and S_v = d v_t / d theta (3n x k) carried
+// step to step: k JVPs per step, each one solve with the step's own factorization.
+// Cost: k solves plus k element passes per step; memory 2 (3n x k).
+//
+// Adjoint: a forward pass records the states on a Tape (x and v of every frame, and
+// the actuation values of every step: 48 n + 8 n_a bytes per step, n the number of
+// nodes); the reverse sweep recomputes each step from its recorded input state
+// (assembly and factorization, bitwise the same step: element colors fix the
+// summation order) and applies its VJP. Cost: about one forward step plus one VJP
+// (one solve, one element pass) per step, for any number of inputs.
+#include <softdiff/core/parameters.hpp>
+#include <softdiff/data.hpp>
+#include <softdiff/model.hpp>
+
+#include <functional>
+#include <string>
+#include <vector>
+
+namespace softdiff::diff {
+
+struct ThetaLayout {
+  std::vector<ParameterId> parameters;
+  bool actuation = false;
+  bool x0 = false, v0 = false;
+
+  Eigen::Index size(const Model& model) const;
+  // Column offsets of each group (parameters first, at 0).
+  Eigen::Index actuation_offset() const { return static_cast<Eigen::Index>(parameters.size()); }
+  Eigen::Index x0_offset(const Model& model) const;
+  Eigen::Index v0_offset(const Model& model) const;
+  // "young[beam]", "actuation[cable1]", "x0", ... one name per group, for reports.
+  std::vector<std::string> column_names(const Model& model) const;
+};
+
+// Called after each successful step k (1-based) with the state reached and the
+// sensitivities of that state (forward_sensitivities), e.g. to stream them out.
+using SensitivityObserver = std::function<void(long k, const State& s, const MatX& dx_dtheta, const MatX& dv_dtheta)>;
+
+// Simulates `steps` steps from `initial` and returns d x_T / d theta and d v_T / d theta
+// in dx_dtheta, dv_dtheta (3n x theta.size()). `final` receives the last state. Stops at
+// the first failed step (returned) or failed derivative (status solver_failed).
+StepStatus forward_sensitivities(const Model& model, Data& data, const State& initial, long steps,
+                                 const ThetaLayout& theta, State& final, MatX& dx_dtheta, MatX& dv_dtheta,
+                                 const SensitivityObserver& observer = {});
+
+// The states of a trajectory: frames[0] = initial, frames[k] after step k, and the
+// actuation values each step used (lambda_a[k-1] for step k).
+struct Tape {
+  std::vector<State> frames;
+  std::vector<VecX> lambda_a;
+  long steps() const { return static_cast<long>(frames.size()) - 1; }
+  std::size_t bytes() const;  // memory held (states and actuation values)
+};
+
+// Runs `steps` steps from `initial`, recording them. actuation: the values of every
+// step (steps columns of n_a), or empty for the model's schedules.
+StepStatus record(const Model& model, Data& data, const State& initial, long steps, Tape& tape,
+                  const MatX& actuation = {});
+
+// The loss's direct cotangents: for frame k (0..T, called from T down to 0) and its
+// state, ADD dl/dx_k and dl/dv_k into bar_x, bar_v (3n; they hold the cotangent
+// propagated back from the later frames, zero at k = T). For a loss of the final
+// state only, return early for k < T.
+using LossCotangent = std::function<void(long k, const State& s, VecX& bar_x, VecX& bar_v)>;
+
+struct AdjointResult {
+  VecX theta;          // dl/d theta (theta.size())
+  MatX lambda_a;       // (n_a x T) dl/d lambda_a of every step
+  VecX x0, v0;         // dl/dx_0, dl/dv_0 (3n), whether or not theta includes them
+};
+
+// The reverse sweep over a recorded trajectory. Uses data as the workspace of the
+// recomputed steps.
+StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const ThetaLayout& theta,
+                   const LossCotangent& loss, AdjointResult& result);
+
+}  // namespace softdiff::diff
