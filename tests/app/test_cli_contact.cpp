@@ -118,6 +118,19 @@ TEST(CliContact, WritesContactDatasets) {
 // A contact solve that cannot reach its tolerance in one iteration: a warning and
 // exit 0 by default; with --strict an error naming the step and the residuals,
 // exit 1, and the frames up to it kept (status "diverged: ...").
+TEST(CliContact, JacobianOfAContactSceneIsRefusedWithoutOutput) {
+  // Contact derivatives are not in this version: a clear message, exit 2, no file.
+  const auto dir = fresh_dir(kWork, "jacobian");
+  write_text(dir / "scene.yaml", scene(kPlane, "  friction: 0.3\n", 2));
+  const CliRun r = run_cli("simulate scene.yaml -o o.h5 --jacobian young", dir);
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_NE(r.err.find("contact is not differentiated"), std::string::npos) << r.err;
+  for (const auto& entry : fs::directory_iterator(dir)) {
+    const auto ext = entry.path().extension();
+    EXPECT_TRUE(ext != ".h5" && ext != ".xmf" && ext != ".partial") << "left behind: " << entry.path();
+  }
+}
+
 TEST(CliContact, StrictMakesAnUnconvergedContactSolveAnError) {
   const auto dir = fresh_dir(kWork, "strict");
   write_text(dir / "scene.yaml",

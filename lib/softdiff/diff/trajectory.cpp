@@ -3,7 +3,6 @@
 
 #include <softdiff/core/assert.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
-#include <softdiff/integrator/implicit_euler_derivatives.hpp>
 
 namespace softdiff::diff {
 
@@ -44,37 +43,48 @@ std::vector<std::string> ThetaLayout::column_names(const Model& model) const {
   return names;
 }
 
+ForwardSensitivity::ForwardSensitivity(const Model& model, ThetaLayout theta)
+    : theta_(std::move(theta)), step_(std::make_unique<integrator::StepDerivatives>(model, theta_.parameters)) {
+  const Eigen::Index n = num_dofs(model), k = theta_.size(model);
+  dx_ = MatX::Zero(n, k);
+  dv_ = MatX::Zero(n, k);
+  if (theta_.x0) dx_.middleCols(theta_.x0_offset(model), n).setIdentity();
+  if (theta_.v0) dv_.middleCols(theta_.v0_offset(model), n).setIdentity();
+}
+
+bool ForwardSensitivity::advance(const Model& model, const Data& data, const State& in, const State& out) {
+  const Eigen::Index np = theta_.actuation_offset(), na = theta_.actuation ? num_actuators(model) : 0;
+  for (Eigen::Index c = 0; c < dx_.cols(); ++c) {
+    t_.x = dx_.col(c);
+    t_.v = dv_.col(c);
+    t_.p.resize(0);
+    t_.lambda_a.resize(0);
+    if (c < np)
+      t_.p = VecX::Unit(np, c);
+    else if (c < np + na)
+      t_.lambda_a = VecX::Unit(num_actuators(model), c - np);
+    if (!step_->jvp(model, data, in, out, t_, r_)) return false;
+    dx_.col(c) = r_.x;
+    dv_.col(c) = r_.v;
+  }
+  return true;
+}
+
 StepStatus forward_sensitivities(const Model& model, Data& data, const State& initial, long steps,
                                  const ThetaLayout& theta, State& final, MatX& dx_dtheta, MatX& dv_dtheta,
                                  const SensitivityObserver& observer) {
-  const Eigen::Index n = num_dofs(model), k = theta.size(model), np = theta.actuation_offset();
-  const Eigen::Index na = theta.actuation ? num_actuators(model) : 0;
-  dx_dtheta = MatX::Zero(n, k);
-  dv_dtheta = MatX::Zero(n, k);
-  if (theta.x0) dx_dtheta.middleCols(theta.x0_offset(model), n).setIdentity();
-  if (theta.v0) dv_dtheta.middleCols(theta.v0_offset(model), n).setIdentity();
-  integrator::StepDerivatives derivatives(model, theta.parameters);
-  integrator::StepTangent t;
-  integrator::StateTangent r;
+  ForwardSensitivity sensitivity(model, theta);
   State s = initial, next = initial;
   for (long step = 1; step <= steps; ++step) {
     const StepStatus st = integrator::implicit_euler_step(model, data, s, next, step);
     if (!st.ok()) return st;
-    for (Eigen::Index c = 0; c < k; ++c) {
-      t.x = dx_dtheta.col(c);
-      t.v = dv_dtheta.col(c);
-      t.p.resize(0);
-      t.lambda_a.resize(0);
-      if (c < np) t.p = VecX::Unit(np, c);
-      else if (c < np + na) t.lambda_a = VecX::Unit(num_actuators(model), c - np);
-      if (!derivatives.jvp(model, data, s, next, t, r)) return derivative_failed(step);
-      dx_dtheta.col(c) = r.x;
-      dv_dtheta.col(c) = r.v;
-    }
+    if (!sensitivity.advance(model, data, s, next)) return derivative_failed(step);
     std::swap(s, next);
-    if (observer) observer(step, s, dx_dtheta, dv_dtheta);
+    if (observer) observer(step, s, sensitivity.dx_dtheta(), sensitivity.dv_dtheta());
   }
   final = s;
+  dx_dtheta = sensitivity.dx_dtheta();
+  dv_dtheta = sensitivity.dv_dtheta();
   return {};
 }
 

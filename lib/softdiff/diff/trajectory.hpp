@@ -22,9 +22,11 @@
 // (one solve, one element pass) per step, for any number of inputs.
 #include <softdiff/core/parameters.hpp>
 #include <softdiff/data.hpp>
+#include <softdiff/integrator/implicit_euler_derivatives.hpp>
 #include <softdiff/model.hpp>
 
 #include <functional>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -42,6 +44,27 @@ struct ThetaLayout {
   Eigen::Index v0_offset(const Model& model) const;
   // "young[beam]", "actuation[cable1]", "x0", ... one name per group, for reports.
   std::vector<std::string> column_names(const Model& model) const;
+};
+
+// Forward sensitivities step by step, for a caller that runs the steps itself (the
+// CLI's simulate loop): construct at the initial state, then call advance() after
+// every successful implicit_euler_step(model, data, in, out).
+class ForwardSensitivity {
+ public:
+  ForwardSensitivity(const Model& model, ThetaLayout theta);
+  // Propagates the columns through the step in -> out (data: that step's record).
+  // Returns false if a derivative solve failed.
+  bool advance(const Model& model, const Data& data, const State& in, const State& out);
+  const ThetaLayout& theta() const { return theta_; }
+  const MatX& dx_dtheta() const { return dx_; }  // (3n x k) at the last state
+  const MatX& dv_dtheta() const { return dv_; }
+
+ private:
+  ThetaLayout theta_;
+  std::unique_ptr<integrator::StepDerivatives> step_;
+  MatX dx_, dv_;
+  integrator::StepTangent t_;
+  integrator::StateTangent r_;
 };
 
 // Called after each successful step k (1-based) with the state reached and the

@@ -66,12 +66,20 @@ bool StepDerivatives::parameter_column(const Model& model, const Data& data, con
   const Eigen::Index begin = 3 * body.node_begin, len = 3 * body.num_nodes;
   q.setZero();
   switch (id.kind) {
-    case Parameter::young:
+    case Parameter::young: {
+      // f_int and K~ are proportional to E (mu, lambda are; the projection commutes
+      // with a positive scale): df/dE = f/E and dK~/dE = K~/E, from the step's record.
+      fem::symmetric_multiply(fem, data.fem.K_values, out.v, tmp_);
+      q.segment(begin, len) =
+          (h * data.fem.f_int.segment(begin, len) - k_coef_[id.body] * tmp_.segment(begin, len)) / body.young;
+      return true;
+    }
     case Parameter::poisson: {
       tmp_.setZero();
       tmp2_.setZero();
-      const auto p = id.kind == Parameter::young ? fem::ElasticParameter::young : fem::ElasticParameter::poisson;
-      if (fem::add_elastic_parameter_derivative(fem, in.x, id.body, p, out.v, tmp_, tmp2_) >= 0) return false;
+      if (fem::add_elastic_parameter_derivative(fem, in.x, id.body, fem::ElasticParameter::poisson, out.v, tmp_,
+                                                tmp2_) >= 0)
+        return false;
       q = h * tmp_ - k_coef_[id.body] * tmp2_;
       return true;
     }

@@ -13,7 +13,8 @@
 //   dv_f = Pi (dv_i + dDelta),  dx_f = dx_i + h dv_f,
 // K = -df_int/dx the true Hessian, K~ the stiffness the step uses (K, or its per-element
 // PSD projection), and the parameter columns q_j (body b):
-//   young, poisson      h df_int/dp - (h beta + h^2) (dK~/dp) w
+//   young               (h f_int - (h beta + h^2) K~ w) / E   (f_int, K~ are proportional to E)
+//   poisson             h df_int/dnu - (h beta + h^2) (dK~/dnu) w
 //   density             h P_b / rho - M_b (h alpha w + Delta) / rho   (M, P = M g scale with rho)
 //   rayleigh_mass       -h M_b w
 //   rayleigh_stiffness  -h K~_b w

@@ -1,0 +1,92 @@
+#include "theta.hpp"
+
+#include <softdiff/core/error.hpp>
+
+#include <algorithm>
+#include <sstream>
+
+namespace softdiff::app {
+
+namespace {
+
+std::vector<std::string> split(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream in(s);
+  std::string item;
+  while (std::getline(in, item, ',')) {
+    item.erase(0, item.find_first_not_of(" \t"));
+    item.erase(item.find_last_not_of(" \t") + 1);
+    out.push_back(item);
+  }
+  return out;
+}
+
+void demand_differentiable(const std::string& option, const Model& model) {
+  if (model.contact.enabled)
+    throw InputError(option + ": this scene has contact, and contact is not differentiated in this version of "
+                              "softdiff (the derivatives of the FEM step, actuators and parameters are)");
+  if (model.step.integrator != IntegratorKind::implicit_euler)
+    throw InputError(option + ": the static integrator is not differentiated in this version (implicit_euler is)");
+  if (model.step.newton_iterations != 1)
+    throw InputError(option + ": newton_iterations = " + std::to_string(model.step.newton_iterations) +
+                     " is not differentiated in this version (the linearized step, newton_iterations: 1, is)");
+}
+
+}  // namespace
+
+ThetaSelection parse_theta(const std::string& option, const std::string& list, const Model& model) {
+  const std::vector<std::string> names = split(list);
+  const std::string valid = "young, poisson, density, rayleigh_mass, rayleigh_stiffness, actuation, x0, v0";
+  if (names.empty()) throw InputError(option + ": expected a comma-separated list of " + valid + "; got nothing");
+  for (std::size_t i = 0; i < names.size(); ++i) {
+    if (names[i].empty()) throw InputError(option + " " + list + ": empty name in the list (expected " + valid + ")");
+    for (std::size_t j = 0; j < i; ++j)
+      if (names[j] == names[i]) throw InputError(option + " " + list + ": '" + names[i] + "' is listed twice");
+  }
+  demand_differentiable(option, model);
+  ThetaSelection sel;
+  // Layout order is fixed (parameters, actuation, x0, v0); groups keep the given order.
+  std::vector<std::string> params_given;
+  for (const auto& n : names) {
+    if (n == "actuation") {
+      if (model.actuation.actuators.empty())
+        throw InputError(option + ": 'actuation' needs actuators, and this scene has none");
+      sel.layout.actuation = true;
+    } else if (n == "x0") {
+      sel.layout.x0 = true;
+    } else if (n == "v0") {
+      sel.layout.v0 = true;
+    } else if (const auto p = parse_parameter(n)) {
+      if (*p == Parameter::friction)
+        throw InputError(option + ": 'friction' needs contact derivatives, which this version does not have");
+      for (int b = 0; b < static_cast<int>(model.fem.bodies.size()); ++b) sel.layout.parameters.push_back({*p, b});
+      params_given.push_back(n);
+    } else {
+      throw InputError(option + " " + list + ": unknown name '" + n + "' (expected one of " + valid + ")");
+    }
+  }
+  const Eigen::Index nb = static_cast<Eigen::Index>(model.fem.bodies.size());
+  const Eigen::Index n3 = 3L * model.fem.num_nodes;
+  for (const auto& n : names) {
+    ThetaGroup g;
+    g.name = n;
+    if (n == "actuation") {
+      g.offset = sel.layout.actuation_offset();
+      g.size = static_cast<Eigen::Index>(model.actuation.actuators.size());
+      for (const auto& a : model.actuation.actuators) g.columns.push_back("actuation[" + a.name + "]");
+    } else if (n == "x0" || n == "v0") {
+      g.offset = n == "x0" ? sel.layout.x0_offset(model) : sel.layout.v0_offset(model);
+      g.size = n3;
+      for (Eigen::Index k = 0; k < n3; ++k) g.columns.push_back(n + "[" + std::to_string(k) + "]");
+    } else {
+      const auto at = std::find(params_given.begin(), params_given.end(), n) - params_given.begin();
+      g.offset = at * nb;
+      g.size = nb;
+      for (const auto& b : model.fem.bodies) g.columns.push_back(n + "[" + b.name + "]");
+    }
+    sel.groups.push_back(std::move(g));
+  }
+  return sel;
+}
+
+}  // namespace softdiff::app

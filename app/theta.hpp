@@ -1,0 +1,31 @@
+#pragma once
+// The theta lists of `simulate --jacobian` and `check-grad --wrt` (docs/cli.md):
+// comma-separated names among young, poisson, density, rayleigh_mass,
+// rayleigh_stiffness (one column per body, in body order), actuation (one column per
+// actuator: a constant offset of its value), x0, v0 (3 n_total columns each).
+#include <softdiff/diff/trajectory.hpp>
+#include <softdiff/model.hpp>
+
+#include <string>
+#include <vector>
+
+namespace softdiff::app {
+
+struct ThetaGroup {
+  std::string name;                 // as given: "young", "actuation", "x0", ...
+  Eigen::Index offset = 0, size = 0;  // its columns in the layout
+  std::vector<std::string> columns;   // a name per column: "young[beam]", "x0[3]" ...
+};
+
+struct ThetaSelection {
+  diff::ThetaLayout layout;
+  std::vector<ThetaGroup> groups;   // in the order given
+};
+
+// Throws InputError (exit 2) for an empty list, an unknown or repeated name, friction
+// (contact derivatives are not in this version), `actuation` in a scene without
+// actuators, or a scene whose step is not differentiated (contact, static,
+// newton_iterations > 1), naming the option.
+ThetaSelection parse_theta(const std::string& option, const std::string& list, const Model& model);
+
+}  // namespace softdiff::app

@@ -1,0 +1,139 @@
+// simulate --jacobian (docs/cli.md, docs/output.md /jacobians/*): the datasets exist with
+// the contract's shape and attributes, and their values are the central differences
+// of two runs with --set (end to end: scene parsing, parameters, actuators, output).
+#include <support/cli.hpp>
+
+#include <gtest/gtest.h>
+#include <hdf5.h>
+
+#include <Eigen/Core>
+
+#include <cmath>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+using namespace softdiff::test;
+namespace fs = std::filesystem;
+
+namespace {
+
+const fs::path kRoot = SOFTDIFF_SOURCE_DIR;
+const fs::path kWork = fs::path(SOFTDIFF_TEST_DATA_DIR) / "cli_derivatives";
+
+// The shipped beam, clamped, with a translation servo on its tip, 10 steps.
+std::string scene() {
+  return "softdiff: 1\n"
+         "simulation: {dt: 0.01, steps: 10}\n"
+         "bodies:\n"
+         "  - name: beam\n"
+         "    mesh: " + (kRoot / "meshes/beam.msh").string() + "\n"
+         "    material: {law: neo_hookean, young: 2.0e5, poisson: 0.4, density: 1000}\n"
+         "    damping: {rayleigh_mass: 0.5}\n"
+         "    fixed:\n"
+         "      - group: clamp\n"
+         "    actuators:\n"
+         "      - name: pull\n"
+         "        type: servo\n"
+         "        nodes: {box: [0.19, -1, -1, 1, 1, 1]}\n"
+         "        direction: [0, 1, 0]\n"
+         "        force: 0.02\n";
+}
+
+std::vector<hsize_t> shape(hid_t f, const std::string& path) {
+  std::vector<hsize_t> dims;
+  const hid_t d = H5Dopen2(f, path.c_str(), H5P_DEFAULT);
+  if (d < 0) return dims;
+  const hid_t s = H5Dget_space(d);
+  dims.resize(static_cast<std::size_t>(H5Sget_simple_extent_ndims(s)));
+  H5Sget_simple_extent_dims(s, dims.data(), nullptr);
+  H5Sclose(s);
+  H5Dclose(d);
+  return dims;
+}
+
+std::vector<double> read(hid_t f, const std::string& path) {
+  std::size_t n = 1;
+  for (hsize_t d : shape(f, path)) n *= d;
+  std::vector<double> v(n);
+  const hid_t d = H5Dopen2(f, path.c_str(), H5P_DEFAULT);
+  EXPECT_GE(H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, v.data()), 0) << path;
+  H5Dclose(d);
+  return v;
+}
+
+std::string string_attribute(hid_t f, const std::string& object, const std::string& name) {
+  const hid_t o = H5Oopen(f, object.c_str(), H5P_DEFAULT);
+  const hid_t a = H5Aopen(o, name.c_str(), H5P_DEFAULT);
+  std::string value;
+  if (a >= 0) {
+    const hid_t type = H5Aget_type(a);
+    char* s = nullptr;
+    const hid_t mem = H5Tcopy(H5T_C_S1);
+    H5Tset_size(mem, H5T_VARIABLE);
+    H5Tset_cset(mem, H5Tget_cset(type));
+    if (H5Aread(a, mem, &s) >= 0 && s) value = s;
+    H5free_memory(s);
+    H5Tclose(mem);
+    H5Tclose(type);
+    H5Aclose(a);
+  }
+  H5Oclose(o);
+  return value;
+}
+
+// The final frame's positions (node-major), from /bodies/beam/x (T, n, 3).
+Eigen::VectorXd final_x(const fs::path& file) {
+  const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  const auto dims = shape(f, "/bodies/beam/x");
+  const std::vector<double> x = read(f, "/bodies/beam/x");
+  H5Fclose(f);
+  const std::size_t per_frame = static_cast<std::size_t>(dims[1] * dims[2]);
+  return Eigen::Map<const Eigen::VectorXd>(x.data() + x.size() - per_frame, static_cast<Eigen::Index>(per_frame));
+}
+
+TEST(CliDerivatives, JacobianDatasetsMatchDifferencesOfRuns) {
+  const auto dir = fresh_dir(kWork, "jacobian");
+  write_text(dir / "scene.yaml", scene());
+  const CliRun r = run_cli("simulate scene.yaml -o out.h5 --jacobian young,actuation,rayleigh_mass", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
+  const hid_t f = H5Fopen((dir / "out.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const auto x_dims = shape(f, "/bodies/beam/x");
+  const hsize_t n3 = 3 * x_dims[1];
+  for (const char* name : {"young", "actuation", "rayleigh_mass"}) {
+    const auto d = shape(f, std::string("/jacobians/") + name);
+    ASSERT_EQ(d.size(), 2u) << name;
+    EXPECT_EQ(d[0], n3) << name;
+    EXPECT_EQ(d[1], 1u) << name;
+    EXPECT_EQ(string_attribute(f, std::string("/jacobians/") + name, "frame"), "10") << name;
+  }
+  EXPECT_EQ(string_attribute(f, "/jacobians/young", "theta"), "young[beam]");
+  EXPECT_EQ(string_attribute(f, "/jacobians/actuation", "theta"), "actuation[pull]");
+  const std::vector<double> dyoung = read(f, "/jacobians/young"), dact = read(f, "/jacobians/actuation");
+  H5Fclose(f);
+  // Central differences of two runs each; steps 1e-5 of the values (see
+  // tests/integrator/test_step_derivatives.cpp), tolerance 1e-6 relative.
+  struct Check {
+    std::string key;
+    double value;
+    const std::vector<double>* column;
+  };
+  for (const Check& c : {Check{"bodies.beam.material.young", 2.0e5, &dyoung},
+                         Check{"bodies.beam.actuators.pull.force", 0.02, &dact}}) {
+    const double e = 1e-5 * c.value;
+    char plus[128], minus[128];
+    std::snprintf(plus, sizeof plus, "%s=%.17g", c.key.c_str(), c.value + e);
+    std::snprintf(minus, sizeof minus, "%s=%.17g", c.key.c_str(), c.value - e);
+    ASSERT_EQ(run_cli(std::string("simulate scene.yaml -o p.h5 --force --set ") + plus, dir).code, 0);
+    ASSERT_EQ(run_cli(std::string("simulate scene.yaml -o m.h5 --force --set ") + minus, dir).code, 0);
+    const Eigen::VectorXd fd = (final_x(dir / "p.h5") - final_x(dir / "m.h5")) / (2 * e);
+    const Eigen::Map<const Eigen::VectorXd> analytic(c.column->data(), static_cast<Eigen::Index>(c.column->size()));
+    ASSERT_GT(fd.norm(), 0) << c.key;
+    EXPECT_LE((analytic - fd).norm(), 1e-6 * fd.norm()) << c.key << ": " << (analytic - fd).norm() / fd.norm();
+  }
+  EXPECT_NE(r.err.find("derivatives"), std::string::npos) << r.err;  // the summary's split
+}
+
+}  // namespace
