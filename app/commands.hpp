@@ -32,6 +32,20 @@ struct InfoOptions {
 void add_info(CLI::App& app, InfoOptions& o);
 int run_info(const InfoOptions& o);
 
+struct CheckGradOptions {
+  std::string scene;
+  std::string wrt;
+  long steps = 1;
+  double eps = 1e-4;
+  double tolerance = 1e-5;
+  int directions = 4;
+  std::vector<std::string> set;
+  int threads = 0;
+  bool json = false;
+};
+void add_check_grad(CLI::App& app, CheckGradOptions& o);
+int run_check_grad(const CheckGradOptions& o);
+
 std::string version_text();
 
 }  // namespace softdiff::app

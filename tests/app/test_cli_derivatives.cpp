@@ -137,3 +137,59 @@ TEST(CliDerivatives, JacobianDatasetsMatchDifferencesOfRuns) {
 }
 
 }  // namespace
+
+namespace {
+
+bool no_output_files(const fs::path& dir) {
+  for (const auto& entry : fs::directory_iterator(dir)) {
+    const auto ext = entry.path().extension();
+    if (ext == ".h5" || ext == ".xmf" || ext == ".partial") return false;
+  }
+  return true;
+}
+
+TEST(CliCheckGrad, EveryBlockPassesAndNoFileIsWritten) {
+  const auto dir = fresh_dir(kWork, "check_grad");
+  write_text(dir / "scene.yaml", scene());
+  const CliRun r = run_cli("check-grad scene.yaml --steps 2", dir);
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  for (const char* block : {"young", "poisson", "density", "rayleigh_mass", "rayleigh_stiffness", "actuation", "x0", "v0"})
+    EXPECT_NE(r.out.find(std::string("\n") + block + " "), std::string::npos) << block << " missing in:\n" << r.out;
+  EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
+  EXPECT_TRUE(no_output_files(dir));
+  const CliRun j = run_cli("check-grad scene.yaml --steps 2 --wrt young,x0 --json", dir);
+  ASSERT_EQ(j.code, 0) << j.err;
+  EXPECT_NE(j.out.find("\"passed\":true"), std::string::npos) << j.out;
+  EXPECT_NE(j.out.find("\"theta\":\"x0\""), std::string::npos) << j.out;
+}
+
+TEST(CliCheckGrad, ABlockAboveTheToleranceExitsOne) {
+  // A tolerance no finite difference can meet: the check must be able to fail.
+  const auto dir = fresh_dir(kWork, "check_grad_fail");
+  write_text(dir / "scene.yaml", scene());
+  const CliRun r = run_cli("check-grad scene.yaml --wrt young --tolerance 1e-300", dir);
+  EXPECT_EQ(r.code, 1) << r.err;
+  EXPECT_NE(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
+  EXPECT_NE(r.err.find("above the tolerance"), std::string::npos) << r.err;
+}
+
+TEST(CliCheckGrad, BadInputExitsTwo) {
+  const auto dir = fresh_dir(kWork, "check_grad_bad");
+  write_text(dir / "scene.yaml", scene());
+  struct Case {
+    std::string args, expect;
+  };
+  for (const Case& c : {Case{"check-grad scene.yaml --wrt yung", "unknown name 'yung'"},
+                        Case{"check-grad scene.yaml --wrt friction", "'friction' needs contact derivatives"},
+                        Case{"check-grad scene.yaml --steps 0", "--steps"},
+                        Case{"check-grad scene.yaml --eps -1", "--eps"},
+                        Case{"check-grad nothere.yaml", "nothere.yaml"},
+                        Case{"check-grad scene.yaml --set bodies.beam.material.yung=3", "yung"}}) {
+    const CliRun r = run_cli(c.args, dir);
+    EXPECT_EQ(r.code, 2) << c.args << ": " << r.err;
+    EXPECT_NE(r.err.find(c.expect), std::string::npos) << c.args << ": " << r.err;
+  }
+  EXPECT_TRUE(no_output_files(dir));
+}
+
+}  // namespace

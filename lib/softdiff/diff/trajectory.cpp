@@ -21,16 +21,30 @@ StepStatus derivative_failed(long k) {
 
 }  // namespace
 
+namespace {
+Eigen::Index basis_columns(bool on, const MatX& basis, const Model& model) {
+  return !on ? 0 : basis.size() ? basis.cols() : num_dofs(model);
+}
+void set_basis(MatX& block, const MatX& basis) {
+  if (basis.size())
+    block = basis;
+  else
+    block.setIdentity();
+}
+}  // namespace
+
 Eigen::Index ThetaLayout::size(const Model& model) const {
   return static_cast<Eigen::Index>(parameters.size()) + (actuation ? num_actuators(model) : 0) +
-         (x0 ? num_dofs(model) : 0) + (v0 ? num_dofs(model) : 0);
+         basis_columns(x0, x0_basis, model) + basis_columns(v0, v0_basis, model);
 }
 
 Eigen::Index ThetaLayout::x0_offset(const Model& model) const {
   return actuation_offset() + (actuation ? num_actuators(model) : 0);
 }
 
-Eigen::Index ThetaLayout::v0_offset(const Model& model) const { return x0_offset(model) + (x0 ? num_dofs(model) : 0); }
+Eigen::Index ThetaLayout::v0_offset(const Model& model) const {
+  return x0_offset(model) + basis_columns(x0, x0_basis, model);
+}
 
 std::vector<std::string> ThetaLayout::column_names(const Model& model) const {
   std::vector<std::string> names;
@@ -48,8 +62,20 @@ ForwardSensitivity::ForwardSensitivity(const Model& model, ThetaLayout theta)
   const Eigen::Index n = num_dofs(model), k = theta_.size(model);
   dx_ = MatX::Zero(n, k);
   dv_ = MatX::Zero(n, k);
-  if (theta_.x0) dx_.middleCols(theta_.x0_offset(model), n).setIdentity();
-  if (theta_.v0) dv_.middleCols(theta_.v0_offset(model), n).setIdentity();
+  for (const MatX* basis : {&theta_.x0_basis, &theta_.v0_basis})
+    SOFTDIFF_DEMAND(basis->size() == 0 || basis->rows() == n, "x0/v0 basis: expected 3n rows");
+  if (theta_.x0) {
+    const Eigen::Index cols = basis_columns(true, theta_.x0_basis, model);
+    MatX block(n, cols);
+    set_basis(block, theta_.x0_basis);
+    dx_.middleCols(theta_.x0_offset(model), cols) = block;
+  }
+  if (theta_.v0) {
+    const Eigen::Index cols = basis_columns(true, theta_.v0_basis, model);
+    MatX block(n, cols);
+    set_basis(block, theta_.v0_basis);
+    dv_.middleCols(theta_.v0_offset(model), cols) = block;
+  }
 }
 
 bool ForwardSensitivity::advance(const Model& model, const Data& data, const State& in, const State& out) {
@@ -150,8 +176,12 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
   }
   result.x0 = bar.x;
   result.v0 = bar.v;
-  if (theta.x0) result.theta.segment(theta.x0_offset(model), n) = bar.x;
-  if (theta.v0) result.theta.segment(theta.v0_offset(model), n) = bar.v;
+  if (theta.x0)
+    result.theta.segment(theta.x0_offset(model), basis_columns(true, theta.x0_basis, model)) =
+        theta.x0_basis.size() ? VecX(theta.x0_basis.transpose() * bar.x) : bar.x;
+  if (theta.v0)
+    result.theta.segment(theta.v0_offset(model), basis_columns(true, theta.v0_basis, model)) =
+        theta.v0_basis.size() ? VecX(theta.v0_basis.transpose() * bar.v) : bar.v;
   return {};
 }
 

@@ -36,6 +36,9 @@ struct ThetaLayout {
   std::vector<ParameterId> parameters;
   bool actuation = false;
   bool x0 = false, v0 = false;
+  // Directions for x0 / v0 (3n x K): empty for all 3n coordinates (the identity),
+  // else only these K directions are columns (e.g. random directions for a check).
+  MatX x0_basis, v0_basis;
 
   Eigen::Index size(const Model& model) const;
   // Column offsets of each group (parameters first, at 0).

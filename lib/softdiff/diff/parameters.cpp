@@ -1,0 +1,84 @@
+#include <softdiff/diff/parameters.hpp>
+
+#include <softdiff/core/assert.hpp>
+
+#include <stdexcept>
+#include <string>
+
+namespace softdiff::diff {
+
+namespace {
+
+fem::BodyModel& body_of(Model& model, const ParameterId& id) {
+  SOFTDIFF_DEMAND(id.body >= 0 && id.body < static_cast<int>(model.fem.bodies.size()), "parameter: no such body");
+  return model.fem.bodies[static_cast<std::size_t>(id.body)];
+}
+
+}  // namespace
+
+double get_parameter(const Model& model, const ParameterId& id) {
+  SOFTDIFF_DEMAND(id.body >= 0 && id.body < static_cast<int>(model.fem.bodies.size()), "parameter: no such body");
+  const auto& b = model.fem.bodies[static_cast<std::size_t>(id.body)];
+  switch (id.kind) {
+    case Parameter::young: return b.young;
+    case Parameter::poisson: return b.poisson;
+    case Parameter::density: return b.density;
+    case Parameter::rayleigh_mass: return b.rayleigh_mass;
+    case Parameter::rayleigh_stiffness: return b.rayleigh_stiffness;
+    case Parameter::friction: break;
+  }
+  throw std::invalid_argument("friction is not a differentiable parameter in this version");
+}
+
+void set_parameter(Model& model, const ParameterId& id, double value) {
+  auto& b = body_of(model, id);
+  const std::string name(parameter_name(id.kind));
+  auto demand = [&](bool ok, const char* range) {
+    if (!ok) throw std::invalid_argument(name + " of body '" + b.name + "' must be " + range + ", got " + std::to_string(value));
+  };
+  switch (id.kind) {
+    case Parameter::young:
+      demand(value > 0, "> 0");
+      b.young = value;
+      b.lame = material::lame_from_young_poisson(b.young, b.poisson);
+      return;
+    case Parameter::poisson:
+      demand(value > -1 && value < 0.5, "in (-1, 0.5)");
+      b.poisson = value;
+      b.lame = material::lame_from_young_poisson(b.young, b.poisson);
+      return;
+    case Parameter::density: {
+      demand(value > 0, "> 0");
+      // M and P = M g are proportional to the density, body by body.
+      const double ratio = value / b.density;
+      auto& fem = model.fem;
+      for (int k = b.value_begin; k < b.value_end; ++k) fem.mass_values[k] *= ratio;
+      const Eigen::Index begin = 3L * b.node_begin, len = 3L * b.num_nodes;
+      fem.mass_diagonal.segment(begin, len) *= ratio;
+      fem.gravity_force.segment(begin, len) *= ratio;
+      fem.total_mass += (ratio - 1) * fem.mass_diagonal.segment(begin, len).sum() / ratio / 3;
+      b.density = value;
+      return;
+    }
+    case Parameter::rayleigh_mass:
+      demand(value >= 0, ">= 0");
+      b.rayleigh_mass = value;
+      return;
+    case Parameter::rayleigh_stiffness:
+      demand(value >= 0, ">= 0");
+      b.rayleigh_stiffness = value;
+      return;
+    case Parameter::friction: break;
+  }
+  throw std::invalid_argument("friction is not a differentiable parameter in this version");
+}
+
+void offset_actuator(Model& model, int actuator, double offset) {
+  SOFTDIFF_DEMAND(actuator >= 0 && actuator < static_cast<int>(model.actuation.actuators.size()),
+                  "offset_actuator: no such actuator");
+  auto& v = model.actuation.actuators[static_cast<std::size_t>(actuator)].value;
+  v.constant += offset;
+  for (auto& p : v.points) p[1] += offset;
+}
+
+}  // namespace softdiff::diff

@@ -1,0 +1,22 @@
+#pragma once
+// Reading and changing a Model's differentiable parameters in place, with every
+// derived quantity kept consistent (Lame constants; mass values, lumped masses, gravity
+// forces and the total mass for density). Used by check-grad's finite differences and
+// by calibration.
+#include <softdiff/core/parameters.hpp>
+#include <softdiff/model.hpp>
+
+namespace softdiff::diff {
+
+double get_parameter(const Model& model, const ParameterId& id);
+
+// Sets the parameter. Throws std::invalid_argument for a value outside its range
+// (young, density > 0; poisson in (-1, 0.5); Rayleigh factors >= 0) and for friction
+// (not differentiated in this version).
+void set_parameter(Model& model, const ParameterId& id, double value);
+
+// Adds `offset` to actuator a's value at every time (its constant, or every point of
+// its schedule): the "actuation" theta of a trajectory.
+void offset_actuator(Model& model, int actuator, double offset);
+
+}  // namespace softdiff::diff
