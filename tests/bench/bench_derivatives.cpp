@@ -1,0 +1,133 @@
+// Cost of the derivatives relative to the forward step, measured in the same run
+// (issue "End-to-end derivatives": a JVP column at most 0.3x a forward step; a full
+// reverse sweep at most 2x the forward run). Cantilever beam (10 n x n x n cells, 6
+// tets each: n = 6 is 13k tets), corotational, Rayleigh damping, no contact.
+//   BM_StepDerivatives/<n>: per iteration one step, one JVP column (a full tangent:
+//     dx, dv and d young, as every column is after the first step) and one VJP with
+//     the step's factorization. Counters: step_ms, jvp_ms, vjp_ms, jvp_ratio =
+//     jvp_ms / step_ms, vjp_ratio.
+//   BM_Adjoint/<n>: 100 steps recorded (forward_ms, the plain run), then the reverse
+//     sweep over them (adjoint_ms: each step recomputed from its recorded state plus
+//     its VJP). Counters: forward_ms, adjoint_ms, ratio = adjoint_ms / forward_ms,
+//     tape_MB.
+#include <softdiff/data.hpp>
+#include <softdiff/diff/trajectory.hpp>
+#include <softdiff/integrator/implicit_euler.hpp>
+#include <softdiff/integrator/implicit_euler_derivatives.hpp>
+#include <support/meshes.hpp>
+#include <support/model_builder.hpp>
+
+#include <benchmark/benchmark.h>
+
+#include <chrono>
+#include <random>
+
+using namespace softdiff;
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+Model beam(int n, long steps) {
+  test::BodySpec spec;
+  spec.law = material::Law::corotational;
+  spec.young = 1e6;
+  spec.poisson = 0.45;
+  spec.density = 1070;
+  spec.rayleigh_mass = 0.1;
+  spec.rayleigh_stiffness = 0.001;
+  spec.fixed = [](const Vec3& p) { return p.x() < 1e-9; };
+  return test::make_model(test::box_mesh(10 * n, n, n, 0.2, 0.02, 0.02), spec, Vec3(0, 0, -9.81), 0.01, steps);
+}
+
+VecX random_vector(Eigen::Index size, double scale, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1);
+  VecX v(size);
+  for (Eigen::Index k = 0; k < size; ++k) v[k] = scale * u(rng);
+  return v;
+}
+
+void BM_StepDerivatives(benchmark::State& st) {
+  const Model model = beam(static_cast<int>(st.range(0)), 10);
+  Data data(model);
+  State s = model.initial, next;
+  for (int k = 1; k <= 3; ++k) {
+    if (!integrator::implicit_euler_step(model, data, s, next, k).ok()) {
+      st.SkipWithError("step failed");
+      return;
+    }
+    std::swap(s, next);
+  }
+  integrator::StepDerivatives d(model, {{Parameter::young, 0}});
+  const Eigen::Index n = s.x.size();
+  integrator::StepTangent t;
+  t.x = random_vector(n, 1e-4, 1);
+  t.v = random_vector(n, 1e-2, 2);
+  t.p = VecX::Ones(1);
+  integrator::StateTangent w, r;
+  w.x = random_vector(n, 1.0, 3);
+  w.v = random_vector(n, 1.0, 4);
+  integrator::StepCotangent c;
+  double step = 0, jvp = 0, vjp = 0;
+  long count = 0;
+  for (auto _ : st) {
+    auto t0 = Clock::now();
+    if (!integrator::implicit_euler_step(model, data, s, next, 4 + count).ok()) st.SkipWithError("step failed");
+    step += since(t0);
+    t0 = Clock::now();
+    if (!d.jvp(model, data, s, next, t, r)) st.SkipWithError("jvp failed");
+    jvp += since(t0);
+    t0 = Clock::now();
+    if (!d.vjp(model, data, s, next, w, c)) st.SkipWithError("vjp failed");
+    vjp += since(t0);
+    benchmark::DoNotOptimize(r.x.data());
+    benchmark::DoNotOptimize(c.x.data());
+    ++count;
+  }
+  const double k = 1e3 / static_cast<double>(std::max<long>(count, 1));
+  st.counters["step_ms"] = step * k;
+  st.counters["jvp_ms"] = jvp * k;
+  st.counters["vjp_ms"] = vjp * k;
+  st.counters["jvp_ratio"] = jvp / step;
+  st.counters["vjp_ratio"] = vjp / step;
+  st.counters["tets"] = model.fem.num_tets;
+}
+
+void BM_Adjoint(benchmark::State& st) {
+  constexpr long kSteps = 100;
+  const Model model = beam(static_cast<int>(st.range(0)), kSteps);
+  Data data(model);
+  diff::Tape tape;
+  diff::ThetaLayout theta;
+  theta.parameters = {{Parameter::young, 0}, {Parameter::poisson, 0}, {Parameter::density, 0}};
+  const VecX c = random_vector(model.initial.x.size(), 1.0, 5);
+  double forward = 0, reverse = 0;
+  long count = 0;
+  for (auto _ : st) {
+    auto t0 = Clock::now();
+    if (!diff::record(model, data, model.initial, kSteps, tape).ok()) st.SkipWithError("forward run failed");
+    forward += since(t0);
+    diff::AdjointResult g;
+    t0 = Clock::now();
+    const auto loss = [&](long k, const State&, VecX& bar_x, VecX&) {
+      if (k == kSteps) bar_x += c;
+    };
+    if (!diff::adjoint(model, data, tape, theta, loss, g).ok()) st.SkipWithError("adjoint failed");
+    reverse += since(t0);
+    benchmark::DoNotOptimize(g.theta.data());
+    ++count;
+  }
+  const double k = 1e3 / static_cast<double>(std::max<long>(count, 1));
+  st.counters["forward_ms"] = forward * k;
+  st.counters["adjoint_ms"] = reverse * k;
+  st.counters["ratio"] = reverse / forward;
+  st.counters["tape_MB"] = static_cast<double>(tape.bytes()) / 1e6;
+  st.counters["tets"] = model.fem.num_tets;
+}
+
+BENCHMARK(BM_StepDerivatives)->Arg(3)->Arg(6)->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
+BENCHMARK(BM_Adjoint)->Arg(6)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
+
+}  // namespace
