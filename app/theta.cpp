@@ -27,9 +27,11 @@ void demand_differentiable(const std::string& option, const Model& model) {
                               "softdiff (the derivatives of the FEM step, actuators and parameters are)");
   if (model.step.integrator != IntegratorKind::implicit_euler)
     throw InputError(option + ": the static integrator is not differentiated in this version (implicit_euler is)");
-  if (model.step.newton_iterations != 1)
-    throw InputError(option + ": newton_iterations = " + std::to_string(model.step.newton_iterations) +
-                     " is not differentiated in this version (the linearized step, newton_iterations: 1, is)");
+  if (model.step.newton_iterations > 1)
+    for (const auto& b : model.fem.bodies)
+      if (b.psd_projection)
+        throw InputError(option + ": newton_iterations > 1 with psd_projection (body '" + b.name +
+                         "') is not differentiated in this version (either alone is)");
 }
 
 }  // namespace

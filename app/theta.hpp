@@ -25,7 +25,7 @@ struct ThetaSelection {
 // Throws InputError (exit 2) for an empty list, an unknown or repeated name, friction
 // (contact derivatives are not in this version), `actuation` in a scene without
 // actuators, or a scene whose step is not differentiated (contact, static,
-// newton_iterations > 1), naming the option.
+// newton_iterations > 1 with psd_projection), naming the option.
 ThetaSelection parse_theta(const std::string& option, const std::string& list, const Model& model);
 
 }  // namespace softdiff::app

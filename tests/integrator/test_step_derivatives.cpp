@@ -38,6 +38,7 @@ struct Scenario {
   bool damping = true;
   bool fixed = true;
   Act actuator = Act::none;
+  int newton = 1;  // newton_iterations (> 1: the implicit function theorem on the converged residual)
 };
 
 struct Params {
@@ -71,6 +72,10 @@ Model build(const Scenario& s, const Params& p) {
   // h = 2 ms: h^2 K (~ E h^2 times the 0.01 m cell size) is about M (~0.4 g per node),
   // so the stiffness terms weigh as much as the inertia.
   Model model = test::make_model(set.mesh, spec, Vec3(0.5, -1, -9.81), 2e-3, 1);
+  // Newton converges quadratically: its last iterate is at round-off, far below this
+  // tolerance, so that the finite differences see the converged map.
+  model.step.newton_iterations = s.newton;
+  model.step.newton_tolerance = 1e-13;
   if (s.actuator != Act::none) {
     actuation::ActuatorModel a;
     a.name = "a";
@@ -185,7 +190,8 @@ struct Analytic {
 std::string describe_scenario(const Scenario& s) {
   const char* acts[] = {"none", "cable", "cavity", "open_face", "translation", "rotation"};
   return std::string(material::law_name(s.law)) + (s.psd ? " psd" : "") + (s.damping ? " damped" : "") +
-         (s.fixed ? " fixed" : "") + " actuator " + acts[static_cast<int>(s.actuator)];
+         (s.fixed ? " fixed" : "") + " actuator " + acts[static_cast<int>(s.actuator)] +
+         (s.newton > 1 ? " newton" : "");
 }
 
 void check_blocks(const Scenario& s) {
@@ -193,6 +199,9 @@ void check_blocks(const Scenario& s) {
   Analytic a(s, p);
   const Eigen::Index n = a.in.x.size();
   const std::string where = describe_scenario(s);
+  if (s.newton > 1) {
+    EXPECT_GE(a.data.newton_iterations_used, 3) << where;  // not the linearized step
+  }
 
   // x_i and v_i: one column per dof.
   for (int which = 0; which < 2; ++which) {
@@ -275,6 +284,9 @@ INSTANTIATE_TEST_SUITE_P(
                       Scenario{Law::corotational, false, true, true, Act::cavity},
                       Scenario{Law::corotational, false, true, true, Act::open_face},
                       Scenario{Law::corotational, false, true, true, Act::translation},
-                      Scenario{Law::neo_hookean, false, true, true, Act::rotation}));
+                      Scenario{Law::neo_hookean, false, true, true, Act::rotation},
+                      Scenario{Law::corotational, false, true, true, Act::none, 30},
+                      Scenario{Law::neo_hookean, false, true, true, Act::cavity, 30},
+                      Scenario{Law::stvk, false, false, false, Act::rotation, 30}));
 
 }  // namespace

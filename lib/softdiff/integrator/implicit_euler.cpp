@@ -52,8 +52,13 @@ void project(const Model& model, VecX& b) {
 }
 
 void assemble_system_matrix(const Model& model, double h, const VecX& K_damping, const VecX& K, Data& data) {
+  assemble_system_matrix(model, h, K_damping, K, data.A);
+  data.factor_is_current = false;
+}
+
+void assemble_system_matrix(const Model& model, double h, const VecX& K_damping, const VecX& K, SparseMatrix& matrix) {
   const auto& fem = model.fem;
-  double* A = data.A.valuePtr();
+  double* A = matrix.valuePtr();
   const double* M = fem.mass_values.data();
   for (const auto& b : fem.bodies) {
     const double cM = 1 + h * b.rayleigh_mass, cKd = h * b.rayleigh_stiffness, cK = h * h;
@@ -66,7 +71,6 @@ void assemble_system_matrix(const Model& model, double h, const VecX& K_damping,
   }
   for (int k : fem.pattern.fixed_offdiagonal) A[k] = 0;
   for (int k : fem.pattern.fixed_diagonal) A[k] = 1;
-  data.factor_is_current = false;
 }
 
 StepStatus factorize(const Model& model, Data& data, long step_index) {

@@ -26,6 +26,8 @@ StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, 
 
 // Assembles data.A = (1 + h alpha) M + h beta K_damping + h^2 K, projected, per body.
 void assemble_system_matrix(const Model& model, double h, const VecX& K_damping, const VecX& K, Data& data);
+// The same into any matrix A with the model's pattern.
+void assemble_system_matrix(const Model& model, double h, const VecX& K_damping, const VecX& K, SparseMatrix& A);
 
 // b <- Pi b: zero the fixed dofs.
 void project(const Model& model, VecX& b);

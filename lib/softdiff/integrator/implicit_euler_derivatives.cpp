@@ -15,10 +15,14 @@ namespace {
 void demand_supported(const Model& model) {
   SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler,
                   "step derivatives: only the implicit_euler integrator is differentiated in this version");
-  SOFTDIFF_DEMAND(model.step.newton_iterations == 1,
-                  "step derivatives: only the linearized step (newton_iterations = 1) is differentiated in this version");
   SOFTDIFF_DEMAND(!model.contact.enabled, "step derivatives: contact is not differentiated in this version");
+  if (model.step.newton_iterations > 1)
+    for (const auto& b : model.fem.bodies)
+      SOFTDIFF_DEMAND(!b.psd_projection, "step derivatives: newton_iterations > 1 with psd_projection (body '" +
+                                             b.name + "') is not differentiated in this version");
 }
+
+bool is_newton(const Model& model) { return model.step.newton_iterations > 1; }
 
 void demand_size(const VecX& v, Eigen::Index n, const char* name) {
   SOFTDIFF_DEMAND(v.size() == 0 || v.size() == n, std::string(name) + ": expected size " + std::to_string(n) +
@@ -38,14 +42,20 @@ StepDerivatives::StepDerivatives(const Model& model, std::vector<ParameterId> pa
     k_coef_[b] = h * model.fem.bodies[b].rayleigh_stiffness + h * h;
   }
   minus_h_ = VecX::Constant(nb, -h);
+  // The coefficient of dK~(x_i)[dx_i] w: -(h beta + h^2) in the linearized step (K(x_i)
+  // is both the damping's and the elastic stiffness), -h beta with Newton (only the
+  // damping D = alpha M + beta K(x_i) depends on x_i through K; the elastic force is at x_f).
   minus_k_coef_ = -k_coef_;
+  if (model.step.newton_iterations > 1)
+    for (Eigen::Index b = 0; b < nb; ++b) minus_k_coef_[b] = -h * model.fem.bodies[b].rayleigh_stiffness;
   for (const auto& p : parameters_) {
     SOFTDIFF_DEMAND(p.body >= 0 && p.body < nb, "parameter " + std::string(parameter_name(p.kind)) + ": body " +
                                                     std::to_string(p.body) + " does not exist");
     SOFTDIFF_DEMAND(p.kind != Parameter::friction, "step derivatives: friction needs contact, not differentiated in this version");
   }
   const Eigen::Index n = 3L * model.fem.num_nodes;
-  for (VecX* v : {&r_, &y_, &q_, &w_, &delta_, &tmp_, &tmp2_, &zero_}) *v = VecX::Zero(n);
+  for (VecX* v : {&r_, &y_, &q_, &w_, &delta_, &tmp_, &tmp2_, &zero_, &q_extra_}) *v = VecX::Zero(n);
+  zero_bodies_ = VecX::Zero(nb);
 }
 
 void StepDerivatives::body_scaled_product(const Model& model, const VecX& values, const VecX& w, const VecX& scale,
@@ -57,6 +67,12 @@ void StepDerivatives::body_scaled_product(const Model& model, const VecX& values
   }
 }
 
+// The damping stiffness K~(x_i): the record's K in the linearized step, the one kept
+// for the damping with Newton (data.fem then holds the last iterate, x_f).
+const VecX& damping_stiffness(const Model& model, const Data& data) {
+  return is_newton(model) ? data.K_i_values : data.fem.K_values;
+}
+
 bool StepDerivatives::parameter_column(const Model& model, const Data& data, const State& in, const State& out,
                                        int j, VecX& q) {
   const ParameterId& id = parameters_[static_cast<std::size_t>(j)];
@@ -64,23 +80,35 @@ bool StepDerivatives::parameter_column(const Model& model, const Data& data, con
   const auto& body = fem.bodies[static_cast<std::size_t>(id.body)];
   const double h = model.step.dt;
   const Eigen::Index begin = 3 * body.node_begin, len = 3 * body.num_nodes;
+  // The coefficient of the stiffness that multiplies w: h beta + h^2 (linearized: K(x_i)
+  // in A and b), h beta (Newton: the elastic force is f(x_f), only D has K(x_i)).
+  const double kw = -minus_k_coef_[id.body];
   q.setZero();
   switch (id.kind) {
     case Parameter::young: {
       // f_int and K~ are proportional to E (mu, lambda are; the projection commutes
-      // with a positive scale): df/dE = f/E and dK~/dE = K~/E, from the step's record.
-      fem::symmetric_multiply(fem, data.fem.K_values, out.v, tmp_);
-      q.segment(begin, len) =
-          (h * data.fem.f_int.segment(begin, len) - k_coef_[id.body] * tmp_.segment(begin, len)) / body.young;
+      // with a positive scale): df/dE = f/E and dK~/dE = K~/E, from the step's record
+      // (f_int at x_i, or at x_f with Newton).
+      fem::symmetric_multiply(fem, damping_stiffness(model, data), out.v, tmp_);
+      q.segment(begin, len) = (h * data.fem.f_int.segment(begin, len) - kw * tmp_.segment(begin, len)) / body.young;
       return true;
     }
     case Parameter::poisson: {
       tmp_.setZero();
       tmp2_.setZero();
-      if (fem::add_elastic_parameter_derivative(fem, in.x, id.body, fem::ElasticParameter::poisson, out.v, tmp_,
-                                                tmp2_) >= 0)
+      // df/dnu at the elastic force's positions, dK~/dnu w at x_i.
+      if (is_newton(model)) {
+        q_extra_.setZero();
+        if (fem::add_elastic_parameter_derivative(fem, out.x, id.body, fem::ElasticParameter::poisson, out.v, tmp_,
+                                                  q_extra_) >= 0 ||
+            fem::add_elastic_parameter_derivative(fem, in.x, id.body, fem::ElasticParameter::poisson, out.v, q_extra_,
+                                                  tmp2_) >= 0)
+          return false;
+      } else if (fem::add_elastic_parameter_derivative(fem, in.x, id.body, fem::ElasticParameter::poisson, out.v,
+                                                       tmp_, tmp2_) >= 0) {
         return false;
-      q = h * tmp_ - k_coef_[id.body] * tmp2_;
+      }
+      q = h * tmp_ - kw * tmp2_;
       return true;
     }
     case Parameter::density: {
@@ -95,12 +123,30 @@ bool StepDerivatives::parameter_column(const Model& model, const Data& data, con
       q.segment(begin, len) = -h * tmp_.segment(begin, len);
       return true;
     case Parameter::rayleigh_stiffness:
-      fem::symmetric_multiply(fem, data.fem.K_values, out.v, tmp_);
+      fem::symmetric_multiply(fem, damping_stiffness(model, data), out.v, tmp_);
       q.segment(begin, len) = -h * tmp_.segment(begin, len);
       return true;
     case Parameter::friction: return false;
   }
   return false;
+}
+
+LinearSolver* StepDerivatives::system(const Model& model, const Data& data, const State& out) {
+  if (!is_newton(model)) return data.solver.get();
+  // Newton: the implicit function theorem on the converged residual R(v_f) = 0 needs
+  // dR/dv = (1 + h alpha) M + h beta K~(x_i) + h^2 K(x_f), the system matrix at the
+  // last iterate (Newton's own last factorization is one iterate earlier). Assembled
+  // and factorized once per step (cached by v_f), into this object's workspace.
+  if (newton_v_.size() == out.v.size() && newton_v_ == out.v) return newton_solver_.get();
+  if (!newton_solver_) {
+    newton_A_ = model.fem.pattern.structure;
+    newton_solver_ = make_linear_solver(model.solver);
+    newton_solver_->analyze(newton_A_);
+  }
+  assemble_system_matrix(model, model.step.dt, data.K_i_values, data.fem.K_values, newton_A_);
+  if (!newton_solver_->factorize(newton_A_).ok) return nullptr;
+  newton_v_ = out.v;
+  return newton_solver_.get();
 }
 
 bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in, const State& out,
@@ -114,22 +160,39 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
   demand_size(d.lambda_a, na, "tangent lambda_a");
   demand_size(d.p, static_cast<Eigen::Index>(parameters_.size()), "tangent p");
   const double h = model.step.dt;
+  const bool newton = is_newton(model);
   const VecX& dx = d.x.size() ? d.x : zero_;
   const VecX& dv = d.v.size() ? d.v : zero_;
   delta_ = out.v - in.v;
+  LinearSolver* solver = system(model, data, out);
+  if (!solver) return false;
 
   r_.setZero();
-  // -h K dx - (h beta + h^2) dK~[dx] w
-  if (d.x.size() && fem::add_stiffness_jvp(fem, in.x, dx, out.v, minus_h_, minus_k_coef_, r_) >= 0) return false;
+  if (d.x.size()) {
+    if (newton) {
+      // -h K(x_f) dx (the elastic force at x_f = x_i + h v_f), - h beta dK~(x_i)[dx] w
+      fem::symmetric_multiply(fem, data.fem.K_values, dx, tmp_);
+      r_ = -h * tmp_;
+      if (fem::add_stiffness_jvp(fem, in.x, dx, out.v, zero_bodies_, minus_k_coef_, r_) >= 0) return false;
+    } else if (fem::add_stiffness_jvp(fem, in.x, dx, out.v, minus_h_, minus_k_coef_, r_) >= 0) {
+      // -h K dx - (h beta + h^2) dK~[dx] w
+      return false;
+    }
+  }
   if (na > 0) {
     if (d.x.size()) model.actuation.add_force_derivatives(in.x, data.lambda_a, dx, h, r_);
     if (d.lambda_a.size()) model.actuation.add_forces(in.x, d.lambda_a, h, r_);
   }
   if (d.v.size()) {
-    body_scaled_product(model, fem.mass_values, dv, h_alpha_, tmp_);
-    r_ -= tmp_;
-    body_scaled_product(model, data.fem.K_values, dv, k_coef_, tmp_);
-    r_ -= tmp_;
+    if (newton) {
+      fem::symmetric_multiply(fem, fem.mass_values, dv, tmp_);  // -dR/dv_i dv_i = M dv_i
+      r_ += tmp_;
+    } else {
+      body_scaled_product(model, fem.mass_values, dv, h_alpha_, tmp_);
+      r_ -= tmp_;
+      body_scaled_product(model, data.fem.K_values, dv, k_coef_, tmp_);
+      r_ -= tmp_;
+    }
   }
   for (int j = 0; j < static_cast<int>(parameters_.size()); ++j) {
     if (!d.p.size() || d.p[j] == 0) continue;
@@ -137,8 +200,9 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
     r_ += d.p[j] * q_;
   }
   project(model, r_);
-  if (!data.solver->solve(r_, y_)) return false;
-  d_out.v = dv + y_;
+  if (!solver->solve(r_, y_)) return false;
+  // Linearized: y = dDelta, dv_f = dv_i + dDelta; Newton: y = dv_f.
+  d_out.v = newton ? y_ : VecX(dv + y_);
   project(model, d_out.v);
   d_out.x = dx + h * d_out.v;
   return d_out.x.allFinite() && d_out.v.allFinite();
@@ -153,23 +217,36 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
   demand_size(bar_out.x, n, "cotangent x");
   demand_size(bar_out.v, n, "cotangent v");
   const double h = model.step.dt;
+  const bool newton = is_newton(model);
   delta_ = out.v - in.v;
+  LinearSolver* solver = system(model, data, out);
+  if (!solver) return false;
 
   // v~ = Pi (bar_v_f + h bar_x_f), y = A^{-1} v~.
   tmp_ = bar_out.v.size() ? bar_out.v : zero_;
   if (bar_out.x.size()) tmp_ += h * bar_out.x;
   project(model, tmp_);
-  if (!data.solver->solve(tmp_, y_)) return false;
+  if (!solver->solve(tmp_, y_)) return false;
   project(model, y_);
 
-  bar_in.v = tmp_;
-  body_scaled_product(model, fem.mass_values, y_, h_alpha_, tmp2_);
-  bar_in.v -= tmp2_;
-  body_scaled_product(model, data.fem.K_values, y_, k_coef_, tmp2_);
-  bar_in.v -= tmp2_;
+  if (newton) {
+    fem::symmetric_multiply(fem, fem.mass_values, y_, bar_in.v);
+  } else {
+    bar_in.v = tmp_;
+    body_scaled_product(model, fem.mass_values, y_, h_alpha_, tmp2_);
+    bar_in.v -= tmp2_;
+    body_scaled_product(model, data.fem.K_values, y_, k_coef_, tmp2_);
+    bar_in.v -= tmp2_;
+  }
 
   bar_in.x = bar_out.x.size() ? bar_out.x : zero_;
-  if (fem::add_stiffness_vjp(fem, in.x, y_, out.v, minus_h_, minus_k_coef_, bar_in.x) >= 0) return false;
+  if (newton) {
+    fem::symmetric_multiply(fem, data.fem.K_values, y_, tmp2_);
+    bar_in.x -= h * tmp2_;
+    if (fem::add_stiffness_vjp(fem, in.x, y_, out.v, zero_bodies_, minus_k_coef_, bar_in.x) >= 0) return false;
+  } else if (fem::add_stiffness_vjp(fem, in.x, y_, out.v, minus_h_, minus_k_coef_, bar_in.x) >= 0) {
+    return false;
+  }
   bar_in.lambda_a = VecX::Zero(na);
   if (na > 0) {
     model.actuation.add_force_derivatives_transpose(in.x, data.lambda_a, y_, h, bar_in.x);

@@ -27,12 +27,24 @@
 // solves, a VJP one. Fixed dofs: Pi as in the step (their dx_i still moves the
 // elastic forces; their velocity stays 0).
 //
-// Not covered yet (SOFTDIFF_DEMAND with a message): contact, newton_iterations > 1,
-// the static integrator.
+// newton_iterations > 1: the implicit function theorem on the converged residual
+//     R(v) = M (v - v_i) - h (P + f_int(x_i + h v) + H_a(x_i)^T lambda_a) + h D(x_i) v = 0,
+// D = alpha M + beta K~(x_i): with A_f = dR/dv = (1 + h alpha) M + h beta K~(x_i) + h^2 K(x_f)
+// (assembled and factorized once per step here: Newton's own last factorization is one
+// iterate earlier),
+//   A_f dv_f = Pi r',  r' = -h K(x_f) dx_i + h d(H_a^T lambda_a)/dx dx_i + h H_a^T dlambda_a
+//                           + M dv_i - h beta dK~(x_i)[dx_i] w + sum_j dp_j q'_j,
+// with q' as q but f_int at x_f and h beta in place of h beta + h^2 (young, poisson); the
+// reverse mode transposes it (bar_v_i = M y). Exact for the converged solution (to
+// newton_tolerance).
+//
+// Not covered yet (SOFTDIFF_DEMAND with a message): contact, the static integrator,
+// newton_iterations > 1 with psd_projection.
 #include <softdiff/core/parameters.hpp>
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
 
+#include <memory>
 #include <vector>
 
 namespace softdiff::integrator {
@@ -73,10 +85,18 @@ class StepDerivatives {
   // out = scale_b * (S w) per body, S the symmetric pattern matrix `values` (M or K~).
   void body_scaled_product(const Model& model, const VecX& values, const VecX& w, const VecX& scale, VecX& out);
 
+  // The factorized system of the step's derivative: the step's own (linearized), or
+  // dR/dv at the converged Newton iterate (assembled and factorized here, once per step).
+  LinearSolver* system(const Model& model, const Data& data, const State& out);
+
   std::vector<ParameterId> parameters_;
   VecX h_alpha_, k_coef_;            // (bodies) h alpha_b, h beta_b + h^2
-  VecX minus_h_, minus_k_coef_;      // (bodies) -h, -(h beta_b + h^2)
-  VecX r_, y_, q_, w_, delta_, tmp_, tmp2_, zero_;  // (3n) workspace
+  VecX minus_h_, minus_k_coef_;      // (bodies) -h, -(coefficient of K~(x_i) w): -(h beta_b + h^2), Newton -h beta_b
+  VecX zero_bodies_;                 // (bodies) zeros
+  VecX r_, y_, q_, w_, delta_, tmp_, tmp2_, zero_, q_extra_;  // (3n) workspace
+  SparseMatrix newton_A_;            // Newton: dR/dv at x_f (the pattern's structure)
+  std::unique_ptr<LinearSolver> newton_solver_;
+  VecX newton_v_;                    // the v_f newton_A_ was factorized for
 };
 
 }  // namespace softdiff::integrator
