@@ -9,6 +9,8 @@
 #include <softdiff/diff/parameters.hpp>
 #include <softdiff/diff/trajectory.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
+#include <softdiff/integrator/static_solver.hpp>
+#include <softdiff/integrator/static_solver_derivatives.hpp>
 #include <softdiff/io/build_model.hpp>
 #include <softdiff/io/scene.hpp>
 
@@ -28,6 +30,13 @@ namespace {
 VecX run(const Model& model, const State& initial, long steps) {
   Data data(model);
   State s = initial, next = initial;
+  if (model.step.integrator == IntegratorKind::static_equilibrium) {
+    const StepStatus st = integrator::solve_static(model, data, initial, next);
+    if (!st.ok()) throw ComputationError("a finite-difference run failed: " + describe(model, st));
+    VecX y = VecX::Zero(2 * next.x.size());
+    y.head(next.x.size()) = next.x;
+    return y;
+  }
   for (long k = 1; k <= steps; ++k) {
     const StepStatus st = integrator::implicit_euler_step(model, data, s, next, k);
     if (!st.ok() && st.code != StepStatus::Code::not_converged)
@@ -101,11 +110,13 @@ int run_check_grad(const CheckGradOptions& o) {
   io::BuildReport report;
   Model model = io::build_model(scene, &report);
   for (const auto& w : report.warnings) warn(w);
+  const bool is_static = model.step.integrator == IntegratorKind::static_equilibrium;
   std::string wrt = o.wrt;
   if (wrt.empty()) {
-    wrt = "young,poisson,density,rayleigh_mass,rayleigh_stiffness";
+    // A static equilibrium depends on neither the damping nor the initial state.
+    wrt = is_static ? "young,poisson,density" : "young,poisson,density,rayleigh_mass,rayleigh_stiffness";
     if (!model.actuation.empty()) wrt += ",actuation";
-    wrt += ",x0,v0";
+    if (!is_static) wrt += ",x0,v0";
   }
   ThetaSelection sel = parse_theta("--wrt", wrt, model);
   const Eigen::Index n3 = 3L * model.fem.num_nodes;
@@ -130,12 +141,20 @@ int run_check_grad(const CheckGradOptions& o) {
       for (int k = 0; k < o.directions; ++k) g.columns.push_back(g.name + " direction " + std::to_string(k));
     }
 
-  // Analytic: forward sensitivities.
+  // Analytic: forward sensitivities, or the implicit function theorem at the equilibrium.
   Data data(model);
   State final;
   MatX dx, dv;
-  const StepStatus st = diff::forward_sensitivities(model, data, model.initial, o.steps, sel.layout, final, dx, dv);
-  if (!st.ok()) throw ComputationError("the analytic run failed: " + describe(model, st));
+  if (is_static) {
+    const StepStatus st = integrator::solve_static(model, data, model.initial, final);
+    if (!st.ok()) throw ComputationError("the analytic run failed: " + describe(model, st));
+    if (!integrator::static_sensitivities(model, data, final, {sel.layout.parameters, sel.layout.actuation}, dx))
+      throw ComputationError("the derivative of the equilibrium failed");
+    dv = MatX::Zero(dx.rows(), dx.cols());
+  } else {
+    const StepStatus st = diff::forward_sensitivities(model, data, model.initial, o.steps, sel.layout, final, dx, dv);
+    if (!st.ok()) throw ComputationError("the analytic run failed: " + describe(model, st));
+  }
   MatX J(2 * n3, dx.cols());
   J << dx, dv;
 
@@ -198,7 +217,10 @@ int run_check_grad(const CheckGradOptions& o) {
   j.value("tolerance", o.tolerance);
   j.begin_array("blocks");
   std::ostringstream table;
-  table << "d(x_N, v_N)/d theta after " << o.steps << " step(s), central differences with eps " << o.eps << "\n";
+  if (is_static)
+    table << "d x*/d theta at the static equilibrium, central differences with eps " << o.eps << "\n";
+  else
+    table << "d(x_N, v_N)/d theta after " << o.steps << " step(s), central differences with eps " << o.eps << "\n";
   char line[512];
   std::snprintf(line, sizeof line, "%-20s %7s %11s  %s\n", "theta", "columns", "rel. error",
                 "worst entry: analytic vs finite differences");

@@ -7,6 +7,7 @@
 #include <softdiff/data.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
 #include <softdiff/integrator/static_solver.hpp>
+#include <softdiff/integrator/static_solver_derivatives.hpp>
 #include <softdiff/io/build_model.hpp>
 #include <softdiff/io/hdf5_writer.hpp>
 #include <softdiff/io/scene.hpp>
@@ -197,6 +198,7 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
 
   StepTimings timings;
   double output_seconds = 0, derivative_seconds = 0;
+  MatX static_jacobian;  // static scenes: dx*/dtheta (parameters, actuation)
   long steps_done = 0, warnings_newton = 0, warnings_contact = 0, contacts_total = 0, contacts_max = 0,
        contact_iterations = 0;
   StepStatus failure;
@@ -217,6 +219,17 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
     });
     timings = data.timings;
     if (failure.ok()) state = next;
+    if (failure.ok() && theta) {
+      // The implicit function theorem at the final equilibrium (static_solver_derivatives.hpp).
+      auto td = Clock::now();
+      integrator::StaticTheta st{theta->layout.parameters, theta->layout.actuation};
+      if (!integrator::static_sensitivities(model, data, state, st, static_jacobian)) {
+        failure.code = StepStatus::Code::solver_failed;
+        failure.step = steps_done;
+        failure.detail = "the derivative of the equilibrium failed (inverted element or tangent not positive definite)";
+      }
+      derivative_seconds += seconds_since(td);
+    }
   } else {
     for (long k = 1; k <= total; ++k) {
       if (g_interrupted) {
@@ -290,14 +303,16 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
     note("frames up to the last completed step are in " + writer.final_path().string());
     return kExitFailed;
   }
-  if (sensitivity && status == "complete") {
+  if (theta && status == "complete") {
     // output.md: /jacobians/<theta> (3 n_total, k) = d x_T / d theta at the final frame.
     const std::string frame = std::to_string(writer.frames_written() - 1);
+    const MatX& J = is_static ? static_jacobian : sensitivity->dx_dtheta();
+    const char* method = is_static ? "implicit function theorem at the equilibrium" : "forward sensitivities";
     for (const auto& g : theta->groups) {
       std::string names;
       for (const auto& c : g.columns) names += (names.empty() ? "" : ",") + c;
-      writer.write_matrix("/jacobians/" + g.name, sensitivity->dx_dtheta().middleCols(g.offset, g.size),
-                          {{"theta", names}, {"frame", frame}, {"method", "forward sensitivities"}});
+      writer.write_matrix("/jacobians/" + g.name, J.middleCols(g.offset, g.size),
+                          {{"theta", names}, {"frame", frame}, {"method", method}});
     }
   }
   writer.finish(status);

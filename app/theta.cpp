@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <sstream>
+#include <variant>
 
 namespace softdiff::app {
 
@@ -25,8 +26,18 @@ void demand_differentiable(const std::string& option, const Model& model) {
   if (model.contact.enabled)
     throw InputError(option + ": this scene has contact, and contact is not differentiated in this version of "
                               "softdiff (the derivatives of the FEM step, actuators and parameters are)");
-  if (model.step.integrator != IntegratorKind::implicit_euler)
-    throw InputError(option + ": the static integrator is not differentiated in this version (implicit_euler is)");
+  if (model.step.integrator == IntegratorKind::static_equilibrium) {
+    for (const auto& b : model.fem.bodies)
+      if (b.psd_projection)
+        throw InputError(option + ": a static scene with psd_projection (body '" + b.name +
+                         "') is not differentiated in this version");
+    for (const auto& a : model.actuation.actuators) {
+      const auto* servo = std::get_if<actuation::Servo>(&a.kind);
+      if (!std::holds_alternative<actuation::Cable>(a.kind) && !(servo && !servo->is_rotation()))
+        throw InputError(option + ": a static scene with actuator '" + a.name + "' (" + a.kind_name() +
+                         ") is not differentiated in this version (cables and translation servos are)");
+    }
+  }
   if (model.step.newton_iterations > 1)
     for (const auto& b : model.fem.bodies)
       if (b.psd_projection)
@@ -54,6 +65,9 @@ ThetaSelection parse_theta(const std::string& option, const std::string& list, c
       if (model.actuation.actuators.empty())
         throw InputError(option + ": 'actuation' needs actuators, and this scene has none");
       sel.layout.actuation = true;
+    } else if ((n == "x0" || n == "v0") && model.step.integrator == IntegratorKind::static_equilibrium) {
+      throw InputError(option + ": '" + n + "' has no effect on a static equilibrium (it does not depend on the "
+                                             "initial state); differentiate with respect to parameters or actuation");
     } else if (n == "x0") {
       sel.layout.x0 = true;
     } else if (n == "v0") {

@@ -193,3 +193,72 @@ TEST(CliCheckGrad, BadInputExitsTwo) {
 }
 
 }  // namespace
+
+namespace {
+
+// The beam in static equilibrium under gravity, a cable along its top and a servo on
+// its tip.
+std::string static_scene(const std::string& extra_actuator = "") {
+  return "softdiff: 1\n"
+         "simulation:\n"
+         "  integrator: static\n"
+         "  static: {load_steps: 1, tolerance: 1.0e-11}\n"
+         "bodies:\n"
+         "  - name: beam\n"
+         "    mesh: " + (kRoot / "meshes/beam.msh").string() + "\n"
+         "    material: {law: neo_hookean, young: 2.0e5, poisson: 0.4, density: 1000}\n"
+         "    fixed:\n"
+         "      - group: clamp\n"
+         "    actuators:\n"
+         "      - name: cable\n"
+         "        type: cable\n"
+         "        points: [[0.19, 0.01, 0.017], [0.1, 0.01, 0.017], [0.01, 0.01, 0.017]]\n"
+         "        force: 0.05\n"
+         "      - name: pull\n"
+         "        type: servo\n"
+         "        nodes: {box: [0.19, -1, -1, 1, 1, 1]}\n"
+         "        direction: [0, 1, 0]\n"
+         "        force: 0.01\n" + extra_actuator;
+}
+
+TEST(CliCheckGrad, StaticEquilibriumByTheImplicitFunctionTheorem) {
+  const auto dir = fresh_dir(kWork, "check_grad_static");
+  write_text(dir / "scene.yaml", static_scene());
+  const CliRun r = run_cli("check-grad scene.yaml --tolerance 1e-6", dir);
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  for (const char* block : {"young", "poisson", "density", "actuation"})
+    EXPECT_NE(r.out.find(std::string("\n") + block + " "), std::string::npos) << block << " missing in:\n" << r.out;
+  EXPECT_NE(r.out.find("static equilibrium"), std::string::npos) << r.out;
+  // simulate --jacobian writes the same kind of datasets for a static scene.
+  const CliRun s = run_cli("simulate scene.yaml -o out.h5 --jacobian young,actuation", dir);
+  ASSERT_EQ(s.code, 0) << s.err;
+  H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
+  const hid_t f = H5Fopen((dir / "out.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const auto d = shape(f, "/jacobians/actuation");
+  ASSERT_EQ(d.size(), 2u);
+  EXPECT_EQ(d[1], 2u);  // cable and servo
+  EXPECT_EQ(string_attribute(f, "/jacobians/young", "method"), "implicit function theorem at the equilibrium");
+  EXPECT_EQ(string_attribute(f, "/jacobians/young", "frame"), "1");
+  H5Fclose(f);
+}
+
+TEST(CliCheckGrad, StaticSceneRefusesWhatItDoesNotDifferentiate) {
+  const auto dir = fresh_dir(kWork, "check_grad_static_bad");
+  write_text(dir / "scene.yaml", static_scene());
+  CliRun r = run_cli("check-grad scene.yaml --wrt x0", dir);
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_NE(r.err.find("no effect on a static equilibrium"), std::string::npos) << r.err;
+  write_text(dir / "scene.yaml", static_scene("      - name: turn\n"
+                                              "        type: servo\n"
+                                              "        nodes: {box: [0.19, -1, -1, 1, 1, 1]}\n"
+                                              "        axis: [1, 0, 0]\n"
+                                              "        center: [0.2, 0.01, 0.01]\n"
+                                              "        force: 0.001\n"));
+  r = run_cli("simulate scene.yaml -o o.h5 --jacobian young", dir);
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_NE(r.err.find("actuator 'turn'"), std::string::npos) << r.err;
+  EXPECT_TRUE(no_output_files(dir));
+}
+
+}  // namespace
