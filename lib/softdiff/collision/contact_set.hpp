@@ -58,13 +58,16 @@ struct Contact {
 };
 
 // A frame built deterministically from the unit normal n: t1 is the unit projection
-// of the coordinate axis least aligned with n (lowest index on ties) onto the
-// plane orthogonal to n; t2 = n x t1, so that t1 x t2 = n.
+// of the reference axis e_k onto the plane orthogonal to n, e_k = x unless
+// |n_x| > 0.8 (then y); t2 = n x t1, so that t1 x t2 = n. The frame is smooth in n
+// except where |n_x| = 0.8 (normals 37 degrees from the x axis): in particular around
+// every axis-aligned normal, where a "least aligned axis" rule would flip between two
+// tied axes under round-off (and its derivative would not exist). t1 is then never
+// closer than 37 degrees to n (|u| >= 0.6 below).
+inline int frame_reference_axis(const Vec3& n) { return std::abs(n[0]) > 0.8 ? 1 : 0; }
+
 inline Mat3 frame_from_normal(const Vec3& n) {
-  const Vec3 a = n.cwiseAbs();
-  int k = 0;
-  if (a[1] < a[k]) k = 1;
-  if (a[2] < a[k]) k = 2;
+  const int k = frame_reference_axis(n);
   Vec3 e = Vec3::Zero();
   e[k] = 1;
   const Vec3 t1 = (e - n[k] * n).normalized();

@@ -475,6 +475,70 @@ bool closest_point(const Obstacle& o, const Vec3& p, double max_distance, Closes
   return false;
 }
 
+Mat3 normal_derivative(const Obstacle& o, const Vec3& p, const ClosestPoint& cp) {
+  const Vec3& n = cp.normal;
+  const Mat3 I = Mat3::Identity();
+  const Mat3 Pn = I - n * n.transpose();
+  auto edge_term = [&](const Vec3& e, double d) -> Mat3 {
+    return d > 0 ? Mat3((Pn - e * e.transpose()) / d) : Mat3::Zero();
+  };
+  auto point_term = [&](double d) -> Mat3 { return d > 0 ? Mat3(Pn / d) : Mat3::Zero(); };
+  switch (o.kind) {
+    case ShapeKind::plane: return Mat3::Zero();
+    case ShapeKind::sphere: return point_term((p - o.center).norm());
+    case ShapeKind::box:
+    case ShapeKind::capsule:
+    case ShapeKind::cylinder: {
+      const Mat3& R = o.rotation;
+      const Vec3 q = R.transpose() * (p - o.center);
+      const Vec3 nl = R.transpose() * n;
+      const Mat3 Pl = I - nl * nl.transpose();
+      Mat3 local = Mat3::Zero();
+      if (o.kind == ShapeKind::box) {
+        if (cp.feature_kind == Feature::edge) {
+          const int free_axis = (cp.feature - 6) / 4;
+          local = (Pl - I.col(free_axis) * I.col(free_axis).transpose()) / (p - cp.point).norm();
+        } else if (cp.feature_kind == Feature::vertex) {
+          local = Pl / (p - cp.point).norm();
+        }
+      } else if (o.kind == ShapeKind::capsule) {
+        const bool side = std::abs(q[2]) < o.half_length;
+        const Vec3 axis_point(0, 0, std::clamp(q[2], -o.half_length, o.half_length));
+        const double d = (q - axis_point).norm();
+        if (d > 0) local = (side ? Mat3(Pl - I.col(2) * I.col(2).transpose()) : Pl) / d;
+      } else {
+        const double rho = std::hypot(q[0], q[1]);
+        if (cp.feature_kind == Feature::smooth && rho > 0) {
+          local = (Pl - I.col(2) * I.col(2).transpose()) / rho;
+        } else if (cp.feature_kind == Feature::edge && rho > 0) {
+          // The rim: closest point c = r u + zs e_z, u = (q_x, q_y, 0) / rho, so
+          // dc/dq = (r / rho) (I - u u^T - e_z e_z^T); n = (q - c) / |q - c|.
+          const Vec3 u(q[0] / rho, q[1] / rho, 0);
+          const Mat3 dc = (o.radius / rho) * (I - u * u.transpose() - I.col(2) * I.col(2).transpose());
+          const Vec3 c = o.radius * u + Vec3(0, 0, q[2] >= 0 ? o.half_length : -o.half_length);
+          local = Pl * (I - dc) / (q - c).norm();
+        }
+      }
+      return R * local * R.transpose();
+    }
+    case ShapeKind::mesh: {
+      if (cp.feature_kind == Feature::face) return Mat3::Zero();
+      const double d = (p - cp.point).norm();
+      // The sign of n relative to p - point (inside: n = -(p - point)/d).
+      const double s = n.dot(p - cp.point) < 0 ? -1.0 : 1.0;
+      const auto& T = o.mesh.triangles;
+      const int t = cp.feature;
+      const Vec3 a = o.mesh.vertices.col(T(0, t)), b = o.mesh.vertices.col(T(1, t)), c = o.mesh.vertices.col(T(2, t));
+      const PointTriangleResult r = point_triangle_closest(p, a, b, c);
+      if (cp.feature_kind == Feature::vertex) return s * point_term(d);
+      const Vec3 v[3] = {a, b, c};
+      const Vec3 e = (v[(r.local + 1) % 3] - v[r.local]).normalized();
+      return s * edge_term(e, d);
+    }
+  }
+  return Mat3::Zero();
+}
+
 Eigen::AlignedBox3d bounding_box(const Obstacle& o) {
   switch (o.kind) {
     case ShapeKind::plane: {

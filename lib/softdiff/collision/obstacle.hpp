@@ -63,6 +63,16 @@ void prepare(Obstacle& obstacle);
 // (a fast reject); otherwise fills `out`. Points inside are never rejected.
 bool closest_point(const Obstacle& obstacle, const Vec3& p, double max_distance, ClosestPoint& out);
 
+// dn/dp: the derivative of the outward normal of closest_point at p (the Hessian of
+// the signed distance; its gradient, the derivative of `distance`, is n itself), for
+// the feature cp reports (cp = closest_point(obstacle, p)): zero on a face (plane, box
+// face, cylinder cap, mesh triangle); (I - n n^T - e e^T) / d along an edge of
+// direction e (box, mesh, capsule side and cylinder side about their axis) and
+// (I - n n^T) / d at a vertex or a sphere (d the distance to the edge, vertex, axis or
+// center; with the sign of n's orientation for a mesh point inside); the cylinder's
+// rim includes the turning of its closest point on the circle.
+Mat3 normal_derivative(const Obstacle& obstacle, const Vec3& p, const ClosestPoint& cp);
+
 // World bounding box of the obstacle (planes: unbounded, i.e. +-infinity
 // on the unbounded axes).
 Eigen::AlignedBox3d bounding_box(const Obstacle& obstacle);
