@@ -1,0 +1,83 @@
+// Derivatives of the contact forces: see ncp_derivatives.hpp.
+#include <softdiff/contact/ncp_derivatives.hpp>
+
+#include <softdiff/core/assert.hpp>
+
+#include <Eigen/QR>
+#include <algorithm>
+#include <string>
+
+namespace softdiff::contact {
+
+void NcpDerivative::compute(const MatX& G, const VecX& mu, const VecX& lambda, const VecX& sigma,
+                            const std::vector<Mode>& modes) {
+  nc_ = static_cast<int>(mu.size());
+  SOFTDIFF_DEMAND(G.rows() == 3 * nc_ && G.cols() == 3 * nc_ && lambda.size() == 3 * nc_ && sigma.size() == 3 * nc_ &&
+                      static_cast<int>(modes.size()) == nc_,
+                  "NcpDerivative::compute: sizes do not match " + std::to_string(nc_) + " contacts");
+  active_.clear();
+  for (int i = 0; i < nc_; ++i)
+    if (modes[i] != Mode::breaking) active_.push_back(i);
+  const int na = static_cast<int>(active_.size()), m = 3 * na;
+  degenerate_ = 0;
+  rank_deficiency_ = 0;
+  J_pinv_.resize(m, m);
+  R_ = MatX::Zero(m, 3 * nc_);
+  D_ = MatX::Zero(m, nc_);
+  if (na == 0) return;
+  const double L = std::max(G.diagonal().maxCoeff(), 1e-300);
+  MatX J(m, m);
+  for (int a = 0; a < na; ++a) {
+    const int i = active_[a];
+    for (int b = 0; b < na; ++b) J.block<3, 3>(3 * a, 3 * b) = G.block<3, 3>(3 * i, 3 * active_[b]);
+    R_.block<3, 3>(3 * a, 3 * i).setIdentity();
+    if (modes[i] == Mode::sticking) continue;
+    // Sliding: the normal row stays; the tangential rows are those of
+    // L (lambda_T + mu lambda_N t(sigma_T)).
+    const double mui = mu[i], lN = lambda[3 * i + 2];
+    const Eigen::Vector2d sT = sigma.segment<2>(3 * i);
+    const double sn = sT.norm();
+    R_.block<2, 3>(3 * a, 3 * i).setZero();
+    J.middleRows<2>(3 * a).setZero();
+    J.block<2, 2>(3 * a, 3 * a) = L * Eigen::Matrix2d::Identity();
+    if (mui > 0 && sn > 0) {
+      const Eigen::Vector2d t = sT / sn;
+      const Eigen::Matrix2d P = (mui * lN / sn) * (Eigen::Matrix2d::Identity() - t * t.transpose());
+      for (int b = 0; b < na; ++b) J.block<2, 3>(3 * a, 3 * b) += L * P * G.block<2, 3>(3 * i, 3 * active_[b]);
+      J.block<2, 1>(3 * a, 3 * a + 2) += L * mui * t;
+      R_.block<2, 2>(3 * a, 3 * i) = L * P;
+      D_.block<2, 1>(3 * a, i) = L * lN * t;
+    } else if (mui > 0) {
+      ++degenerate_;  // no sliding direction: lambda_T held
+    }
+  }
+  Eigen::CompleteOrthogonalDecomposition<MatX> cod;
+  cod.setThreshold(1e-12);
+  cod.compute(J);
+  rank_deficiency_ = m - static_cast<int>(cod.rank());
+  J_pinv_ = cod.pseudoInverse();
+}
+
+void NcpDerivative::jvp(const VecX& b, const VecX& dmu, VecX& dlambda) const {
+  SOFTDIFF_DEMAND(b.size() == 3 * nc_ && (dmu.size() == 0 || dmu.size() == nc_), "NcpDerivative::jvp: sizes");
+  dlambda = VecX::Zero(3 * nc_);
+  if (active_.empty()) return;
+  VecX rhs = R_ * b;
+  if (dmu.size()) rhs += D_ * dmu;
+  const VecX d = -J_pinv_ * rhs;
+  for (std::size_t a = 0; a < active_.size(); ++a) dlambda.segment<3>(3 * active_[a]) = d.segment<3>(3 * a);
+}
+
+void NcpDerivative::vjp(const VecX& bar_lambda, VecX& bar_b, VecX& bar_mu) const {
+  SOFTDIFF_DEMAND(bar_lambda.size() == 3 * nc_, "NcpDerivative::vjp: sizes");
+  bar_b = VecX::Zero(3 * nc_);
+  bar_mu = VecX::Zero(nc_);
+  if (active_.empty()) return;
+  VecX la(3 * active_.size());
+  for (std::size_t a = 0; a < active_.size(); ++a) la.segment<3>(3 * a) = bar_lambda.segment<3>(3 * active_[a]);
+  const VecX y = -J_pinv_.transpose() * la;
+  bar_b = R_.transpose() * y;
+  bar_mu = D_.transpose() * y;
+}
+
+}  // namespace softdiff::contact
