@@ -23,9 +23,6 @@ std::vector<std::string> split(const std::string& s) {
 }
 
 void demand_differentiable(const std::string& option, const Model& model) {
-  if (model.contact.enabled)
-    throw InputError(option + ": this scene has contact, and contact is not differentiated in this version of "
-                              "softdiff (the derivatives of the FEM step, actuators and parameters are)");
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
     for (const auto& b : model.fem.bodies)
       if (b.psd_projection)
@@ -74,7 +71,8 @@ ThetaSelection parse_theta(const std::string& option, const std::string& list, c
       sel.layout.v0 = true;
     } else if (const auto p = parse_parameter(n)) {
       if (*p == Parameter::friction)
-        throw InputError(option + ": 'friction' needs contact derivatives, which this version does not have");
+        throw InputError(option + ": 'friction' is not a differentiable parameter in this version (the contact "
+                                  "forces are differentiated with respect to positions, velocities and the other parameters)");
       for (int b = 0; b < static_cast<int>(model.fem.bodies.size()); ++b) sel.layout.parameters.push_back({*p, b});
       params_given.push_back(n);
     } else {

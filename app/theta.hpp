@@ -23,9 +23,10 @@ struct ThetaSelection {
 };
 
 // Throws InputError (exit 2) for an empty list, an unknown or repeated name, friction
-// (contact derivatives are not in this version), `actuation` in a scene without
-// actuators, or a scene whose step is not differentiated (contact, static,
-// newton_iterations > 1 with psd_projection), naming the option.
+// (not a differentiable parameter in this version), `actuation` in a scene without
+// actuators, or a scene whose step is not differentiated (newton_iterations > 1 with
+// psd_projection; a static scene with psd_projection, a pressure cavity or a rotation
+// servo; x0, v0 for a static scene), naming the option.
 ThetaSelection parse_theta(const std::string& option, const std::string& list, const Model& model);
 
 }  // namespace softdiff::app

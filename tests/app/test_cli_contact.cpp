@@ -118,17 +118,19 @@ TEST(CliContact, WritesContactDatasets) {
 // A contact solve that cannot reach its tolerance in one iteration: a warning and
 // exit 0 by default; with --strict an error naming the step and the residuals,
 // exit 1, and the frames up to it kept (status "diverged: ...").
-TEST(CliContact, JacobianOfAContactSceneIsRefusedWithoutOutput) {
-  // Contact derivatives are not in this version: a clear message, exit 2, no file.
-  const auto dir = fresh_dir(kWork, "jacobian");
-  write_text(dir / "scene.yaml", scene(kPlane, "  friction: 0.3\n", 2));
-  const CliRun r = run_cli("simulate scene.yaml -o o.h5 --jacobian young", dir);
-  EXPECT_EQ(r.code, 2) << r.err;
-  EXPECT_NE(r.err.find("contact is not differentiated"), std::string::npos) << r.err;
-  for (const auto& entry : fs::directory_iterator(dir)) {
-    const auto ext = entry.path().extension();
-    EXPECT_TRUE(ext != ".h5" && ext != ".xmf" && ext != ".partial") << "left behind: " << entry.path();
-  }
+TEST(CliContact, CheckGradThroughContact) {
+  // The beam pressed 0.1 mm into the plane, resting and sticking (mu = 0.5), 2 steps:
+  // the derivatives through the contact forces (collision detection, the NCP with
+  // modes fixed, the corrected step) against differences of whole runs.
+  const auto dir = fresh_dir(kWork, "check_grad");
+  std::string text = scene(kPlane, "  friction: 0.5\n  tolerance: 1.0e-13\n  max_iterations: 20000\n", 2);
+  text.replace(text.find("translate: [0, 0, 0.0005]"), 25, "translate: [0, 0, -0.0001]");
+  write_text(dir / "scene.yaml", text);
+  const CliRun r = run_cli("check-grad scene.yaml --steps 2 --wrt young,x0 --directions 2", dir);
+  EXPECT_EQ(r.code, 0) << r.out << r.err;
+  EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
+  for (const char* block : {"young", "x0"})
+    EXPECT_NE(r.out.find(std::string("\n") + block + " "), std::string::npos) << r.out;
 }
 
 TEST(CliContact, StrictMakesAnUnconvergedContactSolveAnError) {

@@ -15,7 +15,6 @@ namespace {
 void demand_supported(const Model& model) {
   SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler,
                   "step derivatives: only the implicit_euler integrator is differentiated in this version");
-  SOFTDIFF_DEMAND(!model.contact.enabled, "step derivatives: contact is not differentiated in this version");
   if (model.step.newton_iterations > 1)
     for (const auto& b : model.fem.bodies)
       SOFTDIFF_DEMAND(!b.psd_projection, "step derivatives: newton_iterations > 1 with psd_projection (body '" +
@@ -131,6 +130,104 @@ bool StepDerivatives::parameter_column(const Model& model, const Data& data, con
   return false;
 }
 
+namespace {
+// The contact's node components of a global vector (12; count nodes used).
+Eigen::Matrix<double, 12, 1> gather_contact(const collision::Contact& c, const VecX& v) {
+  Eigen::Matrix<double, 12, 1> u = Eigen::Matrix<double, 12, 1>::Zero();
+  for (int k = 0; k < c.count; ++k) u.segment<3>(3 * k) = v.segment<3>(3 * c.nodes[k]);
+  return u;
+}
+}  // namespace
+
+void StepDerivatives::prepare_contact(const Model& model, const Data& data, const State& in, const State& out) {
+  const auto& cd = data.contact;
+  if (contact_v_.size() == out.v.size() && contact_v_ == out.v) return;
+  const auto& det = model.contact.detection;
+  const int nc = cd.contacts.size();
+  geometry_.resize(static_cast<std::size_t>(nc));
+  nondifferentiable_contacts_ = 0;
+  for (int i = 0; i < nc; ++i) {
+    const auto& c = cd.contacts.contacts[i];
+    const collision::Obstacle* o = nullptr;
+    if (c.kind == collision::ContactKind::vertex_obstacle)
+      o = &det.obstacles[static_cast<std::size_t>(c.side_b) - det.surfaces.size()];
+    auto& g = geometry_[static_cast<std::size_t>(i)];
+    if (!collision::contact_geometry_derivative(c, in.x, o, g)) {
+      g.dn.setZero();
+      g.dgap.setZero();
+      g.dweights.setZero();
+      g.dframe.setZero();
+      ++nondifferentiable_contacts_;
+    }
+  }
+  if (nc > 0) ncp_.compute(cd.G, cd.mu, cd.lambda, cd.sigma, cd.modes);
+  contact_v_ = out.v;
+}
+
+void StepDerivatives::add_contact_force_jvp(const Model& model, const Data& data, const VecX& dx, VecX& r) const {
+  const auto& cd = data.contact;
+  const double h = model.step.dt;
+  for (int i = 0; i < cd.contacts.size(); ++i) {
+    const auto& c = cd.contacts.contacts[i];
+    const auto& g = geometry_[static_cast<std::size_t>(i)];
+    const Eigen::Matrix<double, 12, 1> u = gather_contact(c, dx);
+    const Vec3 l = cd.lambda.segment<3>(3 * i);
+    const Vec3 Cl = c.frame * l;
+    const Mat3 dC = Eigen::Map<const Mat3>(Eigen::Matrix<double, 9, 1>(g.dframe * u).data());
+    const Vec3 dCl = dC * l;
+    const Eigen::Vector4d dw = g.dweights * u;
+    for (int k = 0; k < c.count; ++k) r.segment<3>(3 * c.nodes[k]) += h * (dw[k] * Cl + c.weights[k] * dCl);
+  }
+}
+
+void StepDerivatives::contact_sigma_jvp(const Model& model, const Data& data, const State& out, const VecX& dx,
+                                        const VecX& dv0, VecX& b) const {
+  const auto& cd = data.contact;
+  const double h = model.step.dt;
+  b.noalias() = cd.Ht.transpose() * dv0;  // H dv0 (projected H)
+  for (int i = 0; i < cd.contacts.size(); ++i) {
+    const auto& c = cd.contacts.contacts[i];
+    const auto& g = geometry_[static_cast<std::size_t>(i)];
+    const Eigen::Matrix<double, 12, 1> u = gather_contact(c, dx);
+    const Mat3 dC = Eigen::Map<const Mat3>(Eigen::Matrix<double, 9, 1>(g.dframe * u).data());
+    const Eigen::Vector4d dw = g.dweights * u;
+    Vec3 V = Vec3::Zero(), dV = Vec3::Zero();
+    for (int k = 0; k < c.count; ++k) {
+      const Vec3 vk = out.v.segment<3>(3 * c.nodes[k]);
+      V += c.weights[k] * vk;
+      dV += dw[k] * vk;
+    }
+    b.segment<3>(3 * i) += dC.transpose() * V + c.frame.transpose() * dV;
+    b[3 * i + 2] += (g.dgap * u)(0) / h;
+  }
+}
+
+void StepDerivatives::add_contact_geometry_vjp(const Model& model, const Data& data, const State& out, const VecX& y,
+                                               const VecX& bar_b, VecX& bar_x) const {
+  const auto& cd = data.contact;
+  const double h = model.step.dt;
+  for (int i = 0; i < cd.contacts.size(); ++i) {
+    const auto& c = cd.contacts.contacts[i];
+    const auto& g = geometry_[static_cast<std::size_t>(i)];
+    const Vec3 l = cd.lambda.segment<3>(3 * i), Cl = c.frame * l, bb = bar_b.segment<3>(3 * i), Cb = c.frame * bb;
+    // d/du of  h sum_k y_k . (dw_k C l + w_k dC l)  +  bb . (dC^T V + C^T dV) + bb_N dgap / h.
+    Eigen::Matrix<double, 4, 1> gw = Eigen::Matrix<double, 4, 1>::Zero();
+    Mat3 gC = Mat3::Zero();  // the gradient with respect to the entries of C
+    Vec3 V = Vec3::Zero();
+    for (int k = 0; k < c.count; ++k) {
+      const Vec3 yk = y.segment<3>(3 * c.nodes[k]), vk = out.v.segment<3>(3 * c.nodes[k]);
+      gw[k] += h * yk.dot(Cl) + Cb.dot(vk);
+      gC += h * c.weights[k] * yk * l.transpose();
+      V += c.weights[k] * vk;
+    }
+    gC += V * bb.transpose();  // bb . dC^T V = V . dC bb
+    const Eigen::Matrix<double, 12, 1> gu = g.dweights.transpose() * gw +
+                                            g.dframe.transpose() * Eigen::Map<const Eigen::Matrix<double, 9, 1>>(gC.data()) +
+                                            g.dgap.transpose() * (bb[2] / h);
+    for (int k = 0; k < c.count; ++k) bar_x.segment<3>(3 * c.nodes[k]) += gu.segment<3>(3 * k);
+  }
+}
+
 LinearSolver* StepDerivatives::system(const Model& model, const Data& data, const State& out) {
   if (!is_newton(model)) return data.solver.get();
   // Newton: the implicit function theorem on the converged residual R(v_f) = 0 needs
@@ -199,11 +296,27 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
     if (!parameter_column(model, data, in, out, j, q_)) return false;
     r_ += d.p[j] * q_;
   }
+  const bool contact = model.contact.enabled && !data.contact.contacts.empty();
+  if (contact) {
+    prepare_contact(model, data, in, out);
+    if (d.x.size()) add_contact_force_jvp(model, data, dx, r_);  // h dH^T lambda
+  }
   project(model, r_);
   if (!solver->solve(r_, y_)) return false;
   // Linearized: y = dDelta, dv_f = dv_i + dDelta; Newton: y = dv_f.
   d_out.v = newton ? y_ : VecX(dv + y_);
   project(model, d_out.v);
+  if (contact) {
+    // dv_f at fixed lambda is d_out.v; sigma moves by b; the forces by dlambda (the
+    // implicit function theorem, modes fixed); then h A^{-1} H^T dlambda.
+    contact_sigma_jvp(model, data, out, dx, d_out.v, b_);
+    ncp_.jvp(b_, {}, dlambda_);
+    tmp_.noalias() = h * (data.contact.Ht * dlambda_);
+    project(model, tmp_);
+    if (!solver->solve(tmp_, y_)) return false;
+    project(model, y_);
+    d_out.v += y_;
+  }
   d_out.x = dx + h * d_out.v;
   return d_out.x.allFinite() && d_out.v.allFinite();
 }
@@ -228,11 +341,27 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
   project(model, tmp_);
   if (!solver->solve(tmp_, y_)) return false;
   project(model, y_);
+  VecX* v_direct = &tmp_;  // the cotangent of dv_f's direct dependence on dv_i
+  if (model.contact.enabled && !data.contact.contacts.empty()) {
+    // Contact: lambda's cotangent h H A^{-1} v~, the NCP derivative's transpose gives
+    // bar_b; b = H dv0 + ... adds z = H^T bar_b to dv0's cotangent, so the right-hand
+    // side's cotangent is y + A^{-1} z.
+    prepare_contact(model, data, in, out);
+    bar_lambda_.noalias() = h * (data.contact.Ht.transpose() * y_);
+    ncp_.vjp(bar_lambda_, bar_b_, bar_mu_);
+    tmp2_.noalias() = data.contact.Ht * bar_b_;
+    project(model, tmp2_);
+    if (!solver->solve(tmp2_, y2_)) return false;
+    project(model, y2_);
+    y_ += y2_;
+    tmp_ += tmp2_;
+    v_direct = &tmp_;
+  }
 
   if (newton) {
     fem::symmetric_multiply(fem, fem.mass_values, y_, bar_in.v);
   } else {
-    bar_in.v = tmp_;
+    bar_in.v = *v_direct;
     body_scaled_product(model, fem.mass_values, y_, h_alpha_, tmp2_);
     bar_in.v -= tmp2_;
     body_scaled_product(model, data.fem.K_values, y_, k_coef_, tmp2_);
@@ -247,6 +376,8 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
   } else if (fem::add_stiffness_vjp(fem, in.x, y_, out.v, minus_h_, minus_k_coef_, bar_in.x) >= 0) {
     return false;
   }
+  if (model.contact.enabled && !data.contact.contacts.empty())
+    add_contact_geometry_vjp(model, data, out, y_, bar_b_, bar_in.x);
   bar_in.lambda_a = VecX::Zero(na);
   if (na > 0) {
     model.actuation.add_force_derivatives_transpose(in.x, data.lambda_a, y_, h, bar_in.x);

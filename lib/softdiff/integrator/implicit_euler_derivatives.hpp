@@ -38,8 +38,19 @@
 // reverse mode transposes it (bar_v_i = M y). Exact for the converged solution (to
 // newton_tolerance).
 //
-// Not covered yet (SOFTDIFF_DEMAND with a message): contact, the static integrator,
-// newton_iterations > 1 with psd_projection.
+// Contact (the linearized step; docs/method.md "Derivatives", "Through contact"):
+// with the contact record of the step (data.contact), r gains h sum_i dH_i[dx_i]^T
+// lambda_i (collision/contact_derivatives.hpp); dv0, the step's derivative at fixed
+// lambda, moves sigma by b = dH v_f + H_c dv0 + (0, 0, dphi / h); the NCP derivative
+// (contact/ncp_derivatives.hpp, modes fixed) gives dlambda; dv_f = dv0 + Pi h A^{-1}
+// H_c^T dlambda. The reverse mode transposes this with one more solve. Both are
+// prepared once per step (geometry derivatives and the NCP's factorization).
+//
+// Not covered yet (SOFTDIFF_DEMAND with a message): the static integrator (see
+// static_solver_derivatives.hpp), newton_iterations > 1 with psd_projection, friction
+// as a parameter.
+#include <softdiff/collision/contact_derivatives.hpp>
+#include <softdiff/contact/ncp_derivatives.hpp>
 #include <softdiff/core/parameters.hpp>
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
@@ -70,6 +81,10 @@ class StepDerivatives {
  public:
   StepDerivatives(const Model& model, std::vector<ParameterId> parameters);
   const std::vector<ParameterId>& parameters() const { return parameters_; }
+  // Of the last step differentiated with contact: contacts whose geometry derivative
+  // does not exist (taken as zero), and the NCP derivative (its rank deficiency).
+  int nondifferentiable_contacts() const { return nondifferentiable_contacts_; }
+  const contact::NcpDerivative& ncp_derivative() const { return ncp_; }
 
   // Valid when data holds the record of the step in -> out: right after
   // implicit_euler_step(model, data, in, out) returned ok. Returns false (outputs
@@ -94,6 +109,25 @@ class StepDerivatives {
   VecX minus_h_, minus_k_coef_;      // (bodies) -h, -(coefficient of K~(x_i) w): -(h beta_b + h^2), Newton -h beta_b
   VecX zero_bodies_;                 // (bodies) zeros
   VecX r_, y_, q_, w_, delta_, tmp_, tmp2_, zero_, q_extra_;  // (3n) workspace
+  // Contact (the linearized step with contact): the geometry derivative of every
+  // contact and the NCP derivative at the step's solution, computed once per step
+  // (cached by v_f). Returns the number of contacts whose geometry is not
+  // differentiable (their geometry derivative is taken as zero).
+  void prepare_contact(const Model& model, const Data& data, const State& in, const State& out);
+  // r += h sum_i dH_i[dx]^T lambda_i
+  void add_contact_force_jvp(const Model& model, const Data& data, const VecX& dx, VecX& r) const;
+  // b = dH[dx] v_f + H dv0 + (0, 0, dgap / h): the change of sigma at fixed lambda.
+  void contact_sigma_jvp(const Model& model, const Data& data, const State& out, const VecX& dx, const VecX& dv0,
+                         VecX& b) const;
+  // bar_x += the transposes of both, for the cotangents y (of r) and bar_b (of b).
+  void add_contact_geometry_vjp(const Model& model, const Data& data, const State& out, const VecX& y,
+                                const VecX& bar_b, VecX& bar_x) const;
+
+  std::vector<collision::ContactGeometryDerivative> geometry_;
+  contact::NcpDerivative ncp_;
+  VecX contact_v_;                   // the v_f the contact derivatives were prepared for
+  int nondifferentiable_contacts_ = 0;
+  VecX b_, dlambda_, bar_lambda_, bar_b_, bar_mu_, y2_;
   SparseMatrix newton_A_;            // Newton: dR/dv at x_f (the pattern's structure)
   std::unique_ptr<LinearSolver> newton_solver_;
   VecX newton_v_;                    // the v_f newton_A_ was factorized for

@@ -1,0 +1,222 @@
+// Derivatives of the implicit Euler step through frictional contact (the collision-
+// detection derivatives, the NCP's implicit function theorem with modes fixed, and the
+// corrected step) against central differences of the step, in configurations where
+// the contact set and modes do not change within the step: a cube resting on a plane
+// (sticking), sliding down a tilted gravity (sliding), tipped onto one edge (mixed:
+// some contacts breaking), against a sphere (curved obstacle), and frictionless
+// (mu = 0). Every block (x_i, v_i, the parameters) and the dot-product test.
+//
+// Steps as in test_step_derivatives.cpp (positions 1e-6 of the element size,
+// velocities 1e-6 m/s, parameters 1e-5 of their value); the NCP is solved to 1e-14
+// (polished to round-off), so that the differences see the exact map: tolerance 1e-6.
+#include <softdiff/data.hpp>
+#include <softdiff/integrator/implicit_euler.hpp>
+#include <softdiff/integrator/implicit_euler_derivatives.hpp>
+#include <support/contact.hpp>
+#include <support/fd.hpp>
+#include <support/meshes.hpp>
+#include <support/model_builder.hpp>
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <random>
+
+using namespace softdiff;
+using integrator::StateTangent;
+using integrator::StepCotangent;
+using integrator::StepTangent;
+
+namespace {
+
+enum class Case { sticking, sliding, tipped, sphere, frictionless };
+
+const char* name_of(Case c) {
+  const char* names[] = {"sticking", "sliding", "tipped", "sphere", "frictionless"};
+  return names[static_cast<int>(c)];
+}
+
+struct Params {
+  double young = 5e4, poisson = 0.3, density = 1000;
+};
+
+Model build(Case c, const Params& p) {
+  test::BodySpec spec;
+  spec.law = material::Law::neo_hookean;
+  spec.young = p.young;
+  spec.poisson = p.poisson;
+  spec.density = p.density;
+  spec.rayleigh_mass = 0.5;
+  spec.rayleigh_stiffness = 1e-3;
+  const double a = c == Case::sliding ? 0.6 : 0.0;  // gravity tilted: tan 0.6 = 0.68 > mu = 0.3
+  const Vec3 g(9.81 * std::sin(a), 0, -9.81 * std::cos(a));
+  Model model = test::make_model(test::box_mesh(2, 2, 2, 0.04, 0.04, 0.04), spec, g, 2e-3, 1);
+  test::ContactSpec cs;
+  // The sphere: sliding (mu 0.2, moving along x), where the turning frame's h dH^T lambda
+  // is not cancelled by the contact constraint (it would be for sticking vertex
+  // contacts, whose H_i spans the vertex's three dofs).
+  cs.mu = c == Case::sliding ? 0.3 : c == Case::frictionless ? 0.0 : c == Case::sphere ? 0.2 : 1.0;
+  cs.margin = 2e-3;
+  cs.ncp.tolerance = 1e-14;
+  cs.ncp.max_iterations = 20000;
+  cs.ncp.working_set = false;
+  std::vector<collision::Obstacle> obstacles;
+  if (c == Case::sphere) {
+    collision::Obstacle s;
+    s.name = "ball";
+    s.kind = collision::ShapeKind::sphere;
+    // Curved enough (R = 5 cm under a 4 cm cube) that the normals, frames and thus H_c
+    // turn with the nodes: the h dH^T lambda term weighs.
+    s.center = Vec3(0.021, 0.018, -0.05);
+    s.radius = 0.05;
+    collision::prepare(s);
+    obstacles.push_back(s);
+  } else {
+    obstacles.push_back(test::plane(Vec3(0, 0, 1), 0));
+  }
+  test::enable_contact(model, obstacles, cs);
+  return model;
+}
+
+// The state the derivative is taken at: the cube slightly pressed into the obstacle
+// (gap -1e-4: every bottom contact pushes), moving, deformed a little.
+State start(const Model& model, Case c) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(-1, 1);
+  State s = model.initial;
+  const Eigen::Matrix3d R = c == Case::tipped
+                                ? Eigen::Matrix3d(Eigen::AngleAxisd(0.08, Vec3::UnitY()).toRotationMatrix())
+                                : Eigen::Matrix3d::Identity();
+  for (int i = 0; i < model.fem.num_nodes; ++i) {
+    Vec3 p = R * s.x.segment<3>(3 * i);
+    for (int k = 0; k < 3; ++k) p[k] += 2e-5 * u(rng);
+    p.z() -= 1e-4;
+    s.x.segment<3>(3 * i) = p;
+    const bool moving = c == Case::sliding || c == Case::sphere;
+    const Vec3 v(moving ? 0.05 : 0.002 * u(rng), 0.002 * u(rng), -0.01 + 0.002 * u(rng));
+    s.v.segment<3>(3 * i) = v;
+  }
+  return s;
+}
+
+struct Outcome {
+  VecX y;
+  std::vector<contact::Mode> modes;
+  std::vector<collision::Contact::Key> keys;
+};
+
+Outcome step(const Model& model, const State& in) {
+  Data data(model);
+  State out;
+  const StepStatus st = integrator::implicit_euler_step(model, data, in, out, 1);
+  EXPECT_TRUE(st.ok()) << describe(model, st);
+  EXPECT_TRUE(data.contact.result.converged) << data.contact.result.residuals.max();
+  Outcome o;
+  o.y.resize(2 * out.x.size());
+  o.y << out.x, out.v;
+  o.modes = data.contact.modes;
+  for (const auto& c : data.contact.contacts.contacts) o.keys.push_back(c.key());
+  return o;
+}
+
+void check(Case c) {
+  const Params p;
+  const Model model = build(c, p);
+  const State in = start(model, c);
+  Data data(model);
+  State out;
+  ASSERT_TRUE(integrator::implicit_euler_step(model, data, in, out, 1).ok());
+  const auto& cd = data.contact;
+  ASSERT_GT(cd.contacts.size(), 0) << name_of(c);
+  int counts[3] = {0, 0, 0};
+  for (auto m : cd.modes) ++counts[static_cast<int>(m)];
+  // The case holds what it says.
+  switch (c) {
+    case Case::sticking: EXPECT_EQ(counts[1], cd.contacts.size()) << "all sticking"; break;
+    case Case::sliding: EXPECT_EQ(counts[2], cd.contacts.size()) << "all sliding"; break;
+    case Case::tipped: EXPECT_GT(counts[0], 0) << "some breaking"; EXPECT_GT(counts[1] + counts[2], 0); break;
+    case Case::sphere: EXPECT_EQ(counts[2], cd.contacts.size()) << "all sliding"; break;
+    case Case::frictionless: EXPECT_EQ(counts[2] + counts[0], cd.contacts.size()); break;
+  }
+  const std::vector<ParameterId> params = {{Parameter::young, 0}, {Parameter::poisson, 0}, {Parameter::density, 0}};
+  integrator::StepDerivatives d(model, params);
+  const Eigen::Index n = in.x.size();
+  const Outcome base = step(model, in);
+  auto jvp = [&](const StepTangent& t) {
+    StateTangent r;
+    EXPECT_TRUE(d.jvp(model, data, in, out, t, r));
+    VecX y(2 * n);
+    y << r.x, r.v;
+    return y;
+  };
+  for (int which = 0; which < 2; ++which) {
+    const double e = which == 0 ? 1e-6 * 0.02 : 1e-6;
+    MatX J(2 * n, n), J_fd(2 * n, n);
+    for (Eigen::Index k = 0; k < n; ++k) {
+      StepTangent t;
+      (which == 0 ? t.x : t.v) = VecX::Unit(n, k);
+      J.col(k) = jvp(t);
+      State sp = in, sm = in;
+      (which == 0 ? sp.x : sp.v)[k] += e;
+      (which == 0 ? sm.x : sm.v)[k] -= e;
+      const Outcome op = step(model, sp), om = step(model, sm);
+      ASSERT_EQ(op.keys, base.keys) << name_of(c) << ": the contact set changed within the step";
+      ASSERT_EQ(op.modes, base.modes) << name_of(c) << ": the modes switched within the step";
+      ASSERT_EQ(om.modes, base.modes) << name_of(c);
+      J_fd.col(k) = (op.y - om.y) / (2 * e);
+    }
+    const auto cmp = test::compare(J, J_fd);
+    EXPECT_LT(cmp.rel_error, 1e-6) << name_of(c) << (which == 0 ? " d/dx_i: " : " d/dv_i: ") << cmp.str();
+  }
+  for (int j = 0; j < 3; ++j) {
+    const double value = j == 0 ? p.young : j == 1 ? p.poisson : p.density;
+    const double e = 1e-5 * value;
+    Params pp = p, pm = p;
+    (j == 0 ? pp.young : j == 1 ? pp.poisson : pp.density) += e;
+    (j == 0 ? pm.young : j == 1 ? pm.poisson : pm.density) -= e;
+    StepTangent t;
+    t.p = VecX::Unit(3, j);
+    const VecX col = jvp(t);
+    const Model mp = build(c, pp), mm = build(c, pm);
+    const Outcome op = step(mp, start(mp, c)), om = step(mm, start(mm, c));
+    ASSERT_EQ(op.modes, base.modes) << name_of(c);
+    ASSERT_EQ(om.modes, base.modes) << name_of(c);
+    const VecX fd = (op.y - om.y) / (2 * e);
+    const auto cmp = test::compare(col, fd);
+    EXPECT_LT(cmp.rel_error, 1e-6) << name_of(c) << " parameter " << j << ": " << cmp.str();
+  }
+  // Reverse mode.
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-1, 1);
+  StepTangent t;
+  t.x = VecX(n);
+  t.v = VecX(n);
+  for (Eigen::Index k = 0; k < n; ++k) {
+    t.x[k] = 1e-4 * u(rng);
+    t.v[k] = 1e-2 * u(rng);
+  }
+  t.p = (VecX(3) << p.young, p.poisson, p.density).finished() * 0.1;
+  StateTangent Jd;
+  ASSERT_TRUE(d.jvp(model, data, in, out, t, Jd));
+  StateTangent w;
+  w.x = VecX(n);
+  w.v = VecX(n);
+  for (Eigen::Index k = 0; k < n; ++k) {
+    w.x[k] = u(rng);
+    w.v[k] = u(rng);
+  }
+  StepCotangent JTw;
+  ASSERT_TRUE(d.vjp(model, data, in, out, w, JTw));
+  const double lhs = w.x.dot(Jd.x) + w.v.dot(Jd.v);
+  const double rhs = JTw.x.dot(t.x) + JTw.v.dot(t.v) + JTw.p.dot(t.p);
+  EXPECT_NEAR(lhs, rhs, 1e-10 * (w.x.norm() * Jd.x.norm() + w.v.norm() * Jd.v.norm())) << name_of(c);
+  EXPECT_EQ(d.nondifferentiable_contacts(), 0) << name_of(c);
+}
+
+TEST(StepDerivativesContact, Sticking) { check(Case::sticking); }
+TEST(StepDerivativesContact, Sliding) { check(Case::sliding); }
+TEST(StepDerivativesContact, TippedMixedModes) { check(Case::tipped); }
+TEST(StepDerivativesContact, CurvedObstacle) { check(Case::sphere); }
+TEST(StepDerivativesContact, Frictionless) { check(Case::frictionless); }
+
+}  // namespace
