@@ -2,10 +2,12 @@
 // (issue "End-to-end derivatives": a JVP column at most 0.3x a forward step; a full
 // reverse sweep at most 2x the forward run). Cantilever beam (10 n x n x n cells, 6
 // tets each: n = 6 is 13k tets), corotational, Rayleigh damping, no contact.
-//   BM_StepDerivatives/<n>: per iteration one step, one JVP column (a full tangent:
+//   BM_StepDerivatives/<n>/<contact>: per iteration one step, one JVP column (a full tangent:
 //     dx, dv and d young, as every column is after the first step) and one VJP with
 //     the step's factorization. Counters: step_ms, jvp_ms, vjp_ms, jvp_ratio =
-//     jvp_ms / step_ms, vjp_ratio.
+//     jvp_ms / step_ms, vjp_ratio, contacts. contact = 1: the beam's underside pressed
+//     onto a plane (sticking contacts; the derivatives' contact part: geometry
+//     derivatives, the NCP derivative's factorization, one more solve).
 //   BM_Adjoint/<n>: 100 steps recorded (forward_ms, the plain run), then the reverse
 //     sweep over them (adjoint_ms: each step recomputed from its recorded state plus
 //     its VJP). Counters: forward_ms, adjoint_ms, ratio = adjoint_ms / forward_ms,
@@ -14,6 +16,7 @@
 #include <softdiff/diff/trajectory.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
 #include <softdiff/integrator/implicit_euler_derivatives.hpp>
+#include <support/contact.hpp>
 #include <support/meshes.hpp>
 #include <support/model_builder.hpp>
 
@@ -50,7 +53,14 @@ VecX random_vector(Eigen::Index size, double scale, unsigned seed) {
 }
 
 void BM_StepDerivatives(benchmark::State& st) {
-  const Model model = beam(static_cast<int>(st.range(0)), 10);
+  Model model = beam(static_cast<int>(st.range(0)), 10);
+  if (st.range(1)) {
+    // With contact: the cantilever's underside pressed 0.1 mm into a plane (mu = 0.5):
+    // every bottom vertex beyond the clamp is a vertex-plane contact.
+    test::ContactSpec cs;
+    cs.mu = 0.5;
+    test::enable_contact(model, {test::plane(Vec3(0, 0, 1), 1e-4)}, cs);
+  }
   Data data(model);
   State s = model.initial, next;
   for (int k = 1; k <= 3; ++k) {
@@ -93,6 +103,7 @@ void BM_StepDerivatives(benchmark::State& st) {
   st.counters["jvp_ratio"] = jvp / step;
   st.counters["vjp_ratio"] = vjp / step;
   st.counters["tets"] = model.fem.num_tets;
+  st.counters["contacts"] = model.contact.enabled ? data.contact.contacts.size() : 0;
 }
 
 void BM_Adjoint(benchmark::State& st) {
@@ -127,7 +138,13 @@ void BM_Adjoint(benchmark::State& st) {
   st.counters["tets"] = model.fem.num_tets;
 }
 
-BENCHMARK(BM_StepDerivatives)->Arg(3)->Arg(6)->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
+BENCHMARK(BM_StepDerivatives)
+    ->Args({3, 0})
+    ->Args({6, 0})
+    ->Args({6, 1})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MinTime(1.0);
 BENCHMARK(BM_Adjoint)->Arg(6)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
 
 }  // namespace
