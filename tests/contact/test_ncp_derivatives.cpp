@@ -161,6 +161,11 @@ TEST(NcpDerivatives, RedundantContactsAreRankDeficientButFinite) {
   EXPECT_LT(dsigma.segment<3>(9).norm(), 1e-8 * b.norm());
   // The two copies of the duplicated contact share their force change (minimum norm).
   EXPECT_LT((dl.segment<3>(0) - dl.segment<3>(12)).norm(), 1e-8 * dl.norm());
+  // The reverse mode is still the transpose (the pseudo-inverse's transpose).
+  const VecX w = random_vector(p.g.size(), 13);
+  VecX bar_b, bar_mu;
+  d.vjp(w, bar_b, bar_mu);
+  EXPECT_NEAR(w.dot(dl), bar_b.dot(b), 1e-12 * w.norm() * dl.norm());
 }
 
 }  // namespace

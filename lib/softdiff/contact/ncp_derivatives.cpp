@@ -21,17 +21,20 @@ void NcpDerivative::compute(const MatX& G, const VecX& mu, const VecX& lambda, c
   const int na = static_cast<int>(active_.size()), m = 3 * na;
   degenerate_ = 0;
   rank_deficiency_ = 0;
-  J_pinv_.resize(m, m);
+  cholesky_ = false;
   R_ = MatX::Zero(m, 3 * nc_);
   D_ = MatX::Zero(m, nc_);
   if (na == 0) return;
   const double L = std::max(G.diagonal().maxCoeff(), 1e-300);
-  MatX J(m, m);
+  MatX& J = J_;
+  J.resize(m, m);
+  bool all_sticking = true;
   for (int a = 0; a < na; ++a) {
     const int i = active_[a];
     for (int b = 0; b < na; ++b) J.block<3, 3>(3 * a, 3 * b) = G.block<3, 3>(3 * i, 3 * active_[b]);
     R_.block<3, 3>(3 * a, 3 * i).setIdentity();
     if (modes[i] == Mode::sticking) continue;
+    all_sticking = false;
     // Sliding: the normal row stays; the tangential rows are those of
     // L (lambda_T + mu lambda_N t(sigma_T)).
     const double mui = mu[i], lN = lambda[3 * i + 2];
@@ -51,11 +54,20 @@ void NcpDerivative::compute(const MatX& G, const VecX& mu, const VecX& lambda, c
       ++degenerate_;  // no sliding direction: lambda_T held
     }
   }
-  Eigen::CompleteOrthogonalDecomposition<MatX> cod;
-  cod.setThreshold(1e-12);
-  cod.compute(J);
-  rank_deficiency_ = m - static_cast<int>(cod.rank());
-  J_pinv_ = cod.pseudoInverse();
+  if (all_sticking) {
+    // J = G_AA: symmetric positive semi-definite. Cholesky when it is definite to a
+    // margin (the smallest pivot above 1e-12 of the largest: the same rank decision
+    // as the decomposition below), else the least-squares path.
+    llt_.compute(J);
+    if (llt_.info() == Eigen::Success) {
+      const VecX d = llt_.matrixLLT().diagonal().cwiseAbs2();  // the squared pivots of L
+      cholesky_ = d.minCoeff() > 1e-12 * d.maxCoeff();
+    }
+  }
+  if (cholesky_) return;
+  cod_.setThreshold(1e-12);
+  cod_.compute(J);
+  rank_deficiency_ = m - static_cast<int>(cod_.rank());
 }
 
 void NcpDerivative::jvp(const VecX& b, const VecX& dmu, VecX& dlambda) const {
@@ -64,7 +76,7 @@ void NcpDerivative::jvp(const VecX& b, const VecX& dmu, VecX& dlambda) const {
   if (active_.empty()) return;
   VecX rhs = R_ * b;
   if (dmu.size()) rhs += D_ * dmu;
-  const VecX d = -J_pinv_ * rhs;
+  const VecX d = cholesky_ ? VecX(-llt_.solve(rhs)) : VecX(-cod_.solve(rhs));
   for (std::size_t a = 0; a < active_.size(); ++a) dlambda.segment<3>(3 * active_[a]) = d.segment<3>(3 * a);
 }
 
@@ -75,7 +87,17 @@ void NcpDerivative::vjp(const VecX& bar_lambda, VecX& bar_b, VecX& bar_mu) const
   if (active_.empty()) return;
   VecX la(3 * active_.size());
   for (std::size_t a = 0; a < active_.size(); ++a) la.segment<3>(3 * a) = bar_lambda.segment<3>(3 * active_[a]);
-  const VecX y = -J_pinv_.transpose() * la;
+  VecX y;
+  if (cholesky_) {
+    y = -llt_.solve(la);  // J symmetric
+  } else {
+    // (J^+)^T la from the same decomposition: Eigen 3.4 implements the transposed solve
+    // of a complete orthogonal decomposition (_solve_impl_transposed, public, used by
+    // its own transpose().solve() machinery, which 3.4 does not wire for this class).
+    y.resize(la.size());
+    cod_.template _solve_impl_transposed<false>(la, y);
+    y = -y;
+  }
   bar_b = R_.transpose() * y;
   bar_mu = D_.transpose() * y;
 }

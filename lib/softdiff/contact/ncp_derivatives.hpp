@@ -15,12 +15,15 @@
 // L = max diag G as in the polish (all rows velocities). J is square but singular when
 // contacts are redundant (rank-deficient G) or degenerate: the minimum-norm least-
 // squares solution is taken (complete orthogonal decomposition, rank decided at
-// 1e-12 relative), which for a consistent system is the smallest force change, and
+// 1e-12 relative; Cholesky when every active contact sticks and G_AA is definite),
+// which for a consistent system is the smallest force change, and
 // rank_deficiency() counts the dimensions lost. A sliding contact with sigma_T = 0 has
 // no sliding direction (a mode boundary): its tangential rows are lambda_T-fixed and
 // it is counted in degenerate().
 #include <softdiff/contact/ncp.hpp>
 
+#include <Eigen/Cholesky>
+#include <Eigen/QR>
 #include <vector>
 
 namespace softdiff::contact {
@@ -42,7 +45,13 @@ class NcpDerivative {
  private:
   int nc_ = 0;
   std::vector<int> active_;  // active contact ids
-  MatX J_pinv_;              // (3 na x 3 na) minimum-norm pseudo-inverse of J
+  // J's factorization: Cholesky when every active contact sticks (J = G_AA, symmetric)
+  // and it is positive definite; otherwise the complete orthogonal decomposition of J
+  // (minimum-norm least squares; its transposed solve gives (J^+)^T for the reverse mode).
+  bool cholesky_ = false;
+  Eigen::LLT<MatX> llt_;
+  Eigen::CompleteOrthogonalDecomposition<MatX> cod_;
+  MatX J_;                   // (3 na x 3 na) the mode system
   MatX R_;                   // (3 na x 3 nc) d(mode equations)/d sigma at fixed lambda
   MatX D_;                   // (3 na x nc) d(mode equations)/d mu
   int rank_deficiency_ = 0, degenerate_ = 0;
