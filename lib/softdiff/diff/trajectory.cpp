@@ -2,6 +2,8 @@
 #include <softdiff/diff/trajectory.hpp>
 
 #include <softdiff/core/assert.hpp>
+
+#include <algorithm>
 #include <softdiff/integrator/implicit_euler.hpp>
 
 namespace softdiff::diff {
@@ -118,6 +120,8 @@ std::size_t Tape::bytes() const {
   std::size_t b = 0;
   for (const auto& f : frames) b += sizeof(double) * static_cast<std::size_t>(f.x.size() + f.v.size() + 1);
   for (const auto& l : lambda_a) b += sizeof(double) * static_cast<std::size_t>(l.size());
+  for (const auto& w : warm_start)
+    b += sizeof(w.keys[0]) * w.keys.size() + sizeof(double) * static_cast<std::size_t>(w.lambda.size());
   return b;
 }
 
@@ -130,6 +134,7 @@ StepStatus record(const Model& model, Data& data, const State& initial, long ste
   tape.frames.reserve(static_cast<std::size_t>(steps) + 1);
   tape.lambda_a.clear();
   tape.lambda_a.reserve(static_cast<std::size_t>(steps));
+  tape.warm_start.clear();
   State next = initial;
   VecX lambda;
   for (long step = 1; step <= steps; ++step) {
@@ -138,6 +143,7 @@ StepStatus record(const Model& model, Data& data, const State& initial, long ste
       lambda = actuation.col(step - 1);
       override_values = &lambda;
     }
+    if (model.contact.enabled) tape.warm_start.push_back({data.contact.previous_keys, data.contact.previous_lambda});
     const StepStatus st = integrator::implicit_euler_step(model, data, tape.frames.back(), next, step, override_values);
     if (!st.ok()) return st;
     tape.frames.push_back(next);
@@ -162,10 +168,19 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
   State out;
   for (long step = T; step >= 1; --step) {
     const State& in = tape.frames[static_cast<std::size_t>(step - 1)];
-    // Recompute the step's record (linearization, factorization) from its input state.
+    // Recompute the step's record (linearization, factorization) from its input state,
+    // with the NCP warm start it had.
+    if (model.contact.enabled && static_cast<long>(tape.warm_start.size()) == T) {
+      const auto& w = tape.warm_start[static_cast<std::size_t>(step - 1)];
+      data.contact.previous_keys = w.keys;
+      data.contact.previous_lambda = w.lambda;
+    }
     const StepStatus st =
         integrator::implicit_euler_step(model, data, in, out, step, &tape.lambda_a[static_cast<std::size_t>(step - 1)]);
     if (!st.ok()) return st;
+    const State& recorded = tape.frames[static_cast<std::size_t>(step)];
+    result.recompute_mismatch = std::max({result.recompute_mismatch, (out.x - recorded.x).cwiseAbs().maxCoeff(),
+                                          (out.v - recorded.v).cwiseAbs().maxCoeff()});
     if (!derivatives.vjp(model, data, in, out, bar, cot)) return derivative_failed(step);
     result.theta.head(np) += cot.p;
     result.lambda_a.col(step - 1) = cot.lambda_a;

@@ -16,7 +16,7 @@
 //
 // Adjoint: a forward pass records the states on a Tape (x and v of every frame, and
 // the actuation values of every step: 48 n + 8 n_a bytes per step, n the number of
-// nodes); the reverse sweep recomputes each step from its recorded input state
+// nodes, and with contact the NCP's warm start: 56 bytes per contact); the reverse sweep recomputes each step from its recorded input state
 // (assembly and factorization, bitwise the same step: element colors fix the
 // summation order) and applies its VJP. Cost: about one forward step plus one VJP
 // (one solve, one element pass) per step, for any number of inputs.
@@ -86,6 +86,14 @@ StepStatus forward_sensitivities(const Model& model, Data& data, const State& in
 struct Tape {
   std::vector<State> frames;
   std::vector<VecX> lambda_a;
+  // Contact: the NCP warm start each step began with (the previous step's contacts and
+  // forces), so that the reverse sweep recomputes every step bit for bit (56 bytes per
+  // contact and step).
+  struct WarmStart {
+    std::vector<std::pair<collision::Contact::Key, int>> keys;
+    VecX lambda;
+  };
+  std::vector<WarmStart> warm_start;
   long steps() const { return static_cast<long>(frames.size()) - 1; }
   std::size_t bytes() const;  // memory held (states and actuation values)
 };
@@ -105,6 +113,9 @@ struct AdjointResult {
   VecX theta;          // dl/d theta (theta.size())
   MatX lambda_a;       // (n_a x T) dl/d lambda_a of every step
   VecX x0, v0;         // dl/dx_0, dl/dv_0 (3n), whether or not theta includes them
+  // The largest |x|, |v| difference between a recomputed step and the tape's frame:
+  // 0 when the sweep recomputes the recorded run bit for bit (it should).
+  double recompute_mismatch = 0;
 };
 
 // The reverse sweep over a recorded trajectory. Uses data as the workspace of the
