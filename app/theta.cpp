@@ -70,10 +70,15 @@ ThetaSelection parse_theta(const std::string& option, const std::string& list, c
     } else if (n == "v0") {
       sel.layout.v0 = true;
     } else if (const auto p = parse_parameter(n)) {
-      if (*p == Parameter::friction)
-        throw InputError(option + ": 'friction' is not a differentiable parameter in this version (the contact "
-                                  "forces are differentiated with respect to positions, velocities and the other parameters)");
-      for (int b = 0; b < static_cast<int>(model.fem.bodies.size()); ++b) sel.layout.parameters.push_back({*p, b});
+      if (*p == Parameter::friction) {
+        // One column per contact pair rule (its coefficient).
+        if (!model.contact.enabled || model.contact.detection.pairs.empty())
+          throw InputError(option + ": 'friction' needs contact, and this scene has none");
+        for (int r = 0; r < static_cast<int>(model.contact.detection.pairs.size()); ++r)
+          sel.layout.parameters.push_back({*p, r});
+      } else {
+        for (int b = 0; b < static_cast<int>(model.fem.bodies.size()); ++b) sel.layout.parameters.push_back({*p, b});
+      }
       params_given.push_back(n);
     } else {
       throw InputError(option + " " + list + ": unknown name '" + n + "' (expected one of " + valid + ")");
@@ -93,10 +98,18 @@ ThetaSelection parse_theta(const std::string& option, const std::string& list, c
       g.size = n3;
       for (Eigen::Index k = 0; k < n3; ++k) g.columns.push_back(n + "[" + std::to_string(k) + "]");
     } else {
-      const auto at = std::find(params_given.begin(), params_given.end(), n) - params_given.begin();
-      g.offset = at * nb;
-      g.size = nb;
-      for (const auto& b : model.fem.bodies) g.columns.push_back(n + "[" + b.name + "]");
+      // The parameters' columns, in the order given: friction has one per pair rule.
+      const auto columns_of = [&](const std::string& name) {
+        return name == "friction" ? static_cast<Eigen::Index>(model.contact.detection.pairs.size()) : nb;
+      };
+      g.offset = 0;
+      for (const auto& before : params_given) {
+        if (before == n) break;
+        g.offset += columns_of(before);
+      }
+      g.size = columns_of(n);
+      const auto all = sel.layout.column_names(model);
+      for (Eigen::Index k = 0; k < g.size; ++k) g.columns.push_back(all[static_cast<std::size_t>(g.offset + k)]);
     }
     sel.groups.push_back(std::move(g));
   }

@@ -22,8 +22,8 @@ struct ThetaSelection {
   std::vector<ThetaGroup> groups;   // in the order given
 };
 
-// Throws InputError (exit 2) for an empty list, an unknown or repeated name, friction
-// (not a differentiable parameter in this version), `actuation` in a scene without
+// friction: one column per contact pair rule. Throws InputError (exit 2) for an empty
+// list, an unknown or repeated name, friction without contact, `actuation` in a scene without
 // actuators, or a scene whose step is not differentiated (newton_iterations > 1 with
 // psd_projection; a static scene with psd_projection, a pressure cavity or a rotation
 // servo; x0, v0 for a static scene), naming the option.

@@ -188,7 +188,7 @@ INSTANTIATE_TEST_SUITE_P(
         BadInput{"jacobian_empty_name", beam_scene(), "simulate scene.yaml -o o.h5 --jacobian young,,poisson",
                  "empty name"},
         BadInput{"jacobian_friction", beam_scene(), "simulate scene.yaml -o o.h5 --jacobian friction",
-                 "'friction' is not a differentiable parameter"},
+                 "'friction' needs contact"},
         BadInput{"jacobian_no_actuators", beam_scene(), "simulate scene.yaml -o o.h5 --jacobian actuation",
                  "needs actuators"},
         BadInput{"jacobian_newton_psd",

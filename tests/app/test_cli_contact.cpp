@@ -126,10 +126,10 @@ TEST(CliContact, CheckGradThroughContact) {
   std::string text = scene(kPlane, "  friction: 0.5\n  tolerance: 1.0e-13\n  max_iterations: 20000\n", 2);
   text.replace(text.find("translate: [0, 0, 0.0005]"), 25, "translate: [0, 0, -0.0001]");
   write_text(dir / "scene.yaml", text);
-  const CliRun r = run_cli("check-grad scene.yaml --steps 2 --wrt young,x0 --directions 2", dir);
+  const CliRun r = run_cli("check-grad scene.yaml --steps 2 --wrt young,friction,x0 --directions 2", dir);
   EXPECT_EQ(r.code, 0) << r.out << r.err;
   EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
-  for (const char* block : {"young", "x0"})
+  for (const char* block : {"young", "friction", "x0"})
     EXPECT_NE(r.out.find(std::string("\n") + block + " "), std::string::npos) << r.out;
 }
 

@@ -180,7 +180,7 @@ TEST(CliCheckGrad, BadInputExitsTwo) {
     std::string args, expect;
   };
   for (const Case& c : {Case{"check-grad scene.yaml --wrt yung", "unknown name 'yung'"},
-                        Case{"check-grad scene.yaml --wrt friction", "'friction' is not a differentiable parameter"},
+                        Case{"check-grad scene.yaml --wrt friction", "'friction' needs contact"},
                         Case{"check-grad scene.yaml --steps 0", "--steps"},
                         Case{"check-grad scene.yaml --eps -1", "--eps"},
                         Case{"check-grad nothere.yaml", "nothere.yaml"},

@@ -38,6 +38,7 @@ const char* name_of(Case c) {
 
 struct Params {
   double young = 5e4, poisson = 0.3, density = 1000;
+  double mu = -1;  // < 0: the case's own
 };
 
 Model build(Case c, const Params& p) {
@@ -56,6 +57,7 @@ Model build(Case c, const Params& p) {
   // is not cancelled by the contact constraint (it would be for sticking vertex
   // contacts, whose H_i spans the vertex's three dofs).
   cs.mu = c == Case::sliding ? 0.3 : c == Case::frictionless ? 0.0 : c == Case::sphere ? 0.2 : 1.0;
+  if (p.mu >= 0) cs.mu = p.mu;
   cs.margin = 2e-3;
   cs.ncp.tolerance = 1e-14;
   cs.ncp.max_iterations = 20000;
@@ -138,7 +140,11 @@ void check(Case c) {
     case Case::sphere: EXPECT_EQ(counts[2], cd.contacts.size()) << "all sliding"; break;
     case Case::frictionless: EXPECT_EQ(counts[2] + counts[0], cd.contacts.size()); break;
   }
-  const std::vector<ParameterId> params = {{Parameter::young, 0}, {Parameter::poisson, 0}, {Parameter::density, 0}};
+  // Friction (pair rule 0's coefficient) where the contacts slide: its derivative is zero
+  // for sticking or breaking contacts.
+  const bool sliding = c == Case::sliding || c == Case::sphere;
+  const std::vector<ParameterId> params = {{Parameter::young, 0}, {Parameter::poisson, 0}, {Parameter::density, 0},
+                                           {Parameter::friction, 0}};
   integrator::StepDerivatives d(model, params);
   const Eigen::Index n = in.x.size();
   const Outcome base = step(model, in);
@@ -168,14 +174,19 @@ void check(Case c) {
     const auto cmp = test::compare(J, J_fd);
     EXPECT_LT(cmp.rel_error, 1e-6) << name_of(c) << (which == 0 ? " d/dx_i: " : " d/dv_i: ") << cmp.str();
   }
-  for (int j = 0; j < 3; ++j) {
-    const double value = j == 0 ? p.young : j == 1 ? p.poisson : p.density;
+  const double mu = cd.mu[0];
+  for (int j = 0; j < (sliding ? 4 : 3); ++j) {
+    const double value = j == 0 ? p.young : j == 1 ? p.poisson : j == 2 ? p.density : mu;
     const double e = 1e-5 * value;
     Params pp = p, pm = p;
-    (j == 0 ? pp.young : j == 1 ? pp.poisson : pp.density) += e;
-    (j == 0 ? pm.young : j == 1 ? pm.poisson : pm.density) -= e;
+    if (j == 3) {
+      pp.mu = mu + e;
+      pm.mu = mu - e;
+    }
+    (j == 0 ? pp.young : j == 1 ? pp.poisson : j == 2 ? pp.density : pp.mu) += j < 3 ? e : 0;
+    (j == 0 ? pm.young : j == 1 ? pm.poisson : j == 2 ? pm.density : pm.mu) -= j < 3 ? e : 0;
     StepTangent t;
-    t.p = VecX::Unit(3, j);
+    t.p = VecX::Unit(4, j);
     const VecX col = jvp(t);
     const Model mp = build(c, pp), mm = build(c, pm);
     const Outcome op = step(mp, start(mp, c)), om = step(mm, start(mm, c));
@@ -195,7 +206,7 @@ void check(Case c) {
     t.x[k] = 1e-4 * u(rng);
     t.v[k] = 1e-2 * u(rng);
   }
-  t.p = (VecX(3) << p.young, p.poisson, p.density).finished() * 0.1;
+  t.p = (VecX(4) << p.young, p.poisson, p.density, 1.0).finished() * 0.1;
   StateTangent Jd;
   ASSERT_TRUE(d.jvp(model, data, in, out, t, Jd));
   StateTangent w;

@@ -30,7 +30,9 @@ inline std::optional<Parameter> parse_parameter(std::string_view name) {
   return std::nullopt;
 }
 
-// A parameter of one body (material and damping parameters are per body).
+// A parameter of one body (material and damping parameters are per body). For
+// friction, `body` is the index of the contact pair rule (model.contact.detection.pairs)
+// whose coefficient it is.
 struct ParameterId {
   Parameter kind = Parameter::young;
   int body = 0;

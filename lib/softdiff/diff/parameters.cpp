@@ -17,6 +17,11 @@ fem::BodyModel& body_of(Model& model, const ParameterId& id) {
 }  // namespace
 
 double get_parameter(const Model& model, const ParameterId& id) {
+  if (id.kind == Parameter::friction) {
+    SOFTDIFF_DEMAND(id.body >= 0 && id.body < static_cast<int>(model.contact.detection.pairs.size()),
+                    "parameter friction: no such pair rule");
+    return model.contact.detection.pairs[static_cast<std::size_t>(id.body)].mu;
+  }
   SOFTDIFF_DEMAND(id.body >= 0 && id.body < static_cast<int>(model.fem.bodies.size()), "parameter: no such body");
   const auto& b = model.fem.bodies[static_cast<std::size_t>(id.body)];
   switch (id.kind) {
@@ -27,10 +32,17 @@ double get_parameter(const Model& model, const ParameterId& id) {
     case Parameter::rayleigh_stiffness: return b.rayleigh_stiffness;
     case Parameter::friction: break;
   }
-  throw std::invalid_argument("friction is not a differentiable parameter in this version");
+  throw std::invalid_argument("unknown parameter");
 }
 
 void set_parameter(Model& model, const ParameterId& id, double value) {
+  if (id.kind == Parameter::friction) {
+    SOFTDIFF_DEMAND(id.body >= 0 && id.body < static_cast<int>(model.contact.detection.pairs.size()),
+                    "parameter friction: no such pair rule");
+    if (!(value >= 0)) throw std::invalid_argument("friction must be >= 0, got " + std::to_string(value));
+    model.contact.detection.pairs[static_cast<std::size_t>(id.body)].mu = value;
+    return;
+  }
   auto& b = body_of(model, id);
   const std::string name(parameter_name(id.kind));
   auto demand = [&](bool ok, const char* range) {
@@ -70,7 +82,6 @@ void set_parameter(Model& model, const ParameterId& id, double value) {
       return;
     case Parameter::friction: break;
   }
-  throw std::invalid_argument("friction is not a differentiable parameter in this version");
 }
 
 void offset_actuator(Model& model, int actuator, double offset) {

@@ -11,8 +11,9 @@ namespace softdiff::diff {
 double get_parameter(const Model& model, const ParameterId& id);
 
 // Sets the parameter. Throws std::invalid_argument for a value outside its range
-// (young, density > 0; poisson in (-1, 0.5); Rayleigh factors >= 0) and for friction
-// (not differentiated in this version).
+// (young, density > 0; poisson in (-1, 0.5); Rayleigh factors and friction >= 0).
+// Friction: the coefficient of pair rule id.body (the detector copies it into the
+// contacts when a Data is built from the model).
 void set_parameter(Model& model, const ParameterId& id, double value);
 
 // Adds `offset` to actuator a's value at every time (its constant, or every point of

@@ -50,8 +50,15 @@ Eigen::Index ThetaLayout::v0_offset(const Model& model) const {
 
 std::vector<std::string> ThetaLayout::column_names(const Model& model) const {
   std::vector<std::string> names;
-  for (const auto& p : parameters)
-    names.push_back(std::string(parameter_name(p.kind)) + "[" + model.fem.bodies[static_cast<std::size_t>(p.body)].name + "]");
+  for (const auto& p : parameters) {
+    if (p.kind == Parameter::friction) {
+      const auto& r = model.contact.detection.pairs[static_cast<std::size_t>(p.body)];
+      const auto& n = model.contact.detection.names;
+      names.push_back("friction[" + n[static_cast<std::size_t>(r.a)] + "-" + n[static_cast<std::size_t>(r.b)] + "]");
+    } else {
+      names.push_back(std::string(parameter_name(p.kind)) + "[" + model.fem.bodies[static_cast<std::size_t>(p.body)].name + "]");
+    }
+  }
   if (actuation)
     for (const auto& a : model.actuation.actuators) names.push_back("actuation[" + a.name + "]");
   if (x0) names.emplace_back("x0");

@@ -48,9 +48,14 @@ StepDerivatives::StepDerivatives(const Model& model, std::vector<ParameterId> pa
   if (model.step.newton_iterations > 1)
     for (Eigen::Index b = 0; b < nb; ++b) minus_k_coef_[b] = -h * model.fem.bodies[b].rayleigh_stiffness;
   for (const auto& p : parameters_) {
+    if (p.kind == Parameter::friction) {
+      SOFTDIFF_DEMAND(model.contact.enabled && p.body >= 0 &&
+                          p.body < static_cast<int>(model.contact.detection.pairs.size()),
+                      "parameter friction: pair rule " + std::to_string(p.body) + " does not exist");
+      continue;
+    }
     SOFTDIFF_DEMAND(p.body >= 0 && p.body < nb, "parameter " + std::string(parameter_name(p.kind)) + ": body " +
                                                     std::to_string(p.body) + " does not exist");
-    SOFTDIFF_DEMAND(p.kind != Parameter::friction, "step derivatives: friction needs contact, not differentiated in this version");
   }
   const Eigen::Index n = 3L * model.fem.num_nodes;
   for (VecX* v : {&r_, &y_, &q_, &w_, &delta_, &tmp_, &tmp2_, &zero_, &q_extra_}) *v = VecX::Zero(n);
@@ -75,6 +80,8 @@ const VecX& damping_stiffness(const Model& model, const Data& data) {
 bool StepDerivatives::parameter_column(const Model& model, const Data& data, const State& in, const State& out,
                                        int j, VecX& q) {
   const ParameterId& id = parameters_[static_cast<std::size_t>(j)];
+  q.setZero();
+  if (id.kind == Parameter::friction) return true;  // acts through the NCP only (friction_dmu)
   const auto& fem = model.fem;
   const auto& body = fem.bodies[static_cast<std::size_t>(id.body)];
   const double h = model.step.dt;
@@ -131,6 +138,10 @@ bool StepDerivatives::parameter_column(const Model& model, const Data& data, con
 }
 
 namespace {
+// Whether contact c belongs to pair rule r (its sides in either order).
+bool in_rule(const collision::Contact& c, const collision::PairRule& r) {
+  return (c.side_a == r.a && c.side_b == r.b) || (c.side_a == r.b && c.side_b == r.a);
+}
 // The contact's node components of a global vector (12; count nodes used).
 Eigen::Matrix<double, 12, 1> gather_contact(const collision::Contact& c, const VecX& v) {
   Eigen::Matrix<double, 12, 1> u = Eigen::Matrix<double, 12, 1>::Zero();
@@ -310,7 +321,17 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
     // dv_f at fixed lambda is d_out.v; sigma moves by b; the forces by dlambda (the
     // implicit function theorem, modes fixed); then h A^{-1} H^T dlambda.
     contact_sigma_jvp(model, data, out, dx, d_out.v, b_);
-    ncp_.jvp(b_, {}, dlambda_);
+    // Friction parameters: dmu_i = dp_j for the contacts of pair rule j.
+    VecX dmu;
+    for (int j = 0; j < static_cast<int>(parameters_.size()); ++j) {
+      const ParameterId& id = parameters_[static_cast<std::size_t>(j)];
+      if (id.kind != Parameter::friction || !d.p.size() || d.p[j] == 0) continue;
+      if (!dmu.size()) dmu = VecX::Zero(data.contact.contacts.size());
+      const auto& rule = model.contact.detection.pairs[static_cast<std::size_t>(id.body)];
+      for (int i = 0; i < data.contact.contacts.size(); ++i)
+        if (in_rule(data.contact.contacts.contacts[i], rule)) dmu[i] += d.p[j];
+    }
+    ncp_.jvp(b_, dmu, dlambda_);
     tmp_.noalias() = h * (data.contact.Ht * dlambda_);
     project(model, tmp_);
     if (!solver->solve(tmp_, y_)) return false;
@@ -385,6 +406,14 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
   }
   bar_in.p = VecX::Zero(static_cast<Eigen::Index>(parameters_.size()));
   for (int j = 0; j < static_cast<int>(parameters_.size()); ++j) {
+    const ParameterId& id = parameters_[static_cast<std::size_t>(j)];
+    if (id.kind == Parameter::friction) {
+      if (!model.contact.enabled || data.contact.contacts.empty()) continue;
+      const auto& rule = model.contact.detection.pairs[static_cast<std::size_t>(id.body)];
+      for (int i = 0; i < data.contact.contacts.size(); ++i)
+        if (in_rule(data.contact.contacts.contacts[i], rule)) bar_in.p[j] += bar_mu_[i];
+      continue;
+    }
     if (!parameter_column(model, data, in, out, j, q_)) return false;
     bar_in.p[j] = y_.dot(q_);
   }
