@@ -16,6 +16,7 @@
 
 #include <softdiff/core/timer.hpp>
 
+#include <algorithm>
 #include <chrono>
 #include <csignal>
 #include <cstdio>
@@ -198,6 +199,10 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
 
   StepTimings timings;
   double output_seconds = 0, derivative_seconds = 0;
+  // Contact derivatives (--jacobian): steps whose NCP derivative was rank-deficient
+  // (redundant contacts: the minimum-norm solution was used), the largest deficiency,
+  // and contacts whose geometry derivative did not exist (counted, taken as zero).
+  long rank_deficient_steps = 0, rank_deficiency_max = 0, nondifferentiable_total = 0;
   MatX static_jacobian;  // static scenes: dx*/dtheta (parameters, actuation)
   long steps_done = 0, warnings_newton = 0, warnings_contact = 0, contacts_total = 0, contacts_max = 0,
        contact_iterations = 0;
@@ -282,6 +287,13 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
           break;
         }
         derivative_seconds += seconds_since(td);
+        if (model.contact.enabled && !data.contact.contacts.empty()) {
+          const auto& sd = sensitivity->step();
+          const int deficiency = sd.ncp_derivative().rank_deficiency();
+          rank_deficient_steps += deficiency > 0;
+          rank_deficiency_max = std::max<long>(rank_deficiency_max, deficiency);
+          nondifferentiable_total += sd.nondifferentiable_contacts();
+        }
       }
       std::swap(state, next);
       steps_done = k;
@@ -312,7 +324,11 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
       std::string names;
       for (const auto& c : g.columns) names += (names.empty() ? "" : ",") + c;
       writer.write_matrix("/jacobians/" + g.name, J.middleCols(g.offset, g.size),
-                          {{"theta", names}, {"frame", frame}, {"method", method}});
+                          {{"theta", names},
+                           {"frame", frame},
+                           {"method", method},
+                           {"ncp_rank_deficient_steps", std::to_string(rank_deficient_steps)},
+                           {"nondifferentiable_contacts", std::to_string(nondifferentiable_total)}});
     }
   }
   writer.finish(status);
@@ -356,6 +372,13 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
         .value("output", 1e3 * output_seconds / n)
         .end_object();
     j.value("factorizations", data.factorizations);
+    if (theta) {
+      j.begin_object("derivatives")
+          .value("ncp_rank_deficient_steps", rank_deficient_steps)
+          .value("ncp_rank_deficiency_max", rank_deficiency_max)
+          .value("nondifferentiable_contacts", nondifferentiable_total)
+          .end_object();
+    }
     j.value("newton_not_converged_steps", warnings_newton);
     if (model.contact.enabled) {
       j.begin_object("contact")

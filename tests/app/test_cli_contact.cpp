@@ -133,6 +133,25 @@ TEST(CliContact, CheckGradThroughContact) {
     EXPECT_NE(r.out.find(std::string("\n") + block + " "), std::string::npos) << r.out;
 }
 
+TEST(CliContact, JacobianThroughContactReportsTheNcpDerivativesFigures) {
+  // The resting beam's vertex contacts are on distinct nodes: a full-rank NCP
+  // derivative at every step, every contact geometry differentiable.
+  const auto dir = fresh_dir(kWork, "jacobian");
+  std::string text = scene(kPlane, "  friction: 0.5\n", 2);
+  text.replace(text.find("translate: [0, 0, 0.0005]"), 25, "translate: [0, 0, -0.0001]");
+  write_text(dir / "scene.yaml", text);
+  const CliRun r = run_cli("simulate scene.yaml -o o.h5 --jacobian young,friction --json", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("\"derivatives\":{\"ncp_rank_deficient_steps\":0,\"ncp_rank_deficiency_max\":0,"
+                       "\"nondifferentiable_contacts\":0}"),
+            std::string::npos)
+      << r.out;
+  const hid_t f = H5Fopen((dir / "o.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  EXPECT_EQ(dims(f, "/jacobians/friction").size(), 2u);
+  H5Fclose(f);
+}
+
 TEST(CliContact, StrictMakesAnUnconvergedContactSolveAnError) {
   const auto dir = fresh_dir(kWork, "strict");
   write_text(dir / "scene.yaml",

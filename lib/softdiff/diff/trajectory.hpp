@@ -61,6 +61,9 @@ class ForwardSensitivity {
   const ThetaLayout& theta() const { return theta_; }
   const MatX& dx_dtheta() const { return dx_; }  // (3n x k) at the last state
   const MatX& dv_dtheta() const { return dv_; }
+  // The step derivative of the last advance() (its contact figures: rank deficiency of
+  // the NCP derivative, non-differentiable contacts).
+  const integrator::StepDerivatives& step() const { return *step_; }
 
  private:
   ThetaLayout theta_;
