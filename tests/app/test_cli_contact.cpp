@@ -118,14 +118,19 @@ TEST(CliContact, WritesContactDatasets) {
 // A contact solve that cannot reach its tolerance in one iteration: a warning and
 // exit 0 by default; with --strict an error naming the step and the residuals,
 // exit 1, and the frames up to it kept (status "diverged: ...").
+// The beam pressed 0.1 mm into the plane (resting on it), 2 steps.
+std::string pressed_scene(const std::string& contact) {
+  std::string text = scene(kPlane, contact, 2);
+  text.replace(text.find("translate: [0, 0, 0.0005]"), 25, "translate: [0, 0, -0.0001]");
+  return text;
+}
+
 TEST(CliContact, CheckGradThroughContact) {
   // The beam pressed 0.1 mm into the plane, resting and sticking (mu = 0.5), 2 steps:
   // the derivatives through the contact forces (collision detection, the NCP with
   // modes fixed, the corrected step) against differences of whole runs.
   const auto dir = fresh_dir(kWork, "check_grad");
-  std::string text = scene(kPlane, "  friction: 0.5\n  tolerance: 1.0e-13\n  max_iterations: 20000\n", 2);
-  text.replace(text.find("translate: [0, 0, 0.0005]"), 25, "translate: [0, 0, -0.0001]");
-  write_text(dir / "scene.yaml", text);
+  write_text(dir / "scene.yaml", pressed_scene("  friction: 0.5\n  tolerance: 1.0e-13\n  max_iterations: 20000\n"));
   const CliRun r = run_cli("check-grad scene.yaml --steps 2 --wrt young,friction,x0 --directions 2", dir);
   EXPECT_EQ(r.code, 0) << r.out << r.err;
   EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
@@ -137,9 +142,7 @@ TEST(CliContact, JacobianThroughContactReportsTheNcpDerivativesFigures) {
   // The resting beam's vertex contacts are on distinct nodes: a full-rank NCP
   // derivative at every step, every contact geometry differentiable.
   const auto dir = fresh_dir(kWork, "jacobian");
-  std::string text = scene(kPlane, "  friction: 0.5\n", 2);
-  text.replace(text.find("translate: [0, 0, 0.0005]"), 25, "translate: [0, 0, -0.0001]");
-  write_text(dir / "scene.yaml", text);
+  write_text(dir / "scene.yaml", pressed_scene("  friction: 0.5\n"));
   const CliRun r = run_cli("simulate scene.yaml -o o.h5 --jacobian young,friction --json", dir);
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.out.find("\"derivatives\":{\"ncp_rank_deficient_steps\":0,\"ncp_rank_deficiency_max\":0,"

@@ -17,6 +17,7 @@
 #include <softdiff/integrator/implicit_euler.hpp>
 #include <softdiff/integrator/implicit_euler_derivatives.hpp>
 #include <support/contact.hpp>
+#include <support/fd.hpp>
 #include <support/meshes.hpp>
 #include <support/model_builder.hpp>
 
@@ -44,13 +45,7 @@ Model beam(int n, long steps) {
   return test::make_model(test::box_mesh(10 * n, n, n, 0.2, 0.02, 0.02), spec, Vec3(0, 0, -9.81), 0.01, steps);
 }
 
-VecX random_vector(Eigen::Index size, double scale, unsigned seed) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(-1, 1);
-  VecX v(size);
-  for (Eigen::Index k = 0; k < size; ++k) v[k] = scale * u(rng);
-  return v;
-}
+using test::random_vector;
 
 void BM_StepDerivatives(benchmark::State& st) {
   Model model = beam(static_cast<int>(st.range(0)), 10);

@@ -11,6 +11,8 @@
 #include <softdiff/contact/ncp.hpp>
 #include <softdiff/contact/ncp_derivatives.hpp>
 
+#include <support/fd.hpp>
+
 #include <gtest/gtest.h>
 
 #include <random>
@@ -79,13 +81,7 @@ VecX solve(const MatX& G, const VecX& g, const VecX& mu, const VecX& warm, std::
   return lambda;
 }
 
-VecX random_vector(Eigen::Index n, unsigned seed) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(-1, 1);
-  VecX v(n);
-  for (Eigen::Index k = 0; k < n; ++k) v[k] = u(rng);
-  return v;
-}
+VecX random_vector(Eigen::Index n, unsigned seed) { return test::random_vector(n, 1.0, seed); }
 
 void check_against_differences(const std::vector<Mode>& modes, const char* name) {
   const Problem p = make_problem(modes, 5);

@@ -13,6 +13,7 @@
 #include <softdiff/data.hpp>
 #include <softdiff/diff/trajectory.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
+#include <support/fd.hpp>
 #include <support/meshes.hpp>
 #include <support/model_builder.hpp>
 
@@ -51,13 +52,7 @@ Model beam(double young, double tension = 0.0) {
   return model;
 }
 
-VecX random_vector(Eigen::Index n, unsigned seed) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(-1, 1);
-  VecX v(n);
-  for (Eigen::Index k = 0; k < n; ++k) v[k] = u(rng);
-  return v;
-}
+VecX random_vector(Eigen::Index n, unsigned seed) { return test::random_vector(n, 1.0, seed); }
 
 State run(const Model& model, const MatX& actuation = {}) {
   Data data(model);

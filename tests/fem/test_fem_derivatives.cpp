@@ -39,13 +39,7 @@ std::string name_of(const Case& c) {
   return std::string(material::law_name(c.law)) + (c.psd ? " (psd)" : "");
 }
 
-VecX random_vector(Eigen::Index n, double amplitude, unsigned seed) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(-1, 1);
-  VecX v(n);
-  for (Eigen::Index k = 0; k < n; ++k) v[k] = amplitude * u(rng);
-  return v;
-}
+using test::random_vector;
 
 Model make(const Case& c) {
   test::BodySpec spec;

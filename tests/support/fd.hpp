@@ -10,6 +10,7 @@
 
 #include <cmath>
 #include <functional>
+#include <random>
 #include <sstream>
 #include <string>
 
@@ -17,6 +18,15 @@ namespace softdiff::test {
 
 using VecX = Eigen::VectorXd;
 using MatX = Eigen::MatrixXd;
+
+// A seeded vector of n entries uniform in [-scale, scale] (directions, cotangents).
+inline VecX random_vector(Eigen::Index n, double scale, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1);
+  VecX v(n);
+  for (Eigen::Index k = 0; k < n; ++k) v[k] = scale * u(rng);
+  return v;
+}
 
 // d f / d x (m x n) of f: R^n -> R^m, step h_j = h * scale.
 inline MatX fd_jacobian(const std::function<VecX(const VecX&)>& f, const VecX& x, double h) {

@@ -81,16 +81,23 @@ void check_body_scalars(const FemModel& model, const VecX& s, const char* name) 
                       "), got " + std::to_string(s.size()));
 }
 
-}  // namespace
-
-int add_stiffness_jvp(const FemModel& model, const VecX& x, const VecX& u, const VecX& w, const VecX& a,
-                      const VecX& c, VecX& out) {
+// The sizes of a product's arguments: x, the direction (or cotangent) u, w, out (3n);
+// the per-body scalars a, c.
+void check_product_sizes(const FemModel& model, const VecX& x, const VecX& u, const VecX& w, const VecX& a,
+                         const VecX& c, const VecX& out) {
   check_sizes(model, x, "x");
-  check_sizes(model, u, "u");
+  check_sizes(model, u, "u (or y)");
   check_sizes(model, w, "w");
   check_sizes(model, out, "out");
   check_body_scalars(model, a, "a");
   check_body_scalars(model, c, "c");
+}
+
+}  // namespace
+
+int add_stiffness_jvp(const FemModel& model, const VecX& x, const VecX& u, const VecX& w, const VecX& a,
+                      const VecX& c, VecX& out) {
+  check_product_sizes(model, x, u, w, a, c, out);
   return for_each_element_by_color(model, [&](int e) {
     const int b = model.tet_body[e];
     const double ab = a[b], cb = c[b];
@@ -119,12 +126,7 @@ int add_stiffness_jvp(const FemModel& model, const VecX& x, const VecX& u, const
 
 int add_stiffness_vjp(const FemModel& model, const VecX& x, const VecX& y, const VecX& w, const VecX& a,
                       const VecX& c, VecX& out) {
-  check_sizes(model, x, "x");
-  check_sizes(model, y, "y");
-  check_sizes(model, w, "w");
-  check_sizes(model, out, "out");
-  check_body_scalars(model, a, "a");
-  check_body_scalars(model, c, "c");
+  check_product_sizes(model, x, y, w, a, c, out);
   return for_each_element_by_color(model, [&](int e) {
     const int b = model.tet_body[e];
     const double ab = a[b], cb = c[b];
