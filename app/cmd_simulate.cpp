@@ -201,8 +201,9 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
   double output_seconds = 0, derivative_seconds = 0;
   // Contact derivatives (--jacobian): steps whose NCP derivative was rank-deficient
   // (redundant contacts: the minimum-norm solution was used), the largest deficiency,
-  // and contacts whose geometry derivative did not exist (counted, taken as zero).
-  long rank_deficient_steps = 0, rank_deficiency_max = 0, nondifferentiable_total = 0;
+  // contacts whose geometry derivative did not exist (counted, taken as zero), and
+  // contacts whose active feature pair was not unique (the smoothed estimate).
+  long rank_deficient_steps = 0, rank_deficiency_max = 0, nondifferentiable_total = 0, smoothed_total = 0;
   MatX static_jacobian;  // static scenes: dx*/dtheta (parameters, actuation)
   long steps_done = 0, warnings_newton = 0, warnings_contact = 0, contacts_total = 0, contacts_max = 0,
        contact_iterations = 0;
@@ -293,6 +294,7 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
           rank_deficient_steps += deficiency > 0;
           rank_deficiency_max = std::max<long>(rank_deficiency_max, deficiency);
           nondifferentiable_total += sd.nondifferentiable_contacts();
+          smoothed_total += sd.smoothed_contacts();
         }
       }
       std::swap(state, next);
@@ -328,7 +330,8 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
                            {"frame", frame},
                            {"method", method},
                            {"ncp_rank_deficient_steps", std::to_string(rank_deficient_steps)},
-                           {"nondifferentiable_contacts", std::to_string(nondifferentiable_total)}});
+                           {"nondifferentiable_contacts", std::to_string(nondifferentiable_total)},
+                           {"smoothed_contacts", std::to_string(smoothed_total)}});
     }
   }
   writer.finish(status);
@@ -377,6 +380,7 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
           .value("ncp_rank_deficient_steps", rank_deficient_steps)
           .value("ncp_rank_deficiency_max", rank_deficiency_max)
           .value("nondifferentiable_contacts", nondifferentiable_total)
+          .value("smoothed_contacts", smoothed_total)
           .end_object();
     }
     j.value("newton_not_converged_steps", warnings_newton);

@@ -2,6 +2,7 @@
 // Model / State: the aggregate of every stage's constant part, and the state of a
 // frame. See data.hpp for the per-step workspace and record.
 #include <softdiff/actuation/actuation_model.hpp>
+#include <softdiff/collision/contact_derivatives.hpp>
 #include <softdiff/collision/detection.hpp>
 #include <softdiff/contact/ncp.hpp>
 #include <softdiff/core/types.hpp>
@@ -40,6 +41,10 @@ struct ContactSettings {
   bool enabled = false;
   collision::DetectionModel detection;  // surfaces, obstacles, pair rules, margin, names
   contact::NcpOptions ncp;
+  // Randomized smoothing of the collision-detection derivatives where the active
+  // feature pair is not unique (collision/contact_derivatives.hpp); sigma is resolved
+  // from the scene (default: a tenth of the detection margin).
+  collision::SmoothingOptions smoothing;
 };
 
 struct Model {

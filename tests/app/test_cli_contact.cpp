@@ -146,7 +146,7 @@ TEST(CliContact, JacobianThroughContactReportsTheNcpDerivativesFigures) {
   const CliRun r = run_cli("simulate scene.yaml -o o.h5 --jacobian young,friction --json", dir);
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.out.find("\"derivatives\":{\"ncp_rank_deficient_steps\":0,\"ncp_rank_deficiency_max\":0,"
-                       "\"nondifferentiable_contacts\":0}"),
+                       "\"nondifferentiable_contacts\":0,\"smoothed_contacts\":0}"),
             std::string::npos)
       << r.out;
   const hid_t f = H5Fopen((dir / "o.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);

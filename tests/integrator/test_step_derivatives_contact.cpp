@@ -231,3 +231,68 @@ TEST(StepDerivativesContact, CurvedObstacle) { check(Case::sphere); }
 TEST(StepDerivativesContact, Frictionless) { check(Case::frictionless); }
 
 }  // namespace
+
+// Randomized smoothing in the step (model.contact.smoothing): the cube half over the
+// edge of a box, its middle column of bottom vertices within sigma of the boundary
+// between the box top's region and its edge's (and, pressed in, of the nearest-face
+// switch between the top and the side). Those contacts take the smoothed geometry
+// derivative (counted); the step's derivative stays a linear map whose forward and
+// reverse products agree (<w, J d> = <J^T w, d> to 1e-10), and is finite. It is not
+// compared with finite differences of the step: the step is not differentiable there,
+// which is why the estimate is smoothed.
+TEST(StepDerivativesContact, SmoothedGeometryAtARegionBoundary) {
+  const Params p;
+  Model model = build(Case::sticking, p);
+  collision::Obstacle box;
+  box.name = "box";
+  box.kind = collision::ShapeKind::box;
+  box.center = Vec3(0.02 - 0.1, 0.02, -0.05);  // top face z = 0, +x edge under x = 0.02
+  box.half_extents = Vec3(0.1, 0.1, 0.05);
+  collision::prepare(box);
+  model.contact.detection.obstacles = {box};
+  model.contact.detection.names.back() = "box";
+  model.contact.smoothing = {16, 2e-4, 0};
+  const State in = start(model, Case::sticking);
+  Data data(model);
+  State out;
+  ASSERT_TRUE(integrator::implicit_euler_step(model, data, in, out, 1).ok());
+  ASSERT_GT(data.contact.contacts.size(), 0);
+  integrator::StepDerivatives d(model, {{Parameter::young, 0}});
+  const Eigen::Index n = in.x.size();
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-1, 1);
+  StepTangent t;
+  t.x = VecX(n);
+  t.v = VecX(n);
+  for (Eigen::Index k = 0; k < n; ++k) {
+    t.x[k] = 1e-4 * u(rng);
+    t.v[k] = 1e-2 * u(rng);
+  }
+  t.p = VecX::Constant(1, 0.1 * p.young);
+  StateTangent Jd;
+  ASSERT_TRUE(d.jvp(model, data, in, out, t, Jd));
+  EXPECT_GT(d.smoothed_contacts(), 0);
+  EXPECT_EQ(d.nondifferentiable_contacts(), 0);
+  EXPECT_TRUE(Jd.x.allFinite() && Jd.v.allFinite());
+  StateTangent w;
+  w.x = VecX(n);
+  w.v = VecX(n);
+  for (Eigen::Index k = 0; k < n; ++k) {
+    w.x[k] = u(rng);
+    w.v[k] = u(rng);
+  }
+  StepCotangent JTw;
+  ASSERT_TRUE(d.vjp(model, data, in, out, w, JTw));
+  const double lhs = w.x.dot(Jd.x) + w.v.dot(Jd.v);
+  const double rhs = JTw.x.dot(t.x) + JTw.v.dot(t.v) + JTw.p.dot(t.p);
+  EXPECT_NEAR(lhs, rhs, 1e-10 * (w.x.norm() * Jd.x.norm() + w.v.norm() * Jd.v.norm()));
+  // Without smoothing the same contacts take their recorded feature's one-sided
+  // derivative: another (valid one-sided) linear map.
+  Model exact = model;
+  exact.contact.smoothing.samples = 0;
+  integrator::StepDerivatives d0(exact, {{Parameter::young, 0}});
+  StateTangent J0d;
+  ASSERT_TRUE(d0.jvp(exact, data, in, out, t, J0d));
+  EXPECT_EQ(d0.smoothed_contacts(), 0);
+  EXPECT_GT((J0d.x - Jd.x).norm(), 0);
+}

@@ -485,6 +485,7 @@ contact:
   tolerance: 1.0e-9
   max_iterations: 77
   polish: false
+  smoothing: {samples: 8, sigma: 5.0e-5, seed: 3}
 output: {fields: [x, contact]}
 )");
   ASSERT_EQ(s.obstacles.size(), 6u);
@@ -516,6 +517,9 @@ output: {fields: [x, contact]}
   EXPECT_EQ(s.contact.tolerance, 1e-9);
   EXPECT_EQ(s.contact.max_iterations, 77);
   EXPECT_FALSE(s.contact.polish);
+  EXPECT_EQ(s.contact.smoothing_samples, 8);
+  EXPECT_EQ(s.contact.smoothing_sigma, 5e-5);
+  EXPECT_EQ(s.contact.smoothing_seed, 3);
   EXPECT_TRUE(s.output.contact);
 }
 
@@ -530,6 +534,8 @@ TEST_F(Scene, ContactDefaults) {
   EXPECT_EQ(s.contact.tolerance, 1e-8);
   EXPECT_EQ(s.contact.max_iterations, 1000);
   EXPECT_TRUE(s.contact.polish);
+  EXPECT_EQ(s.contact.smoothing_samples, 16);
+  EXPECT_EQ(s.contact.smoothing_sigma, 0);  // resolved to margin / 10 by build_model
   EXPECT_FALSE(load(kBase + "contact: {enabled: false, friction: 0.3}\n").contact.enabled);
   EXPECT_FALSE(load(kBase).contact.enabled);
 }
@@ -575,6 +581,11 @@ TEST_F(Scene, ContactErrors) {
   expect_error(base + "contact: {solver: lcp}\n", ":13:11: contact.solver: must be one of: admm, pgs; got 'lcp'");
   expect_error(base + "contact: {tolerance: 0}\n", ":13:11: contact.tolerance: must be > 0, got 0");
   expect_error(base + "contact: {max_iterations: 0}\n", ":13:11: contact.max_iterations: must be >= 1, got 0");
+  expect_error(base + "contact: {smoothing: {samples: -1}}\n", ":13:23: contact.smoothing.samples: must be >= 0, got -1");
+  expect_error(base + "contact: {smoothing: {sigma: 0}}\n", ":13:23: contact.smoothing.sigma: must be > 0, got 0");
+  expect_error(base + "contact: {smoothing: {seed: 1.5}}\n", ":13:23: contact.smoothing.seed: expected an integer, got '1.5'");
+  expect_error(base + "contact: {smoothing: {sample: 4}}\n",
+               ":13:23: contact.smoothing.sample: unknown key; did you mean 'samples'?");
 }
 
 // ---------------------------------------------------------------------------

@@ -25,11 +25,26 @@
 // The frame follows n through frame_from_normal (its reference axis k is locally
 // constant): t1 = u / |u|, u = e_k - n_k n; t2 = n x t1.
 // Where a derivative does not exist (n undefined: zero distance at a vertex or edge
-// region; the closest point on a region boundary; parallel edges) the functions return
-// false: the caller must treat the contact as non-differentiable (randomized smoothing
-// is the subject of a later change).
+// region; parallel edges) the exact functions return false. On the boundary between
+// two regions (a vertex exactly over an edge of a triangle, the closest point of a box
+// on one of its edges, edges crossing at an endpoint) the one-sided derivatives differ.
+//
+// Randomized smoothing (the smoothing overload; Montaut et al., "Differentiable
+// collision detection: a randomized smoothing approach", ICRA 2023, their first-order
+// estimator with a Gaussian perturbation): the contact's nodes are perturbed by
+// sigma z_j, z_j ~ N(0, I) (j = 1..samples, replayed from a seed derived from
+// options.seed and the contact's identity, so that the result does not depend on the
+// contact order or the threads). If the active feature pair is the same at every
+// sample (and the exact derivative exists), the exact derivative is returned;
+// otherwise the mean over the samples of the exact derivative of the feature pair
+// active at that sample, which estimates the derivative of the smoothed geometry
+// E[g(x + sigma z)] (g is continuous and piecewise smooth, so the mean of the
+// derivatives is the derivative of the mean). Its sampling error is of order
+// (spread of the one-sided derivatives) / sqrt(samples).
 #include <softdiff/collision/contact_set.hpp>
 #include <softdiff/collision/obstacle.hpp>
+
+#include <cstdint>
 
 namespace softdiff::collision {
 
@@ -53,9 +68,34 @@ struct ContactGeometryDerivative {
 // false where it is undefined (see above).
 bool contact_geometry(const Contact& c, const VecX& x, const Obstacle* obstacle, ContactGeometry& out);
 
-// Its derivative at x.
+// Its derivative at x (false where it does not exist).
 bool contact_geometry_derivative(const Contact& c, const VecX& x, const Obstacle* obstacle,
                                  ContactGeometryDerivative& out);
+
+struct SmoothingOptions {
+  int samples = 16;        // 0: no smoothing (the exact derivative or none)
+  double sigma = 0;        // standard deviation of the node perturbation (length); 0: no smoothing
+  std::uint64_t seed = 0;
+};
+
+enum class GeometryDerivativeKind : std::int8_t {
+  exact,     // the feature pair is unique at scale sigma: the exact derivative
+  smoothed,  // the randomized-smoothing estimate (see above)
+  none,      // no sample has a derivative (out is zero)
+};
+
+// The smoothed geometry itself: the mean over the same samples of the geometry of the
+// feature pair active at each sample (n, frame are means, not unit). Its derivative is
+// the smoothed derivative below wherever no sample sits on a region boundary (what the
+// tests check by central differences with common samples). False if no sample has a
+// geometry.
+bool smoothed_contact_geometry(const Contact& c, const VecX& x, const Obstacle* obstacle, const SmoothingOptions& options,
+                               ContactGeometry& out);
+
+// The derivative with randomized smoothing where the active feature pair is not unique
+// at scale sigma. Allocates nothing.
+GeometryDerivativeKind contact_geometry_derivative(const Contact& c, const VecX& x, const Obstacle* obstacle,
+                                                   const SmoothingOptions& options, ContactGeometryDerivative& out);
 
 // d vec(frame_from_normal(n)) for dn (3 x m): (9 x m).
 Eigen::Matrix<double, 9, Eigen::Dynamic> frame_derivative(const Vec3& n, const Eigen::Matrix<double, 3, Eigen::Dynamic>& dn);

@@ -157,13 +157,16 @@ void StepDerivatives::prepare_contact(const Model& model, const Data& data, cons
   const int nc = cd.contacts.size();
   geometry_.resize(static_cast<std::size_t>(nc));
   nondifferentiable_contacts_ = 0;
+  smoothed_contacts_ = 0;
   for (int i = 0; i < nc; ++i) {
     const auto& c = cd.contacts.contacts[i];
     const collision::Obstacle* o = nullptr;
     if (c.kind == collision::ContactKind::vertex_obstacle)
       o = &det.obstacles[static_cast<std::size_t>(c.side_b) - det.surfaces.size()];
     auto& g = geometry_[static_cast<std::size_t>(i)];
-    if (!collision::contact_geometry_derivative(c, in.x, o, g)) {
+    const auto kind = collision::contact_geometry_derivative(c, in.x, o, model.contact.smoothing, g);
+    if (kind == collision::GeometryDerivativeKind::smoothed) ++smoothed_contacts_;
+    if (kind == collision::GeometryDerivativeKind::none) {
       g.dn.setZero();
       g.dgap.setZero();
       g.dweights.setZero();

@@ -82,8 +82,11 @@ class StepDerivatives {
   StepDerivatives(const Model& model, std::vector<ParameterId> parameters);
   const std::vector<ParameterId>& parameters() const { return parameters_; }
   // Of the last step differentiated with contact: contacts whose geometry derivative
-  // does not exist (taken as zero), and the NCP derivative (its rank deficiency).
+  // does not exist (taken as zero), contacts whose active feature pair is not unique
+  // and whose geometry derivative is the randomized-smoothing estimate
+  // (model.contact.smoothing), and the NCP derivative (its rank deficiency).
   int nondifferentiable_contacts() const { return nondifferentiable_contacts_; }
+  int smoothed_contacts() const { return smoothed_contacts_; }
   const contact::NcpDerivative& ncp_derivative() const { return ncp_; }
 
   // Valid when data holds the record of the step in -> out: right after
@@ -126,7 +129,7 @@ class StepDerivatives {
   std::vector<collision::ContactGeometryDerivative> geometry_;
   contact::NcpDerivative ncp_;
   VecX contact_v_;                   // the v_f the contact derivatives were prepared for
-  int nondifferentiable_contacts_ = 0;
+  int nondifferentiable_contacts_ = 0, smoothed_contacts_ = 0;
   VecX b_, dlambda_, bar_lambda_, bar_b_, bar_mu_, y2_;
   SparseMatrix newton_A_;            // Newton: dR/dv at x_f (the pattern's structure)
   std::unique_ptr<LinearSolver> newton_solver_;

@@ -258,6 +258,9 @@ void build_contact(const SceneDesc& scene, Model& model) {
   settings.ncp.tolerance = c.tolerance;
   settings.ncp.max_iterations = c.max_iterations;
   settings.ncp.polish = c.polish;
+  settings.smoothing.samples = c.smoothing_samples;
+  settings.smoothing.sigma = c.smoothing_sigma > 0 ? c.smoothing_sigma : 0.1 * c.margin;
+  settings.smoothing.seed = static_cast<std::uint64_t>(c.smoothing_seed);
 }
 
 Model build_model(const SceneDesc& scene, BuildReport* report) {

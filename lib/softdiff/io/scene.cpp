@@ -486,6 +486,11 @@ class Reader {
     d.tolerance = number(get(c, "tolerance"), d.tolerance);
     d.max_iterations = static_cast<int>(integer(get(c, "max_iterations"), d.max_iterations));
     d.polish = boolean(get(c, "polish"), d.polish);
+    if (const Node* sm = get(c, "smoothing")) {
+      d.smoothing_samples = static_cast<int>(integer(get(*sm, "samples"), d.smoothing_samples));
+      d.smoothing_sigma = number(get(*sm, "sigma"), d.smoothing_sigma);
+      d.smoothing_seed = integer(get(*sm, "seed"), d.smoothing_seed);
+    }
     auto is_body = [&](const std::string& n) {
       return std::any_of(scene.bodies.begin(), scene.bodies.end(), [&](const BodyDesc& b) { return b.name == n; });
     };

@@ -116,6 +116,10 @@ struct ContactDesc {
   double tolerance = 1e-8;
   int max_iterations = 1000;
   bool polish = true;            // extension
+  // extension: randomized smoothing of the collision-detection derivatives
+  int smoothing_samples = 16;
+  double smoothing_sigma = 0;    // 0: margin / 10
+  long long smoothing_seed = 0;
   Where where;
 };
 

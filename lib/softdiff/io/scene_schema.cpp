@@ -96,6 +96,11 @@ SpecPtr contact() {
       key("tolerance", number(gt(0))),
       key("max_iterations", integer(ge(1))),
       key("polish", boolean()),  // extension
+      key("smoothing", map({      // extension: collision-detection derivatives
+                           key("samples", integer(ge(0), 1000000)),
+                           key("sigma", number(gt(0))),
+                           key("seed", integer(ge(0), LONG_MAX)),
+                       })),
   });
 }
 
