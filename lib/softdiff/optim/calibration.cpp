@@ -1,0 +1,277 @@
+// Material identification: see calibration.hpp.
+#include <softdiff/optim/calibration.hpp>
+
+#include <softdiff/core/assert.hpp>
+#include <softdiff/core/error.hpp>
+#include <softdiff/data.hpp>
+#include <softdiff/diff/parameters.hpp>
+#include <softdiff/diff/trajectory.hpp>
+#include <softdiff/integrator/implicit_euler.hpp>
+#include <softdiff/integrator/static_solver.hpp>
+#include <softdiff/integrator/static_solver_derivatives.hpp>
+
+#include <unsupported/Eigen/LevenbergMarquardt>
+
+#include <chrono>
+#include <cmath>
+#include <sstream>
+
+namespace softdiff::optim {
+
+Eigen::Index CalibrationTarget::residual_size() const {
+  if (!observations.empty()) return 3 * static_cast<Eigen::Index>(observations.size());
+  Eigen::Index m = 0;
+  for (const auto& s : states) m += s.size();
+  return m;
+}
+
+double to_internal(Parameter kind, double value) {
+  if (kind == Parameter::poisson) {
+    const double u = 2 * value;  // in (0, 1)
+    return std::log(u / (1 - u));
+  }
+  return std::log(value);
+}
+
+double from_internal(Parameter kind, double z) {
+  if (kind == Parameter::poisson) return 0.5 / (1 + std::exp(-z));
+  return std::exp(z);
+}
+
+double dvalue_dinternal(Parameter kind, double z) {
+  if (kind == Parameter::poisson) {
+    const double s = 1 / (1 + std::exp(-z));
+    return 0.5 * s * (1 - s);
+  }
+  return std::exp(z);
+}
+
+namespace {
+
+// The rows of frame index f (into target.frames) from the positions x and dx/dp.
+void fill_rows(const CalibrationTarget& target, int f, const VecX& x, const MatX* dx, VecX& r, MatX& J) {
+  if (target.observations.empty()) {
+    Eigen::Index row = 0;
+    for (int g = 0; g < f; ++g) row += target.states[static_cast<std::size_t>(g)].size();
+    const VecX& y = target.states[static_cast<std::size_t>(f)];
+    r.segment(row, y.size()) = x - y;
+    if (dx) J.middleRows(row, y.size()) = *dx;
+    else J.middleRows(row, y.size()).setZero();
+    return;
+  }
+  for (std::size_t i = 0; i < target.observations.size(); ++i) {
+    const auto& o = target.observations[i];
+    if (o.frame != f) continue;
+    const Marker& m = target.markers[static_cast<std::size_t>(o.marker)];
+    const Eigen::Index row = 3 * static_cast<Eigen::Index>(i);
+    Vec3 p = Vec3::Zero();
+    for (int a = 0; a < 4; ++a) p += m.w[a] * x.segment<3>(3 * m.nodes[a]);
+    r.segment<3>(row) = p - o.position;
+    J.middleRows<3>(row).setZero();
+    if (dx)
+      for (int a = 0; a < 4; ++a) J.middleRows<3>(row) += m.w[a] * dx->middleRows<3>(3 * m.nodes[a]);
+  }
+}
+
+std::string describe_values(const Model& model, const std::vector<ParameterId>& parameters,
+                            const std::vector<double>& values) {
+  std::ostringstream s;
+  s.precision(6);
+  for (std::size_t j = 0; j < parameters.size(); ++j)
+    s << (j ? ", " : "") << parameter_name(parameters[j].kind) << "[" << parameters[j].body << "] = " << values[j];
+  (void)model;
+  return s.str();
+}
+
+}  // namespace
+
+void residual(const Model& model, const std::vector<ParameterId>& parameters, const std::vector<double>& values,
+              const CalibrationTarget& target, bool strict, VecX& r, MatX& J) {
+  SOFTDIFF_DEMAND(parameters.size() == values.size(), "calibration: one value per parameter");
+  SOFTDIFF_DEMAND(!target.frames.empty(), "calibration: the target has no frame");
+  Model m = model;
+  for (std::size_t j = 0; j < parameters.size(); ++j) diff::set_parameter(m, parameters[j], values[j]);
+  const Eigen::Index rows = target.residual_size();
+  r.setZero(rows);
+  J.setZero(rows, static_cast<Eigen::Index>(parameters.size()));
+  Data data(m);
+  const auto failed = [&](const StepStatus& st) {
+    throw ComputationError("calibration: the run with " + describe_values(m, parameters, values) +
+                           " failed: " + describe(m, st));
+  };
+  if (m.step.integrator == IntegratorKind::static_equilibrium) {
+    State eq;
+    const StepStatus st = integrator::solve_static(m, data, m.initial, eq);
+    if (!st.ok()) failed(st);
+    MatX dx;
+    integrator::StaticTheta theta{parameters, false};
+    if (!integrator::static_sensitivities(m, data, eq, theta, dx))
+      throw ComputationError("calibration: the derivative of the equilibrium failed with " +
+                             describe_values(m, parameters, values));
+    for (int f = 0; f < static_cast<int>(target.frames.size()); ++f) fill_rows(target, f, eq.x, &dx, r, J);
+    return;
+  }
+  diff::ThetaLayout layout;
+  layout.parameters = parameters;
+  diff::ForwardSensitivity sensitivity(m, layout);
+  State s = m.initial, next = m.initial;
+  std::size_t f = 0;
+  if (target.frames[0] == 0) fill_rows(target, static_cast<int>(f++), s.x, nullptr, r, J);
+  for (long k = 1; k <= target.steps(); ++k) {
+    const StepStatus st = integrator::implicit_euler_step(m, data, s, next, k);
+    if (!st.ok()) failed(st);
+    if (strict && m.contact.enabled && !data.contact.result.converged) {
+      StepStatus c;
+      c.code = StepStatus::Code::contact_not_converged;
+      c.step = k;
+      c.detail = "the contact solve did not reach its tolerance (largest residual " +
+                 std::to_string(data.contact.result.residuals.max()) + "; --strict)";
+      failed(c);
+    }
+    if (!sensitivity.advance(m, data, s, next)) {
+      StepStatus c;
+      c.code = StepStatus::Code::solver_failed;
+      c.step = k;
+      c.detail = "the derivative of the step failed";
+      failed(c);
+    }
+    std::swap(s, next);
+    if (f < target.frames.size() && target.frames[f] == k) {
+      fill_rows(target, static_cast<int>(f), s.x, &sensitivity.dx_dtheta(), r, J);
+      ++f;
+    }
+  }
+  if (!r.allFinite() || !J.allFinite())
+    throw ComputationError("calibration: non-finite residual or Jacobian with " + describe_values(m, parameters, values));
+}
+
+namespace {
+
+// Eigen's Levenberg-Marquardt functor over the internal coordinates z. Each evaluation
+// runs the simulation with its sensitivities; the Jacobian of the last two evaluated
+// points is kept, so that df() at an accepted point costs nothing.
+struct Functor : Eigen::DenseFunctor<double> {
+  Functor(const Model& model, const std::vector<ParameterId>& parameters, const CalibrationTarget& target, bool strict)
+      : Eigen::DenseFunctor<double>(static_cast<int>(parameters.size()), static_cast<int>(target.residual_size())),
+        model(model), parameters(parameters), target(target), strict(strict) {}
+
+  struct Evaluation {
+    VecX z, r;
+    MatX J;  // dr/dp (physical)
+  };
+
+  std::vector<double> physical(const VecX& z) const {
+    std::vector<double> v(parameters.size());
+    for (std::size_t j = 0; j < v.size(); ++j) v[j] = from_internal(parameters[j].kind, z[static_cast<Eigen::Index>(j)]);
+    return v;
+  }
+  const Evaluation& evaluate(const VecX& z) {
+    for (const auto& e : cache)
+      if (e.z.size() == z.size() && e.z == z) return e;
+    Evaluation e;
+    e.z = z;
+    residual(model, parameters, physical(z), target, strict, e.r, e.J);
+    ++evaluations;
+    cache[next] = std::move(e);
+    const Evaluation& out = cache[next];
+    next = 1 - next;
+    return out;
+  }
+  int operator()(const VecX& z, VecX& fvec) {
+    fvec = evaluate(z).r;
+    return 0;
+  }
+  int df(const VecX& z, MatX& fjac) {
+    const Evaluation& e = evaluate(z);
+    fjac = e.J;
+    for (Eigen::Index j = 0; j < z.size(); ++j)
+      fjac.col(j) *= dvalue_dinternal(parameters[static_cast<std::size_t>(j)].kind, z[j]);
+    return 0;
+  }
+
+  const Model& model;
+  const std::vector<ParameterId>& parameters;
+  const CalibrationTarget& target;
+  bool strict;
+  Evaluation cache[2];
+  int next = 0;
+  int evaluations = 0;
+};
+
+const char* status_text(Eigen::LevenbergMarquardtSpace::Status s) {
+  using namespace Eigen::LevenbergMarquardtSpace;
+  switch (s) {
+    case RelativeReductionTooSmall: return "relative reduction of the cost below ftol";
+    case RelativeErrorTooSmall: return "relative step below xtol";
+    case RelativeErrorAndReductionTooSmall: return "relative reduction below ftol and relative step below xtol";
+    case CosinusTooSmall: return "gradient orthogonal to the residual (below gtol)";
+    case TooManyFunctionEvaluation: return "too many function evaluations";
+    case FtolTooSmall: return "no further reduction of the cost possible at machine precision";
+    case XtolTooSmall: return "no further improvement of the parameters possible at machine precision";
+    case GtolTooSmall: return "the residual is orthogonal to the Jacobian's columns at machine precision";
+    case ImproperInputParameters: return "improper input (a zero-size problem or a failed QR)";
+    case UserAsked: return "stopped by the residual";
+    default: return "running";
+  }
+}
+
+bool converged_status(Eigen::LevenbergMarquardtSpace::Status s) {
+  using namespace Eigen::LevenbergMarquardtSpace;
+  return s == RelativeReductionTooSmall || s == RelativeErrorTooSmall || s == RelativeErrorAndReductionTooSmall ||
+         s == CosinusTooSmall || s == FtolTooSmall || s == XtolTooSmall || s == GtolTooSmall;
+}
+
+}  // namespace
+
+CalibrationResult calibrate(const Model& model, const std::vector<ParameterId>& parameters,
+                            const std::vector<double>& initial, const CalibrationTarget& target,
+                            const CalibrationOptions& options, const IterationCallback& callback) {
+  SOFTDIFF_DEMAND(parameters.size() == initial.size() && !parameters.empty(), "calibrate: one initial value per parameter");
+  const auto t0 = std::chrono::steady_clock::now();
+  Functor functor(model, parameters, target, options.strict);
+  Eigen::LevenbergMarquardt<Functor> lm(functor);
+  lm.setFtol(options.ftol);
+  lm.setXtol(options.xtol);
+  lm.setGtol(options.gtol);
+  lm.setMaxfev(1000000);
+  VecX z(static_cast<Eigen::Index>(parameters.size()));
+  for (std::size_t j = 0; j < parameters.size(); ++j) z[static_cast<Eigen::Index>(j)] = to_internal(parameters[j].kind, initial[j]);
+
+  CalibrationResult result;
+  const auto record = [&](int iteration) {
+    const Functor::Evaluation& e = functor.evaluate(z);  // cached: the accepted point
+    CalibrationIteration it;
+    it.iteration = iteration;
+    it.values = functor.physical(z);
+    it.cost = 0.5 * e.r.squaredNorm();
+    it.gradient_norm = (e.J.transpose() * e.r).norm();
+    it.damping = iteration == 0 ? 0.0 : lm.lm_param();
+    it.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    it.evaluations = functor.evaluations;
+    result.history.push_back(it);
+    if (callback) callback(it);
+  };
+  Eigen::LevenbergMarquardtSpace::Status status = lm.minimizeInit(z);
+  if (status == Eigen::LevenbergMarquardtSpace::ImproperInputParameters) {
+    result.stop_reason = status_text(status);
+    return result;
+  }
+  record(0);
+  result.stop_reason = "the maximum number of iterations was reached";
+  for (int it = 1; it <= options.max_iterations; ++it) {
+    status = lm.minimizeOneStep(z);
+    record(it);
+    result.iterations = it;
+    if (status != Eigen::LevenbergMarquardtSpace::Running) {
+      result.converged = converged_status(status);
+      result.stop_reason = status_text(status);
+      break;
+    }
+  }
+  result.values = functor.physical(z);
+  result.cost = result.history.back().cost;
+  result.evaluations = functor.evaluations;
+  return result;
+}
+
+}  // namespace softdiff::optim

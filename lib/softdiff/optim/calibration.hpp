@@ -1,0 +1,103 @@
+#pragma once
+// Material identification (`softdiff calibrate`, docs/method.md "Calibration"): the
+// parameters p of a scene that make its simulated motion match observations, by
+// Levenberg-Marquardt on the residual r(p) with the exact Jacobian dr/dp from forward
+// sensitivities (diff/trajectory.hpp).
+//
+// Observations (a CalibrationTarget):
+//   - states: the positions of every node at chosen frames (a softdiff trajectory);
+//     r = x_k(p) - x_k* stacked over the frames;
+//   - markers: positions of embedded points (barycentric in one tet each, as a
+//     motion-capture marker glued to the body) at chosen frames; r = W x_k(p) - y*.
+// Static scenes have one frame, the equilibrium (frame = the last load step).
+//
+// Unknowns are reparametrized so that every iterate is valid: log for young, density,
+// the Rayleigh factors and friction (> 0), and poisson = 0.5 / (1 + exp(-z)) in (0, 0.5).
+// The Levenberg-Marquardt is Eigen's (unsupported/Eigen/LevenbergMarquardt, the MINPACK
+// lmder port: Moré's trust-region damping with column scaling), stopped on the relative
+// cost reduction (ftol), the relative step (xtol) or the gradient (gtol, the cosine
+// between r and the columns of J), whichever comes first; every function evaluation is
+// one simulation with its sensitivities (the Jacobian of an accepted point is the one
+// computed with its residual).
+#include <softdiff/core/parameters.hpp>
+#include <softdiff/core/types.hpp>
+#include <softdiff/model.hpp>
+
+#include <functional>
+#include <string>
+#include <vector>
+
+namespace softdiff::optim {
+
+// An embedded point: sum_a w[a] x_{nodes[a]} (global node indices).
+struct Marker {
+  std::string name;
+  std::array<int, 4> nodes{};
+  Eigen::Vector4d w = Eigen::Vector4d::Zero();
+};
+
+struct CalibrationTarget {
+  // Frames (0 .. steps, increasing; for a static scene: the last load step) and, per
+  // frame, what is observed there.
+  std::vector<long> frames;
+  // States: the whole 3n positions per frame (empty when markers are used).
+  std::vector<VecX> states;
+  // Markers: observations (frame index into `frames`, marker index, position).
+  std::vector<Marker> markers;
+  struct Observation {
+    int frame = 0;
+    int marker = 0;
+    Vec3 position = Vec3::Zero();
+  };
+  std::vector<Observation> observations;
+  long steps() const { return frames.empty() ? 0 : frames.back(); }
+  Eigen::Index residual_size() const;
+};
+
+// The reparametrization of a parameter kind: value = from_internal(z).
+double to_internal(Parameter kind, double value);
+double from_internal(Parameter kind, double z);
+double dvalue_dinternal(Parameter kind, double z);
+
+struct CalibrationOptions {
+  int max_iterations = 50;  // Levenberg-Marquardt iterations (Jacobian evaluations)
+  double ftol = 1e-12;      // relative reduction of the cost
+  double xtol = 1e-10;      // relative step in the internal coordinates
+  double gtol = 0;          // cosine between r and J's columns (0: off)
+  bool strict = false;      // a contact solve that misses its tolerance is an error
+};
+
+struct CalibrationIteration {
+  int iteration = 0;
+  std::vector<double> values;  // the parameters (physical units)
+  double cost = 0;             // 1/2 |r|^2
+  double gradient_norm = 0;    // |J^T r| in the physical parameters
+  double damping = 0;          // the Levenberg-Marquardt parameter
+  double seconds = 0;          // wall time since the start
+  int evaluations = 0;         // simulations so far
+};
+
+struct CalibrationResult {
+  std::vector<double> values;
+  bool converged = false;
+  std::string stop_reason;
+  int iterations = 0;
+  int evaluations = 0;
+  double cost = 0;
+  std::vector<CalibrationIteration> history;  // iteration 0 = the initial guess
+};
+
+// Residual r(p) and dr/dp (rows: the target's, columns: the parameters) of `model`
+// with the parameters set to `values`. Throws ComputationError if the run fails (with
+// the step and the reason) or, with strict, if a contact solve misses its tolerance.
+void residual(const Model& model, const std::vector<ParameterId>& parameters, const std::vector<double>& values,
+              const CalibrationTarget& target, bool strict, VecX& r, MatX& J);
+
+using IterationCallback = std::function<void(const CalibrationIteration&)>;
+
+// Levenberg-Marquardt from `initial`. Throws ComputationError if a run fails.
+CalibrationResult calibrate(const Model& model, const std::vector<ParameterId>& parameters,
+                            const std::vector<double>& initial, const CalibrationTarget& target,
+                            const CalibrationOptions& options, const IterationCallback& callback = {});
+
+}  // namespace softdiff::optim
