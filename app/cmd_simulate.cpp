@@ -79,6 +79,12 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
   io::BuildReport report;
   const Model model = io::build_model(scene, &report);
   for (const auto& w : report.warnings) warn(w);
+  return simulate_model(o, scene, model, t_setup, command_line);
+}
+
+int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const Model& model,
+                   std::chrono::steady_clock::time_point t_setup, const std::string& command_line,
+                   const std::function<void(io::Hdf5Writer&)>& extra) {
   Data data(model);
   std::optional<ThetaSelection> theta;
   std::unique_ptr<diff::ForwardSensitivity> sensitivity;
@@ -334,6 +340,7 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
                            {"smoothed_contacts", std::to_string(smoothed_total)}});
     }
   }
+  if (extra && status == "complete") extra(writer);
   writer.finish(status);
   if (status == "interrupted") {
     error("interrupted after " + std::to_string(steps_done) + " steps; frames written to " +

@@ -20,6 +20,9 @@ int main(int argc, char** argv) {
   InfoOptions info;
   auto* info_cmd = app.add_subcommand("info", "Describe a mesh (.msh) or validate and describe a scene (.yaml)");
   add_info(*info_cmd, info);
+  CalibrateOptions calibrate;
+  auto* calibrate_cmd = app.add_subcommand("calibrate", "Identify material parameters from an observed motion (Levenberg-Marquardt)");
+  add_calibrate(*calibrate_cmd, calibrate);
   CheckGradOptions check_grad;
   auto* check_cmd = app.add_subcommand("check-grad", "Check the analytic derivatives against central finite differences");
   add_check_grad(*check_cmd, check_grad);
@@ -40,6 +43,7 @@ int main(int argc, char** argv) {
   try {
     if (sim_cmd->parsed()) return run_simulate(simulate, join_argv(argc, argv));
     if (info_cmd->parsed()) return run_info(info);
+    if (calibrate_cmd->parsed()) return run_calibrate(calibrate, join_argv(argc, argv));
     if (check_cmd->parsed()) return run_check_grad(check_grad);
   } catch (const softdiff::InputError& e) {
     error(e.what());

@@ -2,6 +2,7 @@
 // the contract's shape and attributes, and their values are the central differences
 // of two runs with --set (end to end: scene parsing, parameters, actuators, output).
 #include <support/cli.hpp>
+#include <support/h5.hpp>
 
 #include <gtest/gtest.h>
 #include <hdf5.h>
@@ -40,53 +41,11 @@ std::string scene() {
          "        force: 0.02\n";
 }
 
-std::vector<hsize_t> shape(hid_t f, const std::string& path) {
-  std::vector<hsize_t> dims;
-  const hid_t d = H5Dopen2(f, path.c_str(), H5P_DEFAULT);
-  if (d < 0) return dims;
-  const hid_t s = H5Dget_space(d);
-  dims.resize(static_cast<std::size_t>(H5Sget_simple_extent_ndims(s)));
-  H5Sget_simple_extent_dims(s, dims.data(), nullptr);
-  H5Sclose(s);
-  H5Dclose(d);
-  return dims;
-}
-
-std::vector<double> read(hid_t f, const std::string& path) {
-  std::size_t n = 1;
-  for (hsize_t d : shape(f, path)) n *= d;
-  std::vector<double> v(n);
-  const hid_t d = H5Dopen2(f, path.c_str(), H5P_DEFAULT);
-  EXPECT_GE(H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, v.data()), 0) << path;
-  H5Dclose(d);
-  return v;
-}
-
-std::string string_attribute(hid_t f, const std::string& object, const std::string& name) {
-  const hid_t o = H5Oopen(f, object.c_str(), H5P_DEFAULT);
-  const hid_t a = H5Aopen(o, name.c_str(), H5P_DEFAULT);
-  std::string value;
-  if (a >= 0) {
-    const hid_t type = H5Aget_type(a);
-    char* s = nullptr;
-    const hid_t mem = H5Tcopy(H5T_C_S1);
-    H5Tset_size(mem, H5T_VARIABLE);
-    H5Tset_cset(mem, H5Tget_cset(type));
-    if (H5Aread(a, mem, &s) >= 0 && s) value = s;
-    H5free_memory(s);
-    H5Tclose(mem);
-    H5Tclose(type);
-    H5Aclose(a);
-  }
-  H5Oclose(o);
-  return value;
-}
-
 // The final frame's positions (node-major), from /bodies/beam/x (T, n, 3).
 Eigen::VectorXd final_x(const fs::path& file) {
   const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-  const auto dims = shape(f, "/bodies/beam/x");
-  const std::vector<double> x = read(f, "/bodies/beam/x");
+  const auto dims = h5_shape(f, "/bodies/beam/x");
+  const std::vector<double> x = h5_read(f, "/bodies/beam/x");
   H5Fclose(f);
   const std::size_t per_frame = static_cast<std::size_t>(dims[1] * dims[2]);
   return Eigen::Map<const Eigen::VectorXd>(x.data() + x.size() - per_frame, static_cast<Eigen::Index>(per_frame));
@@ -100,18 +59,18 @@ TEST(CliDerivatives, JacobianDatasetsMatchDifferencesOfRuns) {
   H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
   const hid_t f = H5Fopen((dir / "out.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
   ASSERT_GE(f, 0);
-  const auto x_dims = shape(f, "/bodies/beam/x");
+  const auto x_dims = h5_shape(f, "/bodies/beam/x");
   const hsize_t n3 = 3 * x_dims[1];
   for (const char* name : {"young", "actuation", "rayleigh_mass"}) {
-    const auto d = shape(f, std::string("/jacobians/") + name);
+    const auto d = h5_shape(f, std::string("/jacobians/") + name);
     ASSERT_EQ(d.size(), 2u) << name;
     EXPECT_EQ(d[0], n3) << name;
     EXPECT_EQ(d[1], 1u) << name;
-    EXPECT_EQ(string_attribute(f, std::string("/jacobians/") + name, "frame"), "10") << name;
+    EXPECT_EQ(h5_string_attribute(f, std::string("/jacobians/") + name, "frame"), "10") << name;
   }
-  EXPECT_EQ(string_attribute(f, "/jacobians/young", "theta"), "young[beam]");
-  EXPECT_EQ(string_attribute(f, "/jacobians/actuation", "theta"), "actuation[pull]");
-  const std::vector<double> dyoung = read(f, "/jacobians/young"), dact = read(f, "/jacobians/actuation");
+  EXPECT_EQ(h5_string_attribute(f, "/jacobians/young", "theta"), "young[beam]");
+  EXPECT_EQ(h5_string_attribute(f, "/jacobians/actuation", "theta"), "actuation[pull]");
+  const std::vector<double> dyoung = h5_read(f, "/jacobians/young"), dact = h5_read(f, "/jacobians/actuation");
   H5Fclose(f);
   // Central differences of two runs each; steps 1e-5 of the values (see
   // tests/integrator/test_step_derivatives.cpp), tolerance 1e-6 relative.
@@ -235,11 +194,11 @@ TEST(CliCheckGrad, StaticEquilibriumByTheImplicitFunctionTheorem) {
   H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
   const hid_t f = H5Fopen((dir / "out.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
   ASSERT_GE(f, 0);
-  const auto d = shape(f, "/jacobians/actuation");
+  const auto d = h5_shape(f, "/jacobians/actuation");
   ASSERT_EQ(d.size(), 2u);
   EXPECT_EQ(d[1], 2u);  // cable and servo
-  EXPECT_EQ(string_attribute(f, "/jacobians/young", "method"), "implicit function theorem at the equilibrium");
-  EXPECT_EQ(string_attribute(f, "/jacobians/young", "frame"), "1");
+  EXPECT_EQ(h5_string_attribute(f, "/jacobians/young", "method"), "implicit function theorem at the equilibrium");
+  EXPECT_EQ(h5_string_attribute(f, "/jacobians/young", "frame"), "1");
   H5Fclose(f);
 }
 

@@ -1,0 +1,416 @@
+// softdiff calibrate SCENE.yaml: identify material parameters from an observed motion
+// (docs/cli.md; the method: optim/calibration.hpp, docs/method.md "Calibration").
+#include "commands.hpp"
+#include "common.hpp"
+#include "theta.hpp"
+
+#include <softdiff/actuation/embedding.hpp>
+#include <softdiff/core/timer.hpp>
+#include <softdiff/core/error.hpp>
+#include <softdiff/diff/parameters.hpp>
+#include <softdiff/io/build_model.hpp>
+#include <softdiff/io/hdf5_writer.hpp>
+#include <softdiff/io/input_error.hpp>
+#include <softdiff/io/scene.hpp>
+#include <softdiff/io/target_files.hpp>
+#include <softdiff/optim/calibration.hpp>
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <set>
+#include <sstream>
+
+namespace softdiff::app {
+
+namespace {
+
+std::vector<std::string> split_list(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream in(s);
+  std::string item;
+  while (std::getline(in, item, ',')) {
+    item.erase(0, item.find_first_not_of(" \t"));
+    item.erase(item.find_last_not_of(" \t") + 1);
+    out.push_back(item);
+  }
+  return out;
+}
+
+struct Calibrated {
+  std::vector<ParameterId> ids;
+  std::vector<std::string> names;  // output names: "young", or "beam.young" when several bodies have it
+};
+
+// --param: young, poisson, density, rayleigh_mass, rayleigh_stiffness, friction; a kind
+// alone is every body (every contact pair rule for friction), BODY.kind one body.
+Calibrated parse_params(const std::string& list, const Model& model) {
+  const std::string valid = "young, poisson, density, rayleigh_mass, rayleigh_stiffness, friction (or BODY.NAME)";
+  const std::vector<std::string> items = split_list(list);
+  if (items.empty() || (items.size() == 1 && items[0].empty()))
+    throw InputError("--param: expected a comma-separated list of " + valid + "; got nothing");
+  Calibrated c;
+  std::set<std::string> kinds;
+  const int nb = static_cast<int>(model.fem.bodies.size());
+  const auto& rules = model.contact.detection.pairs;
+  const auto& names = model.contact.detection.names;
+  auto add = [&](const ParameterId& id, const std::string& name) {
+    for (const auto& e : c.ids)
+      if (e.kind == id.kind && e.body == id.body) throw InputError("--param " + list + ": '" + name + "' is listed twice");
+    c.ids.push_back(id);
+    c.names.push_back(name);
+  };
+  for (const auto& item : items) {
+    if (item.empty()) throw InputError("--param " + list + ": empty name in the list (expected " + valid + ")");
+    std::string body, kind = item;
+    if (const auto dot = item.find('.'); dot != std::string::npos) {
+      body = item.substr(0, dot);
+      kind = item.substr(dot + 1);
+    }
+    const auto p = parse_parameter(kind);
+    if (!p) throw InputError("--param " + list + ": unknown parameter '" + kind + "' (expected " + valid + ")");
+    kinds.insert(kind);
+    if (*p == Parameter::friction) {
+      if (!model.contact.enabled || rules.empty())
+        throw InputError("--param: 'friction' needs contact, and this scene has none");
+      if (!body.empty()) throw InputError("--param " + item + ": friction is per contact pair, not per body: use 'friction'");
+      for (int r = 0; r < static_cast<int>(rules.size()); ++r)
+        add({*p, r}, rules.size() == 1 ? "friction"
+                                       : names[static_cast<std::size_t>(rules[static_cast<std::size_t>(r)].a)] + "-" +
+                                             names[static_cast<std::size_t>(rules[static_cast<std::size_t>(r)].b)] +
+                                             ".friction");
+      continue;
+    }
+    if (body.empty()) {
+      for (int b = 0; b < nb; ++b) add({*p, b}, nb == 1 ? kind : model.fem.bodies[static_cast<std::size_t>(b)].name + "." + kind);
+    } else {
+      int found = -1;
+      std::vector<std::string> bodies;
+      for (int b = 0; b < nb; ++b) {
+        bodies.push_back(model.fem.bodies[static_cast<std::size_t>(b)].name);
+        if (bodies.back() == body) found = b;
+      }
+      if (found < 0) {
+        std::string msg = "--param " + item + ": no body '" + body + "' (bodies: " + io::join(bodies) + ")";
+        if (const auto m = io::closest_match(body, bodies)) msg += "; did you mean '" + *m + "'?";
+        throw InputError(msg);
+      }
+      add({*p, found}, nb == 1 ? kind : body + "." + kind);
+    }
+  }
+  // Whether this scene's step is differentiated (the checks of --jacobian).
+  std::string plain;
+  for (const auto& k : kinds) plain += (plain.empty() ? "" : ",") + k;
+  parse_theta("--param", plain, model);
+  return c;
+}
+
+// The scene step of a target time; fails if it is not a multiple of dt.
+long step_of(const std::string& file, const std::string& what, double t, double dt) {
+  const double k = std::round(t / dt);
+  if (std::abs(t - k * dt) > 1e-6 * dt) {
+    std::ostringstream s;
+    s.precision(10);
+    s << file << ": " << what << " at time " << t << " s is not a multiple of the scene's dt (" << dt
+      << " s): simulate the target with the scene's dt, or --set simulation.dt=...";
+    throw InputError(s.str());
+  }
+  return static_cast<long>(k);
+}
+
+// The frames of a trajectory target: --frames last | all | K,K,... (indices into the
+// file's frames; frame 0, the initial state, does not depend on the parameters).
+std::vector<long> select_frames(const std::string& option, long count, bool is_static, const std::string& file) {
+  if (is_static) {
+    if (option != "last" && option != "all")
+      throw InputError("--frames " + option + ": a static scene has one equilibrium, the target's last frame "
+                       "(--frames last)");
+    return {count - 1};
+  }
+  if (count < 2) throw InputError(file + ": the target has no frame after the initial state");
+  if (option == "last") return {count - 1};
+  std::vector<long> out;
+  if (option == "all") {
+    for (long k = 1; k < count; ++k) out.push_back(k);
+    return out;
+  }
+  for (const auto& item : split_list(option)) {
+    char* end = nullptr;
+    const long k = std::strtol(item.c_str(), &end, 10);
+    if (item.empty() || *end != '\0')
+      throw InputError("--frames " + option + ": expected last, all or a list of frame indices, got '" + item + "'");
+    if (k == 0) throw InputError("--frames " + option + ": frame 0 is the initial state, which does not depend on the parameters");
+    if (k < 0 || k >= count)
+      throw InputError("--frames " + option + ": frame " + item + " is not in the target (" + file + " has frames 0.." +
+                       std::to_string(count - 1) + ")");
+    out.push_back(k);
+  }
+  std::sort(out.begin(), out.end());
+  if (std::adjacent_find(out.begin(), out.end()) != out.end()) throw InputError("--frames " + option + ": a frame is listed twice");
+  return out;
+}
+
+optim::CalibrationTarget trajectory_target(const CalibrateOptions& o, const Model& model) {
+  const io::TrajectoryFile f = io::read_trajectory(o.target, model);
+  const bool is_static = model.step.integrator == IntegratorKind::static_equilibrium;
+  const std::vector<long> frames = select_frames(o.frames, static_cast<long>(f.times.size()), is_static, o.target);
+  optim::CalibrationTarget t;
+  for (const long k : frames) {
+    const long step = is_static ? 1 : step_of(o.target, "frame " + std::to_string(k), f.times[static_cast<std::size_t>(k)], model.step.dt);
+    if (!is_static && step < 1)
+      throw InputError(o.target + ": frame " + std::to_string(k) + " is at time 0 (the initial state)");
+    t.frames.push_back(step);
+    t.states.push_back(f.x[static_cast<std::size_t>(k)]);
+  }
+  for (std::size_t i = 1; i < t.frames.size(); ++i)
+    if (t.frames[i] == t.frames[i - 1]) throw InputError(o.target + ": two frames at the same step " + std::to_string(t.frames[i]));
+  return t;
+}
+
+// Markers: a scene effector of that name, else the marker's observation at time 0
+// locates it in the body that contains it (at rest).
+optim::CalibrationTarget marker_target(const CalibrateOptions& o, const Model& model) {
+  const auto obs = io::read_markers(o.markers);
+  const bool is_static = model.step.integrator == IntegratorKind::static_equilibrium;
+  optim::CalibrationTarget t;
+  std::map<std::string, int> index;
+  std::vector<std::unique_ptr<actuation::PointLocator>> locators;
+  for (const auto& b : model.fem.bodies) locators.push_back(std::make_unique<actuation::PointLocator>(b.mesh.X, b.mesh.tets));
+  std::map<std::string, const io::MarkerObservation*> at_zero;
+  for (const auto& ob : obs)
+    if (ob.time == 0 && !at_zero.count(ob.marker)) at_zero[ob.marker] = &ob;
+  auto marker_of = [&](const io::MarkerObservation& ob) {
+    if (const auto it = index.find(ob.marker); it != index.end()) return it->second;
+    optim::Marker m;
+    m.name = ob.marker;
+    bool found = false;
+    for (const auto& e : model.actuation.effectors)
+      if (e.name == ob.marker) {
+        m.nodes = e.effector.nodes();
+        m.w = e.effector.weights();
+        found = true;
+      }
+    if (!found) {
+      const auto z = at_zero.find(ob.marker);
+      if (z == at_zero.end())
+        throw InputError(o.markers + ":" + std::to_string(ob.line) + ": marker '" + ob.marker +
+                         "' is neither an effector of the scene nor observed at time 0 (where its position embeds it in "
+                         "the body)");
+      double best = std::numeric_limits<double>::infinity();
+      for (std::size_t b = 0; b < locators.size(); ++b) {
+        const auto r = locators[b]->locate(z->second->position);
+        if (r.status == actuation::LocateStatus::inside || r.status == actuation::LocateStatus::outside) {
+          if (r.embedding.outside_distance < best) {
+            best = r.embedding.outside_distance;
+            const auto p = actuation::embedded_point(r.embedding, model.fem.bodies[b].mesh.tets, model.fem.bodies[b].node_begin);
+            m.nodes = p.nodes;
+            m.w = p.w;
+            found = true;
+          }
+        }
+      }
+      if (!found)
+        throw InputError(o.markers + ":" + std::to_string(z->second->line) + ": marker '" + ob.marker +
+                         "' at time 0 is not inside any body (positions are world coordinates in metres)");
+    }
+    t.markers.push_back(m);
+    index[ob.marker] = static_cast<int>(t.markers.size()) - 1;
+    return static_cast<int>(t.markers.size()) - 1;
+  };
+  // Steps of the observations (time 0 only embeds markers).
+  std::vector<std::pair<long, const io::MarkerObservation*>> used;
+  for (const auto& ob : obs) {
+    const int m = marker_of(ob);
+    (void)m;
+    if (ob.time == 0) continue;
+    const long step = is_static ? 1 : step_of(o.markers + ":" + std::to_string(ob.line), "the observation", ob.time, model.step.dt);
+    used.push_back({step, &ob});
+  }
+  if (used.empty()) throw InputError(o.markers + ": no observation after time 0");
+  std::stable_sort(used.begin(), used.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+  for (const auto& [step, ob] : used) {
+    if (t.frames.empty() || t.frames.back() != step) t.frames.push_back(step);
+    t.observations.push_back({static_cast<int>(t.frames.size()) - 1, index.at(ob->marker), ob->position});
+  }
+  if (is_static && t.frames.size() != 1) throw InputError(o.markers + ": a static scene has one equilibrium (one time)");
+  return t;
+}
+
+std::string number(double v) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.10g", v);
+  return b;
+}
+
+}  // namespace
+
+void add_calibrate(CLI::App& app, CalibrateOptions& o) {
+  app.add_option("scene", o.scene, "Scene file (YAML, docs/scene.md)")->required()->check(CLI::ExistingFile);
+  app.add_option("--param", o.param,
+                 "Parameters to identify (comma-separated: young, poisson, density, rayleigh_mass, rayleigh_stiffness, "
+                 "friction; BODY.NAME for one body)")
+      ->required();
+  auto* target = app.add_option("--target", o.target, "Target trajectory (a softdiff HDF5 file, docs/output.md)");
+  auto* markers = app.add_option("--markers", o.markers, "Target markers: a CSV of time,marker,x,y,z observations");
+  target->excludes(markers);
+  app.add_option("--frames", o.frames, "Frames of --target to match: last, all, or a list of frame indices")
+      ->capture_default_str();
+  app.add_option("--init", o.init, "Initial values, one per parameter (default: the scene's)");
+  app.add_option("--max-iterations", o.max_iterations, "Levenberg-Marquardt iterations at most")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  app.add_option("--tolerance", o.tolerance,
+                 "Stop when the relative cost reduction (ftol) or the relative step (xtol) falls below this")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  app.add_option("-o,--output", o.output, "Output HDF5 file: the scene simulated with the identified parameters, "
+                                          "plus /calibration (default: <scene stem>_calibrated.h5)");
+  app.add_flag("--force", o.force, "Overwrite an existing output file");
+  app.add_option("--set", o.set, "Override a scene value: KEY=VALUE (repeatable)");
+  app.add_option("--threads", o.threads, "OpenMP threads (default: all cores)")->check(CLI::NonNegativeNumber);
+  app.add_flag("--strict", o.strict, "Treat a contact solve that does not reach its tolerance as an error (exit 1)");
+  app.add_flag("--quiet", o.quiet, "No per-iteration lines");
+  app.add_flag("--json", o.json, "Print a JSON summary on stdout");
+}
+
+int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
+  if (o.threads > 0) omp_set_num_threads(o.threads);
+  const auto t_setup = Clock::now();
+  if (o.target.empty() && o.markers.empty()) throw InputError("calibrate: give the observations with --target FILE.h5 or --markers FILE.csv");
+  if (!o.markers.empty() && o.frames != "all") throw InputError("--frames selects frames of --target; with --markers every observed time is used");
+  const io::SceneDesc scene = io::load_scene(o.scene, o.set);
+  io::BuildReport report;
+  const Model model = io::build_model(scene, &report);
+  for (const auto& w : report.warnings) warn(w);
+  const Calibrated params = parse_params(o.param, model);
+
+  // Initial values.
+  std::vector<double> init;
+  if (!o.init.empty()) {
+    const auto items = split_list(o.init);
+    if (items.size() != params.ids.size())
+      throw InputError("--init " + o.init + ": expected " + std::to_string(params.ids.size()) + " values (one per parameter: " +
+                       io::join(params.names) + "), got " + std::to_string(items.size()));
+    for (std::size_t j = 0; j < items.size(); ++j) {
+      char* end = nullptr;
+      const double v = std::strtod(items[j].c_str(), &end);
+      if (items[j].empty() || *end != '\0' || !std::isfinite(v))
+        throw InputError("--init " + o.init + ": '" + items[j] + "' is not a number");
+      init.push_back(v);
+    }
+  } else {
+    for (const auto& id : params.ids) init.push_back(diff::get_parameter(model, id));
+  }
+  for (std::size_t j = 0; j < init.size(); ++j) {
+    const bool poisson = params.ids[j].kind == Parameter::poisson;
+    if (poisson ? !(init[j] > 0 && init[j] < 0.5) : !(init[j] > 0))
+      throw InputError("--init: " + params.names[j] + " = " + number(init[j]) + " is outside the calibrated range (" +
+                       (poisson ? "0 < poisson < 0.5" : "> 0: it is identified in log scale") + ")");
+  }
+
+  optim::CalibrationTarget target = o.markers.empty() ? trajectory_target(o, model) : marker_target(o, model);
+  if (target.frames.size() == 1 && model.step.integrator != IntegratorKind::static_equilibrium)
+    warn("a single frame as target: the cost of an oscillating motion can have spurious minima (docs/method.md, "
+         "\"Calibration\"); --frames all matches the whole trajectory");
+
+  std::filesystem::path out_path = o.output;
+  if (out_path.empty()) out_path = std::filesystem::path(o.scene).stem().string() + "_calibrated.h5";
+  std::error_code ec;
+  if (std::filesystem::exists(out_path, ec) && !o.force)
+    throw InputError(out_path.string() + ": exists (use --force to overwrite)");
+
+  optim::CalibrationOptions co;
+  co.max_iterations = o.max_iterations;
+  co.ftol = o.tolerance;
+  co.xtol = o.tolerance;
+  co.strict = o.strict;
+  const auto print = [&](const optim::CalibrationIteration& it) {
+    if (o.quiet) return;
+    std::ostringstream s;
+    s.precision(8);
+    s << "iteration " << it.iteration << ":";
+    for (std::size_t j = 0; j < it.values.size(); ++j) s << " " << params.names[j] << " = " << it.values[j];
+    s.precision(4);
+    s << ", cost " << it.cost << ", |gradient| " << it.gradient_norm << ", damping " << it.damping << " ("
+      << it.evaluations << " runs, " << it.seconds << " s)";
+    note(s.str());
+  };
+  const auto t_run = Clock::now();
+  const optim::CalibrationResult result = optim::calibrate(model, params.ids, init, target, co, print);
+  const double run_seconds = seconds_since(t_run);
+  if (!o.quiet)
+    note(std::string(result.converged ? "converged" : "did not converge") + " after " + std::to_string(result.iterations) +
+         " iterations (" + result.stop_reason + ")");
+
+  // The scene with the identified parameters, written as simulate writes it, plus
+  // /calibration (docs/output.md).
+  Model final_model = model;
+  for (std::size_t j = 0; j < params.ids.size(); ++j) diff::set_parameter(final_model, params.ids[j], result.values[j]);
+  SimulateOptions so;
+  so.scene = o.scene;
+  so.output = out_path.string();
+  so.force = o.force;
+  so.strict = o.strict;
+  so.quiet = true;
+  const auto write_calibration = [&](io::Hdf5Writer& w) {
+    const Eigen::Index p = static_cast<Eigen::Index>(params.ids.size());
+    MatX table(static_cast<Eigen::Index>(result.history.size()), p + 5);
+    std::string columns = "iteration";
+    for (const auto& n : params.names) columns += "," + n;
+    columns += ",cost,gradient_norm,damping,seconds";
+    for (std::size_t i = 0; i < result.history.size(); ++i) {
+      const auto& h = result.history[i];
+      const Eigen::Index r = static_cast<Eigen::Index>(i);
+      table(r, 0) = h.iteration;
+      for (Eigen::Index j = 0; j < p; ++j) table(r, 1 + j) = h.values[static_cast<std::size_t>(j)];
+      table(r, p + 1) = h.cost;
+      table(r, p + 2) = h.gradient_norm;
+      table(r, p + 3) = h.damping;
+      table(r, p + 4) = h.seconds;
+    }
+    w.write_matrix("/calibration/iterations", table, {{"columns", columns}});
+    for (std::size_t j = 0; j < params.ids.size(); ++j) w.set_attribute("/calibration", params.names[j], result.values[j]);
+    w.set_attribute("/calibration", "converged", result.converged ? 1.0 : 0.0);
+    w.set_attribute("/calibration", "iterations", static_cast<double>(result.iterations));
+    w.set_attribute("/calibration", "final_cost", result.cost);
+    w.set_attribute("/calibration", "stop_reason", result.stop_reason);
+    w.set_attribute("/calibration", "evaluations", static_cast<double>(result.evaluations));
+  };
+  const int code = simulate_model(so, scene, final_model, t_setup, command_line, write_calibration);
+  if (code != kExitOk) return code;
+
+  if (o.json) {
+    Json j;
+    j.begin_object();
+    j.value("command", "calibrate").value("scene", o.scene).value("output", out_path.string());
+    j.value("converged", result.converged).value("stop_reason", result.stop_reason);
+    j.value("iterations", static_cast<long>(result.iterations)).value("evaluations", static_cast<long>(result.evaluations));
+    j.value("final_cost", result.cost).value("wall_seconds", run_seconds);
+    j.value("residuals", static_cast<long>(target.residual_size())).value("target_steps", target.steps());
+    j.begin_object("parameters");
+    for (std::size_t k = 0; k < params.ids.size(); ++k) j.value(params.names[k], result.values[k]);
+    j.end_object();
+    j.begin_array("history");
+    for (const auto& h : result.history) {
+      j.begin_object()
+          .value("iteration", static_cast<long>(h.iteration))
+          .value("values", h.values)
+          .value("cost", h.cost)
+          .value("gradient_norm", h.gradient_norm)
+          .value("damping", h.damping)
+          .value("seconds", h.seconds)
+          .value("evaluations", static_cast<long>(h.evaluations))
+          .end_object();
+    }
+    j.end_array();
+    j.end_object();
+    std::printf("%s\n", j.str().c_str());
+  }
+  return result.converged ? kExitOk : kExitFailed;
+}
+
+}  // namespace softdiff::app
