@@ -1,0 +1,81 @@
+// Cost of a calibration iteration relative to the forward run of the same scene
+// (issue "calibrate and control": wall time per calibration iteration relative to one
+// forward step). Cantilever beam (10 n x n x n cells, 6 tets each), corotational,
+// damped, 30 steps, young identified from 0.5x the truth on every frame.
+//   BM_CalibrationIteration/<n>: per benchmark iteration, one plain 30-step run
+//   (forward_ms: the floor, per step) and one calibration to convergence. Counters:
+//   step_ms (forward step), iteration_ms (wall time per Levenberg-Marquardt iteration),
+//   ratio_per_step = iteration_ms / step_ms, ratio_per_run = iteration_ms / (30 step_ms),
+//   runs_per_iteration (simulations per iteration), iterations.
+#include <softdiff/data.hpp>
+#include <softdiff/integrator/implicit_euler.hpp>
+#include <softdiff/optim/calibration.hpp>
+#include <support/meshes.hpp>
+#include <support/model_builder.hpp>
+
+#include <benchmark/benchmark.h>
+
+#include <chrono>
+
+using namespace softdiff;
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+constexpr long kSteps = 30;
+
+Model beam(int n) {
+  test::BodySpec spec;
+  spec.law = material::Law::corotational;
+  spec.young = 1e6;
+  spec.poisson = 0.45;
+  spec.density = 1070;
+  spec.rayleigh_mass = 0.1;
+  spec.rayleigh_stiffness = 0.001;
+  spec.fixed = [](const Vec3& p) { return p.x() < 1e-9; };
+  return test::make_model(test::box_mesh(10 * n, n, n, 0.2, 0.02, 0.02), spec, Vec3(0, 0, -9.81), 0.01, kSteps);
+}
+
+void BM_CalibrationIteration(benchmark::State& st) {
+  const Model model = beam(static_cast<int>(st.range(0)));
+  double forward = 0, calibration = 0;
+  long iterations = 0, runs = 0, count = 0;
+  for (auto _ : st) {
+    optim::CalibrationTarget target;
+    auto t0 = Clock::now();
+    {
+      Data data(model);
+      State s = model.initial, next;
+      for (long k = 1; k <= kSteps; ++k) {
+        if (!integrator::implicit_euler_step(model, data, s, next, k).ok()) st.SkipWithError("step failed");
+        std::swap(s, next);
+        target.frames.push_back(k);
+        target.states.push_back(s.x);
+      }
+    }
+    forward += since(t0);
+    t0 = Clock::now();
+    const optim::CalibrationResult r =
+        optim::calibrate(model, {{Parameter::young, 0}}, {0.5e6}, target, optim::CalibrationOptions{});
+    calibration += since(t0);
+    if (!r.converged) st.SkipWithError("calibration did not converge");
+    iterations += r.iterations;
+    runs += r.evaluations;
+    ++count;
+  }
+  const double step_ms = 1e3 * forward / static_cast<double>(count * kSteps);
+  const double iteration_ms = 1e3 * calibration / static_cast<double>(std::max<long>(iterations, 1));
+  st.counters["step_ms"] = step_ms;
+  st.counters["iteration_ms"] = iteration_ms;
+  st.counters["ratio_per_step"] = iteration_ms / step_ms;
+  st.counters["ratio_per_run"] = iteration_ms / (kSteps * step_ms);
+  st.counters["runs_per_iteration"] = static_cast<double>(runs) / static_cast<double>(std::max<long>(iterations, 1));
+  st.counters["iterations"] = static_cast<double>(iterations) / static_cast<double>(count);
+  st.counters["tets"] = model.fem.num_tets;
+}
+
+BENCHMARK(BM_CalibrationIteration)->Arg(3)->Arg(6)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
+
+}  // namespace
