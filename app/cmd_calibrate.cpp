@@ -380,7 +380,9 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
     w.set_attribute("/calibration", "stop_reason", result.stop_reason);
     w.set_attribute("/calibration", "evaluations", static_cast<double>(result.evaluations));
   };
-  const int code = simulate_model(so, scene, final_model, t_setup, command_line, write_calibration);
+  RunHooks hooks;
+  hooks.finish = write_calibration;
+  const int code = simulate_model(so, scene, final_model, t_setup, command_line, hooks);
   if (code != kExitOk) return code;
 
   if (o.json) {

@@ -84,8 +84,11 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
 
 int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const Model& model,
                    std::chrono::steady_clock::time_point t_setup, const std::string& command_line,
-                   const std::function<void(io::Hdf5Writer&)>& extra) {
+                   const RunHooks& hooks) {
   Data data(model);
+  // A caller's actuation (control): the values each step used, for the series.
+  VecX applied = VecX::Zero(static_cast<Eigen::Index>(model.actuation.actuators.size()));
+  bool applied_set = false;
   std::optional<ThetaSelection> theta;
   std::unique_ptr<diff::ForwardSensitivity> sensitivity;
   if (!o.jacobian.empty()) {
@@ -190,6 +193,7 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
       const auto& act = model.actuation.actuators[a];
       double value = act.value.at(st.t);
       if (is_static && act.value.points.empty()) value *= st.t;  // static: constant values ramped by the load factor
+      if (applied_set) value = applied[static_cast<Eigen::Index>(a)];
       writer.append_series(actuator_series[a].value, &value);
       if (actuator_series[a].measure >= 0) {
         const double m = act.measure(st.x);
@@ -200,7 +204,9 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
       const Vec3 p = model.actuation.effectors[e].effector.position(st.x);
       writer.append_series(effector_series[e], p.data());
     }
+    if (hooks.frame) hooks.frame(writer, st, data, first);
   };
+  if (hooks.setup) hooks.setup(writer);
   write_frame(state, 0.0, true);
 
   StepTimings timings;
@@ -249,7 +255,12 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
         break;
       }
       auto t0 = Clock::now();
-      StepStatus s = integrator::implicit_euler_step(model, data, state, next, k);
+      StepStatus s;
+      if (hooks.actuation) {
+        s = hooks.actuation(k, state, applied);
+        applied_set = true;
+      }
+      if (s.ok()) s = integrator::implicit_euler_step(model, data, state, next, k, hooks.actuation ? &applied : nullptr);
       const double step_seconds = seconds_since(t0);
       if (s.code == StepStatus::Code::not_converged) {
         if (o.strict) {
@@ -340,7 +351,7 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
                            {"smoothed_contacts", std::to_string(smoothed_total)}});
     }
   }
-  if (extra && status == "complete") extra(writer);
+  if (hooks.finish && status == "complete") hooks.finish(writer);
   writer.finish(status);
   if (status == "interrupted") {
     error("interrupted after " + std::to_string(steps_done) + " steps; frames written to " +

@@ -3,6 +3,9 @@
 // (so that `--help` lists them with defaults), run_* executes and returns the exit code.
 #include <CLI/CLI.hpp>
 
+#include <softdiff/data.hpp>
+#include <softdiff/model.hpp>
+
 #include <chrono>
 #include <functional>
 #include <optional>
@@ -10,7 +13,6 @@
 #include <vector>
 
 namespace softdiff {
-struct Model;
 namespace io {
 struct SceneDesc;
 class Hdf5Writer;
@@ -33,13 +35,25 @@ struct SimulateOptions {
 };
 void add_simulate(CLI::App& app, SimulateOptions& o);
 int run_simulate(const SimulateOptions& o, const std::string& command_line);
-// simulate's run of a model already built from `scene` (calibrate writes its final run
-// this way): frames, series, contact, --jacobian, the summary and --json. `extra`
-// writes the caller's own groups into the file once the run is complete, before the
-// file is finished. t_setup: when the setup began (for setup_seconds).
+// What a caller of simulate_model adds to the run (all optional):
+//   setup: before frame 0 (e.g. add series to the writer);
+//   actuation: the actuation values of step k (1-based) from the state it starts from,
+//     instead of the scene's schedules (control); a failed status stops the run;
+//   frame: after each written frame (first: frame 0), with the step's record;
+//   finish: once the run is complete, before the file is finished (own groups).
+struct RunHooks {
+  std::function<void(io::Hdf5Writer&)> setup;
+  std::function<StepStatus(long k, const State& s, VecX& lambda)> actuation;
+  std::function<void(io::Hdf5Writer&, const State& s, const Data& data, bool first)> frame;
+  std::function<void(io::Hdf5Writer&)> finish;
+};
+
+// simulate's run of a model already built from `scene` (calibrate and control write
+// their runs this way): frames, series, contact, --jacobian, the summary and --json.
+// t_setup: when the setup began (for setup_seconds).
 int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const Model& model,
                    std::chrono::steady_clock::time_point t_setup, const std::string& command_line,
-                   const std::function<void(io::Hdf5Writer&)>& extra = {});
+                   const RunHooks& hooks = {});
 
 struct InfoOptions {
   std::string file;
@@ -79,6 +93,24 @@ struct CalibrateOptions {
 };
 void add_calibrate(CLI::App& app, CalibrateOptions& o);
 int run_calibrate(const CalibrateOptions& o, const std::string& command_line);
+
+struct ControlOptions {
+  std::string scene;
+  std::string target;
+  std::string effector;
+  std::optional<long> steps;
+  std::string weights = "1,0";
+  std::string axes = "xyz";
+  double regularization = 1e-6;
+  double filter = 1;
+  std::string output;
+  bool force = false;
+  std::vector<std::string> set;
+  int threads = 0;
+  bool strict = false, quiet = false, json = false;
+};
+void add_control(CLI::App& app, ControlOptions& o);
+int run_control(const ControlOptions& o, const std::string& command_line);
 
 std::string version_text();
 

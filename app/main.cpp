@@ -23,6 +23,9 @@ int main(int argc, char** argv) {
   CalibrateOptions calibrate;
   auto* calibrate_cmd = app.add_subcommand("calibrate", "Identify material parameters from an observed motion (Levenberg-Marquardt)");
   add_calibrate(*calibrate_cmd, calibrate);
+  ControlOptions control;
+  auto* control_cmd = app.add_subcommand("control", "Drive an effector to a goal by inverse dynamics (a QP per step)");
+  add_control(*control_cmd, control);
   CheckGradOptions check_grad;
   auto* check_cmd = app.add_subcommand("check-grad", "Check the analytic derivatives against central finite differences");
   add_check_grad(*check_cmd, check_grad);
@@ -44,6 +47,7 @@ int main(int argc, char** argv) {
     if (sim_cmd->parsed()) return run_simulate(simulate, join_argv(argc, argv));
     if (info_cmd->parsed()) return run_info(info);
     if (calibrate_cmd->parsed()) return run_calibrate(calibrate, join_argv(argc, argv));
+    if (control_cmd->parsed()) return run_control(control, join_argv(argc, argv));
     if (check_cmd->parsed()) return run_check_grad(check_grad);
   } catch (const softdiff::InputError& e) {
     error(e.what());

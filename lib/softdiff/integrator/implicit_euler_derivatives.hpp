@@ -88,6 +88,9 @@ class StepDerivatives {
   int nondifferentiable_contacts() const { return nondifferentiable_contacts_; }
   int smoothed_contacts() const { return smoothed_contacts_; }
   const contact::NcpDerivative& ncp_derivative() const { return ncp_; }
+  // The contact forces' tangent d lambda_c (3 nc, in the contact frames) of the last
+  // jvp() of a step with contact (the control's contact-force objective).
+  const VecX& contact_force_tangent() const { return dlambda_; }
 
   // Valid when data holds the record of the step in -> out: right after
   // implicit_euler_step(model, data, in, out) returned ok. Returns false (outputs

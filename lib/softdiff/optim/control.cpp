@@ -1,0 +1,101 @@
+// Inverse dynamics: see control.hpp.
+#include <softdiff/optim/control.hpp>
+
+#include <softdiff/core/assert.hpp>
+#include <softdiff/integrator/implicit_euler.hpp>
+#include <softdiff/optim/box_qp.hpp>
+
+#include <limits>
+
+namespace softdiff::optim {
+
+InverseDynamics::InverseDynamics(const Model& model, const ControlOptions& options)
+    : options_(options), data_(model) {
+  const auto& eff = model.actuation.effectors;
+  SOFTDIFF_DEMAND(options.effector >= 0 && options.effector < static_cast<int>(eff.size()), "control: no such effector");
+  SOFTDIFF_DEMAND(!model.actuation.actuators.empty(), "control: the scene has no actuators");
+  SOFTDIFF_DEMAND(options.filter > 0 && options.filter <= 1, "control: filter must be in (0, 1]");
+  SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler, "control: needs the implicit Euler integrator");
+  derivatives_ = std::make_unique<integrator::StepDerivatives>(model, std::vector<ParameterId>{});
+  const Eigen::Index na = static_cast<Eigen::Index>(model.actuation.actuators.size());
+  const double inf = std::numeric_limits<double>::infinity();
+  lo_ = VecX::Constant(na, -inf);
+  hi_ = VecX::Constant(na, inf);
+  for (Eigen::Index j = 0; j < na; ++j) {
+    const auto& a = model.actuation.actuators[static_cast<std::size_t>(j)];
+    if (a.has_limits) {
+      lo_[j] = a.limits[0];
+      hi_[j] = a.limits[1];
+    }
+  }
+  const auto& b = model.fem.bodies[static_cast<std::size_t>(eff[static_cast<std::size_t>(options.effector)].body)];
+  body_begin_ = b.node_begin;
+  body_nodes_ = b.num_nodes;
+}
+
+double InverseDynamics::contact_force_norm(const Model& model, const Data& data) const {
+  if (!model.contact.enabled || data.contact.contacts.empty()) return 0;
+  const VecX F = data.contact.Ht * data.contact.lambda;
+  return F.segment(3L * body_begin_, 3L * body_nodes_).norm();
+}
+
+StepStatus InverseDynamics::compute(const Model& model, const State& s, long k, const Vec3& goal, const VecX& previous,
+                                    VecX& lambda_out, ControlStep& info) {
+  const Eigen::Index na = previous.size();
+  SOFTDIFF_DEMAND(na == lo_.size(), "control: one actuation value per actuator");
+  const StepStatus st = integrator::implicit_euler_step(model, data_, s, prediction_, k, &previous);
+  if (!st.ok() && st.code != StepStatus::Code::not_converged) return st;
+  const auto& e = model.actuation.effectors[static_cast<std::size_t>(options_.effector)].effector;
+  info.predicted = e.position(prediction_.x);
+  const bool contact = model.contact.enabled && !data_.contact.contacts.empty() && options_.beta > 0;
+  MatX Ja(3, na), Jc;
+  VecX F;
+  if (contact) {
+    F = (data_.contact.Ht * data_.contact.lambda).segment(3L * body_begin_, 3L * body_nodes_);
+    Jc.resize(F.size(), na);
+  }
+  integrator::StepTangent t;
+  integrator::StateTangent r;
+  for (Eigen::Index j = 0; j < na; ++j) {
+    t.lambda_a = VecX::Unit(na, j);
+    if (!derivatives_->jvp(model, data_, s, prediction_, t, r)) {
+      StepStatus f;
+      f.code = StepStatus::Code::solver_failed;
+      f.step = k;
+      f.detail = "control: the derivative of the step with respect to the actuation failed";
+      return f;
+    }
+    Ja.col(j) = e.point().position(r.x);  // W dx (p is linear in x)
+    if (contact)
+      Jc.col(j) = (data_.contact.Ht * derivatives_->contact_force_tangent()).segment(3L * body_begin_, 3L * body_nodes_);
+  }
+  info.contact_force_norm = F.size() ? F.norm() : contact_force_norm(model, data_);
+  // The QP.
+  Vec3 err = info.predicted - goal;
+  for (int c = 0; c < 3; ++c)
+    if (!options_.axes[static_cast<std::size_t>(c)]) {
+      err[c] = 0;
+      Ja.row(c).setZero();
+    }
+  MatX H = options_.alpha * Ja.transpose() * Ja;
+  VecX g = options_.alpha * Ja.transpose() * err;
+  double scale = options_.alpha * Ja.squaredNorm();
+  if (contact) {
+    H += options_.beta * Jc.transpose() * Jc;
+    g += options_.beta * Jc.transpose() * F;
+    scale += options_.beta * Jc.squaredNorm();
+  }
+  const double rho = options_.regularization * std::max(scale, 1e-300) / static_cast<double>(na);
+  H += rho * MatX::Identity(na, na);
+  const BoxQpResult qp = solve_box_qp(H, g, lo_ - previous, hi_ - previous);
+  info.delta = qp.d;
+  info.kkt = qp.kkt;
+  info.qp_iterations = qp.iterations;
+  info.qp_converged = qp.converged;
+  lambda_out = previous + options_.filter * qp.d;
+  // Round-off must not leave the limits.
+  lambda_out = lambda_out.cwiseMax(lo_).cwiseMin(hi_);
+  return {};
+}
+
+}  // namespace softdiff::optim

@@ -1,0 +1,67 @@
+#pragma once
+// Inverse dynamics (`softdiff control`, paper section IV-D, docs/method.md "Control"):
+// at every step, the actuation change d that brings an effector to its goal, from the
+// step's derivative with respect to the actuation (through contact where present).
+//
+// At step k from state s with the previous actuation lambda:
+//   1. the step with lambda gives the free prediction x_f, and the effector's X_f;
+//   2. one JVP per actuator (the step's factorization) gives J_a = W dx_f/dlambda (W the
+//      effector's barycentric rows, S the selected axes) and, with contact, the nodal
+//      contact forces' Jacobian J_c = P_body H_c^T dlambda_c/dlambda (P_body: the rows of
+//      the effector's body) with F the body's nodal contact forces;
+//   3. the QP (optim/box_qp.hpp)
+//        min_d  alpha/2 |S (X_f + J_a d - X_goal)|^2 + beta/2 |F + J_c d|^2 + rho/2 |d|^2
+//        s.t.   lo - lambda <= d <= hi - lambda   (the actuators' limits)
+//      rho = regularization * (alpha |S J_a|_F^2 + beta |J_c|_F^2) / n_a (relative, so it
+//      needs no units; it also makes an over-actuated robot's QP strictly convex);
+//   4. lambda' = lambda + filter d (a first-order low-pass on the change, 0 < filter <= 1;
+//      lambda' stays within the limits: a convex combination of feasible points).
+// The caller then takes the step with lambda'.
+#include <softdiff/core/types.hpp>
+#include <softdiff/data.hpp>
+#include <softdiff/integrator/implicit_euler_derivatives.hpp>
+#include <softdiff/model.hpp>
+
+#include <array>
+#include <memory>
+
+namespace softdiff::optim {
+
+struct ControlOptions {
+  int effector = 0;                  // index into model.actuation.effectors
+  std::array<bool, 3> axes{true, true, true};  // controlled directions of the goal
+  double alpha = 1;                  // weight of the goal term
+  double beta = 0;                   // weight of the contact-force term
+  double regularization = 1e-6;      // relative weight of |d|^2
+  double filter = 1;                 // low-pass factor on the change
+};
+
+struct ControlStep {
+  Vec3 predicted = Vec3::Zero();     // X_f: the effector after the step with the previous actuation
+  VecX delta;                        // the QP's solution d
+  double contact_force_norm = 0;     // |F| of the prediction (N)
+  double kkt = 0;                    // the QP's KKT residual
+  int qp_iterations = 0;
+  bool qp_converged = false;
+};
+
+class InverseDynamics {
+ public:
+  InverseDynamics(const Model& model, const ControlOptions& options);
+  // The actuation of step k (1-based) from state s, given the previous actuation
+  // (n_a). Returns the prediction step's status (not ok: lambda_out unset).
+  StepStatus compute(const Model& model, const State& s, long k, const Vec3& goal, const VecX& previous, VecX& lambda_out,
+                     ControlStep& info);
+  // The nodal contact force norm of the effector's body for a step's record (N).
+  double contact_force_norm(const Model& model, const Data& data) const;
+
+ private:
+  ControlOptions options_;
+  Data data_;
+  std::unique_ptr<integrator::StepDerivatives> derivatives_;
+  State prediction_;
+  VecX lo_, hi_;
+  int body_begin_ = 0, body_nodes_ = 0;
+};
+
+}  // namespace softdiff::optim
