@@ -231,7 +231,10 @@ int run_control(const ControlOptions& o, const std::string& command_line) {
   };
   hooks.frame = [&](io::Hdf5Writer& wr, const State& s, const Data& data, bool first) {
     const Vec3 goal = goals.at(s.t);
-    distance = (eff.position(s.x) - goal).norm();
+    Vec3 e = eff.position(s.x) - goal;
+    for (int c = 0; c < 3; ++c)
+      if (!co.axes[static_cast<std::size_t>(c)]) e[c] = 0;
+    distance = e.norm();  // over the controlled axes
     if (!first) min_distance = std::min(min_distance, distance);
     wr.append_series(series.goal, goal.data());
     wr.append_series(series.distance, &distance);
