@@ -124,6 +124,11 @@ void add_control(CLI::App& app, ControlOptions& o) {
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
   app.add_option("--filter", o.filter, "Low-pass factor on the actuation change, in (0, 1] (1: none)")->capture_default_str();
+  app.add_flag("--shared-actuation", o.shared,
+               "One change for all actuators (a symmetric robot controlled for one side, as the paper's gripper)");
+  app.add_flag("--max-actuation", o.max_actuation,
+               "No QP: every actuator at its upper limit at every step (the paper's gripper heuristic, for comparison; "
+               "the /control datasets are written the same way)");
   app.add_option("-o,--output", o.output, "Output HDF5 file (default: <scene stem>_control.h5)");
   app.add_flag("--force", o.force, "Overwrite an existing output file");
   app.add_option("--set", o.set, "Override a scene value: KEY=VALUE (repeatable)");
@@ -183,6 +188,7 @@ int run_control(const ControlOptions& o, const std::string& command_line) {
   if (!(o.filter > 0 && o.filter <= 1)) throw InputError("--filter " + io::format_number(o.filter) + ": must be in (0, 1]");
   co.filter = o.filter;
   co.regularization = o.regularization;
+  co.shared = o.shared;
   const Goals goals = parse_goals(o.target);
 
   std::filesystem::path out_path = o.output;
@@ -212,7 +218,17 @@ int run_control(const ControlOptions& o, const std::string& command_line) {
     if (model.contact.enabled) series.force = wr.add_series("/control/contact_force_norm", 0);
     series.kkt = wr.add_series("/control/kkt_residual", 0);
   };
+  if (o.max_actuation)
+    for (const auto& a : model.actuation.actuators)
+      if (!a.has_limits) throw InputError("--max-actuation: actuator '" + a.name + "' has no limits");
   hooks.actuation = [&](long k, const State& s, VecX& lambda) {
+    if (o.max_actuation) {
+      lambda.resize(na);
+      for (Eigen::Index j = 0; j < na; ++j) lambda[j] = model.actuation.actuators[static_cast<std::size_t>(j)].limits[1];
+      previous = lambda;
+      steps_done = k;
+      return StepStatus{};
+    }
     const auto t0 = Clock::now();
     optim::ControlStep info;
     const StepStatus st = controller.compute(model, s, k, goals.at(static_cast<double>(k) * model.step.dt), previous, lambda, info);

@@ -103,6 +103,8 @@ struct ControlOptions {
   std::string axes = "xyz";
   double regularization = 1e-6;
   double filter = 1;
+  bool shared = false;
+  bool max_actuation = false;
   std::string output;
   bool force = false;
   std::vector<std::string> set;

@@ -33,10 +33,24 @@ InverseDynamics::InverseDynamics(const Model& model, const ControlOptions& optio
   body_nodes_ = b.num_nodes;
 }
 
+namespace {
+// lambda with the self-contacts' rows zeroed (their forces are internal to a body).
+VecX external(const Data& data, const VecX& lambda) {
+  VecX out = lambda;
+  const auto& contacts = data.contact.contacts.contacts;
+  for (std::size_t i = 0; i < contacts.size(); ++i)
+    if (contacts[i].side_a == contacts[i].side_b) out.segment<3>(3 * static_cast<Eigen::Index>(i)).setZero();
+  return out;
+}
+}  // namespace
+
+VecX InverseDynamics::nodal_contact_forces(const Data& data, const VecX& lambda) const {
+  return (data.contact.Ht * external(data, lambda)).segment(3L * body_begin_, 3L * body_nodes_);
+}
+
 double InverseDynamics::contact_force_norm(const Model& model, const Data& data) const {
   if (!model.contact.enabled || data.contact.contacts.empty()) return 0;
-  const VecX F = data.contact.Ht * data.contact.lambda;
-  return F.segment(3L * body_begin_, 3L * body_nodes_).norm();
+  return nodal_contact_forces(data, data.contact.lambda).norm();
 }
 
 StepStatus InverseDynamics::compute(const Model& model, const State& s, long k, const Vec3& goal, const VecX& previous,
@@ -48,16 +62,17 @@ StepStatus InverseDynamics::compute(const Model& model, const State& s, long k, 
   const auto& e = model.actuation.effectors[static_cast<std::size_t>(options_.effector)].effector;
   info.predicted = e.position(prediction_.x);
   const bool contact = model.contact.enabled && !data_.contact.contacts.empty() && options_.beta > 0;
-  MatX Ja(3, na), Jc;
+  const Eigen::Index nd = options_.shared ? 1 : na;  // QP variables
+  MatX Ja(3, nd), Jc;
   VecX F;
   if (contact) {
-    F = (data_.contact.Ht * data_.contact.lambda).segment(3L * body_begin_, 3L * body_nodes_);
-    Jc.resize(F.size(), na);
+    F = nodal_contact_forces(data_, data_.contact.lambda);
+    Jc.resize(F.size(), nd);
   }
   integrator::StepTangent t;
   integrator::StateTangent r;
-  for (Eigen::Index j = 0; j < na; ++j) {
-    t.lambda_a = VecX::Unit(na, j);
+  for (Eigen::Index j = 0; j < nd; ++j) {
+    t.lambda_a = options_.shared ? VecX(VecX::Ones(na)) : VecX(VecX::Unit(na, j));
     if (!derivatives_->jvp(model, data_, s, prediction_, t, r)) {
       StepStatus f;
       f.code = StepStatus::Code::solver_failed;
@@ -67,7 +82,7 @@ StepStatus InverseDynamics::compute(const Model& model, const State& s, long k, 
     }
     Ja.col(j) = e.point().position(r.x);  // W dx (p is linear in x)
     if (contact)
-      Jc.col(j) = (data_.contact.Ht * derivatives_->contact_force_tangent()).segment(3L * body_begin_, 3L * body_nodes_);
+      Jc.col(j) = nodal_contact_forces(data_, derivatives_->contact_force_tangent());
   }
   info.contact_force_norm = F.size() ? F.norm() : contact_force_norm(model, data_);
   // The QP.
@@ -85,14 +100,19 @@ StepStatus InverseDynamics::compute(const Model& model, const State& s, long k, 
     g += options_.beta * Jc.transpose() * F;
     scale += options_.beta * Jc.squaredNorm();
   }
-  const double rho = options_.regularization * std::max(scale, 1e-300) / static_cast<double>(na);
-  H += rho * MatX::Identity(na, na);
-  const BoxQpResult qp = solve_box_qp(H, g, lo_ - previous, hi_ - previous);
-  info.delta = qp.d;
+  const double rho = options_.regularization * std::max(scale, 1e-300) / static_cast<double>(nd);
+  H += rho * MatX::Identity(nd, nd);
+  VecX lo = lo_ - previous, hi = hi_ - previous;
+  if (options_.shared) {
+    lo = VecX::Constant(1, lo.maxCoeff());
+    hi = VecX::Constant(1, std::max(hi.minCoeff(), lo[0]));
+  }
+  const BoxQpResult qp = solve_box_qp(H, g, lo, hi);
+  info.delta = options_.shared ? VecX(VecX::Constant(na, qp.d[0])) : qp.d;
   info.kkt = qp.kkt;
   info.qp_iterations = qp.iterations;
   info.qp_converged = qp.converged;
-  lambda_out = previous + options_.filter * qp.d;
+  lambda_out = previous + options_.filter * info.delta;
   // Round-off must not leave the limits.
   lambda_out = lambda_out.cwiseMax(lo_).cwiseMin(hi_);
   return {};

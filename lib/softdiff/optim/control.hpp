@@ -8,7 +8,9 @@
 //   2. one JVP per actuator (the step's factorization) gives J_a = W dx_f/dlambda (W the
 //      effector's barycentric rows, S the selected axes) and, with contact, the nodal
 //      contact forces' Jacobian J_c = P_body H_c^T dlambda_c/dlambda (P_body: the rows of
-//      the effector's body) with F the body's nodal contact forces;
+//      the effector's body) with F the body's nodal contact forces, over the contacts
+//      with other sides (obstacles, other bodies; not the body's self-contacts, whose
+//      forces are internal);
 //   3. the QP (optim/box_qp.hpp)
 //        min_d  alpha/2 |S (X_f + J_a d - X_goal)|^2 + beta/2 |F + J_c d|^2 + rho/2 |d|^2
 //        s.t.   lo - lambda <= d <= hi - lambda   (the actuators' limits)
@@ -34,6 +36,10 @@ struct ControlOptions {
   double beta = 0;                   // weight of the contact-force term
   double regularization = 1e-6;      // relative weight of |d|^2
   double filter = 1;                 // low-pass factor on the change
+  // One change for every actuator (d = s 1, s scalar): a symmetric robot controlled for
+  // one side, as the paper's gripper ("we can write this problem for one finger and
+  // apply the result to both"); one JVP per step instead of n_a.
+  bool shared = false;
 };
 
 struct ControlStep {
@@ -56,6 +62,10 @@ class InverseDynamics {
   double contact_force_norm(const Model& model, const Data& data) const;
 
  private:
+  // P_body H_c^T lambda over the contacts with other sides (obstacles, other bodies):
+  // a body's self-contact forces are internal (action and reaction on its own nodes)
+  // and act on nothing it holds.
+  VecX nodal_contact_forces(const Data& data, const VecX& lambda) const;
   ControlOptions options_;
   Data data_;
   std::unique_ptr<integrator::StepDerivatives> derivatives_;
