@@ -1,13 +1,23 @@
-// Cost of a calibration iteration relative to the forward run of the same scene
-// (issue "calibrate and control": wall time per calibration iteration relative to one
-// forward step). Cantilever beam (10 n x n x n cells, 6 tets each), corotational,
+// Cost of a calibration iteration and of a control step relative to the forward step
+// of the same scene, measured in the same run (issue "calibrate and control").
+//
+// Calibration: cantilever beam (10 n x n x n cells, 6 tets each), corotational,
 // damped, 30 steps, young identified from 0.5x the truth on every frame.
 //   BM_CalibrationIteration/<n>: per benchmark iteration, one plain 30-step run
 //   (forward_ms: the floor, per step) and one calibration to convergence. Counters:
 //   step_ms (forward step), iteration_ms (wall time per Levenberg-Marquardt iteration),
 //   ratio_per_step = iteration_ms / step_ms, ratio_per_run = iteration_ms / (30 step_ms),
 //   runs_per_iteration (simulations per iteration), iterations.
+//
+// Control: the shipped Trunk (configs/trunk.yaml, 3.7k tets, 8 cables).
+//   BM_ControlStep: per iteration one forward step (step_ms, the floor) and one control
+//   computation from the same state (control_ms: the prediction step, 8 actuation JVPs,
+//   the QP); ratio = control_ms / step_ms. A control step of `softdiff control` is the
+//   computation plus the committed step: 1 + ratio forward steps.
 #include <softdiff/data.hpp>
+#include <softdiff/io/build_model.hpp>
+#include <softdiff/io/scene.hpp>
+#include <softdiff/optim/control.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
 #include <softdiff/optim/calibration.hpp>
 #include <support/meshes.hpp>
@@ -76,6 +86,38 @@ void BM_CalibrationIteration(benchmark::State& st) {
   st.counters["tets"] = model.fem.num_tets;
 }
 
+void BM_ControlStep(benchmark::State& st) {
+  const Model model = io::build_model(io::load_scene(std::string(SOFTDIFF_SOURCE_DIR) + "/configs/trunk.yaml"));
+  optim::InverseDynamics controller(model, optim::ControlOptions{});
+  Data data(model);
+  State s = model.initial, next;
+  VecX lambda = VecX::Constant(static_cast<Eigen::Index>(model.actuation.actuators.size()), 0.05), out;
+  for (long k = 1; k <= 5; ++k) {  // moving, bent a little
+    if (!integrator::implicit_euler_step(model, data, s, next, k, &lambda).ok()) st.SkipWithError("step failed");
+    std::swap(s, next);
+  }
+  const Vec3 goal(0.02, -0.05, 0.17);
+  double step = 0, control = 0;
+  long count = 0;
+  for (auto _ : st) {
+    auto t0 = Clock::now();
+    if (!integrator::implicit_euler_step(model, data, s, next, 6, &lambda).ok()) st.SkipWithError("step failed");
+    step += since(t0);
+    t0 = Clock::now();
+    optim::ControlStep info;
+    if (!controller.compute(model, s, 6, goal, lambda, out, info).ok()) st.SkipWithError("control failed");
+    control += since(t0);
+    benchmark::DoNotOptimize(out.data());
+    ++count;
+  }
+  st.counters["step_ms"] = 1e3 * step / static_cast<double>(count);
+  st.counters["control_ms"] = 1e3 * control / static_cast<double>(count);
+  st.counters["ratio"] = control / step;
+  st.counters["actuators"] = static_cast<double>(lambda.size());
+  st.counters["tets"] = model.fem.num_tets;
+}
+
+BENCHMARK(BM_ControlStep)->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(2.0);
 BENCHMARK(BM_CalibrationIteration)->Arg(3)->Arg(6)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
 
 }  // namespace
