@@ -101,6 +101,46 @@ TEST(BoxQp, RandomProblemsSatisfyKktAndAgreeWithSlsqp) {
   EXPECT_GT(active_total, 100);  // the bounds mattered
 }
 
+TEST(BoxQp, IllConditionedOverActuatedProblemsConverge) {
+  // Random problems shaped as the Trunk's: J^T J of a 3 x 8 Jacobian (rank 3) plus a
+  // relative 1e-6 regularization, condition ~1e6-1e7 (the dumped Trunk QP below is the
+  // one that reproduces the former iteration-cap failure; these random ones did not).
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (int trial = 0; trial < 200; ++trial) {
+    MatX J(3, 8);
+    for (int i = 0; i < J.size(); ++i) J.data()[i] = 0.1 * u(rng);
+    const MatX H = J.transpose() * J + 1e-6 * J.squaredNorm() / 8 * MatX::Identity(8, 8);
+    VecX g(8), lo(8), hi(8);
+    for (int i = 0; i < 8; ++i) {
+      g[i] = 0.05 * u(rng);
+      lo[i] = -0.1 * (1 + u(rng));
+      hi[i] = 0.1 * (1 + u(rng));
+    }
+    const optim::BoxQpResult r = optim::solve_box_qp(H, g, lo, hi);
+    EXPECT_TRUE(r.converged) << trial << ": " << r.iterations << " iterations";
+    EXPECT_LT(r.iterations, 40) << trial;
+    EXPECT_LE(r.kkt, 1e-8) << trial;
+  }
+}
+
+TEST(BoxQp, TheTrunkQpThatOnceHitTheIterationCap) {
+  // A QP of the Trunk demo (control_trunk_demo, step 1 from rest: 8 cables, condition
+  // ~4e6 from the relative 1e-6 regularization of a rank-3 J^T J), dumped as it was.
+  // Recomputing the step at the working set's minimizer gave round-off steps above the
+  // stationarity threshold, and the iteration took them until its cap of 200; now it
+  // converges in a few iterations.
+  const int n = 8;
+  const double h[] = {4.4934881704600773e-06, 2.4153655001109588e-07, -3.6726413893798755e-06, 1.2585201358966665e-07, 9.433229758887986e-07, 3.1014627832668698e-08, -4.5261509156725719e-07, 1.3894367428452017e-08, 2.4153655001109588e-07, 4.751493560353159e-06, 3.6990787939078637e-07, -4.385365837700531e-06, 6.2655264133780667e-08, 1.0650611209298448e-06, 3.5519002705189685e-07, -8.8940779141512905e-07, -3.6726413893798755e-06, 3.6990787939078637e-07, 4.3092700548565345e-06, 1.7537282336031631e-07, -7.9131641804658723e-07, 1.0590444141538404e-07, 1.1524136126025642e-06, 1.5771908208073443e-07, 1.2585201358966665e-07, -4.385365837700531e-06, 1.7537282336031631e-07, 4.5961838661336456e-06, 1.2393364648441551e-09, -9.8223870970075884e-07, 1.1363992943541293e-07, 1.0042795970094222e-06, 9.433229758887986e-07, 6.2655264133780667e-08, -7.9131641804658723e-07, 1.2393364648441551e-09, 1.9844694552641487e-07, 9.1234475942113723e-09, -1.0699009939971692e-07, -4.1632804273420952e-09, 3.1014627832668698e-08, 1.0650611209298448e-06, 1.0590444141538404e-07, -9.8223870970075884e-07, 9.1234475942113723e-09, 2.3887094966876493e-07, 8.4387247201055985e-08, -1.9879284875871566e-07, -4.5261509156725719e-07, 3.5519002705189685e-07, 1.1524136126025642e-06, 1.1363992943541293e-07, -1.0699009939971692e-07, 8.4387247201055985e-08, 5.1421959445189654e-07, 9.1201529424634395e-08, 1.3894367428452017e-08, -8.8940779141512905e-07, 1.5771908208073443e-07, 1.0042795970094222e-06, -4.1632804273420952e-09, -1.9879284875871566e-07, 9.1201529424634395e-08, 2.2856203390838264e-07};
+  const double gv[] = {2.925166764395202e-07, -2.2110065606014909e-08, 2.2751053662214302e-07, 3.4886125738491577e-07, 5.304861501239687e-08, -4.974878474566064e-09, 2.476249096958317e-07, 1.1277501514645092e-07}, lov[] = {0, -0.17015751028178075, 0, 0, 0, 0, 0, 0}, hiv[] = {0.25, 0.079842489718219251, 0.25, 0.25, 0.45000000000000001, 0.45000000000000001, 0.45000000000000001, 0.45000000000000001};
+  const MatX H = Eigen::Map<const MatX>(h, n, n);
+  const VecX g = Eigen::Map<const VecX>(gv, n), lo = Eigen::Map<const VecX>(lov, n), hi = Eigen::Map<const VecX>(hiv, n);
+  const optim::BoxQpResult r = optim::solve_box_qp(H, g, lo, hi);
+  EXPECT_TRUE(r.converged);
+  EXPECT_LT(r.iterations, 40);
+  EXPECT_LE(r.kkt, 1e-12);
+}
+
 TEST(BoxQp, SpecialCases) {
   MatX H(2, 2);
   H << 2, 0.5, 0.5, 1;

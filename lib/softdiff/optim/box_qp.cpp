@@ -46,6 +46,11 @@ BoxQpResult solve_box_qp(const MatX& H, const VecX& g, const VecX& lo, const Vec
     else if (hi[i] < 0) s = 1;
   }
   std::vector<Eigen::Index> free;
+  // After a full step (no bound crossed) d minimizes the working set's subproblem: the
+  // next iteration checks the multipliers instead of recomputing a step that round-off
+  // alone would make nonzero (an ill-conditioned H_FF would otherwise take tiny steps
+  // until the iteration cap).
+  bool at_minimum = false;
   for (int it = 0; it < max_iterations; ++it) {
     res.iterations = it + 1;
     free.clear();
@@ -54,7 +59,7 @@ BoxQpResult solve_box_qp(const MatX& H, const VecX& g, const VecX& lo, const Vec
     const Eigen::Index m = static_cast<Eigen::Index>(free.size());
     // The minimizer over the free variables with the fixed ones held: p = target - d_F.
     VecX step = VecX::Zero(n);
-    if (m > 0) {
+    if (m > 0 && !at_minimum) {
       MatX HF(m, m);
       VecX rhs(m);
       const VecX grad = H * d + g;
@@ -71,7 +76,8 @@ BoxQpResult solve_box_qp(const MatX& H, const VecX& g, const VecX& lo, const Vec
       const VecX p = llt.solve(rhs);
       for (Eigen::Index a = 0; a < m; ++a) step[free[static_cast<std::size_t>(a)]] = p[a];
     }
-    if (step.lpNorm<Eigen::Infinity>() <= 1e-15 * std::max(1.0, d.lpNorm<Eigen::Infinity>())) {
+    if (at_minimum || step.lpNorm<Eigen::Infinity>() <= 1e-15 * std::max(1.0, d.lpNorm<Eigen::Infinity>())) {
+      at_minimum = false;
       // Stationary on the working set: the multipliers of the fixed variables.
       const VecX grad = H * d + g;
       Eigen::Index release = -1;
@@ -113,6 +119,8 @@ BoxQpResult solve_box_qp(const MatX& H, const VecX& g, const VecX& lo, const Vec
     if (blocking >= 0) {
       d[blocking] = side < 0 ? lo[blocking] : hi[blocking];
       state[static_cast<std::size_t>(blocking)] = side;
+    } else {
+      at_minimum = true;
     }
   }
   res.d = d;
