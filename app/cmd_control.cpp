@@ -25,18 +25,6 @@ namespace softdiff::app {
 
 namespace {
 
-std::vector<std::string> split_list(const std::string& s, char sep = ',') {
-  std::vector<std::string> out;
-  std::stringstream in(s);
-  std::string item;
-  while (std::getline(in, item, sep)) {
-    item.erase(0, item.find_first_not_of(" \t\r"));
-    item.erase(item.find_last_not_of(" \t\r") + 1);
-    out.push_back(item);
-  }
-  if (!s.empty() && s.back() == sep) out.push_back("");
-  return out;
-}
 
 bool parse_number(const std::string& s, double& v) {
   if (s.empty()) return false;

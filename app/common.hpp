@@ -56,4 +56,8 @@ class Progress {
 
 std::string join_argv(int argc, char** argv);
 
+// "a, b,c" -> {"a", "b", "c"}: items trimmed of blanks; a trailing separator gives a
+// last empty item (so that "young," is reported as an empty name).
+std::vector<std::string> split_list(const std::string& s, char sep = ',');
+
 }  // namespace softdiff::app

@@ -1,4 +1,5 @@
 #include "theta.hpp"
+#include "common.hpp"
 
 #include <softdiff/core/error.hpp>
 
@@ -10,17 +11,6 @@ namespace softdiff::app {
 
 namespace {
 
-std::vector<std::string> split(const std::string& s) {
-  std::vector<std::string> out;
-  std::stringstream in(s);
-  std::string item;
-  while (std::getline(in, item, ',')) {
-    item.erase(0, item.find_first_not_of(" \t"));
-    item.erase(item.find_last_not_of(" \t") + 1);
-    out.push_back(item);
-  }
-  return out;
-}
 
 void demand_differentiable(const std::string& option, const Model& model) {
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
@@ -45,7 +35,7 @@ void demand_differentiable(const std::string& option, const Model& model) {
 }  // namespace
 
 ThetaSelection parse_theta(const std::string& option, const std::string& list, const Model& model) {
-  const std::vector<std::string> names = split(list);
+  const std::vector<std::string> names = split_list(list);
   const std::string valid = "young, poisson, density, rayleigh_mass, rayleigh_stiffness, actuation, x0, v0";
   if (names.empty()) throw InputError(option + ": expected a comma-separated list of " + valid + "; got nothing");
   for (std::size_t i = 0; i < names.size(); ++i) {
