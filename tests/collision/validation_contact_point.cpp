@@ -88,7 +88,8 @@ struct Toy {
     Vec3 q = Vec3::Zero();
     for (int k = 1; k < 4; ++k) q -= g.weights[k] * x.segment<3>(3 * c.nodes[k]);
     Vec6 r;
-    r << q - target(), g.n - target_normal();
+    r.head<3>() = q - target();
+    r.tail<3>() = g.n - target_normal();
     return r;
   }
   double loss(const Vec3& p) const { return 0.5 * value(p).squaredNorm(); }

@@ -63,7 +63,8 @@ StepStatus InverseDynamics::compute(const Model& model, const State& s, long k, 
   info.predicted = e.position(prediction_.x);
   const bool contact = model.contact.enabled && !data_.contact.contacts.empty() && options_.beta > 0;
   const Eigen::Index nd = options_.shared ? 1 : na;  // QP variables
-  MatX Ja(3, nd), Jc;
+  Eigen::Matrix<double, 3, Eigen::Dynamic> Ja(3, nd);  // fixed 3 rows: its columns are Vec3
+  MatX Jc;
   VecX F;
   if (contact) {
     F = nodal_contact_forces(data_, data_.contact.lambda);
