@@ -213,8 +213,7 @@ optim::CalibrationTarget marker_target(const CalibrateOptions& o, const Model& m
   // Steps of the observations (time 0 only embeds markers).
   std::vector<std::pair<long, const io::MarkerObservation*>> used;
   for (const auto& ob : obs) {
-    const int m = marker_of(ob);
-    (void)m;
+    marker_of(ob);  // every marker is embedded, whether or not observed after time 0
     if (ob.time == 0) continue;
     const long step = is_static ? 1 : step_of(o.markers + ":" + std::to_string(ob.line), "the observation", ob.time, model.step.dt);
     used.push_back({step, &ob});

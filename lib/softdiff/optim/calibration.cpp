@@ -73,13 +73,18 @@ void fill_rows(const CalibrationTarget& target, int f, const VecX& x, const MatX
   }
 }
 
+// "young[beam] = 1e6, friction[rule 0] = 0.5"
 std::string describe_values(const Model& model, const std::vector<ParameterId>& parameters,
                             const std::vector<double>& values) {
   std::ostringstream s;
   s.precision(6);
-  for (std::size_t j = 0; j < parameters.size(); ++j)
-    s << (j ? ", " : "") << parameter_name(parameters[j].kind) << "[" << parameters[j].body << "] = " << values[j];
-  (void)model;
+  for (std::size_t j = 0; j < parameters.size(); ++j) {
+    const ParameterId& id = parameters[j];
+    s << (j ? ", " : "") << parameter_name(id.kind) << "[";
+    if (id.kind == Parameter::friction) s << "rule " << id.body;
+    else s << model.fem.bodies[static_cast<std::size_t>(id.body)].name;
+    s << "] = " << values[j];
+  }
   return s.str();
 }
 

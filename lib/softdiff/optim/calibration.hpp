@@ -23,6 +23,7 @@
 #include <softdiff/core/types.hpp>
 #include <softdiff/model.hpp>
 
+#include <array>
 #include <functional>
 #include <string>
 #include <vector>
