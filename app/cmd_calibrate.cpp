@@ -228,12 +228,6 @@ optim::CalibrationTarget marker_target(const CalibrateOptions& o, const Model& m
   return t;
 }
 
-std::string number(double v) {
-  char b[32];
-  std::snprintf(b, sizeof b, "%.10g", v);
-  return b;
-}
-
 }  // namespace
 
 void add_calibrate(CLI::App& app, CalibrateOptions& o) {
@@ -255,14 +249,10 @@ void add_calibrate(CLI::App& app, CalibrateOptions& o) {
                  "Stop when the relative cost reduction (ftol) or the relative step (xtol) falls below this")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
-  app.add_option("-o,--output", o.output, "Output HDF5 file: the scene simulated with the identified parameters, "
-                                          "plus /calibration (default: <scene stem>_calibrated.h5)");
-  app.add_flag("--force", o.force, "Overwrite an existing output file");
-  app.add_option("--set", o.set, "Override a scene value: KEY=VALUE (repeatable)");
-  app.add_option("--threads", o.threads, "OpenMP threads (default: all cores)")->check(CLI::NonNegativeNumber);
-  app.add_flag("--strict", o.strict, "Treat a contact solve that does not reach its tolerance as an error (exit 1)");
-  app.add_flag("--quiet", o.quiet, "No per-iteration lines");
-  app.add_flag("--json", o.json, "Print a JSON summary on stdout");
+  add_run_options(app, o.output,
+                  "Output HDF5 file: the scene simulated with the identified parameters, plus /calibration "
+                  "(default: <scene stem>_calibrated.h5)",
+                  o.force, o.set, o.threads, o.strict, o.quiet, "No per-iteration lines", o.json);
 }
 
 int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
@@ -296,7 +286,7 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
   for (std::size_t j = 0; j < init.size(); ++j) {
     const bool poisson = params.ids[j].kind == Parameter::poisson;
     if (poisson ? !(init[j] > 0 && init[j] < 0.5) : !(init[j] > 0))
-      throw InputError("--init: " + params.names[j] + " = " + number(init[j]) + " is outside the calibrated range (" +
+      throw InputError("--init: " + params.names[j] + " = " + io::format_number(init[j]) + " is outside the calibrated range (" +
                        (poisson ? "0 < poisson < 0.5" : "> 0: it is identified in log scale") + ")");
   }
 

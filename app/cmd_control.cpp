@@ -117,13 +117,8 @@ void add_control(CLI::App& app, ControlOptions& o) {
   app.add_flag("--max-actuation", o.max_actuation,
                "No QP: every actuator at its upper limit at every step (the paper's gripper heuristic, for comparison; "
                "the /control datasets are written the same way)");
-  app.add_option("-o,--output", o.output, "Output HDF5 file (default: <scene stem>_control.h5)");
-  app.add_flag("--force", o.force, "Overwrite an existing output file");
-  app.add_option("--set", o.set, "Override a scene value: KEY=VALUE (repeatable)");
-  app.add_option("--threads", o.threads, "OpenMP threads (default: all cores)")->check(CLI::NonNegativeNumber);
-  app.add_flag("--strict", o.strict, "Treat a contact solve that does not reach its tolerance as an error (exit 1)");
-  app.add_flag("--quiet", o.quiet, "No summary");
-  app.add_flag("--json", o.json, "Print a JSON summary on stdout");
+  add_run_options(app, o.output, "Output HDF5 file (default: <scene stem>_control.h5)", o.force, o.set, o.threads,
+                  o.strict, o.quiet, "No summary", o.json);
 }
 
 int run_control(const ControlOptions& o, const std::string& command_line) {

@@ -77,6 +77,12 @@ struct CheckGradOptions {
 void add_check_grad(CLI::App& app, CheckGradOptions& o);
 int run_check_grad(const CheckGradOptions& o);
 
+// The options calibrate and control share: -o, --force, --set, --threads, --strict,
+// --quiet (its help says what it silences), --json.
+void add_run_options(CLI::App& app, std::string& output, const std::string& output_help, bool& force,
+                     std::vector<std::string>& set, int& threads, bool& strict, bool& quiet,
+                     const std::string& quiet_help, bool& json);
+
 struct CalibrateOptions {
   std::string scene;
   std::string param;

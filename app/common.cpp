@@ -1,4 +1,5 @@
 #include "common.hpp"
+#include "commands.hpp"
 
 #include <cmath>
 #include <iomanip>
@@ -133,6 +134,18 @@ std::vector<std::string> split_list(const std::string& s, char sep) {
   }
   if (!s.empty() && s.back() == sep) out.push_back("");
   return out;
+}
+
+void add_run_options(CLI::App& app, std::string& output, const std::string& output_help, bool& force,
+                     std::vector<std::string>& set, int& threads, bool& strict, bool& quiet,
+                     const std::string& quiet_help, bool& json) {
+  app.add_option("-o,--output", output, output_help);
+  app.add_flag("--force", force, "Overwrite an existing output file");
+  app.add_option("--set", set, "Override a scene value: KEY=VALUE (repeatable)");
+  app.add_option("--threads", threads, "OpenMP threads (default: all cores)")->check(CLI::NonNegativeNumber);
+  app.add_flag("--strict", strict, "Treat a contact solve that does not reach its tolerance as an error (exit 1)");
+  app.add_flag("--quiet", quiet, quiet_help);
+  app.add_flag("--json", json, "Print a JSON summary on stdout");
 }
 
 }  // namespace softdiff::app

@@ -23,6 +23,8 @@
 #include <support/meshes.hpp>
 #include <support/model_builder.hpp>
 
+#include "beam.hpp"
+
 #include <benchmark/benchmark.h>
 
 #include <chrono>
@@ -43,22 +45,11 @@ void press_onto_plane(Model& model) {
   test::enable_contact(model, {test::plane(Vec3(0, 0, 1), 1e-4)}, cs);
 }
 
-Model beam(int n, long steps) {
-  test::BodySpec spec;
-  spec.law = material::Law::corotational;
-  spec.young = 1e6;
-  spec.poisson = 0.45;
-  spec.density = 1070;
-  spec.rayleigh_mass = 0.1;
-  spec.rayleigh_stiffness = 0.001;
-  spec.fixed = [](const Vec3& p) { return p.x() < 1e-9; };
-  return test::make_model(test::box_mesh(10 * n, n, n, 0.2, 0.02, 0.02), spec, Vec3(0, 0, -9.81), 0.01, steps);
-}
 
 using test::random_vector;
 
 void BM_StepDerivatives(benchmark::State& st) {
-  Model model = beam(static_cast<int>(st.range(0)), 10);
+  Model model = bench::cantilever_beam(static_cast<int>(st.range(0)), material::Law::corotational, 10);
   if (st.range(1)) press_onto_plane(model);
   Data data(model);
   State s = model.initial, next;
@@ -107,7 +98,7 @@ void BM_StepDerivatives(benchmark::State& st) {
 
 void BM_Adjoint(benchmark::State& st) {
   constexpr long kSteps = 100;
-  Model model = beam(static_cast<int>(st.range(0)), kSteps);
+  Model model = bench::cantilever_beam(static_cast<int>(st.range(0)), material::Law::corotational, kSteps);
   if (st.range(1)) press_onto_plane(model);
   Data data(model);
   diff::Tape tape;

@@ -23,6 +23,8 @@
 #include <support/meshes.hpp>
 #include <support/model_builder.hpp>
 
+#include "beam.hpp"
+
 #include <benchmark/benchmark.h>
 
 #include <chrono>
@@ -36,20 +38,9 @@ double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::
 
 constexpr long kSteps = 30;
 
-Model beam(int n) {
-  test::BodySpec spec;
-  spec.law = material::Law::corotational;
-  spec.young = 1e6;
-  spec.poisson = 0.45;
-  spec.density = 1070;
-  spec.rayleigh_mass = 0.1;
-  spec.rayleigh_stiffness = 0.001;
-  spec.fixed = [](const Vec3& p) { return p.x() < 1e-9; };
-  return test::make_model(test::box_mesh(10 * n, n, n, 0.2, 0.02, 0.02), spec, Vec3(0, 0, -9.81), 0.01, kSteps);
-}
 
 void BM_CalibrationIteration(benchmark::State& st) {
-  const Model model = beam(static_cast<int>(st.range(0)));
+  const Model model = bench::cantilever_beam(static_cast<int>(st.range(0)), material::Law::corotational, kSteps);
   double forward = 0, calibration = 0;
   long iterations = 0, runs = 0, count = 0;
   for (auto _ : st) {

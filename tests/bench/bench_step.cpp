@@ -8,28 +8,18 @@
 #include <support/meshes.hpp>
 #include <support/model_builder.hpp>
 
+#include "beam.hpp"
+
 #include <benchmark/benchmark.h>
 
 using namespace softdiff;
 
 namespace {
 
-Model beam(int n, material::Law law) {
-  test::BodySpec spec;
-  spec.law = law;
-  spec.young = 1e6;
-  spec.poisson = 0.45;
-  spec.density = 1070;
-  spec.rayleigh_mass = 0.1;
-  spec.rayleigh_stiffness = 0.001;
-  spec.fixed = [](const Vec3& p) { return p.x() < 1e-9; };
-  return test::make_model(test::box_mesh(10 * n, n, n, 0.2, 0.02, 0.02), spec, Vec3(0, 0, -9.81), 0.01);
-}
-
 void BM_Step(benchmark::State& st) {
   const int n = static_cast<int>(st.range(0));
   const auto law = static_cast<material::Law>(st.range(1));
-  bench::time_steps(st, beam(n, law));
+  bench::time_steps(st, bench::cantilever_beam(n, law));
   st.SetLabel(std::string(material::law_name(law)));
 }
 

@@ -13,6 +13,7 @@
 
 #include <support/meshes.hpp>
 
+#include "contacts.hpp"
 #include "scene.hpp"
 
 #include <gtest/gtest.h>
@@ -30,23 +31,14 @@ constexpr double kTol = 1e-6;
 void check_derivative(const Contact& c, const VecX& x, const Obstacle* o, const std::string& what) {
   ContactGeometryDerivative d;
   ASSERT_TRUE(contact_geometry_derivative(c, x, o, d)) << what;
-  Eigen::Matrix<double, 3, 12> dn_fd = Eigen::Matrix<double, 3, 12>::Zero();
-  Eigen::Matrix<double, 1, 12> dgap_fd = Eigen::Matrix<double, 1, 12>::Zero();
-  Eigen::Matrix<double, 4, 12> dw_fd = Eigen::Matrix<double, 4, 12>::Zero();
-  Eigen::Matrix<double, 9, 12> dframe_fd = Eigen::Matrix<double, 9, 12>::Zero();
-  for (int k = 0; k < c.count; ++k)
-    for (int j = 0; j < 3; ++j) {
-      VecX xp = x, xm = x;
-      xp[3 * c.nodes[k] + j] += kStep;
-      xm[3 * c.nodes[k] + j] -= kStep;
-      ContactGeometry gp, gm;
-      ASSERT_TRUE(contact_geometry(c, xp, o, gp) && contact_geometry(c, xm, o, gm)) << what;
-      const int col = 3 * k + j;
-      dn_fd.col(col) = (gp.n - gm.n) / (2 * kStep);
-      dgap_fd(col) = (gp.gap - gm.gap) / (2 * kStep);
-      for (int w = 0; w < 4; ++w) dw_fd(w, col) = (gp.weights[w] - gm.weights[w]) / (2 * kStep);
-      dframe_fd.col(col) = Eigen::Map<const Eigen::Matrix<double, 9, 1>>((gp.frame - gm.frame).eval().data()) / (2 * kStep);
-    }
+  const auto fd = contact_test::geometry_differences(c, x, kStep, [&](const VecX& y, ContactGeometry& g) {
+    return contact_geometry(c, y, o, g);
+  });
+  ASSERT_TRUE(fd.ok) << what;
+  const auto& dn_fd = fd.dn;
+  const auto& dgap_fd = fd.dgap;
+  const auto& dw_fd = fd.dweights;
+  const auto& dframe_fd = fd.dframe;
   auto expect_close = [&](const auto& a, const auto& b, const char* name) {
     // A floor of 0.1 (the natural size of dn ~ 1/distance is 1-10 here): a derivative
     // that is zero (a flat face) then compares its finite differences' round-off,
@@ -61,28 +53,12 @@ void check_derivative(const Contact& c, const VecX& x, const Obstacle* o, const 
   EXPECT_GT(d.dgap.norm(), 0) << what;
 }
 
-// Positions of 4 nodes in a global vector (node k at 3k).
-VecX flat(const std::vector<Vec3>& p) {
-  VecX x(3 * p.size());
-  for (std::size_t k = 0; k < p.size(); ++k) x.segment<3>(3 * k) = p[k];
-  return x;
-}
+using contact_test::flat;
 
-// A vertex-triangle contact built as the detector builds it (the closest point's
-// region and barycentric weights; n from the triangle towards the vertex).
+// A vertex-triangle contact as the detector builds it, in the expected region.
 Contact vertex_triangle(const VecX& x, Feature expected) {
-  const Vec3 p = x.segment<3>(0), a = x.segment<3>(3), b = x.segment<3>(6), c = x.segment<3>(9);
-  const PointTriangleResult r = point_triangle_closest(p, a, b, c);
-  EXPECT_EQ(r.feature, expected);
-  Contact k;
-  k.kind = ContactKind::vertex_triangle;
-  k.count = 4;
-  k.nodes = {0, 1, 2, 3};
-  k.weights = {1, -r.bary[0], -r.bary[1], -r.bary[2]};
-  const Vec3 d = p - r.point;
-  k.frame = frame_from_normal(d.normalized());
-  k.gap = d.norm();
-  k.kind_b = r.feature;
+  const Contact k = contact_test::vertex_triangle_contact(x);
+  EXPECT_EQ(k.kind_b, expected);
   return k;
 }
 
@@ -108,17 +84,8 @@ TEST(ContactDerivatives, VertexTriangleFaceEdgeVertex) {
 TEST(ContactDerivatives, EdgeEdgeInterior) {
   const Vec3 p0(0, 0, 0.01), p1(0.3, 0.02, 0.03), q0(0.1, -0.1, -0.04), q1(0.16, 0.2, -0.02);
   const VecX x = flat({p0, p1, q0, q1});
-  const SegmentSegmentResult r = segment_segment_closest(p0, p1, q0, q1);
-  ASSERT_TRUE(r.interior());
-  Contact k;
-  k.kind = ContactKind::edge_edge;
-  k.count = 4;
-  k.nodes = {0, 1, 2, 3};
-  k.weights = {1 - r.s, r.s, -(1 - r.t), -r.t};
-  const Vec3 d = r.point_p - r.point_q;
-  k.frame = frame_from_normal(d.normalized());
-  k.gap = d.norm();
-  k.kind_b = Feature::edge;
+  ASSERT_TRUE(segment_segment_closest(p0, p1, q0, q1).interior());
+  const Contact k = contact_test::edge_edge_contact(x);
   ContactGeometry g;
   ASSERT_TRUE(contact_geometry(k, x, nullptr, g));
   EXPECT_LT((g.frame - k.frame).norm(), 1e-10);
@@ -178,14 +145,7 @@ TEST(ContactDerivatives, VertexAgainstEveryObstacleFeature) {
     ClosestPoint cp;
     ASSERT_TRUE(closest_point(o, p, 1.0, cp)) << c.name;
     ASSERT_EQ(cp.feature_kind, c.feature) << c.name;
-    Contact k;
-    k.kind = ContactKind::vertex_obstacle;
-    k.count = 1;
-    k.nodes = {0, -1, -1, -1};
-    k.weights = {1, 0, 0, 0};
-    k.frame = frame_from_normal(cp.normal);
-    k.gap = cp.distance;
-    k.kind_b = cp.feature_kind;
+    const Contact k = contact_test::vertex_obstacle_contact(o, p);
     const VecX x = p;
     ContactGeometry g;
     ASSERT_TRUE(contact_geometry(k, x, &o, g));

@@ -25,6 +25,8 @@
 #include <softdiff/collision/contact_derivatives.hpp>
 #include <softdiff/collision/distance.hpp>
 
+#include "contacts.hpp"
+
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
@@ -32,25 +34,12 @@
 namespace softdiff::collision {
 namespace {
 
-VecX flat(const std::vector<Vec3>& p) {
-  VecX x(3 * p.size());
-  for (std::size_t k = 0; k < p.size(); ++k) x.segment<3>(3 * k) = p[k];
-  return x;
-}
+using contact_test::flat;
 
 // A vertex-triangle contact with a forced region (the detector's record at a region
 // boundary is one of the two).
 Contact vertex_triangle(const VecX& x, Feature feature) {
-  const Vec3 p = x.segment<3>(0), a = x.segment<3>(3), b = x.segment<3>(6), c = x.segment<3>(9);
-  const PointTriangleResult r = point_triangle_closest(p, a, b, c);
-  Contact k;
-  k.kind = ContactKind::vertex_triangle;
-  k.count = 4;
-  k.nodes = {0, 1, 2, 3};
-  k.weights = {1, -r.bary[0], -r.bary[1], -r.bary[2]};
-  const Vec3 d = p - r.point;
-  k.frame = frame_from_normal(d.norm() > 0 ? Vec3(d.normalized()) : Vec3((b - a).cross(c - a).normalized()));
-  k.gap = d.norm();
+  Contact k = contact_test::vertex_triangle_contact(x);
   k.kind_b = feature;
   if (feature == Feature::edge) {  // the edge of the two largest weights
     int smallest = 1;
@@ -61,18 +50,6 @@ Contact vertex_triangle(const VecX& x, Feature feature) {
   if (feature == Feature::face)  // the face's weights on its boundary: keep all three nodes active
     for (int w = 1; w < 4; ++w)
       if (k.weights[w] == 0) k.weights[w] = -1e-300;
-  return k;
-}
-
-Contact edge_edge(const VecX& x) {
-  const SegmentSegmentResult r = segment_segment_closest(x.segment<3>(0), x.segment<3>(3), x.segment<3>(6), x.segment<3>(9));
-  Contact k;
-  k.kind = ContactKind::edge_edge;
-  k.count = 4;
-  k.nodes = {0, 1, 2, 3};
-  k.weights = {1 - r.s, r.s, -(1 - r.t), -r.t};
-  k.frame = frame_from_normal((r.point_p - r.point_q).normalized());
-  k.kind_b = Feature::edge;
   return k;
 }
 
@@ -87,43 +64,19 @@ Obstacle box() {
   return o;
 }
 
-Contact vertex_obstacle(const Obstacle& o, const Vec3& p) {
-  ClosestPoint cp;
-  EXPECT_TRUE(closest_point(o, p, 1.0, cp));
-  Contact k;
-  k.kind = ContactKind::vertex_obstacle;
-  k.count = 1;
-  k.nodes = {0, -1, -1, -1};
-  k.weights = {1, 0, 0, 0};
-  k.frame = frame_from_normal(cp.normal);
-  k.gap = cp.distance;
-  k.kind_b = cp.feature_kind;
-  k.feature_b = cp.feature;
-  return k;
-}
-
 // The smoothed derivative against central differences of the smoothed geometry.
 void check_smoothed(const Contact& c, const VecX& x, const Obstacle* o, const SmoothingOptions& opt, const char* what) {
   ContactGeometryDerivative d;
   ASSERT_EQ(contact_geometry_derivative(c, x, o, opt, d), GeometryDerivativeKind::smoothed) << what;
   constexpr double h = 1e-9;
-  Eigen::Matrix<double, 3, 12> dn = Eigen::Matrix<double, 3, 12>::Zero();
-  Eigen::Matrix<double, 1, 12> dgap = Eigen::Matrix<double, 1, 12>::Zero();
-  Eigen::Matrix<double, 4, 12> dw = Eigen::Matrix<double, 4, 12>::Zero();
-  Eigen::Matrix<double, 9, 12> dframe = Eigen::Matrix<double, 9, 12>::Zero();
-  for (int k = 0; k < c.count; ++k)
-    for (int j = 0; j < 3; ++j) {
-      VecX xp = x, xm = x;
-      xp[3 * c.nodes[k] + j] += h;
-      xm[3 * c.nodes[k] + j] -= h;
-      ContactGeometry gp, gm;
-      ASSERT_TRUE(smoothed_contact_geometry(c, xp, o, opt, gp) && smoothed_contact_geometry(c, xm, o, opt, gm)) << what;
-      const int col = 3 * k + j;
-      dn.col(col) = (gp.n - gm.n) / (2 * h);
-      dgap(col) = (gp.gap - gm.gap) / (2 * h);
-      for (int w = 0; w < 4; ++w) dw(w, col) = (gp.weights[w] - gm.weights[w]) / (2 * h);
-      dframe.col(col) = Eigen::Map<const Eigen::Matrix<double, 9, 1>>((gp.frame - gm.frame).eval().data()) / (2 * h);
-    }
+  const auto fd = contact_test::geometry_differences(c, x, h, [&](const VecX& y, ContactGeometry& g) {
+    return smoothed_contact_geometry(c, y, o, opt, g);
+  });
+  ASSERT_TRUE(fd.ok) << what;
+  const auto& dn = fd.dn;
+  const auto& dgap = fd.dgap;
+  const auto& dw = fd.dweights;
+  const auto& dframe = fd.dframe;
   auto expect_close = [&](const auto& a, const auto& b, const char* name) {
     EXPECT_LE((a - b).norm(), 1e-6 * std::max(b.norm(), 0.1)) << what << " " << name << ": smoothed\n" << a << "\nfd\n" << b;
   };
@@ -163,7 +116,7 @@ TEST(ContactSmoothing, IsTheDerivativeOfTheSmoothedGeometry) {
   // A point above the box's top face, on the boundary of the region of its +y edge.
   const Obstacle o = box();
   const Vec3 p = o.rotation * Vec3(0.05, 0.15, 0.13) + o.center;
-  for (std::uint64_t seed : {1, 2, 3, 7}) check_smoothed(vertex_obstacle(o, p), p, &o, SmoothingOptions{64, 1e-5, seed}, "box face/edge boundary");
+  for (std::uint64_t seed : {1, 2, 3, 7}) check_smoothed(contact_test::vertex_obstacle_contact(o, p), p, &o, SmoothingOptions{64, 1e-5, seed}, "box face/edge boundary");
   // Edges whose closest point on the first edge is at s = 1e-6, within sigma of its
   // endpoint: samples with the endpoint (a point against the second edge) and with the
   // interior.
@@ -174,7 +127,7 @@ TEST(ContactSmoothing, IsTheDerivativeOfTheSmoothedGeometry) {
   const SegmentSegmentResult r = segment_segment_closest(xe.segment<3>(0), xe.segment<3>(3), q0, q1);
   ASSERT_TRUE(r.interior(1e-7)) << r.s << " " << r.t;
   ASSERT_LT(r.s, 1e-4);
-  check_smoothed(edge_edge(xe), xe, nullptr, SmoothingOptions{64, 1e-5 * 0.3, 7}, "edge-edge near an endpoint");
+  check_smoothed(contact_test::edge_edge_contact(xe), xe, nullptr, SmoothingOptions{64, 1e-5 * 0.3, 7}, "edge-edge near an endpoint");
 }
 
 TEST(ContactSmoothing, ConvergesToTheMeanOfTheOneSidedDerivatives) {

@@ -21,6 +21,7 @@
 
 #include <Eigen/Geometry>
 #include <random>
+#include <string>
 
 using namespace softdiff;
 using integrator::StateTangent;
@@ -121,6 +122,30 @@ Outcome step(const Model& model, const State& in) {
   return o;
 }
 
+// The dot-product test <w, J t> = <J^T w, t> to 1e-10 for the tangent t and a cotangent w
+// drawn from rng (entries in [-1, 1]); returns J t.
+StateTangent expect_forward_reverse_agree(integrator::StepDerivatives& d, const Model& model, const Data& data,
+                                          const State& in, const State& out, const StepTangent& t, std::mt19937& rng,
+                                          const std::string& what) {
+  std::uniform_real_distribution<double> u(-1, 1);
+  StateTangent Jd;
+  EXPECT_TRUE(d.jvp(model, data, in, out, t, Jd)) << what;
+  const Eigen::Index n = in.x.size();
+  StateTangent w;
+  w.x = VecX(n);
+  w.v = VecX(n);
+  for (Eigen::Index k = 0; k < n; ++k) {
+    w.x[k] = u(rng);
+    w.v[k] = u(rng);
+  }
+  StepCotangent JTw;
+  EXPECT_TRUE(d.vjp(model, data, in, out, w, JTw)) << what;
+  const double lhs = w.x.dot(Jd.x) + w.v.dot(Jd.v);
+  const double rhs = JTw.x.dot(t.x) + JTw.v.dot(t.v) + JTw.p.dot(t.p);
+  EXPECT_NEAR(lhs, rhs, 1e-10 * (w.x.norm() * Jd.x.norm() + w.v.norm() * Jd.v.norm())) << what;
+  return Jd;
+}
+
 void check(Case c) {
   const Params p;
   const Model model = build(c, p);
@@ -207,20 +232,7 @@ void check(Case c) {
     t.v[k] = 1e-2 * u(rng);
   }
   t.p = (VecX(4) << p.young, p.poisson, p.density, 1.0).finished() * 0.1;
-  StateTangent Jd;
-  ASSERT_TRUE(d.jvp(model, data, in, out, t, Jd));
-  StateTangent w;
-  w.x = VecX(n);
-  w.v = VecX(n);
-  for (Eigen::Index k = 0; k < n; ++k) {
-    w.x[k] = u(rng);
-    w.v[k] = u(rng);
-  }
-  StepCotangent JTw;
-  ASSERT_TRUE(d.vjp(model, data, in, out, w, JTw));
-  const double lhs = w.x.dot(Jd.x) + w.v.dot(Jd.v);
-  const double rhs = JTw.x.dot(t.x) + JTw.v.dot(t.v) + JTw.p.dot(t.p);
-  EXPECT_NEAR(lhs, rhs, 1e-10 * (w.x.norm() * Jd.x.norm() + w.v.norm() * Jd.v.norm())) << name_of(c);
+  expect_forward_reverse_agree(d, model, data, in, out, t, rng, name_of(c));
   EXPECT_EQ(d.nondifferentiable_contacts(), 0) << name_of(c);
 }
 
@@ -269,23 +281,10 @@ TEST(StepDerivativesContact, SmoothedGeometryAtARegionBoundary) {
     t.v[k] = 1e-2 * u(rng);
   }
   t.p = VecX::Constant(1, 0.1 * p.young);
-  StateTangent Jd;
-  ASSERT_TRUE(d.jvp(model, data, in, out, t, Jd));
+  const StateTangent Jd = expect_forward_reverse_agree(d, model, data, in, out, t, rng, "smoothed");
   EXPECT_GT(d.smoothed_contacts(), 0);
   EXPECT_EQ(d.nondifferentiable_contacts(), 0);
   EXPECT_TRUE(Jd.x.allFinite() && Jd.v.allFinite());
-  StateTangent w;
-  w.x = VecX(n);
-  w.v = VecX(n);
-  for (Eigen::Index k = 0; k < n; ++k) {
-    w.x[k] = u(rng);
-    w.v[k] = u(rng);
-  }
-  StepCotangent JTw;
-  ASSERT_TRUE(d.vjp(model, data, in, out, w, JTw));
-  const double lhs = w.x.dot(Jd.x) + w.v.dot(Jd.v);
-  const double rhs = JTw.x.dot(t.x) + JTw.v.dot(t.v) + JTw.p.dot(t.p);
-  EXPECT_NEAR(lhs, rhs, 1e-10 * (w.x.norm() * Jd.x.norm() + w.v.norm() * Jd.v.norm()));
   // Without smoothing the same contacts take their recorded feature's one-sided
   // derivative: another (valid one-sided) linear map.
   Model exact = model;
