@@ -4,7 +4,9 @@
 #include <softdiff/io/scene.hpp>
 
 #include <gtest/gtest.h>
+#include <unistd.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -282,6 +284,24 @@ TEST_F(Scene, MissingFile) {
 TEST_F(Scene, YamlSyntaxError) {
   expect_error(edit("  steps: 10\n", "  steps: 10\n   bad: [1, 2\n"), ":5:7: YAML syntax error: illegal map value");
   expect_error("softdiff: 1\nsimulation:\n  dt: 0.01: 2\n", ":3:11: YAML syntax error: illegal map value");
+}
+
+// Inputs found by the fuzz target (tests/fuzz/fuzz_scene.cpp), minimized; the seed
+// corpus keeps them too. yaml-cpp 0.7 loops forever, allocating, on a stray comma
+// where a block node is expected (io/yaml_tree.cpp): a syntax error at the comma.
+// alarm(): should the loop come back, the test process ends in 20 s instead of
+// hanging until ctest's timeout.
+TEST_F(Scene, FuzzRegressionStrayCommaDoesNotHang) {
+  alarm(20);
+  expect_error("\n  , ne:", ":2:3: YAML syntax error: unexpected ','");
+  expect_error(",", ":1:1: YAML syntax error: unexpected ','");
+  expect_error("softdiff: 1\nsimulation:\n  , dt: 0.01\n", ":3:3: YAML syntax error: end of map not found");
+  alarm(0);
+}
+
+TEST_F(Scene, SeveralDocuments) {
+  expect_error(kBase + "---\nsoftdiff: 1\n", ":" + std::to_string(std::count(kBase.begin(), kBase.end(), '\n') + 1) +
+                                              ":1: expected one YAML document, found 2 (separated by '---')");
 }
 
 TEST_F(Scene, DuplicateKey) {

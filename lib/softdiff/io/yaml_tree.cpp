@@ -1,11 +1,13 @@
 #include <softdiff/io/yaml_tree.hpp>
 
+#include <yaml-cpp/eventhandler.h>
 #include <yaml-cpp/yaml.h>
 
 #include <cctype>
 #include <charconv>
 #include <cmath>
 #include <limits>
+#include <sstream>
 
 namespace softdiff::io::yaml {
 
@@ -106,25 +108,88 @@ class Converter {
 
 }  // namespace
 
+namespace {
+
+// Counts the documents of a YAML stream. yaml-cpp 0.7 (Debian's) loops forever,
+// allocating, on some invalid input such as "\n  , a:" (found by tests/fuzz): its
+// parser keeps returning a null document without consuming a token, so
+// YAML::LoadAll never ends (jbeder/yaml-cpp#1040, fixed upstream after 0.7 by
+// #1319). A document that is a lone null at the same place as the previous one is
+// that loop: it is reported as a syntax error at that place.
+class DocumentCounter : public YAML::EventHandler {
+ public:
+  void OnDocumentStart(const YAML::Mark& m) override {
+    start_ = m;
+    events_ = 0;
+    null_ = false;
+  }
+  void OnDocumentEnd() override {}
+  void OnNull(const YAML::Mark& m, YAML::anchor_t) override {
+    ++events_;
+    null_ = true;
+    null_mark_ = m;
+  }
+  void OnAlias(const YAML::Mark&, YAML::anchor_t) override { ++events_; }
+  void OnScalar(const YAML::Mark&, const std::string&, YAML::anchor_t, const std::string&) override { ++events_; }
+  void OnSequenceStart(const YAML::Mark&, const std::string&, YAML::anchor_t, YAML::EmitterStyle::value) override {
+    ++events_;
+  }
+  void OnSequenceEnd() override {}
+  void OnMapStart(const YAML::Mark&, const std::string&, YAML::anchor_t, YAML::EmitterStyle::value) override {
+    ++events_;
+  }
+  void OnMapEnd() override {}
+
+  const YAML::Mark& start() const { return start_; }
+  // The document was a lone null at mark m.
+  bool lone_null_at(const YAML::Mark& m) const { return events_ == 1 && null_ && null_mark_.pos == m.pos; }
+  bool lone_null() const { return events_ == 1 && null_; }
+  const YAML::Mark& null_mark() const { return null_mark_; }
+
+ private:
+  YAML::Mark start_, null_mark_;
+  int events_ = 0;
+  bool null_ = false;
+};
+
+}  // namespace
+
 Node parse(const std::string& text, bool from_set) {
   Converter converter(from_set);
-  std::vector<YAML::Node> docs;
+  YAML::Node first;
+  int documents = 0;
+  YAML::Mark second;
   try {
-    docs = YAML::LoadAll(text);
+    std::istringstream in(text);
+    YAML::Parser parser(in);
+    DocumentCounter counter;
+    YAML::Mark previous_null;
+    bool previous_lone_null = false;
+    while (parser.HandleNextDocument(counter)) {
+      if (previous_lone_null && counter.lone_null_at(previous_null)) {
+        const auto pos = static_cast<std::size_t>(previous_null.pos);
+        const std::string what = pos < text.size() ? "unexpected '" + std::string(1, text[pos]) + "'" : "unexpected input";
+        throw ParseError{converter.mark(previous_null), "", "YAML syntax error: " + what};
+      }
+      previous_lone_null = counter.lone_null();
+      previous_null = counter.null_mark();
+      if (++documents == 2) second = counter.start();
+    }
+    if (documents > 0) first = YAML::Load(text);
   } catch (const YAML::ParserException& e) {
     throw ParseError{converter.mark(e.mark), "", "YAML syntax error: " + e.msg};
   } catch (const YAML::Exception& e) {
     throw ParseError{converter.mark(e.mark), "", "YAML error: " + e.msg};
   }
-  if (docs.empty()) {
+  if (documents == 0) {
     Node n;
     n.mark = converter.mark(YAML::Mark{});
     return n;
   }
-  if (docs.size() > 1)
-    throw ParseError{converter.mark(docs[1].Mark()), "",
-                     "expected one YAML document, found " + std::to_string(docs.size()) + " (separated by '---')"};
-  return converter.convert(docs[0], "", 0);
+  if (documents > 1)
+    throw ParseError{converter.mark(second), "",
+                     "expected one YAML document, found " + std::to_string(documents) + " (separated by '---')"};
+  return converter.convert(first, "", 0);
 }
 
 std::string describe(const Node& node) {
