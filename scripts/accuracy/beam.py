@@ -50,8 +50,8 @@ def plan(quick):
     for nw in (1, NEWTON_N):
         sd_dyn[(0.03, nw)] = 12 if nw == 1 else 8
         sd_dyn[(0.01, nw)] = 12 if nw == 1 else 8
-        sd_dyn[(0.003, nw)] = 8 if nw == 1 else 6
-        sd_dyn[(0.001, nw)] = 6 if nw == 1 else 4
+        sd_dyn[(0.003, nw)] = 8 if nw == 1 else 4
+        sd_dyn[(0.001, nw)] = 6 if nw == 1 else 2
     return dict(
         meshes=[2, 4, 6, 8, 12],
         sd_dyn=sd_dyn,
@@ -476,13 +476,15 @@ class Beam:
                 rs = cur[cfg]
                 t = [r["wall_time_s"] for r in rs]
                 e = [max(r[metric], 1e-12) for r in rs]
+                dtc = {0.03: "C0", 0.01: "C1", 0.003: "C2", 0.001: "C3", 0.0025: "0.3", 0.005: "0.6"}
+                col = dtc.get(rs[0]["dt"], "C1")
                 if cfg.startswith("softdiff"):
-                    style = dict(ls="-" if "linearized" in cfg or "static" in cfg else "--", marker="o")
+                    style = dict(ls="-" if "linearized" in cfg or "static" in cfg else "--", marker="o", color=col)
                 elif "C3D10" in cfg:
-                    style = dict(ls=":", marker="s", color="k" if "modal" in cfg else "gray")
+                    style = dict(ls=":", marker="s", color="k" if "modal" in cfg or rs[0]["dt"] is None else col)
                 else:
-                    style = dict(ls="-.", marker="^")
-                ax.loglog(t, e, label=cfg, ms=4, **style)
+                    style = dict(ls="-.", marker="^", color="C4" if rs[0]["dt"] is None else col, mfc="none")
+                ax.loglog(t, e, label=cfg, ms=5, **style)
                 for r in (rs[0], rs[-1]):
                     ax.annotate("%d" % r["tets"], (r["wall_time_s"], max(r[metric], 1e-12)),
                                 fontsize=6, xytext=(2, 2), textcoords="offset points")
@@ -497,7 +499,9 @@ class Beam:
             ax.set_ylabel("relative error" + (" (RMS over 10 times)" if metric != "error" else ""))
             ax.grid(True, which="both", alpha=0.3)
             ax.legend(fontsize=6, loc="best")
-        fig.suptitle("softdiff vs CalculiX 2.20: error vs wall time (point labels: tets of the first and last mesh)")
+        fig.suptitle("softdiff vs CalculiX 2.20: error vs wall time (point labels: tets of the first and last mesh;\n"
+                     "colour: time step, o softdiff (solid: linearized step, dashed: Newton), ^ CalculiX C3D4, "
+                     "s CalculiX C3D10)", fontsize=10)
         fig.tight_layout()
         fig.savefig(path, dpi=110)
         plt.close(fig)
@@ -556,9 +560,16 @@ class Beam:
                     if ta and tb:
                         rat.append((e, ta, tb, ta / tb))
                 self.ratios[(label, metric, other)] = rat
-                w("    vs %-6s over errors %.2e..%.2e: ratio %s; geometric mean %.2f"
+                # the same with CPU time (user + sys), less disturbed by the machine's other load
+                sdc = pareto([(r["cpu_time_s"], r[metric]) for k, v in cur.items() if k.startswith("softdiff") for r in v])
+                fc = pareto([(r["cpu_time_s"], r[metric]) for k, v in cur.items()
+                             if (("C3D4" in k) if other == "C3D4" else ("C3D10" in k and "modal" not in k)) for r in v])
+                cr = [time_at_error(sdc, e) / time_at_error(fc, e) for e in levels
+                      if time_at_error(sdc, e) and time_at_error(fc, e)]
+                w("    vs %-6s over errors %.2e..%.2e: ratio %s; geometric mean %.2f (CPU time: %s)"
                   % (other, lo, hi, ", ".join("%.2f at %.1e" % (x[3], x[0]) for x in rat),
-                     float(np.exp(np.mean(np.log([x[3] for x in rat]))))))
+                     float(np.exp(np.mean(np.log([x[3] for x in rat])))),
+                     "%.2f" % float(np.exp(np.mean(np.log(cr)))) if cr else "n/a"))
         w("")
         w("Cost exponents, wall_time ~ tets^p over the meshes with >= 10000 tets (least squares):")
         for label in ("A static", "B static", "A dynamic", "B dynamic"):
@@ -581,9 +592,9 @@ class Beam:
             for n in sorted(set(sdc) & set(c4)):
                 a, b = sdc[n], c4[n]
                 w("  %-9s tets %6d: softdiff error %.4f in %.3g s (%.0f MB), C3D4 error %.4f in %.3g s (%.0f MB): "
-                  "time ratio %.2f" % (label, a["tets"], a["error"], a["wall_time_s"], a["peak_memory_mb"],
-                                       b["error"], b["wall_time_s"], b["peak_memory_mb"],
-                                       a["wall_time_s"] / b["wall_time_s"]))
+                  "time ratio %.2f (CPU %.2f)" % (label, a["tets"], a["error"], a["wall_time_s"], a["peak_memory_mb"],
+                                                  b["error"], b["wall_time_s"], b["peak_memory_mb"],
+                                                  a["wall_time_s"] / b["wall_time_s"], a["cpu_time_s"] / b["cpu_time_s"]))
         w("")
         w("Same discretization, two codes (static, linear tets on the same mesh): |u_softdiff - u_C3D4| / |u_ref|")
         for label in ("A static", "B static"):

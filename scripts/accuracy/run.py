@@ -76,7 +76,9 @@ def main():
     t0 = time.time()
     started = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     header = ["softdiff accuracy benchmark, %s" % started,
-              "command: %s" % " ".join([os.path.relpath(sys.argv[0])] + sys.argv[1:]),
+              "command: %s" % os.environ.get("SOFTDIFF_ACCURACY_COMMAND",
+                                             " ".join(["/usr/bin/python3", os.path.relpath(sys.argv[0])] + sys.argv[1:])),
+              "softdiff binary: %s" % softdiff_bin(),
               "machine: %s" % machine(),
               "threads per run: %d (softdiff --threads, OMP/OpenBLAS; CalculiX OMP_NUM_THREADS, "
               "CCX_NPROC_EQUATION_SOLVER); load average at start: %s"
