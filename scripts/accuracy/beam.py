@@ -48,8 +48,8 @@ def plan(quick):
         )
     sd_dyn = {}
     for nw in (1, NEWTON_N):
-        sd_dyn[(0.03, nw)] = 12 if nw == 1 else 8
-        sd_dyn[(0.01, nw)] = 12 if nw == 1 else 8
+        sd_dyn[(0.03, nw)] = 12 if nw == 1 else 6
+        sd_dyn[(0.01, nw)] = 12 if nw == 1 else 6
         sd_dyn[(0.003, nw)] = 8 if nw == 1 else 4
         sd_dyn[(0.001, nw)] = 6 if nw == 1 else 2
     return dict(
