@@ -66,11 +66,9 @@
 //   Serial code: the output does not depend on the thread count.
 #include <softdiff/collision/detection.hpp>
 #include <softdiff/collision/distance.hpp>
+#include <softdiff/collision/fcl.hpp>  // FCL, with the layout check against libfcl
 #include <softdiff/core/assert.hpp>
 #include <softdiff/core/error.hpp>
-
-#include <fcl/broadphase/broadphase_dynamic_AABB_tree.h>
-#include <fcl/geometry/shape/sphere.h>
 
 #include <algorithm>
 #include <cmath>
