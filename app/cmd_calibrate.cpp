@@ -262,6 +262,7 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
   if (!o.markers.empty() && o.frames != "all") throw InputError("--frames selects frames of --target; with --markers every observed time is used");
   const io::SceneDesc scene = io::load_scene(o.scene, o.set);
   io::BuildReport report;
+  report.strict = o.strict;
   const Model model = io::build_model(scene, &report);
   for (const auto& w : report.warnings) warn(w);
   const Calibrated params = parse_params(o.param, model);
