@@ -152,12 +152,8 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
     std::printf("%s\n", j.str().c_str());
     return kExitOk;
   }
-  const std::string validity =
-      report.warnings.empty() ? "valid"
-                              : "valid, " + std::to_string(report.warnings.size()) +
-                                    (report.warnings.size() == 1 ? " warning" : " warnings") + " on stderr";
-  std::printf("scene       %s (%s)%s%s\n", file.c_str(), validity.c_str(), model.name.empty() ? "" : ": ",
-              model.name.c_str());
+  std::printf("scene       %s (valid)%s%s\n", file.c_str(), model.name.empty() ? "" : ": ", model.name.c_str());
+  if (!report.warnings.empty()) std::printf("warnings    %zu (on stderr)\n", report.warnings.size());
   if (is_static)
     std::printf("integrator  static, %d load steps\n", model.step.static_load_steps);
   else

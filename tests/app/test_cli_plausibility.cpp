@@ -73,6 +73,7 @@ TEST(CliPlausibility, AMillimetreMeshWithoutMeshScaleWarnsAndSuggestsTheScale) {
       << r.err;
   EXPECT_TRUE(has(r.err, "set mesh_scale: 0.001")) << r.err;
   EXPECT_TRUE(has(r.out, "size 200 x 20 x 20 m, mass 8.56e+07 kg")) << r.out;
+  EXPECT_TRUE(has(r.out, "warnings    1 (on stderr)")) << r.out;
   const CliRun j = run_cli("info scene.yaml --json", dir);
   EXPECT_EQ(j.code, 0) << j.err;
   EXPECT_TRUE(has(j.out, "\"size\":[200,20,20]")) << j.out;
@@ -102,6 +103,7 @@ TEST(CliPlausibility, TheSameMeshWithMeshScaleIsQuiet) {
   EXPECT_EQ(r.code, 0) << r.err;
   EXPECT_EQ(r.err, "");
   EXPECT_TRUE(has(r.out, "size 0.2 x 0.02 x 0.02 m, mass 0.0856 kg")) << r.out;
+  EXPECT_FALSE(has(r.out, "warnings")) << r.out;
 }
 
 TEST(CliPlausibility, AMetreMeshScaledByAThousandthIsTooSmall) {
