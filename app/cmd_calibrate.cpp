@@ -262,6 +262,7 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
   if (!o.markers.empty() && o.frames != "all") throw InputError("--frames selects frames of --target; with --markers every observed time is used");
   const io::SceneDesc scene = io::load_scene(o.scene, o.set);
   io::BuildReport report;
+  report.strict = o.strict;
   const Model model = io::build_model(scene, &report);
   for (const auto& w : report.warnings) warn(w);
   const Calibrated params = parse_params(o.param, model);
@@ -315,7 +316,9 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
     s.precision(4);
     s << ", cost " << it.cost << ", |gradient| " << it.gradient_norm << ", damping " << it.damping << " ("
       << it.evaluations << " runs, " << it.seconds << " s)";
+    if (it.iteration > 0) s << ", " << it.rejected << " trial steps rejected (" << it.failed << " failed to run)";
     note(s.str());
+    if (it.failed > 0) note("  last failed trial: " + it.last_failure);
   };
   const auto t_run = Clock::now();
   const optim::CalibrationResult result = optim::calibrate(model, params.ids, init, target, co, print);
@@ -369,6 +372,7 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
     j.value("command", "calibrate").value("scene", o.scene).value("output", out_path.string());
     j.value("converged", result.converged).value("stop_reason", result.stop_reason);
     j.value("iterations", static_cast<long>(result.iterations)).value("evaluations", static_cast<long>(result.evaluations));
+    j.value("rejected", static_cast<long>(result.rejected)).value("failed", static_cast<long>(result.failed));
     j.value("final_cost", result.cost).value("wall_seconds", run_seconds);
     j.value("residuals", static_cast<long>(target.residual_size())).value("target_steps", target.steps());
     j.begin_object("parameters");
@@ -384,6 +388,8 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
           .value("damping", h.damping)
           .value("seconds", h.seconds)
           .value("evaluations", static_cast<long>(h.evaluations))
+          .value("rejected", static_cast<long>(h.rejected))
+          .value("failed", static_cast<long>(h.failed))
           .end_object();
     }
     j.end_array();

@@ -128,6 +128,7 @@ int run_control(const ControlOptions& o, const std::string& command_line) {
   if (o.steps) overrides.push_back("simulation.steps=" + std::to_string(*o.steps));
   const io::SceneDesc scene = io::load_scene(o.scene, overrides);
   io::BuildReport report;
+  report.strict = o.strict;
   const Model model = io::build_model(scene, &report);
   for (const auto& w : report.warnings) warn(w);
   if (model.step.integrator != IntegratorKind::implicit_euler)

@@ -5,6 +5,7 @@
 #include <softdiff/core/error.hpp>
 #include <softdiff/io/build_model.hpp>
 #include <softdiff/io/gmsh_msh.hpp>
+#include <softdiff/io/plausibility.hpp>
 #include <softdiff/io/scene.hpp>
 #include <softdiff/material/material.hpp>
 
@@ -93,9 +94,10 @@ int info_mesh(const std::string& file, bool json) {
   return kExitOk;
 }
 
-int info_scene(const std::string& file, const std::vector<std::string>& set, bool json) {
+int info_scene(const std::string& file, const std::vector<std::string>& set, bool json, bool strict) {
   const io::SceneDesc scene = io::load_scene(file, set);
   io::BuildReport report;
+  report.strict = strict;
   const Model model = io::build_model(scene, &report);
   for (const auto& w : report.warnings) warn(w);
   const auto& fem = model.fem;
@@ -103,18 +105,25 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
   if (json) {
     Json j;
     j.begin_object().value("file", file).value("valid", true).value("name", model.name);
+    j.begin_array("warnings");
+    for (const auto& w : report.warnings) j.value("", w);
+    j.end_array();
     j.value("integrator", is_static ? "static" : "implicit_euler").value("dt", model.step.dt).value("steps", model.step.steps);
     j.value("dofs", 3L * fem.num_nodes).value("fixed_dofs", fem.num_fixed_dofs).value("nonzeros", fem.pattern.nnz());
     j.value("colors", static_cast<long>(fem.pattern.color_begin.size()) - 1).value("total_mass", fem.total_mass);
     j.begin_array("bodies");
-    for (const auto& b : fem.bodies)
+    for (std::size_t bi = 0; bi < fem.bodies.size(); ++bi) {
+      const auto& b = fem.bodies[bi];
+      const io::BodySize size = io::body_size(model, static_cast<int>(bi));
       j.begin_object()
           .value("name", b.name)
           .value("law", std::string(material::law_name(b.law)))
           .value("nodes", b.num_nodes)
           .value("tets", b.num_tets)
-          .value("mass", fem.mass_diagonal.segment(3 * b.node_begin, 3 * b.num_nodes).sum() / 3)
+          .value("size", v3(size.extents))
+          .value("mass", size.mass)
           .end_object();
+    }
     j.end_array();
     j.begin_array("actuators");
     for (const auto& a : model.actuation.actuators) {
@@ -144,6 +153,7 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
     return kExitOk;
   }
   std::printf("scene       %s (valid)%s%s\n", file.c_str(), model.name.empty() ? "" : ": ", model.name.c_str());
+  if (!report.warnings.empty()) std::printf("warnings    %zu (on stderr)\n", report.warnings.size());
   if (is_static)
     std::printf("integrator  static, %d load steps\n", model.step.static_load_steps);
   else
@@ -151,14 +161,16 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
                 model.step.steps, model.step.dt * model.step.steps, model.step.newton_iterations);
   std::printf("system      %d dofs (%ld fixed), %ld nonzeros in the upper triangle, %zu element colors\n",
               3 * fem.num_nodes, fem.num_fixed_dofs, fem.pattern.nnz(), fem.pattern.color_begin.size() - 1);
-  for (const auto& b : fem.bodies) {
+  for (std::size_t bi = 0; bi < fem.bodies.size(); ++bi) {
+    const auto& b = fem.bodies[bi];
     long fixed_nodes = 0;
     for (int i = b.node_begin; i < b.node_begin + b.num_nodes; ++i)
       fixed_nodes += (fem.fixed[3 * i] || fem.fixed[3 * i + 1] || fem.fixed[3 * i + 2]) ? 1 : 0;
-    const double mass = fem.mass_diagonal.segment(3 * b.node_begin, 3 * b.num_nodes).sum() / 3;
-    std::printf("body        %s: %d nodes, %d tets, %ld fixed nodes, %s E=%g Pa nu=%g rho=%g kg/m^3, mass %g kg\n",
+    const io::BodySize size = io::body_size(model, static_cast<int>(bi));
+    std::printf("body        %s: %d nodes, %d tets, %ld fixed nodes, %s E=%g Pa nu=%g rho=%g kg/m^3, "
+                "size %.4g x %.4g x %.4g m, mass %.4g kg\n",
                 b.name.c_str(), b.num_nodes, b.num_tets, fixed_nodes, std::string(material::law_name(b.law)).c_str(),
-                b.young, b.poisson, b.density, mass);
+                b.young, b.poisson, b.density, size.extents.x(), size.extents.y(), size.extents.z(), size.mass);
   }
   for (const auto& a : model.actuation.actuators) {
     std::string line = "actuator    " + a.name + ": " + a.kind_name() + " on " + fem.bodies[a.body].name + ", " +
@@ -189,11 +201,12 @@ void add_info(CLI::App& app, InfoOptions& o) {
   app.add_option("file", o.file, "A mesh (.msh) or a scene (.yaml/.yml)")->required()->check(CLI::ExistingFile);
   app.add_option("--set", o.set, "Scene override KEY=VALUE (scenes only; repeatable)");
   app.add_flag("--json", o.json, "Print a JSON object on stdout");
+  app.add_flag("--strict", o.strict, "Scenes: a body of implausible size or mass is bad input (exit 2)");
 }
 
 int run_info(const InfoOptions& o) {
   const std::string ext = std::filesystem::path(o.file).extension().string();
-  if (ext == ".yaml" || ext == ".yml") return info_scene(o.file, o.set, o.json);
+  if (ext == ".yaml" || ext == ".yml") return info_scene(o.file, o.set, o.json, o.strict);
   if (ext == ".msh") return info_mesh(o.file, o.json);
   throw InputError(o.file + ": unknown file type '" + ext + "' (expected a mesh .msh or a scene .yaml/.yml)");
 }

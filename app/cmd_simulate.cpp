@@ -56,7 +56,7 @@ void add_simulate(CLI::App& app, SimulateOptions& o) {
                  "Write d x_T / d theta to /jacobians/<theta> for these theta (comma-separated: young, poisson, density, "
                  "rayleigh_mass, rayleigh_stiffness, actuation, x0, v0), by forward sensitivities");
   app.add_option("--threads", o.threads, "OpenMP threads (default: all cores)")->check(CLI::NonNegativeNumber);
-  app.add_flag("--strict", o.strict, "Treat a solver that does not reach its tolerance as an error (exit 1)");
+  app.add_flag("--strict", o.strict, "Treat a solver that does not reach its tolerance as an error (exit 1), and a body of implausible size or mass as bad input (exit 2)");
   app.add_flag("--quiet", o.quiet, "No progress bar, no summary");
   app.add_flag("--json", o.json, "Print a JSON summary of the run on stdout");
 }
@@ -77,6 +77,7 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
   auto t_setup = Clock::now();
   const io::SceneDesc scene = io::load_scene(o.scene, overrides);
   io::BuildReport report;
+  report.strict = o.strict;
   const Model model = io::build_model(scene, &report);
   for (const auto& w : report.warnings) warn(w);
   return simulate_model(o, scene, model, t_setup, command_line);

@@ -59,6 +59,7 @@ struct InfoOptions {
   std::string file;
   std::vector<std::string> set;
   bool json = false;
+  bool strict = false;  // an implausible body size or mass is bad input (exit 2)
 };
 void add_info(CLI::App& app, InfoOptions& o);
 int run_info(const InfoOptions& o);

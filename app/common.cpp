@@ -143,7 +143,7 @@ void add_run_options(CLI::App& app, std::string& output, const std::string& outp
   app.add_flag("--force", force, "Overwrite an existing output file");
   app.add_option("--set", set, "Override a scene value: KEY=VALUE (repeatable)");
   app.add_option("--threads", threads, "OpenMP threads (default: all cores)")->check(CLI::NonNegativeNumber);
-  app.add_flag("--strict", strict, "Treat a contact solve that does not reach its tolerance as an error (exit 1)");
+  app.add_flag("--strict", strict, "Treat a contact solve that does not reach its tolerance as an error (exit 1), and a body of implausible size or mass as bad input (exit 2)");
   app.add_flag("--quiet", quiet, quiet_help);
   app.add_flag("--json", json, "Print a JSON summary on stdout");
 }

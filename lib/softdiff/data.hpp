@@ -87,6 +87,8 @@ struct Data {
   bool factor_is_current = false;   // the factor matches A (constant matrices are factorized once)
   int newton_iterations_used = 0;
   double newton_residual = 0;
+  int static_shifted_iterations = 0;  // solve_static: Newton iterations of the last solve whose
+                                      // tangent was shifted (A + tau I: A not positive definite)
   ContactData contact;              // contact stage (model.contact.enabled)
   StepTimings timings;              // of the last step
   long factorizations = 0;          // count over the run

@@ -18,7 +18,9 @@
 // Checks: Levenberg-Marquardt iterations converge to |r| < 1e-9 with the contact on
 // f0; the gradient of 1/2 |r|^2 matches central differences where the feature is
 // unique (step 1e-7 on a tet of size 1: truncation ~1e-14, round-off ~1e-9 relative;
-// tolerance 1e-6); from a start exactly on a region boundary the smoothed gradient is
+// tolerance 1e-6); from a start exactly on a region boundary (f0's face and edge
+// regions; built exactly in any floating-point rounding: T's coordinates are dyadic,
+// and the test asserts that the start is on the boundary) the smoothed gradient is
 // finite and a descent direction, and the iterations converge too; without the
 // collision-detection derivative (weights and normal held, as a simulator that does
 // not differentiate collision detection would) the gradient is zero and nothing moves.
@@ -62,7 +64,9 @@ struct Toy {
     const auto& f = kFaces[target_face];
     return (vertex(f[1]) - vertex(f[0])).cross(vertex(f[2]) - vertex(f[0])).normalized();
   }
-  // P against the closest face of T.
+  // P against the closest face of T. A tie (P equidistant from two faces: over their
+  // common edge, where the closest point on both is on that edge) goes to the first
+  // face in kFaces: over edge 2-4, f0 = {1, 2, 4} rather than face {2, 3, 4}.
   Contact contact(const VecX& x) const {
     const Vec3 p = x.segment<3>(0);
     Contact best;
@@ -115,13 +119,17 @@ struct Toy {
   }
 };
 
+// T's vertices are dyadic rationals with few bits (0.875 = 7/8, 0.125 = 1/8): the
+// edge vectors, their cross products and the closest-point tests' dot products are
+// exact in double precision, with or without fused multiply-adds, so that a point built
+// on a region boundary is on it on every build (see the boundary test).
 Toy make_toy() {
   Toy t;
   t.X.resize(3, 5);
   t.X.col(1) = Vec3(0, 0, 0);
   t.X.col(2) = Vec3(1, 0, 0);
-  t.X.col(3) = Vec3(0.5, 0.9, 0);
-  t.X.col(4) = Vec3(0.5, 0.3, 0.15);
+  t.X.col(3) = Vec3(0.5, 0.875, 0);
+  t.X.col(4) = Vec3(0.5, 0.25, 0.125);
   // P 0.3 above the centroid of face {2, 3, 4}, which shares edge 2-4 with f0.
   const auto& f = kFaces[2];
   const Vec3 a = t.X.col(f[0]), b = t.X.col(f[1]), c = t.X.col(f[2]);
@@ -204,11 +212,28 @@ TEST(ContactPointToy, ConvergesWithTheAnalyticGradient) {
 
 TEST(ContactPointToy, FromARegionBoundaryTheSmoothedGradientDescends) {
   const Toy toy = make_toy();
-  // P over edge 2-4 on the boundary of face {2, 3, 4}'s region: the edge's midpoint
-  // plus a multiple of that face's normal.
-  const auto& f = kFaces[2];
+  // P on the boundary of f0's face region, over its edge 2-4: the edge's midpoint plus
+  // half the (unnormalized) cross product of two of f0's edges. Every term is a dyadic
+  // rational with few bits: P is exact, and so are the closest-point tests below,
+  // whatever the instruction set (fused multiply-adds or not).
+  const auto& f = kFaces[1];
   const Vec3 a = toy.vertex(f[0]), b = toy.vertex(f[1]), c = toy.vertex(f[2]);
-  const Vec3 p = 0.5 * (a + c) + 0.3 * (b - a).cross(c - a).normalized();
+  const Vec3 p = 0.5 * (b + c) + 0.5 * (b - a).cross(c - a);
+  EXPECT_EQ(p, Vec3(0.75, 0.0625, 0.1875));
+  // On the boundary: f0's closest point is the edge's midpoint, in the edge region
+  // with vertex 1's weight exactly 0 (P projects onto the edge: the face and edge
+  // regions meet there); face {2, 3, 4}'s closest point is the same (P is equidistant
+  // from both faces, a tie that goes to f0), and the contact is on f0.
+  const PointTriangleResult on_f0 = point_triangle_closest(p, a, b, c);
+  ASSERT_EQ(on_f0.feature, Feature::edge);
+  ASSERT_EQ(on_f0.bary[0], 0.0);
+  ASSERT_EQ(on_f0.point, Vec3(0.5 * (b + c)));
+  const auto& f2 = kFaces[2];
+  ASSERT_EQ(point_triangle_closest(p, toy.vertex(f2[0]), toy.vertex(f2[1]), toy.vertex(f2[2])).dist2, on_f0.dist2);
+  const Contact start = toy.contact(toy.positions(p));
+  ASSERT_EQ(start.nodes[1], f[0]);
+  ASSERT_EQ(start.nodes[2], f[1]);
+  ASSERT_EQ(start.nodes[3], f[2]);
   Vec6 r;
   Mat63 J;
   ASSERT_EQ(toy.residual(p, r, J), GeometryDerivativeKind::smoothed);

@@ -12,6 +12,12 @@
 namespace softdiff::integrator {
 namespace {
 
+// Tangent regularization (see the Newton loop): the first shift relative to the
+// largest diagonal entry of K on the free dofs, and the number of times it may grow
+// tenfold (1e-3 * 10^16: far beyond any diagonal).
+constexpr double kShiftMin = 1e-3;
+constexpr int kMaxShifts = 16;
+
 StepStatus not_converged(long load_step, int iterations, double residual, const char* detail) {
   StepStatus status;
   status.code = StepStatus::Code::not_converged;
@@ -55,6 +61,8 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
                   "build_fem_model(..., model.actuation.stiffness_cliques())");
   bool constant_values = true;
   for (const auto& a : model.actuation.actuators) constant_values = constant_values && a.value.points.empty();
+  double shift = 0;  // the last diagonal shift of the tangent (0: the exact tangent)
+  data.static_shifted_iterations = 0;
   double size_scale = 0;
   for (const auto& b : fem.bodies) size_scale = std::max(size_scale, b.bbox_diagonal);
 
@@ -96,17 +104,43 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
         return not_converged(s, it, rel, "static equilibrium not reached (increase static.max_iterations or static.load_steps)");
       // A dx = f + P + H_a^T lambda, A = K + sum_cables lambda d^2L/dx^2 (K = d^2E/dx^2;
       // projected). M and damping play no part.
-      t0 = Clock::now();
-      double* A = data.A.valuePtr();
-      for (long k = 0; k < data.A.nonZeros(); ++k) A[k] = data.fem.K_values[k];
-      if (actuated) model.actuation.add_stiffness(out.x, data.lambda_a, fem.pattern, A);
-      for (int k : fem.pattern.fixed_offdiagonal) A[k] = 0;
-      for (int k : fem.pattern.fixed_diagonal) A[k] = 1;
-      data.timings.assembly += seconds_since(t0);
-      t0 = Clock::now();
-      status = factorize(model, data, s);
-      data.timings.factorization += seconds_since(t0);
-      if (!status.ok()) return status;
+      // The exact tangent first; where it is not positive definite (compression past
+      // the point where an element's Hessian turns indefinite, on the way to a stable
+      // equilibrium), the shifted tangent A + tau I on the free dofs (Nocedal and
+      // Wright, "Cholesky with added multiple of the identity"): tau from
+      // max(kShiftMin * max diag A, tau of the previous iteration / 10), times 10
+      // until the factorization succeeds. dx is then a descent direction of Pi and the
+      // line search below applies; once A is positive definite again the exact
+      // Newton step (quadratic convergence) is back.
+      bool shifted = false;
+      for (int attempt = 0;; ++attempt) {
+        t0 = Clock::now();
+        double* A = data.A.valuePtr();
+        for (long k = 0; k < data.A.nonZeros(); ++k) A[k] = data.fem.K_values[k];
+        if (actuated) model.actuation.add_stiffness(out.x, data.lambda_a, fem.pattern, A);
+        for (int k : fem.pattern.fixed_offdiagonal) A[k] = 0;
+        for (int k : fem.pattern.fixed_diagonal) A[k] = 1;
+        if (shifted)
+          for (int d = 0; d < static_cast<int>(fem.pattern.diagonal.size()); ++d)
+            if (!fem.fixed[d]) A[fem.pattern.diagonal[d]] += shift;
+        data.timings.assembly += seconds_since(t0);
+        t0 = Clock::now();
+        status = factorize(model, data, s);
+        data.timings.factorization += seconds_since(t0);
+        if (status.ok()) break;
+        if (status.code != StepStatus::Code::not_positive_definite || attempt >= kMaxShifts) return status;
+        if (!shifted) {
+          double diag_max = 0;
+          for (int d = 0; d < static_cast<int>(fem.pattern.diagonal.size()); ++d)
+            if (!fem.fixed[d]) diag_max = std::max(diag_max, std::abs(data.fem.K_values[fem.pattern.diagonal[d]]));
+          shift = std::max(kShiftMin * diag_max, shift / 10);
+          shifted = true;
+        } else {
+          shift *= 10;
+        }
+      }
+      if (shifted) ++data.static_shifted_iterations;
+      else shift = 0;
       t0 = Clock::now();
       data.solver->solve(residual, dx);
       project(model, dx);
@@ -114,7 +148,9 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       // Stagnation at round-off: the residual of f_int + P cannot drop below ~eps
       // times the element forces that cancel in it; once the Newton correction is
       // below 1e-13 of the model's size, the equilibrium is as exact as doubles allow.
-      if (dx.cwiseAbs().maxCoeff() <= 1e-13 * size_scale) {
+      // (Not with a shifted tangent: its step is not Newton's and may be small far from
+      // the equilibrium.)
+      if (!shifted && dx.cwiseAbs().maxCoeff() <= 1e-13 * size_scale) {
         out.x += dx;
         break;
       }

@@ -11,7 +11,11 @@
 // cables; cavities' and rotation servos' derivatives are left out). The model's
 // pattern must hold the cables' stiffness cliques (io::build_model does this; a
 // hand-built model passes model.actuation.stiffness_cliques() to build_fem_model):
-// SOFTDIFF_DEMAND otherwise.
+// SOFTDIFF_DEMAND otherwise. Where the tangent is not positive definite (compression
+// on the way to a stable equilibrium), the step uses A + tau I on the free dofs with
+// the smallest tenfold-grown tau that factorizes (Data::static_shifted_iterations counts
+// those iterations); the exact tangent is used wherever it factorizes (docs/method.md
+// "Indefinite tangent").
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
 

@@ -2,6 +2,7 @@
 
 #include <softdiff/core/error.hpp>
 #include <softdiff/io/gmsh_msh.hpp>
+#include <softdiff/io/plausibility.hpp>
 #include <softdiff/actuation/embedding.hpp>
 
 #include <Eigen/Geometry>
@@ -350,6 +351,13 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
   }
   for (int k = 0; k < ndof; ++k)
     if (model.fem.fixed[k]) model.initial.v[k] = 0;
+  if (report) {
+    std::vector<std::string> implausible;
+    check_plausibility(scene, model, implausible, report->warnings);
+    if (report->strict && !implausible.empty())
+      throw InputError(implausible.front() + " (--strict: an implausible size or mass is an error)");
+    report->warnings.insert(report->warnings.end(), implausible.begin(), implausible.end());
+  }
   return model;
 }
 

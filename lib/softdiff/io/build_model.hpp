@@ -3,7 +3,8 @@
 // scene's transforms, resolves fixed sets, builds the FEM model (geometry, mass,
 // pattern) and the initial state. Throws InputError (with the scene location) for
 // problems that need the mesh to be seen: a physical group the mesh lacks, a box
-// or node list that selects nothing, a node index out of range.
+// or node list that selects nothing, a node index out of range. With a report, adds
+// the plausibility warnings of io/plausibility.hpp (errors with report->strict).
 #include <softdiff/io/scene.hpp>
 #include <softdiff/model.hpp>
 
@@ -13,7 +14,11 @@
 namespace softdiff::io {
 
 struct BuildReport {
-  std::vector<std::string> warnings;  // e.g. orphan nodes dropped, tets reoriented
+  // Input: implausible sizes and masses (io/plausibility.hpp) are input errors (the
+  // first one thrown as InputError) instead of warnings (the commands' --strict).
+  bool strict = false;
+  std::vector<std::string> warnings;  // e.g. orphan nodes dropped, tets reoriented, a body
+                                      // of implausible size or mass, a body held by nothing
 };
 
 Model build_model(const SceneDesc& scene, BuildReport* report = nullptr);

@@ -152,6 +152,10 @@ void residual(const Model& model, const std::vector<ParameterId>& parameters, co
 
 namespace {
 
+// |r| reported for a failed trial: ten times the current residual norm, i.e. a cost
+// 100 times the current one (see Functor::operator()).
+constexpr double kFailedCostFactor = 10;
+
 // Eigen's Levenberg-Marquardt functor over the internal coordinates z. Each evaluation
 // runs the simulation with its sensitivities; the Jacobian of the last two evaluated
 // points is kept, so that df() at an accepted point costs nothing.
@@ -182,8 +186,29 @@ struct Functor : Eigen::DenseFunctor<double> {
     next = 1 - next;
     return out;
   }
+  // Inside minimizeOneStep every evaluation is a trial point z + dz. A trial whose run
+  // fails (an inverted element, a Newton step that does not converge, ...) is a
+  // rejected step: MINPACK's lmder has no way to be told that a trial failed, so it
+  // gets a residual kFailedCostFactor times the current one in norm (|r(z)|, set by
+  // calibrate before each iteration). Its actual reduction is then negative, the
+  // ratio to the predicted reduction below 1e-4: the step is rejected, the trust
+  // region shrinks tenfold (lmder's factor for fnorm1 >= 10 fnorm) and the damping
+  // grows, exactly as for a step that raises the cost. The failed point never enters
+  // the cache, so it can never be accepted.
   int operator()(const VecX& z, VecX& fvec) {
-    fvec = evaluate(z).r;
+    if (!in_step) {
+      fvec = evaluate(z).r;
+      return 0;
+    }
+    try {
+      fvec = evaluate(z).r;
+    } catch (const ComputationError& e) {
+      ++evaluations;
+      ++failed;
+      last_failure = e.what();
+      const double norm = kFailedCostFactor * (current_norm > 0 ? current_norm : 1.0);
+      fvec = VecX::Constant(values(), norm / std::sqrt(static_cast<double>(values())));
+    }
     return 0;
   }
   int df(const VecX& z, MatX& fjac) {
@@ -201,7 +226,12 @@ struct Functor : Eigen::DenseFunctor<double> {
   Evaluation cache[2];
   int next = 0;
   int evaluations = 0;
+  bool in_step = false;      // evaluations are trial points of minimizeOneStep
+  double current_norm = 0;   // |r| at the current (accepted) point
+  int failed = 0;            // trial runs that failed (counted in evaluations)
+  std::string last_failure;  // the message of the last failed trial run
 };
+
 
 const char* status_text(Eigen::LevenbergMarquardtSpace::Status s) {
   using namespace Eigen::LevenbergMarquardtSpace;
@@ -243,6 +273,8 @@ CalibrationResult calibrate(const Model& model, const std::vector<ParameterId>& 
   for (std::size_t j = 0; j < parameters.size(); ++j) z[static_cast<Eigen::Index>(j)] = to_internal(parameters[j].kind, initial[j]);
 
   CalibrationResult result;
+  int evaluations_before = 0, failed_before = 0;
+  bool moved = true;
   const auto record = [&](int iteration) {
     const Functor::Evaluation& e = functor.evaluate(z);  // cached: the accepted point
     CalibrationIteration it;
@@ -253,6 +285,12 @@ CalibrationResult calibrate(const Model& model, const std::vector<ParameterId>& 
     it.damping = iteration == 0 ? 0.0 : lm.lm_param();
     it.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     it.evaluations = functor.evaluations;
+    if (iteration > 0) {
+      const int trials = functor.evaluations - evaluations_before;
+      it.failed = functor.failed - failed_before;
+      it.rejected = trials - (moved ? 1 : 0);
+      if (it.failed > 0) it.last_failure = functor.last_failure;
+    }
     result.history.push_back(it);
     if (callback) callback(it);
   };
@@ -264,12 +302,28 @@ CalibrationResult calibrate(const Model& model, const std::vector<ParameterId>& 
   record(0);
   result.stop_reason = "the maximum number of iterations was reached";
   for (int it = 1; it <= options.max_iterations; ++it) {
+    evaluations_before = functor.evaluations;
+    failed_before = functor.failed;
+    const VecX z_before = z;
+    functor.current_norm = lm.fnorm();
+    functor.in_step = true;
     status = lm.minimizeOneStep(z);
+    functor.in_step = false;
+    moved = z != z_before;
     record(it);
     result.iterations = it;
+    result.rejected += result.history.back().rejected;
+    result.failed += result.history.back().failed;
     if (status != Eigen::LevenbergMarquardtSpace::Running) {
       result.converged = converged_status(status);
       result.stop_reason = status_text(status);
+      // The trust region shrank below xtol through failed trial runs alone: not a
+      // convergence.
+      if (!moved && result.history.back().failed > 0) {
+        result.converged = false;
+        result.stop_reason = "the runs of the trial steps failed down to the smallest step (last: " +
+                             functor.last_failure + ")";
+      }
       break;
     }
   }

@@ -18,7 +18,9 @@
 // cost reduction (ftol), the relative step (xtol) or the gradient (gtol, the cosine
 // between r and the columns of J), whichever comes first; every function evaluation is
 // one simulation with its sensitivities (the Jacobian of an accepted point is the one
-// computed with its residual).
+// computed with its residual). A trial step whose run fails (parameters the simulation
+// cannot run, e.g. an element inverts) is rejected like a step that raises the cost:
+// the damping grows and the iteration goes on (counted in CalibrationIteration::failed).
 #include <softdiff/core/parameters.hpp>
 #include <softdiff/core/types.hpp>
 #include <softdiff/model.hpp>
@@ -76,6 +78,10 @@ struct CalibrationIteration {
   double damping = 0;          // the Levenberg-Marquardt parameter
   double seconds = 0;          // wall time since the start
   int evaluations = 0;         // simulations so far
+  int rejected = 0;            // trial steps rejected in this iteration (the cost did not drop
+                               // enough, or the trial's run failed)
+  int failed = 0;              // of these, trial steps whose run failed (e.g. an inverted element)
+  std::string last_failure;    // the last such failure's message (empty if none)
 };
 
 struct CalibrationResult {
@@ -84,6 +90,8 @@ struct CalibrationResult {
   std::string stop_reason;
   int iterations = 0;
   int evaluations = 0;
+  int rejected = 0;  // trial steps rejected over all iterations
+  int failed = 0;    // of these, trial steps whose run failed
   double cost = 0;
   std::vector<CalibrationIteration> history;  // iteration 0 = the initial guess
 };
