@@ -450,8 +450,9 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
   };
   // "failed: no space left on device after frame 39"
   const auto failed_status = [&](const std::string& message, const std::string& when) {
-    std::string reason = writer.failure().empty() ? message : writer.failure();
-    if (!reason.empty()) reason[0] = static_cast<char>(std::tolower(static_cast<unsigned char>(reason[0])));
+    if (writer.failure().empty()) return "failed: " + message + " " + when;
+    std::string reason = writer.failure();  // the system's text: "No space left on device"
+    reason[0] = static_cast<char>(std::tolower(static_cast<unsigned char>(reason[0])));
     return "failed: " + reason + " " + when;
   };
   if (!run_error.empty()) {
