@@ -244,11 +244,11 @@ void add_calibrate(CLI::App& app, CalibrateOptions& o) {
   app.add_option("--init", o.init, "Initial values, one per parameter (default: the scene's)");
   app.add_option("--max-iterations", o.max_iterations, "Levenberg-Marquardt iterations at most")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_integer());
   app.add_option("--tolerance", o.tolerance,
                  "Stop when the relative cost reduction (ftol) or the relative step (xtol) falls below this")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   add_run_options(app, o.output,
                   "Output HDF5 file: the scene simulated with the identified parameters, plus /calibration "
                   "(default: <scene stem>_calibrated.h5)",
@@ -301,6 +301,14 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
   std::error_code ec;
   if (std::filesystem::exists(out_path, ec) && !o.force)
     throw InputError(out_path.string() + ": exists (use --force to overwrite)");
+  {
+    // Checked before the identification runs (simulate_model checks the scene's
+    // files again before writing).
+    std::vector<std::string> inputs = scene_input_files(scene);
+    inputs.push_back(o.target);
+    inputs.push_back(o.markers);
+    check_output_is_not_input(out_path.string(), inputs);
+  }
 
   optim::CalibrationOptions co;
   co.max_iterations = o.max_iterations;

@@ -88,17 +88,17 @@ void add_check_grad(CLI::App& app, CheckGradOptions& o) {
   app.add_option("--wrt", o.wrt,
                  "Blocks to check, comma-separated: young, poisson, density, rayleigh_mass, rayleigh_stiffness, "
                  "actuation, x0, v0 (default: all that apply)");
-  app.add_option("--steps", o.steps, "Steps of the checked trajectory")->capture_default_str()->check(CLI::PositiveNumber);
+  app.add_option("--steps", o.steps, "Steps of the checked trajectory")->capture_default_str()->check(positive_integer());
   app.add_option("--eps", o.eps,
                  "Relative finite-difference step (times each theta's scale, docs/cli.md)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   app.add_option("--tolerance", o.tolerance, "Largest accepted relative error of a block (exit 1 above)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   app.add_option("--directions", o.directions, "x0 and v0: random directions checked (seeded)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_integer());
   app.add_option("--set", o.set, "Override a scene value: KEY=VALUE (repeatable)");
   app.add_option("--threads", o.threads, "OpenMP threads (default: all cores)")->check(CLI::NonNegativeNumber);
   app.add_flag("--json", o.json, "Print the table as one JSON object on stdout");

@@ -101,7 +101,7 @@ void add_control(CLI::App& app, ControlOptions& o) {
   app.add_option("scene", o.scene, "Scene file (YAML, docs/scene.md)")->required()->check(CLI::ExistingFile);
   app.add_option("--target", o.target, "Goal: X,Y,Z (metres) or a CSV file of timed goals (time,x,y,z)")->required();
   app.add_option("--effector", o.effector, "The controlled effector (default: the scene's first)");
-  app.add_option("--steps", o.steps, "Number of steps (default: the scene's)")->check(CLI::PositiveNumber);
+  app.add_option("--steps", o.steps, "Number of steps (default: the scene's)")->check(positive_integer());
   app.add_option("--weights", o.weights,
                  "alpha,beta: weights of the goal term alpha |X_e - X_goal|^2 and of the contact-force term "
                  "beta |lambda_c,nodes|^2 (paper eq. 13)")
@@ -177,6 +177,11 @@ int run_control(const ControlOptions& o, const std::string& command_line) {
 
   std::filesystem::path out_path = o.output;
   if (out_path.empty()) out_path = std::filesystem::path(o.scene).stem().string() + "_control.h5";
+  {
+    std::vector<std::string> inputs = scene_input_files(scene);
+    inputs.push_back(o.target);  // a CSV of goals (three numbers name no file)
+    check_output_is_not_input(out_path.string(), inputs);
+  }
 
   optim::InverseDynamics controller(model, co);
   const Eigen::Index na = static_cast<Eigen::Index>(model.actuation.actuators.size());

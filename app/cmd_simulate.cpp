@@ -16,20 +16,58 @@
 
 #include <softdiff/core/timer.hpp>
 
+#include <unistd.h>
+
 #include <algorithm>
+#include <atomic>
+#include <cctype>
 #include <chrono>
-#include <csignal>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <mutex>
+#include <new>
 #include <optional>
 #include <sstream>
 
 namespace softdiff::app {
 namespace {
 
-volatile std::sig_atomic_t g_interrupted = 0;
-extern "C" void on_signal(int) { g_interrupted = 1; }
+// Above this estimate a run warns before it starts (docs/cli.md).
+constexpr double kLargeOutputBytes = 10e9;
+
+std::string fmt_bytes(double bytes) {
+  char buf[32];
+  const char* unit = "B";
+  for (const char* u : {"kB", "MB", "GB", "TB"}) {
+    if (bytes < 1000) break;
+    bytes /= 1000;
+    unit = u;
+  }
+  std::snprintf(buf, sizeof buf, "%.3g %s", bytes, unit);
+  return buf;
+}
+
+// Exit 2 when the estimated output cannot fit in its folder's free space; a warning
+// above kLargeOutputBytes.
+void check_output_space(const std::filesystem::path& out, const io::OutputEstimate& e, long frames) {
+  namespace fs = std::filesystem;
+  const fs::path folder = out.parent_path().empty() ? fs::path(".") : out.parent_path();
+  std::ostringstream what;
+  what << "the output will take about " << fmt_bytes(e.total()) << " (" << frames << " frames x "
+       << fmt_bytes(e.frame_bytes) << " in HDF5, plus " << fmt_bytes(e.xdmf_bytes) << " of XDMF)";
+  std::error_code ec;
+  const fs::space_info space = fs::space(folder, ec);
+  if (!ec && e.total() > static_cast<double>(space.available))
+    throw InputError(out.string() + ": " + what.str() + " but " + folder.string() + " has " +
+                     fmt_bytes(static_cast<double>(space.available)) +
+                     " free; use fewer steps (--steps, --duration), a larger output.every, or another folder (-o)");
+  if (e.total() > kLargeOutputBytes) warn(what.str());
+}
+
+// A run stopped by its first signal in a static solve (the solver has no stop test
+// between load steps: the frame callback throws this).
+struct StopRequested {};
 
 
 std::string fmt_ms(double seconds, long steps) {
@@ -46,11 +84,11 @@ void add_simulate(CLI::App& app, SimulateOptions& o) {
                  "Output HDF5 file (default: the scene's output.file, else <scene name>.h5 in the current folder)");
   app.add_flag("--force", o.force, "Overwrite an existing output file");
   auto* steps = app.add_option("--steps", o.steps, "Number of steps (overrides simulation.steps/duration)")
-                    ->check(CLI::PositiveNumber);
+                    ->check(positive_integer());
   auto* duration = app.add_option("--duration", o.duration, "Simulated time in seconds (overrides the scene)")
-                       ->check(CLI::PositiveNumber);
+                       ->check(positive_number("s"));
   steps->excludes(duration);
-  app.add_option("--dt", o.dt, "Time step in seconds (overrides simulation.dt)")->check(CLI::PositiveNumber);
+  app.add_option("--dt", o.dt, "Time step in seconds (overrides simulation.dt)")->check(positive_number("s"));
   app.add_option("--set", o.set, "Override a scene value: KEY=VALUE, e.g. bodies.beam.material.young=2e5 (repeatable)");
   app.add_option("--jacobian", o.jacobian,
                  "Write d x_T / d theta to /jacobians/<theta> for these theta (comma-separated: young, poisson, density, "
@@ -101,6 +139,7 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
   std::filesystem::path out_path = o.output;
   if (out_path.empty()) out_path = scene.output.file;
   if (out_path.empty()) out_path = std::filesystem::path(o.scene).stem().string() + ".h5";
+  check_output_is_not_input(out_path.string(), scene_input_files(scene));
 
   io::WriterOptions wo;
   wo.file = out_path;
@@ -110,15 +149,69 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
   wo.scene_yaml = scene.text;
   std::vector<io::OutputBody> out_bodies;
   for (const auto& b : model.fem.bodies) out_bodies.push_back({b.name, b.mesh.X, b.mesh.tets, b.surface});
-  io::Hdf5Writer writer(wo, out_bodies);
-
-  std::signal(SIGINT, on_signal);
-  std::signal(SIGTERM, on_signal);
-
-  // 2. Run.
   const bool is_static = model.step.integrator == IntegratorKind::static_equilibrium;
   const long total = is_static ? model.step.static_load_steps : model.step.steps;
   const long every = std::max<long>(1, scene.output.every);
+  {
+    // What the run will write, checked before anything is (per frame: the series
+    // below; contact rows are not known in advance).
+    const long frames = is_static ? total + 1 : total / every + (total % every != 0 ? 1 : 0) + 1;
+    double series = model.contact.enabled ? 8 + 4 + 8 : 0;
+    for (const auto& a : model.actuation.actuators) series += a.has_measure() ? 16 : 8;
+    series += 24.0 * static_cast<double>(model.actuation.effectors.size());
+    check_output_space(out_path,
+                       io::estimate_output(out_bodies, wo.write_v, frames, series, out_path.filename().string()),
+                       frames);
+  }
+
+  // Signals (docs/cli.md "Signals"): the first stops the run after the step in
+  // progress; a second one stops it at once. The step cannot be cut short (a CHOLMOD
+  // factorization has no stop test), so the watcher thread finishes the file itself
+  // (status interrupted, the frames written so far) and leaves with _exit(1) while
+  // the step is still computing. writer_mutex keeps that from meeting a frame being
+  // written: every use of the writer below holds it.
+  std::mutex writer_mutex;
+  std::unique_ptr<io::Hdf5Writer> writer_ptr;  // created under writer_mutex once signals are watched
+  bool writer_done = false;                 // under writer_mutex: finish() was called
+  std::atomic<long> step_in_progress{0};    // 0 between steps
+  const char* step_word = is_static ? "load step " : "step ";
+  const auto report_unfinished = [&](const std::string& requested) {
+    const long frames = writer_ptr->frames_written();
+    std::string where = (frames == 1 ? std::string("frame 0 is") : "frames 0-" + std::to_string(frames - 1) + " are") +
+                        " in " + writer_ptr->final_path().string();
+    if (writer_ptr->final_path() != std::filesystem::path(requested) && std::filesystem::exists(requested))
+      where += " (" + requested + " is unchanged)";
+    note(where);
+  };
+  SignalWatch signals([&](int count, const char* name) {
+    const long k = step_in_progress.load();
+    if (count == 1) {
+      note(std::string(name) + ": stopping " +
+           (k > 0 ? "after " + std::string(step_word) + std::to_string(k) + " (in progress)" : "before the next step") +
+           "; send it again to stop at once");
+      return;
+    }
+    std::lock_guard<std::mutex> lock(writer_mutex);
+    if (writer_done) return;  // the run is finishing by itself
+    writer_done = true;
+    error(std::string(name) + " again: stopped" +
+          (k > 0 ? " during " + std::string(step_word) + std::to_string(k) + " (abandoned)" : std::string()));
+    if (writer_ptr) {
+      try {
+        writer_ptr->finish("interrupted");
+      } catch (const std::exception& e) {
+        error(e.what());
+      }
+      report_unfinished(out_path.string());
+    }
+    std::fflush(nullptr);
+    ::_exit(kExitFailed);
+  });
+
+  // 2. Run.
+  std::unique_lock<std::mutex> hold(writer_mutex);  // while the file and its datasets are created
+  writer_ptr = std::make_unique<io::Hdf5Writer>(wo, out_bodies);
+  io::Hdf5Writer& writer = *writer_ptr;
   State state = model.initial, next = model.initial;
   // Per-frame series of actuators (value, and cable length / closed-cavity volume)
   // and effectors (position).
@@ -188,6 +281,7 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
     writer.append_rows(co.residual, &residual, 1);
   };
   auto write_frame = [&](const State& st, double step_seconds, bool first = false) {
+    std::lock_guard<std::mutex> lock(writer_mutex);
     writer.append_frame(st.t, st.x, &st.v, step_seconds);
     write_contacts(first);
     for (size_t a = 0; a < actuator_series.size(); ++a) {
@@ -208,7 +302,7 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
     if (hooks.frame) hooks.frame(writer, st, data, first);
   };
   if (hooks.setup) hooks.setup(writer);
-  write_frame(state, 0.0, true);
+  hold.unlock();
 
   StepTimings timings;
   double output_seconds = 0, derivative_seconds = 0;
@@ -222,143 +316,188 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
        contact_iterations = 0;
   StepStatus failure;
   std::string status = "complete";
+  std::string run_error;  // a failure that is not the computation's (disk full, out of memory)
   Progress progress(total, !o.quiet);
   auto t_run = Clock::now();
 
-  if (is_static) {
-    auto t0 = Clock::now();
-    failure = integrator::solve_static(model, data, state, next, [&](long s, const State& st) {
-      const double step_seconds = seconds_since(t0);
-      auto tw = Clock::now();
-      write_frame(st, step_seconds);
-      output_seconds += seconds_since(tw);
-      steps_done = s;
-      progress.update(s);
-      t0 = Clock::now();
-    });
-    timings = data.timings;
-    if (failure.ok()) state = next;
-    if (failure.ok() && theta) {
-      // The implicit function theorem at the final equilibrium (static_solver_derivatives.hpp).
-      auto td = Clock::now();
-      integrator::StaticTheta st{theta->layout.parameters, theta->layout.actuation};
-      if (!integrator::static_sensitivities(model, data, state, st, static_jacobian)) {
-        failure.code = StepStatus::Code::solver_failed;
-        failure.step = steps_done;
-        failure.detail = "the derivative of the equilibrium failed (inverted element or tangent not positive definite)";
-      }
-      derivative_seconds += seconds_since(td);
-    }
-  } else {
-    for (long k = 1; k <= total; ++k) {
-      if (g_interrupted) {
-        status = "interrupted";
-        break;
-      }
+  try {
+    write_frame(state, 0.0, true);
+    if (is_static) {
       auto t0 = Clock::now();
-      StepStatus s;
-      if (hooks.actuation) {
-        s = hooks.actuation(k, state, applied);
-        applied_set = true;
-      }
-      if (s.ok()) s = integrator::implicit_euler_step(model, data, state, next, k, hooks.actuation ? &applied : nullptr);
-      const double step_seconds = seconds_since(t0);
-      if (s.code == StepStatus::Code::not_converged) {
-        if (o.strict) {
-          failure = s;
-        } else {
-          if (warnings_newton++ == 0) warn(describe(model, s) + " (further such warnings are counted, not shown)");
-          s = StepStatus{};
-        }
-      } else if (!s.ok()) {
-        failure = s;
-      }
-      if (s.ok() && model.contact.enabled) {
-        const auto& cd = data.contact;
-        contacts_total += cd.contacts.size();
-        contacts_max = std::max<long>(contacts_max, cd.contacts.size());
-        contact_iterations += cd.result.iterations;
-        if (!cd.result.converged) {
-          StepStatus c;
-          c.code = StepStatus::Code::contact_not_converged;
-          c.step = k;
-          std::ostringstream d;
-          d.precision(3);
-          d << (model.contact.ncp.solver == contact::NcpSolverKind::admm ? "ADMM" : "PGS") << ", "
-            << cd.contacts.size() << " contacts, " << cd.result.iterations << " iterations: residuals primal "
-            << cd.result.residuals.primal << ", dual " << cd.result.residuals.dual << ", complementarity "
-            << cd.result.residuals.complementarity << " > tolerance " << model.contact.ncp.tolerance;
-          c.detail = d.str();
-          if (o.strict)
-            failure = c;
-          else if (warnings_contact++ == 0)
-            warn(describe(model, c) + " (further such warnings are counted, not shown; --strict makes it an error)");
-        }
-      }
-      timings += data.timings;
-      if (!failure.ok()) break;
-      if (sensitivity) {
+      step_in_progress = 1;
+      failure = integrator::solve_static(model, data, state, next, [&](long s, const State& st) {
+        const double step_seconds = seconds_since(t0);
+        auto tw = Clock::now();
+        write_frame(st, step_seconds);
+        output_seconds += seconds_since(tw);
+        steps_done = s;
+        progress.update(s);
+        if (SignalWatch::stop_requested() && s < total) throw StopRequested{};
+        step_in_progress = s + 1;
+        t0 = Clock::now();
+      });
+      timings = data.timings;
+      if (failure.ok()) state = next;
+      if (failure.ok() && theta) {
+        // The implicit function theorem at the final equilibrium (static_solver_derivatives.hpp).
         auto td = Clock::now();
-        if (!sensitivity->advance(model, data, state, next)) {
+        integrator::StaticTheta st{theta->layout.parameters, theta->layout.actuation};
+        if (!integrator::static_sensitivities(model, data, state, st, static_jacobian)) {
           failure.code = StepStatus::Code::solver_failed;
-          failure.step = k;
-          failure.detail = "the derivative of the step failed (a linear solve did not succeed or gave non-finite values)";
-          break;
+          failure.step = steps_done;
+          failure.detail = "the derivative of the equilibrium failed (inverted element or tangent not positive definite)";
         }
         derivative_seconds += seconds_since(td);
-        if (model.contact.enabled && !data.contact.contacts.empty()) {
-          const auto& sd = sensitivity->step();
-          const int deficiency = sd.ncp_derivative().rank_deficiency();
-          rank_deficient_steps += deficiency > 0;
-          rank_deficiency_max = std::max<long>(rank_deficiency_max, deficiency);
-          nondifferentiable_total += sd.nondifferentiable_contacts();
-          smoothed_total += sd.smoothed_contacts();
+      }
+    } else {
+      for (long k = 1; k <= total; ++k) {
+        if (SignalWatch::stop_requested()) {
+          status = "interrupted";
+          break;
         }
+        step_in_progress = k;
+        auto t0 = Clock::now();
+        StepStatus s;
+        if (hooks.actuation) {
+          s = hooks.actuation(k, state, applied);
+          applied_set = true;
+        }
+        if (s.ok()) s = integrator::implicit_euler_step(model, data, state, next, k, hooks.actuation ? &applied : nullptr);
+        const double step_seconds = seconds_since(t0);
+        if (s.code == StepStatus::Code::not_converged) {
+          if (o.strict) {
+            failure = s;
+          } else {
+            if (warnings_newton++ == 0) warn(describe(model, s) + " (further such warnings are counted, not shown)");
+            s = StepStatus{};
+          }
+        } else if (!s.ok()) {
+          failure = s;
+        }
+        if (s.ok() && model.contact.enabled) {
+          const auto& cd = data.contact;
+          contacts_total += cd.contacts.size();
+          contacts_max = std::max<long>(contacts_max, cd.contacts.size());
+          contact_iterations += cd.result.iterations;
+          if (!cd.result.converged) {
+            StepStatus c;
+            c.code = StepStatus::Code::contact_not_converged;
+            c.step = k;
+            std::ostringstream d;
+            d.precision(3);
+            d << (model.contact.ncp.solver == contact::NcpSolverKind::admm ? "ADMM" : "PGS") << ", "
+              << cd.contacts.size() << " contacts, " << cd.result.iterations << " iterations: residuals primal "
+              << cd.result.residuals.primal << ", dual " << cd.result.residuals.dual << ", complementarity "
+              << cd.result.residuals.complementarity << " > tolerance " << model.contact.ncp.tolerance;
+            c.detail = d.str();
+            if (o.strict)
+              failure = c;
+            else if (warnings_contact++ == 0)
+              warn(describe(model, c) + " (further such warnings are counted, not shown; --strict makes it an error)");
+          }
+        }
+        timings += data.timings;
+        if (!failure.ok()) break;
+        if (sensitivity) {
+          auto td = Clock::now();
+          if (!sensitivity->advance(model, data, state, next)) {
+            failure.code = StepStatus::Code::solver_failed;
+            failure.step = k;
+            failure.detail = "the derivative of the step failed (a linear solve did not succeed or gave non-finite values)";
+            break;
+          }
+          derivative_seconds += seconds_since(td);
+          if (model.contact.enabled && !data.contact.contacts.empty()) {
+            const auto& sd = sensitivity->step();
+            const int deficiency = sd.ncp_derivative().rank_deficiency();
+            rank_deficient_steps += deficiency > 0;
+            rank_deficiency_max = std::max<long>(rank_deficiency_max, deficiency);
+            nondifferentiable_total += sd.nondifferentiable_contacts();
+            smoothed_total += sd.smoothed_contacts();
+          }
+        }
+        std::swap(state, next);
+        steps_done = k;
+        if (k % every == 0 || k == total) {
+          auto tw = Clock::now();
+          write_frame(state, step_seconds);
+          output_seconds += seconds_since(tw);
+        }
+        progress.update(k);
+        step_in_progress = 0;
       }
-      std::swap(state, next);
-      steps_done = k;
-      if (k % every == 0 || k == total) {
-        auto tw = Clock::now();
-        write_frame(state, step_seconds);
-        output_seconds += seconds_since(tw);
-      }
-      progress.update(k);
     }
+  } catch (const StopRequested&) {
+    status = "interrupted";
+  } catch (const ComputationError& e) {
+    run_error = e.what();
+  } catch (const std::bad_alloc&) {
+    run_error = "out of memory";
   }
+  step_in_progress = 0;
   progress.finish();
   const double run_seconds = seconds_since(t_run);
 
+  // 3. Finish the file. A second signal now waits for this and then does nothing.
+  std::unique_lock<std::mutex> finishing(writer_mutex);
+  writer_done = true;
+  const auto finish_unfinished = [&](const std::string& final_status) {
+    try {
+      writer.finish(final_status);
+    } catch (const std::exception& e) {
+      error(e.what());
+    }
+    report_unfinished(out_path.string());
+  };
+  // "failed: no space left on device after frame 39"
+  const auto failed_status = [&](const std::string& message, const std::string& when) {
+    if (writer.failure().empty()) return "failed: " + message + " " + when;
+    std::string reason = writer.failure();  // the system's text: "No space left on device"
+    reason[0] = static_cast<char>(std::tolower(static_cast<unsigned char>(reason[0])));
+    return "failed: " + reason + " " + when;
+  };
+  if (!run_error.empty()) {
+    error(run_error);
+    finish_unfinished(failed_status(run_error, "after frame " + std::to_string(writer.frames_written() - 1)));
+    return kExitFailed;
+  }
   if (!failure.ok()) {
     const std::string reason = describe(model, failure);
-    writer.finish("diverged: " + reason);
     error(reason);
-    note("frames up to the last completed step are in " + writer.final_path().string());
+    finish_unfinished("diverged: " + reason);
     return kExitFailed;
   }
-  if (theta && status == "complete") {
-    // output.md: /jacobians/<theta> (3 n_total, k) = d x_T / d theta at the final frame.
-    const std::string frame = std::to_string(writer.frames_written() - 1);
-    const MatX& J = is_static ? static_jacobian : sensitivity->dx_dtheta();
-    const char* method = is_static ? "implicit function theorem at the equilibrium" : "forward sensitivities";
-    for (const auto& g : theta->groups) {
-      std::string names;
-      for (const auto& c : g.columns) names += (names.empty() ? "" : ",") + c;
-      writer.write_matrix("/jacobians/" + g.name, J.middleCols(g.offset, g.size),
-                          {{"theta", names},
-                           {"frame", frame},
-                           {"method", method},
-                           {"ncp_rank_deficient_steps", std::to_string(rank_deficient_steps)},
-                           {"nondifferentiable_contacts", std::to_string(nondifferentiable_total)},
-                           {"smoothed_contacts", std::to_string(smoothed_total)}});
+  try {
+    if (theta && status == "complete") {
+      // output.md: /jacobians/<theta> (3 n_total, k) = d x_T / d theta at the final frame.
+      const std::string frame = std::to_string(writer.frames_written() - 1);
+      const MatX& J = is_static ? static_jacobian : sensitivity->dx_dtheta();
+      const char* method = is_static ? "implicit function theorem at the equilibrium" : "forward sensitivities";
+      for (const auto& g : theta->groups) {
+        std::string names;
+        for (const auto& c : g.columns) names += (names.empty() ? "" : ",") + c;
+        writer.write_matrix("/jacobians/" + g.name, J.middleCols(g.offset, g.size),
+                            {{"theta", names},
+                             {"frame", frame},
+                             {"method", method},
+                             {"ncp_rank_deficient_steps", std::to_string(rank_deficient_steps)},
+                             {"nondifferentiable_contacts", std::to_string(nondifferentiable_total)},
+                             {"smoothed_contacts", std::to_string(smoothed_total)}});
+      }
     }
-  }
-  if (hooks.finish && status == "complete") hooks.finish(writer);
-  writer.finish(status);
-  if (status == "interrupted") {
-    error("interrupted after " + std::to_string(steps_done) + " steps; frames written to " +
-          writer.final_path().string());
+    if (hooks.finish && status == "complete") hooks.finish(writer);
+  } catch (const ComputationError& e) {
+    error(e.what());
+    finish_unfinished(failed_status(e.what(), "while writing the results of the run"));
     return kExitFailed;
   }
+  if (status == "interrupted") {
+    error("interrupted after " + std::to_string(steps_done) + (is_static ? " load steps" : " steps"));
+    finish_unfinished(status);
+    return kExitFailed;
+  }
+  writer.finish(status);  // a failure here (ComputationError) says where the frames are
+  finishing.unlock();
 
   const long n = std::max<long>(1, steps_done);
   if (!o.quiet) {

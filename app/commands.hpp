@@ -123,4 +123,16 @@ int run_control(const ControlOptions& o, const std::string& command_line);
 
 std::string version_text();
 
+// CLI11 checks whose messages a person reads ("--dt: must be > 0 s, got 0"), for
+// options that must be positive: a number (with its unit, if any) or an integer.
+CLI::Validator positive_number(const std::string& unit = "");
+CLI::Validator positive_integer();
+
+// Files the run reads: the scene, its bodies' and obstacles' meshes.
+std::vector<std::string> scene_input_files(const io::SceneDesc& scene);
+// Exit 2 (InputError) when the output, or a file written beside it (.partial, .xmf,
+// the side files of an unfinished run), is one of `inputs` (the same file: compared
+// by identity, so links and other spellings of a path are caught).
+void check_output_is_not_input(const std::string& output, const std::vector<std::string>& inputs);
+
 }  // namespace softdiff::app

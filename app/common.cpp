@@ -1,8 +1,17 @@
 #include "common.hpp"
 #include "commands.hpp"
 
+#include <softdiff/core/error.hpp>
+#include <softdiff/io/hdf5_writer.hpp>
+#include <softdiff/io/scene.hpp>
+
+#include <cerrno>
 #include <cmath>
+#include <csignal>
+#include <cstdlib>
+#include <filesystem>
 #include <iomanip>
+#include <thread>
 #include <unistd.h>
 
 namespace softdiff::app {
@@ -123,6 +132,78 @@ std::string join_argv(int argc, char** argv) {
   return s;
 }
 
+namespace {
+
+volatile std::sig_atomic_t g_signal_count = 0;
+int g_signal_pipe[2] = {-1, -1};
+constexpr int kWatchedSignals[] = {SIGINT, SIGTERM, SIGHUP};
+
+extern "C" void on_watched_signal(int signal) {
+  const int saved = errno;
+  g_signal_count = g_signal_count + 1;
+  const char byte = static_cast<char>(signal);
+  if (g_signal_pipe[1] >= 0) {
+    [[maybe_unused]] const auto n = ::write(g_signal_pipe[1], &byte, 1);
+  }
+  errno = saved;
+}
+
+const char* signal_name(int signal) {
+  switch (signal) {
+    case SIGINT: return "SIGINT";
+    case SIGTERM: return "SIGTERM";
+    case SIGHUP: return "SIGHUP";
+    default: return "signal";
+  }
+}
+
+}  // namespace
+
+struct SignalWatch::Impl {
+  std::function<void(int, const char*)> on_signal;
+  struct sigaction previous[3] {};
+  std::thread watcher;
+};
+
+SignalWatch::SignalWatch(std::function<void(int count, const char* name)> on_signal) : impl_(new Impl) {
+  impl_->on_signal = std::move(on_signal);
+  g_signal_count = 0;
+  if (::pipe(g_signal_pipe) != 0) g_signal_pipe[0] = g_signal_pipe[1] = -1;
+  struct sigaction action {};
+  action.sa_handler = on_watched_signal;
+  sigemptyset(&action.sa_mask);
+  action.sa_flags = SA_RESTART;  // HDF5's and stdio's system calls are not cut short
+  for (int i = 0; i < 3; ++i) sigaction(kWatchedSignals[i], &action, &impl_->previous[i]);
+  if (g_signal_pipe[0] >= 0) {
+    impl_->watcher = std::thread([impl = impl_] {
+      int count = 0;
+      for (;;) {
+        char byte = 0;
+        const auto n = ::read(g_signal_pipe[0], &byte, 1);
+        if (n < 0 && errno == EINTR) continue;
+        if (n != 1 || byte == 0) return;  // 0: the watch ends
+        impl->on_signal(++count, signal_name(byte));
+      }
+    });
+  }
+}
+
+SignalWatch::~SignalWatch() {
+  for (int i = 0; i < 3; ++i) sigaction(kWatchedSignals[i], &impl_->previous[i], nullptr);
+  if (impl_->watcher.joinable()) {
+    const char stop = 0;
+    [[maybe_unused]] const auto n = ::write(g_signal_pipe[1], &stop, 1);
+    impl_->watcher.join();
+  }
+  for (int& fd : g_signal_pipe) {
+    if (fd >= 0) ::close(fd);
+    fd = -1;
+  }
+  delete impl_;
+}
+
+bool SignalWatch::stop_requested() { return g_signal_count > 0; }
+
 std::vector<std::string> split_list(const std::string& s, char sep) {
   std::vector<std::string> out;
   std::stringstream in(s);
@@ -146,6 +227,58 @@ void add_run_options(CLI::App& app, std::string& output, const std::string& outp
   app.add_flag("--strict", strict, "Treat a contact solve that does not reach its tolerance as an error (exit 1), and a body of implausible size or mass as bad input (exit 2)");
   app.add_flag("--quiet", quiet, quiet_help);
   app.add_flag("--json", json, "Print a JSON summary on stdout");
+}
+
+CLI::Validator positive_number(const std::string& unit) {
+  return CLI::Validator(
+      [unit](std::string& text) -> std::string {
+        errno = 0;
+        char* end = nullptr;
+        const double value = std::strtod(text.c_str(), &end);
+        if (text.empty() || end == text.c_str() || *end != '\0' || errno == ERANGE)
+          return "must be a number" + (unit.empty() ? std::string() : " of " + unit) + ", got '" + text + "'";
+        if (!(value > 0) || !std::isfinite(value))
+          return "must be > 0" + (unit.empty() ? std::string() : " " + unit) + ", got " + text;
+        return {};
+      },
+      "> 0");
+}
+
+CLI::Validator positive_integer() {
+  return CLI::Validator(
+      [](std::string& text) -> std::string {
+        errno = 0;
+        char* end = nullptr;
+        const long long value = std::strtoll(text.c_str(), &end, 10);
+        if (text.empty() || end == text.c_str() || *end != '\0' || errno == ERANGE)
+          return "must be a whole number >= 1, got '" + text + "'";
+        if (value < 1) return "must be >= 1, got " + text;
+        return {};
+      },
+      ">= 1");
+}
+
+std::vector<std::string> scene_input_files(const io::SceneDesc& scene) {
+  std::vector<std::string> files{scene.file.string()};
+  for (const auto& b : scene.bodies) files.push_back(b.mesh.string());
+  for (const auto& o : scene.obstacles)
+    if (!o.mesh.empty()) files.push_back(o.mesh.string());
+  return files;
+}
+
+void check_output_is_not_input(const std::string& output, const std::vector<std::string>& inputs) {
+  namespace fs = std::filesystem;
+  for (const fs::path& written : io::output_file_names(output)) {
+    for (const auto& input : inputs) {
+      if (input.empty()) continue;
+      std::error_code ec;
+      // equivalent(): the same file (device and inode), whatever the spelling.
+      if (fs::equivalent(written, input, ec) && !ec)
+        throw InputError(output + ": the output would overwrite the input file " + input +
+                         (written == fs::path(output) ? std::string() : " (as " + written.string() + ")") +
+                         "; choose another -o");
+    }
+  }
 }
 
 }  // namespace softdiff::app

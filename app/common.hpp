@@ -2,6 +2,7 @@
 // Shared helpers of the subcommands: messages, JSON output, progress bar, timers.
 #include <chrono>
 #include <cstdio>
+#include <functional>
 #include <map>
 #include <sstream>
 #include <string>
@@ -55,6 +56,24 @@ class Progress {
 };
 
 std::string join_argv(int argc, char** argv);
+
+// SIGINT, SIGTERM and SIGHUP during a run (docs/cli.md "Signals"). The handler only
+// counts the signal and writes its number to a pipe (async-signal-safe); a watcher
+// thread reads the pipe and calls `on_signal(count, name)` outside the handler, where
+// it may lock, write the file and _exit(). stop_requested(): a signal came (checked
+// by the run between steps). Handlers are restored when the watch ends.
+class SignalWatch {
+ public:
+  explicit SignalWatch(std::function<void(int count, const char* name)> on_signal);
+  ~SignalWatch();
+  SignalWatch(const SignalWatch&) = delete;
+  SignalWatch& operator=(const SignalWatch&) = delete;
+  static bool stop_requested();
+
+ private:
+  struct Impl;
+  Impl* impl_;
+};
 
 // "a, b,c" -> {"a", "b", "c"}: items trimmed of blanks; a trailing separator gives a
 // last empty item (so that "young," is reported as an empty name).

@@ -3,9 +3,13 @@
 #include "common.hpp"
 
 #include <softdiff/core/error.hpp>
+#include <softdiff/io/hdf5_writer.hpp>
+
+#include <unistd.h>
 
 #include <cstdio>
 #include <exception>
+#include <new>
 
 int main(int argc, char** argv) {
   using namespace softdiff::app;
@@ -43,21 +47,33 @@ int main(int argc, char** argv) {
     return kExitBadInput;
   }
 
-  try {
-    if (sim_cmd->parsed()) return run_simulate(simulate, join_argv(argc, argv));
-    if (info_cmd->parsed()) return run_info(info);
-    if (calibrate_cmd->parsed()) return run_calibrate(calibrate, join_argv(argc, argv));
-    if (control_cmd->parsed()) return run_control(control, join_argv(argc, argv));
-    if (check_cmd->parsed()) return run_check_grad(check_grad);
-  } catch (const softdiff::InputError& e) {
-    error(e.what());
+  const int code = [&] {
+    try {
+      if (sim_cmd->parsed()) return run_simulate(simulate, join_argv(argc, argv));
+      if (info_cmd->parsed()) return run_info(info);
+      if (calibrate_cmd->parsed()) return run_calibrate(calibrate, join_argv(argc, argv));
+      if (control_cmd->parsed()) return run_control(control, join_argv(argc, argv));
+      if (check_cmd->parsed()) return run_check_grad(check_grad);
+    } catch (const softdiff::InputError& e) {
+      error(e.what());
+      return kExitBadInput;
+    } catch (const softdiff::ComputationError& e) {
+      error(e.what());
+      return kExitFailed;
+    } catch (const std::bad_alloc&) {
+      error("out of memory (an allocation failed)");
+      return kExitFailed;
+    } catch (const std::exception& e) {
+      error(std::string("internal error: ") + e.what());
+      return kExitFailed;
+    }
     return kExitBadInput;
-  } catch (const softdiff::ComputationError& e) {
-    error(e.what());
-    return kExitFailed;
-  } catch (const std::exception& e) {
-    error(std::string("internal error: ") + e.what());
-    return kExitFailed;
+  }();
+  // An output file HDF5 could not close (full disk): its exit handler would crash on
+  // it (hdf5_writer.hpp), so leave without running it.
+  if (softdiff::io::hdf5_close_failed()) {
+    std::fflush(nullptr);
+    ::_exit(code);
   }
-  return kExitBadInput;
+  return code;
 }

@@ -575,6 +575,36 @@ TEST(Hdf5Writer, ForceReplacesTheExistingFileAtFinish) {
   expect_frames(h5.id, 2, true);
 }
 
+// With force, an unfinished run (interrupted, diverged, failed) never replaces the
+// existing file: its frames go to out.<kind>.h5 (and .xmf), the old pair stays.
+TEST(Hdf5Writer, ForceKeepsTheExistingFileFromAnUnfinishedRun) {
+  for (const std::string status : {"interrupted", "diverged: step 3: inverted element", "failed: no space"}) {
+    const fs::path dir = test_dir();
+    const fs::path file = dir / "out.h5";
+    std::ofstream(file) << "old";
+    std::ofstream(dir / "out.xmf") << "old";
+    const std::string kind = status.substr(0, status.find(':'));
+    const fs::path side = dir / ("out." + kind + ".h5");
+    WriterOptions options = options_for(file);
+    options.force = true;
+    {
+      Hdf5Writer writer(options, two_bodies());
+      append_frames(writer, 0, 2, true);
+      writer.finish(status);
+      EXPECT_EQ(writer.final_path(), side);
+    }
+    EXPECT_EQ(read_text(file), "old") << status;
+    EXPECT_EQ(read_text(dir / "out.xmf"), "old") << status;
+    EXPECT_FALSE(fs::exists(dir / "out.h5.partial"));
+    ASSERT_TRUE(fs::exists(dir / ("out." + kind + ".xmf"))) << status;
+    EXPECT_NE(read_text(dir / ("out." + kind + ".xmf")).find("out." + kind + ".h5:/bodies/"), std::string::npos);
+    H5File h5(side);
+    ASSERT_GE(h5.id, 0) << status;
+    EXPECT_EQ(string_attribute(h5.id, "/", "status"), status);
+    expect_frames(h5.id, 2, true);
+  }
+}
+
 TEST(Hdf5Writer, MissingOrUnusableFolderIsAnInputErrorAndCreatesNothing) {
   const fs::path dir = test_dir();
   EXPECT_THROW(Hdf5Writer(options_for(dir / "missing" / "out.h5"), two_bodies()), InputError);
@@ -617,7 +647,8 @@ TEST(Hdf5Writer, InvalidBodyNamesAreRejectedBeforeCreatingAnything) {
   EXPECT_TRUE(fs::is_empty(dir));
 }
 
-TEST(Hdf5Writer, DestructorWithoutFinishKeepsTheFramesAsInterrupted) {
+// Reached only when the run ends with an exception (its caller did not finish).
+TEST(Hdf5Writer, DestructorWithoutFinishKeepsTheFramesAsFailed) {
   const fs::path dir = test_dir();
   const fs::path file = dir / "out.h5";
   {
@@ -629,7 +660,7 @@ TEST(Hdf5Writer, DestructorWithoutFinishKeepsTheFramesAsInterrupted) {
   EXPECT_TRUE(fs::exists(dir / "out.xmf"));
   H5File h5(file);
   ASSERT_GE(h5.id, 0);
-  EXPECT_EQ(string_attribute(h5.id, "/", "status"), "interrupted");
+  EXPECT_EQ(string_attribute(h5.id, "/", "status"), "failed: the run ended with an error");
   expect_frames(h5.id, 3, true);
 }
 

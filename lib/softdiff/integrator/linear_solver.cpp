@@ -3,11 +3,13 @@
 #include <softdiff/integrator/cholmod_congruence.hpp>
 
 #include <softdiff/core/assert.hpp>
+#include <softdiff/core/error.hpp>
 
 #include <Eigen/IterativeLinearSolvers>
 #include <Eigen/SparseCholesky>
 #include <cholmod.h>
 #include <algorithm>
+#include <cstdio>
 #include <string>
 #include <vector>
 
@@ -73,6 +75,7 @@ class CholmodSolver final : public LinearSolver {
     cholmod_sparse view = wrap(A);
     if (factor_) cholmod_free_factor(&factor_, &common_);
     factor_ = cholmod_analyze(&view, &common_);
+    throw_if_out_of_memory("the analysis (ordering)", A.rows());
     SOFTDIFF_DEMAND(factor_ != nullptr, "cholmod_analyze failed (status " + std::to_string(common_.status) + ")");
     congruence_.reset();  // a new symbolic structure
   }
@@ -81,6 +84,7 @@ class CholmodSolver final : public LinearSolver {
     SOFTDIFF_DEMAND(factor_ != nullptr, "factorize() before analyze()");
     cholmod_sparse view = wrap(A);
     cholmod_factorize(&view, factor_, &common_);
+    throw_if_out_of_memory("the factorization", A.rows());
     FactorStatus status;
     if (common_.status == CHOLMOD_NOT_POSDEF) {
       status.ok = false;
@@ -109,6 +113,7 @@ class CholmodSolver final : public LinearSolver {
     B.xtype = CHOLMOD_REAL;
     B.dtype = CHOLMOD_DOUBLE;
     const int ok = cholmod_solve2(CHOLMOD_A, factor_, &B, nullptr, &X_, nullptr, &Y_, &E_, &common_);
+    throw_if_out_of_memory("a solve", b.size());
     SOFTDIFF_DEMAND(ok, "cholmod_solve2 failed (status " + std::to_string(common_.status) + ")");
     x = Eigen::Map<const VecX>(static_cast<const double*>(X_->x), b.size());
     return true;
@@ -153,6 +158,7 @@ class CholmodSolver final : public LinearSolver {
       D.xtype = CHOLMOD_REAL;
       D.dtype = CHOLMOD_DOUBLE;
       const int ok = cholmod_solve2(CHOLMOD_A, factor_, &D, nullptr, &Xb_, nullptr, &Yb_, &Eb_, &common_);
+      throw_if_out_of_memory("a solve", n);
       SOFTDIFF_DEMAND(ok, "cholmod_solve2 failed (status " + std::to_string(common_.status) + ")");
       const Eigen::Map<const MatX, 0, Eigen::OuterStride<>> X(static_cast<const double*>(Xb_->x), n, bs,
                                                                Eigen::OuterStride<>(static_cast<Eigen::Index>(Xb_->d)));
@@ -168,6 +174,29 @@ class CholmodSolver final : public LinearSolver {
   double factor_flops() const override { return common_.fl; }
 
  private:
+  // CHOLMOD could not allocate (CHOLMOD_OUT_OF_MEMORY) or the sizes overflow its
+  // integers (CHOLMOD_TOO_LARGE): not a property of the matrix, so not a
+  // FactorStatus: a ComputationError naming the cause and, once the analysis has
+  // counted them, the factor's nonzeros and the memory they need (8 bytes each for
+  // the values, 4 for their row indices in the worst case: at least 8).
+  void throw_if_out_of_memory(const char* stage, Eigen::Index n) const {
+    if (common_.status != CHOLMOD_OUT_OF_MEMORY && common_.status != CHOLMOD_TOO_LARGE) return;
+    char text[400];
+    const bool too_large = common_.status == CHOLMOD_TOO_LARGE;
+    int length = std::snprintf(text, sizeof text, "CHOLMOD %s during %s of the %ld x %ld system matrix",
+                               too_large ? "found the problem too large (CHOLMOD_TOO_LARGE)"
+                                         : "ran out of memory (CHOLMOD_OUT_OF_MEMORY)",
+                               stage, static_cast<long>(n), static_cast<long>(n));
+    if (common_.lnz > 0 && length > 0 && length < static_cast<int>(sizeof text))
+      length += std::snprintf(text + length, sizeof text - static_cast<std::size_t>(length),
+                              ": its Cholesky factor has %.3g nonzeros, at least %.3g GB", common_.lnz,
+                              8 * common_.lnz / 1e9);
+    if (length > 0 && length < static_cast<int>(sizeof text))
+      std::snprintf(text + length, sizeof text - static_cast<std::size_t>(length),
+                    " (more memory, a coarser mesh, or linear_solver: cg, which needs no factor)");
+    throw ComputationError(text);
+  }
+
   static cholmod_sparse wrap(const SparseMatrix& A) {
     SOFTDIFF_DEMAND(A.isCompressed(), "matrix must be compressed");
     cholmod_sparse s{};

@@ -14,7 +14,16 @@
 //   same T. The file is flushed every flush_every frames (and at finish), so a run
 //   killed between flushes leaves a file readable up to the last flush.
 // - Safety: the file is written as <file>.partial (created exclusively unless
-//   force) and renamed at finish; without force the rename never replaces a file.
+//   force) and renamed at finish; without force the rename never replaces a file,
+//   and an unfinished run never replaces one (it goes to a side file).
+// - Disk space: fallocate(FALLOC_FL_KEEP_SIZE) reserves, before each frame, room
+//   past HDF5's end of allocation (EOA) for that frame and for closing the file. The
+//   file's size does not change (HDF5's end of file stays where it was) and the close
+//   truncates the file to its EOA, which releases what was not used. A disk that fills
+//   is met at the reservation, before any byte of the frame is written: the frames so
+//   far, their status and the file's metadata still fit in what was reserved before.
+//   A failed H5Fclose leaves HDF5 with a half-closed file on which its exit handler
+//   crashes (H5F__close_cb): hdf5_close_failed() tells main to leave with _exit().
 #include <softdiff/io/hdf5_writer.hpp>
 
 #include <softdiff/core/assert.hpp>
@@ -22,12 +31,17 @@
 #include <softdiff/io/xdmf.hpp>
 #include <softdiff/version.hpp>
 
+#include <fcntl.h>
 #include <hdf5.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <array>
+#include <atomic>
+#include <cctype>
 #include <cerrno>
+#include <cstring>
 #include <ctime>
 #include <system_error>
 #include <utility>
@@ -230,6 +244,17 @@ bool exists_as_file_system_entry(const fs::path& path) {
   return fs::exists(fs::symlink_status(path, ec));
 }
 
+std::atomic<bool> g_close_failed{false};
+
+// "file write failed: No space left on device" -> "No space left on device".
+std::string system_part(const std::string& reason) {
+  const auto at = reason.rfind(": ");
+  return at == std::string::npos ? reason : reason.substr(at + 2);
+}
+
+constexpr double kReserveMinBytes = 1 << 20;  // reserved past the EOA, at least
+
+
 }  // namespace
 
 // ---------------------------------------------------------------------------
@@ -245,11 +270,58 @@ struct Hdf5Writer::Impl {
   std::vector<double> times;
   long frames = 0;
   bool finished = false;
+  fs::path written_file;              // after finish: the file holding the frames
+  mutable std::string last_failure;   // the system's reason for the last failed write
+  int fd = -1;                        // the file's descriptor (HDF5's sec2 driver), for fallocate
+  bool reserve_supported = true;      // false where the file system has no fallocate
+  double reserve_bytes = kReserveMinBytes;
+  off_t reserve_end = 0;              // the end of the reserved range
 
   std::string partial_name() const { return partial_file.string(); }
 
   [[noreturn]] void fail(const std::string& what) const {
-    throw ComputationError(partial_name() + ": " + what + ": " + hdf5_reason());
+    const std::string reason = hdf5_reason();
+    last_failure = system_part(reason);
+    throw ComputationError(partial_name() + ": " + what + ": " + reason);
+  }
+
+  // Reserves `bytes` of disk past HDF5's end of allocation (see the design notes);
+  // false when the disk has no room (errno ENOSPC or EDQUOT). True, reserving
+  // nothing, where the file system has no fallocate.
+  bool reserve_room(double bytes) {
+    if (fd < 0 || !reserve_supported) return true;
+    haddr_t eoa = 0;
+    if (H5Fget_eoa(file.get(), &eoa) < 0) {
+      H5Eclear2(H5E_DEFAULT);
+      return true;
+    }
+    if (::fallocate(fd, FALLOC_FL_KEEP_SIZE, static_cast<off_t>(eoa), static_cast<off_t>(bytes)) == 0) {
+      reserve_end = std::max(reserve_end, static_cast<off_t>(eoa) + static_cast<off_t>(bytes));
+      return true;
+    }
+    if (errno == ENOSPC || errno == EDQUOT) return false;
+    reserve_supported = false;  // EOPNOTSUPP and the like: write without a reserve
+    return true;
+  }
+
+  // Closes the file; on failure, records it for hdf5_close_failed(). Then gives the
+  // disk back what was reserved past the file's end and not used (blocks allocated
+  // with FALLOC_FL_KEEP_SIZE stay allocated after the close otherwise).
+  bool close_file() {
+    const bool ok = close_everything();
+    if (!ok) g_close_failed = true;
+    fd = -1;
+    if (reserve_end > 0) {
+      const int f = ::open(partial_file.c_str(), O_WRONLY | O_CLOEXEC);
+      struct stat st {};
+      // Growing by a byte and shrinking back frees the blocks past the end (ext4
+      // ignores FALLOC_FL_PUNCH_HOLE past the end of the file).
+      if (f >= 0 && ::fstat(f, &st) == 0 && ::ftruncate(f, st.st_size + 1) == 0 && ::ftruncate(f, st.st_size) != 0)
+        errno = 0;
+      if (f >= 0) ::close(f);
+      reserve_end = 0;
+    }
+    return ok;
   }
 
   // ---- creation
@@ -309,11 +381,22 @@ struct Hdf5Writer::Impl {
     const unsigned mode = options.force ? H5F_ACC_TRUNC : H5F_ACC_EXCL;
     file = Handle(H5Fcreate(partial_file.c_str(), mode, H5P_DEFAULT, access.get()), H5Fclose);
     if (!file.valid()) {
+      const int error = errno;
       const std::string reason = hdf5_reason();
       std::error_code ec;
       if (!partial_existed) fs::remove(partial_file, ec);
+      // A full disk is not a bad input (exit 1); a folder that is not writable is.
+      if (error == ENOSPC || error == EDQUOT || reason.find(std::strerror(ENOSPC)) != std::string::npos) {
+        last_failure = std::strerror(ENOSPC);
+        throw ComputationError(partial_name() + ": cannot create the output file: " + reason);
+      }
       throw InputError(partial_name() + ": cannot create the output file: " + reason);
     }
+    void* handle = nullptr;
+    if (H5Fget_vfd_handle(file.get(), access.get(), &handle) >= 0 && handle != nullptr)
+      fd = *static_cast<int*>(handle);
+    else
+      H5Eclear2(H5E_DEFAULT);
   }
 
   Handle create_group(const std::string& path) {
@@ -398,11 +481,29 @@ struct Hdf5Writer::Impl {
     SOFTDIFF_DEMAND(options.flush_every >= 1, "flush_every must be at least 1");
     silence_hdf5_error_printing();
     create_file();
+    // Room for the fixed datasets, then for a frame and the close (twice a frame:
+    // the chunk cache may hold one unwritten when the next is reserved).
+    double fixed_bytes = 64 * 1024 + static_cast<double>(options.scene_yaml.size() + options.command.size());
+    double frame_bytes = 0;
+    for (const OutputBody& body : input) {
+      fixed_bytes += 8.0 * static_cast<double>(body.rest.size() + body.tets.size() + body.surface.size());
+      frame_bytes += 24.0 * static_cast<double>(body.rest.cols()) * (options.write_v ? 2 : 1);
+    }
+    reserve_bytes = std::max(kReserveMinBytes, 2 * frame_bytes + 256 * 1024);
     try {
+      if (!reserve_room(fixed_bytes + reserve_bytes)) {
+        last_failure = std::strerror(errno);
+        throw ComputationError(partial_name() + ": cannot create the output file: " + last_failure + " (it needs " +
+                               std::to_string(static_cast<long long>((fixed_bytes + reserve_bytes) / 1024)) +
+                               " KiB to start)");
+      }
       write_contents(input);
       if (H5Fflush(file.get(), H5F_SCOPE_LOCAL) < 0) fail("cannot flush");
     } catch (...) {
-      close_everything();
+      // The file is removed: empty it first, so that what the close still writes
+      // finds room on a full disk.
+      if (fd >= 0 && ::ftruncate(fd, 0) != 0) fd = -1;
+      close_file();
       std::error_code ec;
       fs::remove(partial_file, ec);
       throw;
@@ -507,6 +608,11 @@ struct Hdf5Writer::Impl {
                     "x has " + std::to_string(x.size()) + " entries, expected " + std::to_string(3 * total_nodes));
     if (options.write_v)
       SOFTDIFF_DEMAND(v != nullptr && v->size() == 3 * total_nodes, "v is missing or has the wrong size");
+    if (!reserve_room(reserve_bytes)) {
+      last_failure = std::strerror(errno);
+      throw ComputationError(partial_name() + ": cannot write frame " + std::to_string(frames) + ": " + last_failure +
+                             " (no room for it: it was not written, the frames before it are whole)");
+    }
 
     const Appendable* failed = nullptr;
     for (BodyOutput& body : bodies) {
@@ -517,6 +623,7 @@ struct Hdf5Writer::Impl {
     if (failed == nullptr && !time.append(&t)) failed = &time;
     if (failed != nullptr) {
       const std::string reason = hdf5_reason();
+      last_failure = system_part(reason);
       const auto rows = static_cast<hsize_t>(frames);
       for (BodyOutput& body : bodies) {
         body.x.roll_back(file.get(), rows);
@@ -561,6 +668,7 @@ struct Hdf5Writer::Impl {
     const hsize_t rows = target.dims[0];
     if (!target.append(row)) {
       const std::string reason = hdf5_reason();
+      last_failure = system_part(reason);
       target.roll_back(file.get(), rows);
       H5Eclear2(H5E_DEFAULT);
       throw ComputationError(partial_name() + ": cannot write row " + std::to_string(rows) + " of " + target.path +
@@ -602,6 +710,7 @@ struct Hdf5Writer::Impl {
     const hsize_t before = target.dims[0];
     if (!target.append_rows(rows, static_cast<hsize_t>(count))) {
       const std::string reason = hdf5_reason();
+      last_failure = system_part(reason);
       target.roll_back(file.get(), before);
       H5Eclear2(H5E_DEFAULT);
       throw ComputationError(partial_name() + ": cannot append " + std::to_string(count) + " rows to " +
@@ -655,45 +764,78 @@ struct Hdf5Writer::Impl {
     return file.reset() && ok;
   }
 
-  // Renames <file>.partial to <file>; without force, never replaces a file that
-  // appeared during the run (link() fails on an existing name, atomically).
-  void move_into_place() {
+  // Moves <file>.partial to `target`: replacing a file there when `replace`, else
+  // never (link() fails on an existing name, atomically). False, with `error`, if
+  // it could not (the frames then stay in <file>.partial).
+  bool move_to(const fs::path& target, bool replace, std::string& error) {
     std::error_code ec;
-    if (!options.force) {
-      if (::link(partial_file.c_str(), final_file.c_str()) == 0) {
+    if (!replace) {
+      if (::link(partial_file.c_str(), target.c_str()) == 0) {
         fs::remove(partial_file, ec);
-        return;
+        return true;
       }
-      const int error = errno;
       // File systems without hard links: check, then rename.
-      if (error == EEXIST || exists_as_file_system_entry(final_file))
-        throw InputError(final_file.string() + ": output file appeared during the run; the output is in " +
-                         partial_name());
+      if (errno == EEXIST || exists_as_file_system_entry(target)) {
+        error = target.string() + " exists";
+        return false;
+      }
     }
-    fs::rename(partial_file, final_file, ec);
-    if (ec)
-      throw ComputationError(partial_name() + ": cannot rename to " + final_file.string() + ": " + ec.message());
+    fs::rename(partial_file, target, ec);
+    if (ec) error = partial_name() + ": cannot rename to " + target.string() + ": " + ec.message();
+    return !ec;
   }
 
   void finish(const std::string& status) {
     if (finished) return;
     finished = true;
-    std::string error;
+    written_file = partial_file;
+    std::string problem;  // why the file is not a clean, closed file with its status
     try {
       set_string_attribute(file.get(), "status", status);
     } catch (const std::exception& e) {
-      error = e.what();
+      problem = std::string(e.what()) + " (the file's status still says running)";
     }
-    if (!close_everything() && error.empty()) error = partial_name() + ": cannot close: " + hdf5_reason();
-    if (!error.empty()) throw ComputationError(error + " (the frames written so far are in " + partial_name() + ")");
+    if (!close_file()) {
+      problem += (problem.empty() ? "" : "; ") + partial_name() + ": cannot close: " + hdf5_reason() +
+                 " (frames after the last flush may be lost)";
+    }
+    const bool complete = status == "complete" && problem.empty();
 
-    move_into_place();
+    fs::path target = final_file;
+    std::string error;
+    if (complete) {
+      if (!move_to(final_file, options.force, error)) {
+        if (!options.force && exists_as_file_system_entry(final_file))
+          throw InputError(final_file.string() + ": output file appeared during the run; the output is in " +
+                           partial_name());
+        throw ComputationError(error);
+      }
+    } else {
+      // An unfinished run takes the output's name only if no file has it; otherwise
+      // (--force over an old file, or a file that appeared meanwhile) a side file.
+      const std::string kind = problem.empty() ? status.substr(0, status.find(':')) : std::string("failed");
+      bool placed = !problem.empty() || exists_as_file_system_entry(final_file) ? false : move_to(final_file, false, error);
+      if (!placed) {
+        target = side_file_name(final_file, kind);
+        error.clear();
+        placed = move_to(target, options.force, error);
+      }
+      if (!placed) {
+        problem += (problem.empty() ? "" : "; ") + error;
+        target = partial_file;
+      }
+    }
+    written_file = target;
+    if (target == partial_file || !problem.empty()) {
+      throw ComputationError(problem + " (the frames written so far are in " + written_file.string() + ")");
+    }
 
     std::vector<XdmfBody> described;
     described.reserve(bodies.size());
     for (const BodyOutput& body : bodies) described.push_back({body.name, static_cast<long>(body.nodes), static_cast<long>(body.tets)});
-    write_text_file_atomically(xdmf_file,
-                               xdmf_text(final_file.filename().string(), described, times, options.write_v));
+    fs::path xdmf = target;
+    xdmf.replace_extension(".xmf");
+    write_text_file_atomically(xdmf, xdmf_text(target.filename().string(), described, times, options.write_v));
   }
 };
 
@@ -707,7 +849,8 @@ Hdf5Writer::Hdf5Writer(const WriterOptions& options, const std::vector<OutputBod
 Hdf5Writer::~Hdf5Writer() {
   if (!impl_) return;
   try {
-    impl_->finish("interrupted");
+    // Reached without finish() only when the run ended with an exception.
+    impl_->finish("failed: the run ended with an error");
   } catch (...) {
     // Never throws: the frames flushed so far stay in <file>.partial.
   }
@@ -752,7 +895,57 @@ void Hdf5Writer::finish(const std::string& status) { impl_->finish(status); }
 
 long Hdf5Writer::frames_written() const { return impl_->frames; }
 
-const std::filesystem::path& Hdf5Writer::final_path() const { return impl_->final_file; }
+const std::filesystem::path& Hdf5Writer::final_path() const {
+  return impl_->finished ? impl_->written_file : impl_->final_file;
+}
+
+const std::string& Hdf5Writer::failure() const { return impl_->last_failure; }
+
+std::filesystem::path side_file_name(const std::filesystem::path& file, const std::string& kind) {
+  fs::path side = file;
+  side.replace_filename(file.stem().string() + "." + kind + file.extension().string());
+  return side;
+}
+
+std::vector<std::filesystem::path> output_file_names(const std::filesystem::path& file) {
+  std::vector<fs::path> names;
+  const auto add = [&](const fs::path& h5) {
+    names.push_back(h5);
+    fs::path xdmf = h5;
+    names.push_back(xdmf.replace_extension(".xmf"));
+  };
+  add(file);
+  fs::path partial = file;
+  names.push_back(partial += ".partial");
+  for (const char* kind : {"interrupted", "diverged", "failed"}) add(side_file_name(file, kind));
+  return names;
+}
+
+OutputEstimate estimate_output(const std::vector<OutputBody>& bodies, bool write_v, long frames,
+                               double series_per_frame, const std::string& h5_name) {
+  OutputEstimate e;
+  double fixed = 64 * 1024;  // superblock, groups, attributes (measured: about 20 KiB)
+  e.frame_bytes = 16 + series_per_frame;  // /time, /solver/step_seconds
+  std::vector<XdmfBody> described;
+  for (const OutputBody& b : bodies) {
+    fixed += 8.0 * static_cast<double>(b.rest.size() + b.tets.size() + b.surface.size());
+    e.frame_bytes += 24.0 * static_cast<double>(b.rest.cols()) * (write_v ? 2 : 1);
+    described.push_back({b.name, static_cast<long>(b.rest.cols()), static_cast<long>(b.tets.cols())});
+  }
+  const auto frames_d = static_cast<double>(std::max<long>(frames, 1));
+  e.hdf5_bytes = fixed + e.frame_bytes * frames_d;
+  // The XDMF grows by the same text per frame: measured on one and two frames (the
+  // second time with 17 digits), plus the longer frame numbers of a long run (in the
+  // frame's name and in each slab, which also holds the frame count).
+  const double one = static_cast<double>(xdmf_text(h5_name, described, {0.0}, write_v).size());
+  const double two = static_cast<double>(xdmf_text(h5_name, described, {0.0, 0.1234567890123456}, write_v).size());
+  const double digits = static_cast<double>(std::to_string(std::max<long>(frames, 1)).size()) - 1;
+  const double slabs = static_cast<double>(described.size()) * (write_v ? 2 : 1);
+  e.xdmf_bytes = one + (two - one + digits * (1 + 2 * slabs)) * (frames_d - 1);
+  return e;
+}
+
+bool hdf5_close_failed() { return g_close_failed; }
 
 std::string hdf5_version() {
   unsigned major = 0, minor = 0, release = 0;

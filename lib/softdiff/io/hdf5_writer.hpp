@@ -1,11 +1,18 @@
 #pragma once
 // Streaming HDF5 output (spec: docs/output.md) and the XDMF file beside it.
 //
-// The file is written under a temporary name (`<file>.partial`) and renamed to its
-// final name by finish() (status "complete", "interrupted" or "diverged: ...").
-// Frames are appended to chunked, extendible datasets and the file is flushed
-// every `flush_every` frames, so a run that dies leaves every completed frame
-// readable. An existing final file is never overwritten unless `force`.
+// The file is written under a temporary name (`<file>.partial`) and moved to its
+// place by finish(). Frames are appended to chunked, extendible datasets and the file
+// is flushed every `flush_every` frames, so a run that dies leaves every completed
+// frame readable. An existing final file is never overwritten unless `force`, and
+// even then only by a complete run: an unfinished one ("interrupted", "diverged: ...",
+// "failed: ...") goes to a side file named by its kind (out.h5 -> out.interrupted.h5).
+//
+// Disk space: before each frame the writer reserves room beyond the end of the file
+// (fallocate, FALLOC_FL_KEEP_SIZE: no size change, released when the file is closed)
+// for that frame and for finishing the file. When the disk cannot give it, the frame
+// is refused (ComputationError, failure() = "No space left on device") before any of
+// it is written, so that the file can still be given its status and closed.
 //
 // Errors: HDF5 failures while writing (disk full, quota, I/O error) throw
 // ComputationError naming the file, the dataset and the system's reason; a frame
@@ -42,7 +49,7 @@ class Hdf5Writer {
   // Throws InputError if the file exists and !force, or if its folder does not
   // exist / is not writable. Nothing is left on disk when it throws.
   Hdf5Writer(const WriterOptions& options, const std::vector<OutputBody>& bodies);
-  ~Hdf5Writer();  // finish("interrupted") if finish() was not called; never throws
+  ~Hdf5Writer();  // finish("failed: the run ended with an error") if finish() was not called; never throws
   Hdf5Writer(const Hdf5Writer&) = delete;
   Hdf5Writer& operator=(const Hdf5Writer&) = delete;
 
@@ -73,19 +80,51 @@ class Hdf5Writer {
   void set_attribute(const std::string& object_path, const std::string& name, const std::string& value);
   void set_attribute(const std::string& object_path, const std::string& name, double value);
 
-  // Writes the `status` attribute, closes, renames to the final name and writes
-  // the XDMF file (<file without .h5>.xmf). Idempotent. Throws ComputationError if
-  // the file cannot be closed or renamed (its frames stay in <file>.partial), and
-  // InputError if, without force, a file of the final name appeared meanwhile.
+  // Writes the `status` attribute, closes the file and moves it to its place:
+  // - "complete": the final name (with force, replacing an existing file; without,
+  //   InputError if a file of that name appeared meanwhile: the frames stay in
+  //   <file>.partial);
+  // - any other status: the final name when no file of that name exists, else the
+  //   side file side_file_name(file, kind) (kind: the status up to its ':'); also the
+  //   side file "failed" when the status could not be written (the file says running).
+  // The XDMF file goes beside it. final_path() then names the file holding the frames.
+  // Idempotent. Every step is tried; then ComputationError if the status could not
+  // be written, the file closed or moved (the message says where the frames are).
   void finish(const std::string& status);
 
   long frames_written() const;
+  // The output file's name; after finish(), the file that holds the frames.
   const std::filesystem::path& final_path() const;
+  // The system's reason for the last failed write ("No space left on device"), or "".
+  const std::string& failure() const;
 
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
+
+// out.h5 -> out.<kind>.h5 (kind: interrupted, diverged, failed): where an unfinished
+// run goes when it must not take the output's name.
+std::filesystem::path side_file_name(const std::filesystem::path& file, const std::string& kind);
+// Every file a writer of `file` may create or replace: the file, <file>.partial, its
+// XDMF file and the side files with their XDMF files.
+std::vector<std::filesystem::path> output_file_names(const std::filesystem::path& file);
+
+// The bytes a run of `frames` frames writes (at least): the bodies' rest, tets and
+// surface, per frame x (and v), /time, /solver/step_seconds and `series_per_frame`
+// more bytes, plus the XDMF file. Contact rows (their number is not known) are not
+// counted.
+struct OutputEstimate {
+  double hdf5_bytes = 0, xdmf_bytes = 0, frame_bytes = 0;
+  double total() const { return hdf5_bytes + xdmf_bytes; }
+};
+OutputEstimate estimate_output(const std::vector<OutputBody>& bodies, bool write_v, long frames,
+                               double series_per_frame, const std::string& h5_name);
+
+// True once an HDF5 file could not be closed (the disk was full): HDF5's own exit
+// handler would then crash on the half-closed file, so the program must leave with
+// _exit() (softdiff's main does).
+bool hdf5_close_failed();
 
 // Library versions for `softdiff --version` and the file's attributes.
 std::string hdf5_version();
