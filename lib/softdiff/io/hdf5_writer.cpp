@@ -4,7 +4,9 @@
 // - File format: HDF5's default (earliest) library-version bounds. Files are readable
 //   by any HDF5 >= 1.8 (h5py, h5dump, ParaView), and a file left open by a killed
 //   process carries no "file is open for writing" superblock flag (the 1.10 format
-//   would), so readers open it without h5clear.
+//   would), so readers open it without h5clear. The XDMF files' views
+//   (/xdmf/..., HDF5 virtual datasets) are the one object that needs HDF5 >= 1.10
+//   (the library raises the version of those objects alone; the superblock stays).
 // - Frames: every per-frame dataset is chunked with an unlimited first dimension.
 //   A frame of x/v that is at least 64 KiB is one chunk, written straight from the
 //   caller's buffer (no chunk cache, no fill value: HDF5 then copies nothing).

@@ -1,5 +1,5 @@
 #pragma once
-// Streaming HDF5 output (spec: docs/output.md) and the XDMF file beside it.
+// Streaming HDF5 output (spec: docs/output.md) and the XDMF files beside it.
 //
 // The file is written under a temporary name (`<file>.partial`) and renamed to its
 // final name by finish() (status "complete", "interrupted" or "diverged: ...").
