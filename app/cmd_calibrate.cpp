@@ -3,6 +3,7 @@
 #include "commands.hpp"
 #include "common.hpp"
 #include "theta.hpp"
+#include "units.hpp"
 
 #include <softdiff/actuation/embedding.hpp>
 #include <softdiff/core/timer.hpp>
@@ -19,6 +20,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <filesystem>
 #include <map>
@@ -361,13 +363,25 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
       table(r, p + 3) = h.damping;
       table(r, p + 4) = h.seconds;
     }
-    w.write_matrix("/calibration/iterations", table, {{"columns", columns}});
+    // Units per column: iteration 1, each parameter's, cost m^2 (1/2 |r|^2, r in m),
+    // gradient_norm m^2 per the parameters' unit (|J^T r|; "mixed" when they differ),
+    // damping 1, seconds s.
+    std::vector<std::string> parameter_units;
+    for (const auto& id : params.ids) parameter_units.push_back(parameter_unit(id.kind));
+    std::vector<std::string> units{"1"};
+    units.insert(units.end(), parameter_units.begin(), parameter_units.end());
+    const std::string common = column_units(parameter_units);
+    const std::map<std::string, std::string> m2_per{
+        {"Pa", "m^2/Pa"}, {"1", "m^2"}, {"kg/m^3", "m^5/kg"}, {"1/s", "m^2 s"}, {"s", "m^2/s"}};
+    const auto gradient = m2_per.find(common);
+    units.insert(units.end(), {"m^2", gradient == m2_per.end() ? std::string("mixed") : gradient->second, "1", "s"});
+    w.write_matrix("/calibration/iterations", table, column_units(units), {{"columns", columns}});
     for (std::size_t j = 0; j < params.ids.size(); ++j) w.set_attribute("/calibration", params.names[j], result.values[j]);
-    w.set_attribute("/calibration", "converged", result.converged ? 1.0 : 0.0);
-    w.set_attribute("/calibration", "iterations", static_cast<double>(result.iterations));
+    w.set_attribute("/calibration", "converged", std::int64_t{result.converged ? 1 : 0});
+    w.set_attribute("/calibration", "iterations", std::int64_t{result.iterations});
     w.set_attribute("/calibration", "final_cost", result.cost);
     w.set_attribute("/calibration", "stop_reason", result.stop_reason);
-    w.set_attribute("/calibration", "evaluations", static_cast<double>(result.evaluations));
+    w.set_attribute("/calibration", "evaluations", std::int64_t{result.evaluations});
   };
   RunHooks hooks;
   hooks.finish = write_calibration;

@@ -3,6 +3,7 @@
 #include "commands.hpp"
 #include "common.hpp"
 #include "theta.hpp"
+#include "units.hpp"
 
 #include <softdiff/core/error.hpp>
 #include <softdiff/core/timer.hpp>
@@ -201,11 +202,13 @@ int run_control(const ControlOptions& o, const std::string& command_line) {
   bool limits_ok = true;
   RunHooks hooks;
   hooks.setup = [&](io::Hdf5Writer& wr) {
-    series.goal = wr.add_series("/control/goal", 3);
-    series.distance = wr.add_series("/control/distance", 0);
-    series.actuation = wr.add_series("/control/actuation", static_cast<int>(na));
-    if (model.contact.enabled) series.force = wr.add_series("/control/contact_force_norm", 0);
-    series.kkt = wr.add_series("/control/kkt_residual", 0);
+    std::vector<std::string> actuation_units;
+    for (const auto& a : model.actuation.actuators) actuation_units.push_back(actuator_value_unit(a));
+    series.goal = wr.add_series("/control/goal", 3, "m");
+    series.distance = wr.add_series("/control/distance", 0, "m");
+    series.actuation = wr.add_series("/control/actuation", static_cast<int>(na), column_units(actuation_units));
+    if (model.contact.enabled) series.force = wr.add_series("/control/contact_force_norm", 0, "N");
+    series.kkt = wr.add_series("/control/kkt_residual", 0, "1");  // relative to max(1, |g|_inf): box_qp.hpp
   };
   if (o.max_actuation)
     for (const auto& a : model.actuation.actuators)

@@ -2,7 +2,9 @@
 #include "commands.hpp"
 #include "common.hpp"
 #include "theta.hpp"
+#include "units.hpp"
 
+#include <softdiff/core/assert.hpp>
 #include <softdiff/core/error.hpp>
 #include <softdiff/data.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
@@ -22,6 +24,7 @@
 #include <atomic>
 #include <cctype>
 #include <chrono>
+#include <cstdint>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
@@ -74,6 +77,20 @@ std::string fmt_ms(double seconds, long steps) {
   char buf[32];
   std::snprintf(buf, sizeof buf, "%.3g", steps > 0 ? 1e3 * seconds / steps : 0.0);
   return buf;
+}
+
+// The units of /jacobians/<group>: d x (m) / d theta, per column when they differ.
+std::string jacobian_units(const Model& model, const ThetaGroup& g) {
+  if (g.name == "x0") return "1";
+  if (g.name == "v0") return "s";
+  if (g.name == "actuation") {
+    std::vector<std::string> units;
+    for (const auto& a : model.actuation.actuators) units.push_back(position_per(actuator_value_unit(a)));
+    return column_units(units);
+  }
+  const std::optional<Parameter> p = parse_parameter(g.name);
+  SOFTDIFF_DEMAND(p.has_value(), "no unit for theta '" + g.name + "'");
+  return position_per(parameter_unit(*p));
 }
 
 }  // namespace
@@ -145,6 +162,8 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
   wo.file = out_path;
   wo.force = o.force;
   wo.write_v = scene.output.v;
+  wo.write_contact_force = model.contact.enabled;
+  wo.gzip_level = scene.output.gzip_level;
   wo.command = command_line;
   wo.scene_yaml = scene.text;
   std::vector<io::OutputBody> out_bodies;
@@ -160,7 +179,8 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
     for (const auto& a : model.actuation.actuators) series += a.has_measure() ? 16 : 8;
     series += 24.0 * static_cast<double>(model.actuation.effectors.size());
     check_output_space(out_path,
-                       io::estimate_output(out_bodies, wo.write_v, frames, series, out_path.filename().string()),
+                       io::estimate_output(out_bodies, wo.write_v, wo.write_contact_force, frames, series,
+                                          out_path.filename().string()),
                        frames);
   }
 
@@ -221,14 +241,15 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
   std::vector<Series> actuator_series;
   for (const auto& a : model.actuation.actuators) {
     Series s;
-    s.value = writer.add_series("/actuators/" + a.name + "/value", 0);
-    if (a.has_measure()) s.measure = writer.add_series("/actuators/" + a.name + "/" + a.measure_name(), 0);
+    s.value = writer.add_series("/actuators/" + a.name + "/value", 0, actuator_value_unit(a));
+    if (a.has_measure())
+      s.measure = writer.add_series("/actuators/" + a.name + "/" + a.measure_name(), 0, actuator_measure_unit(a));
     actuator_series.push_back(s);
   }
   std::vector<int> effector_series;
   for (const auto& e : model.actuation.effectors)
     effector_series.push_back(
-        writer.add_series("/bodies/" + model.fem.bodies[e.body].name + "/effectors/" + e.name, 3));
+        writer.add_series("/bodies/" + model.fem.bodies[e.body].name + "/effectors/" + e.name, 3, "m"));
   // Contacts (output.md /contact/*, /solver/contact_*): the contacts of the step
   // that produced each frame (none at frame 0).
   struct ContactOutput {
@@ -240,15 +261,15 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
   } co;
   if (model.contact.enabled) {
     using E = io::Hdf5Writer::Element;
-    writer.write_strings("/contact/names", model.contact.detection.names);
-    co.offsets = writer.add_table("/contact/offsets", {}, E::i64);
-    co.point = writer.add_table("/contact/point", {3}, E::f64);
-    co.frame = writer.add_table("/contact/frame", {3, 3}, E::f64);
-    co.force = writer.add_table("/contact/force", {3}, E::f64);
-    co.mode = writer.add_table("/contact/mode", {}, E::i8);
-    co.pair = writer.add_table("/contact/pair", {2}, E::i32);
-    co.iterations = writer.add_table("/solver/contact_iterations", {}, E::i32);
-    co.residual = writer.add_table("/solver/contact_residual", {}, E::f64);
+    writer.write_strings("/contact/names", model.contact.detection.names, "1");
+    co.offsets = writer.add_table("/contact/offsets", {}, E::i64, "1");
+    co.point = writer.add_table("/contact/point", {3}, E::f64, "m");
+    co.frame = writer.add_table("/contact/frame", {3, 3}, E::f64, "1");
+    co.force = writer.add_table("/contact/force", {3}, E::f64, "N");
+    co.mode = writer.add_table("/contact/mode", {}, E::i8, "1");
+    co.pair = writer.add_table("/contact/pair", {2}, E::i32, "1");
+    co.iterations = writer.add_table("/solver/contact_iterations", {}, E::i32, "1");
+    co.residual = writer.add_table("/solver/contact_residual", {}, E::f64, "1");
     writer.append_rows(co.offsets, &co.rows, 1);
   }
   auto write_contacts = [&](bool first) {
@@ -280,9 +301,28 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
     writer.append_rows(co.iterations, &iterations, 1);
     writer.append_rows(co.residual, &residual, 1);
   };
+  // /bodies/<b>/contact_force: the world force of each contact of the step that
+  // produced the frame, C_i lambda_i = lambda_t1 t1 + lambda_t2 t2 + lambda_n n on the
+  // first side, spread over the contact's nodes with its weights (barycentric on the
+  // first side, minus barycentric on the second: the reaction), i.e. H_c^T lambda_c
+  // without the projection of fixed nodes. Zero at frame 0.
+  VecX nodal_contact_force = VecX::Zero(model.contact.enabled ? 3L * model.fem.num_nodes : 0);
+  auto compute_nodal_contact_force = [&](bool first) {
+    nodal_contact_force.setZero();
+    if (first) return;
+    const auto& cd = data.contact;
+    for (int i = 0; i < cd.contacts.size(); ++i) {
+      const auto& c = cd.contacts.contacts[static_cast<std::size_t>(i)];
+      const Vec3 world = c.frame * cd.lambda.segment<3>(3 * i);
+      for (int k = 0; k < c.count; ++k)
+        nodal_contact_force.segment<3>(3 * c.nodes[static_cast<std::size_t>(k)]) +=
+            c.weights[static_cast<std::size_t>(k)] * world;
+    }
+  };
   auto write_frame = [&](const State& st, double step_seconds, bool first = false) {
     std::lock_guard<std::mutex> lock(writer_mutex);
-    writer.append_frame(st.t, st.x, &st.v, step_seconds);
+    if (model.contact.enabled) compute_nodal_contact_force(first);
+    writer.append_frame(st.t, st.x, &st.v, step_seconds, model.contact.enabled ? &nodal_contact_force : nullptr);
     write_contacts(first);
     for (size_t a = 0; a < actuator_series.size(); ++a) {
       const auto& act = model.actuation.actuators[a];
@@ -470,19 +510,19 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
   try {
     if (theta && status == "complete") {
       // output.md: /jacobians/<theta> (3 n_total, k) = d x_T / d theta at the final frame.
-      const std::string frame = std::to_string(writer.frames_written() - 1);
+      const std::int64_t frame = writer.frames_written() - 1;
       const MatX& J = is_static ? static_jacobian : sensitivity->dx_dtheta();
       const char* method = is_static ? "implicit function theorem at the equilibrium" : "forward sensitivities";
       for (const auto& g : theta->groups) {
         std::string names;
         for (const auto& c : g.columns) names += (names.empty() ? "" : ",") + c;
-        writer.write_matrix("/jacobians/" + g.name, J.middleCols(g.offset, g.size),
+        writer.write_matrix("/jacobians/" + g.name, J.middleCols(g.offset, g.size), jacobian_units(model, g),
                             {{"theta", names},
                              {"frame", frame},
-                             {"method", method},
-                             {"ncp_rank_deficient_steps", std::to_string(rank_deficient_steps)},
-                             {"nondifferentiable_contacts", std::to_string(nondifferentiable_total)},
-                             {"smoothed_contacts", std::to_string(smoothed_total)}});
+                             {"method", std::string(method)},
+                             {"ncp_rank_deficient_steps", std::int64_t{rank_deficient_steps}},
+                             {"nondifferentiable_contacts", std::int64_t{nondifferentiable_total}},
+                             {"smoothed_contacts", std::int64_t{smoothed_total}}});
       }
     }
     if (hooks.finish && status == "complete") hooks.finish(writer);

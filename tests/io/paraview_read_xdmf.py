@@ -1,6 +1,6 @@
 # Reads an XDMF file with ParaView's Xdmf3 readers and prints, for every reader, time
 # step and leaf block (in order), one line:
-#   READER STEP TIME BLOCK POINTS CELLS SUM_OF_POINT_COORDINATES SUM_OF_V
+#   READER STEP TIME BLOCK POINTS CELLS SUM_OF_POINT_COORDINATES SUM_OF_V SUM_OF_DISPLACEMENT
 # Run with pvpython (Debian: python3-paraview); used by test_io when pvpython exists.
 #   pvpython paraview_read_xdmf.py /absolute/path/out.xmf
 import sys
@@ -31,8 +31,10 @@ for name in ("Xdmf3ReaderT", "Xdmf3ReaderS"):
         for block, leaf in enumerate(leaves(sm.Fetch(reader))):
             wrapped = dsa.WrapDataObject(leaf)
             points = float(wrapped.Points.sum()) if leaf.GetNumberOfPoints() else 0.0
-            v = wrapped.PointData["v"]
-            v_sum = float(v.sum()) if leaf.GetPointData().HasArray("v") else float("nan")
-            print("%s %d %g %d %d %d %.6f %.6f" % (name, step, time, block, leaf.GetNumberOfPoints(),
-                                                   leaf.GetNumberOfCells(), points, v_sum))
+            sums = []
+            for field in ("v", "displacement"):
+                has = leaf.GetPointData().HasArray(field)
+                sums.append(float(wrapped.PointData[field].sum()) if has else float("nan"))
+            print("%s %d %g %d %d %d %.6f %.6f %.6f" % (name, step, time, block, leaf.GetNumberOfPoints(),
+                                                        leaf.GetNumberOfCells(), points, sums[0], sums[1]))
     pv.Delete(reader)

@@ -16,12 +16,14 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <array>
 #include <cctype>
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
 #include <iostream>
+#include <map>
 #include <regex>
 #include <sstream>
 #include <tuple>
@@ -203,6 +205,16 @@ T number_attribute(hid_t file, const std::string& object, const std::string& nam
     H5Aclose(attribute);
   }
   return value;
+}
+
+bool attribute_class_is(hid_t file, const std::string& object, const std::string& name, H5T_class_t type_class) {
+  const hid_t attribute = H5Aopen_by_name(file, object.c_str(), name.c_str(), H5P_DEFAULT, H5P_DEFAULT);
+  if (attribute < 0) return false;
+  const hid_t type = H5Aget_type(attribute);
+  const bool same = H5Tget_class(type) == type_class;
+  H5Tclose(type);
+  H5Aclose(attribute);
+  return same;
 }
 
 // Frames 0..frames-1 of every dataset, as written by append_frames.
@@ -403,6 +415,19 @@ TEST(Hdf5Writer, WritesEveryDatasetAndAttribute) {
   expect_frames(h5.id, 5, true);
 }
 
+// Every plain HDF DataItem of an XDMF text: (dimensions, file name, dataset path).
+std::vector<std::array<std::string, 3>> heavy_references(const std::string& text) {
+  const std::regex heavy(R"re(<DataItem Dimensions="([0-9 ]+)"[^>]*Format="HDF">([^<:|]+):([^<|]+)</DataItem>)re");
+  std::vector<std::array<std::string, 3>> out;
+  for (auto it = std::sregex_iterator(text.begin(), text.end(), heavy); it != std::sregex_iterator(); ++it)
+    out.push_back({(*it)[1].str(), (*it)[2].str(), (*it)[3].str()});
+  return out;
+}
+
+// The XDMF files of a 5-frame run of two bodies: out.xmf (both, ParaView) and one per
+// body (meshio: one mesh per file). Every DataItem names a whole dataset of the .h5
+// (no slab, no HyperSlab: meshio reads nothing else), of the stated shape; the views
+// of frame k hold frame k of the source dataset.
 TEST(Hdf5Writer, XdmfDescribesEveryFrameOfEveryBody) {
   const fs::path dir = test_dir();
   const fs::path file = dir / "run 1.h5";  // a space, as users do
@@ -411,70 +436,77 @@ TEST(Hdf5Writer, XdmfDescribesEveryFrameOfEveryBody) {
     append_frames(writer, 0, 5, true);
     writer.finish("complete");
   }
-  const fs::path xmf = dir / "run 1.xmf";
-  ASSERT_TRUE(fs::exists(xmf));
-  EXPECT_FALSE(fs::exists(dir / "run 1.xmf.partial"));
-  const std::string text = read_text(xmf);
-
-  std::string problem;
-  EXPECT_TRUE(well_formed_xml(text, problem)) << problem << "\n" << text;
-  if (fs::exists("/usr/bin/xmllint")) {
-    const std::string command = "/usr/bin/xmllint --noout '" + xmf.string() + "'";
-    EXPECT_EQ(std::system(command.c_str()), 0) << command;
+  for (const std::string name : {"run 1.xmf", "run 1.beam.xmf", "run 1.ball.xmf"}) {
+    ASSERT_TRUE(fs::exists(dir / name)) << name;
+    EXPECT_FALSE(fs::exists(dir / (name + ".partial"))) << name;
   }
-
-  EXPECT_EQ(count_of(text, "CollectionType=\"Temporal\""), 1);
-  EXPECT_EQ(count_of(text, "CollectionType=\"Spatial\""), 5);
-  EXPECT_EQ(count_of(text, "<Grid Name=\"beam\" GridType=\"Uniform\">"), 5);
-  EXPECT_EQ(count_of(text, "<Grid Name=\"ball\" GridType=\"Uniform\">"), 5);
-  EXPECT_EQ(count_of(text, "TopologyType=\"Tetrahedron\""), 10);
-  EXPECT_EQ(count_of(text, "<Attribute Name=\"v\" AttributeType=\"Vector\" Center=\"Node\">"), 10);
-  for (int k = 0; k < 5; ++k) {
-    std::ostringstream time;
-    time << "<Time Value=\"" << time_value(k) << "\"/>";
-    EXPECT_EQ(count_of(text, time.str()), 1) << time.str();
-    // frame k: start (k, 0, 0), stride 1, count (1, n, 3) of the (T, n, 3) dataset
-    EXPECT_EQ(count_of(text, "|" + std::to_string(k) + " 0 0:1 1 1:1 5 3:5 5 3<"), 2);  // beam: x and v
-    EXPECT_EQ(count_of(text, "|" + std::to_string(k) + " 0 0:1 1 1:1 4 3:5 4 3<"), 2);  // ball
-  }
-
-  // Every heavy-data reference names the .h5 by file name and a dataset of the
-  // stated shape (or, for a slab, a dataset of its dataspace holding the slab).
-  H5File h5(dir / "run 1.h5");
+  H5File h5(file);
   ASSERT_GE(h5.id, 0);
-  const std::regex heavy(R"re(Dimensions="([0-9 ]+)"[^>]*Format="HDF">([^<:|]+):([^<|]+)(?:\|([^<]*))?</DataItem>)re");
   const auto shape_text = [&](const std::string& path) {
     std::ostringstream shape;
     for (const hsize_t d : shape_of(h5.id, path)) shape << (shape.tellp() > 0 ? " " : "") << d;
     return shape.str();
   };
-  int references = 0;
-  for (auto it = std::sregex_iterator(text.begin(), text.end(), heavy); it != std::sregex_iterator(); ++it) {
-    ++references;
-    const std::string dimensions = (*it)[1].str(), file_name = (*it)[2].str(), path = (*it)[3].str();
-    EXPECT_EQ(file_name, "run 1.h5");
-    if (!(*it)[4].matched) {
-      EXPECT_EQ(shape_text(path), dimensions) << path;
-      continue;
+  const std::map<std::string, int> first_node{{"beam", 0}, {"ball", 5}};
+  const auto check = [&](const std::string& name, const std::vector<std::string>& bodies) {
+    SCOPED_TRACE(name);
+    const std::string text = read_text(dir / name);
+    std::string problem;
+    EXPECT_TRUE(well_formed_xml(text, problem)) << problem << "\n" << text;
+    if (fs::exists("/usr/bin/xmllint")) {
+      const std::string command = "/usr/bin/xmllint --noout '" + (dir / name).string() + "'";
+      EXPECT_EQ(std::system(command.c_str()), 0) << command;
     }
-    // start:stride:count:dataspace
-    std::vector<std::string> parts;
-    std::stringstream slab((*it)[4].str());
-    for (std::string part; std::getline(slab, part, ':');) parts.push_back(part);
-    ASSERT_EQ(parts.size(), 4u) << (*it)[4].str();
-    EXPECT_EQ(parts[1], "1 1 1");
-    EXPECT_EQ(parts[2], dimensions) << path;
-    EXPECT_EQ(parts[3], shape_text(path)) << path;
-    EXPECT_LT(std::stoi(parts[0]), 5) << path;
-  }
-  EXPECT_EQ(references, 5 * 2 * 3);  // frames x bodies x (tets, x, v)
-  EXPECT_EQ(count_of(text, ":/bodies/beam/x|"), 5);
-  EXPECT_EQ(count_of(text, ":/bodies/ball/v|"), 5);
-  EXPECT_EQ(count_of(text, ":/bodies/beam/tets<"), 5);
+    const int b = static_cast<int>(bodies.size());
+    EXPECT_EQ(count_of(text, "<Xdmf Version=\"3.0\">"), 1);
+    EXPECT_EQ(count_of(text, "CollectionType=\"Temporal\""), 1);
+    EXPECT_EQ(count_of(text, "CollectionType=\"Spatial\""), b > 1 ? 5 : 0);
+    EXPECT_EQ(count_of(text, "HyperSlab"), 0);
+    EXPECT_EQ(count_of(text, "<Time Value="), 5);
+    for (const std::string& body : bodies) EXPECT_EQ(count_of(text, "<Grid Name=\"" + body + "\" GridType=\"Uniform\">"), 5);
+    EXPECT_EQ(count_of(text, "TopologyType=\"Tetrahedron\""), 5 * b);
+    for (const std::string field : {"x", "v", "displacement"})
+      EXPECT_EQ(count_of(text, "<Attribute Name=\"" + field + "\" AttributeType=\"Vector\" Center=\"Node\">"), 5 * b);
+    for (int k = 0; k < 5; ++k) {
+      std::ostringstream time;
+      time << "<Time Value=\"" << time_value(k) << "\"/>";
+      EXPECT_EQ(count_of(text, time.str()), 1) << time.str();
+    }
+    int references = 0;
+    for (const auto& [dimensions, file_name, path] : heavy_references(text)) {
+      ++references;
+      EXPECT_EQ(file_name, "run 1.h5");
+      EXPECT_EQ(shape_text(path), dimensions) << path;
+      std::smatch view;
+      if (!std::regex_match(path, view, std::regex("/xdmf/(\\w+)/(\\w+)/(\\d+)"))) {
+        EXPECT_TRUE(std::regex_match(path, std::regex("/bodies/\\w+/tets"))) << path;
+        continue;
+      }
+      // The view holds frame k of /bodies/<body>/<field>.
+      const std::string body = view[1], field = view[2];
+      const int k = std::stoi(view[3]);
+      const std::vector<double> values = read_doubles(h5.id, path);
+      const int nodes = body == "beam" ? 5 : 4;
+      ASSERT_EQ(values.size(), static_cast<std::size_t>(3 * nodes)) << path;
+      const auto rest = two_bodies()[body == "beam" ? 0 : 1].rest;
+      for (int e = 0; e < 3 * nodes; ++e) {
+        const int entry = 3 * first_node.at(body) + e;
+        const double expected = field == "x"   ? x_value(k, entry)
+                                : field == "v" ? v_value(k, entry)
+                                               : x_value(k, entry) - rest(e % 3, e / 3);
+        ASSERT_EQ(values[static_cast<std::size_t>(e)], expected) << path << " entry " << e;
+      }
+    }
+    EXPECT_EQ(references, 5 * b * 5);  // frames x bodies x (tets, x geometry, x, v, displacement)
+  };
+  check("run 1.xmf", {"beam", "ball"});
+  check("run 1.beam.xmf", {"beam"});
+  check("run 1.ball.xmf", {"ball"});
 }
 
 // ParaView itself (its Xdmf3 readers) shows every frame of every body: run when
-// pvpython is installed (Debian: python3-paraview), skipped otherwise.
+// pvpython is installed (Debian: python3-paraview, scripts/setup --paraview),
+// skipped otherwise.
 TEST(Hdf5Writer, XdmfOpensInParaViewSlow) {
   const char* pvpython = "/usr/bin/pvpython";
   if (!fs::exists(pvpython)) GTEST_SKIP() << "pvpython not installed";
@@ -485,30 +517,37 @@ TEST(Hdf5Writer, XdmfOpensInParaViewSlow) {
     writer.finish("complete");
   }
   const fs::path script = fs::path(SOFTDIFF_SOURCE_DIR) / "tests" / "io" / "paraview_read_xdmf.py";
-  const fs::path listing = dir / "paraview.txt";
-  const std::string command = std::string(pvpython) + " --force-offscreen-rendering '" + script.string() + "' '" +
-                              fs::absolute(dir / "out.xmf").string() + "' > '" + listing.string() + "' 2> '" +
-                              (dir / "paraview.err").string() + "'";
-  ASSERT_EQ(std::system(command.c_str()), 0) << command << "\n" << read_text(dir / "paraview.err");
-
-  std::string expected;
-  for (const std::string reader : {"Xdmf3ReaderT", "Xdmf3ReaderS"})
-    for (int k = 0; k < 3; ++k) {
-      int first_entry = 0;
-      for (const auto& [block, nodes, cells] : std::vector<std::tuple<int, int, int>>{{0, 5, 2}, {1, 4, 1}}) {
-        double x_sum = 0, v_sum = 0;
-        for (int e = first_entry; e < first_entry + 3 * nodes; ++e) {
-          x_sum += x_value(k, e);
-          v_sum += v_value(k, e);
+  const auto bodies = two_bodies();
+  // name, the bodies it shows (index into two_bodies), first entry of each in x
+  const std::vector<std::tuple<std::string, std::vector<int>>> files{
+      {"out.xmf", {0, 1}}, {"out.beam.xmf", {0}}, {"out.ball.xmf", {1}}};
+  for (const auto& [name, shown] : files) {
+    SCOPED_TRACE(name);
+    const fs::path listing = dir / (name + ".txt");
+    const std::string command = std::string(pvpython) + " --force-offscreen-rendering '" + script.string() + "' '" +
+                                fs::absolute(dir / name).string() + "' > '" + listing.string() + "' 2> '" +
+                                (dir / "paraview.err").string() + "'";
+    ASSERT_EQ(std::system(command.c_str()), 0) << command << "\n" << read_text(dir / "paraview.err");
+    std::string expected;
+    for (const std::string reader : {"Xdmf3ReaderT", "Xdmf3ReaderS"})
+      for (int k = 0; k < 3; ++k)
+        for (std::size_t block = 0; block < shown.size(); ++block) {
+          const OutputBody& body = bodies[static_cast<std::size_t>(shown[block])];
+          const int nodes = static_cast<int>(body.rest.cols());
+          const int first_entry = shown[block] == 0 ? 0 : 15;
+          double x_sum = 0, v_sum = 0, u_sum = 0;
+          for (int e = 0; e < 3 * nodes; ++e) {
+            x_sum += x_value(k, first_entry + e);
+            v_sum += v_value(k, first_entry + e);
+            u_sum += x_value(k, first_entry + e) - body.rest(e % 3, e / 3);
+          }
+          char line[256];
+          std::snprintf(line, sizeof line, "%s %d %g %d %d %d %.6f %.6f %.6f\n", reader.c_str(), k, time_value(k),
+                        static_cast<int>(block), nodes, static_cast<int>(body.tets.cols()), x_sum, v_sum, u_sum);
+          expected += line;
         }
-        first_entry += 3 * nodes;
-        char line[256];
-        std::snprintf(line, sizeof line, "%s %d %g %d %d %d %.6f %.6f\n", reader.c_str(), k, time_value(k), block,
-                      nodes, cells, x_sum, v_sum);
-        expected += line;
-      }
-    }
-  EXPECT_EQ(read_text(listing), expected) << read_text(dir / "paraview.err");
+    EXPECT_EQ(read_text(listing), expected) << read_text(dir / "paraview.err");
+  }
 }
 
 TEST(Hdf5Writer, WithoutVelocitiesWritesNoV) {
@@ -522,8 +561,10 @@ TEST(Hdf5Writer, WithoutVelocitiesWritesNoV) {
   ASSERT_GE(h5.id, 0);
   expect_frames(h5.id, 3, false);
   const std::string text = read_text(dir / "out.xmf");
-  EXPECT_EQ(count_of(text, "<Attribute"), 0);
-  EXPECT_EQ(count_of(text, "/v<"), 0);
+  EXPECT_EQ(count_of(text, "<Attribute Name=\"v\""), 0);
+  EXPECT_EQ(count_of(text, "/v/"), 0);
+  EXPECT_EQ(count_of(text, "<Attribute Name=\"displacement\""), 3 * 2);
+  EXPECT_FALSE(has_link(h5.id, "/xdmf/beam/v"));
 }
 
 TEST(Hdf5Writer, ExistingFileIsNotOverwrittenWithoutForce) {
@@ -767,9 +808,9 @@ TEST(Hdf5Writer, SeriesMatricesAndAttributesRoundTrip) {
   const fs::path file = dir / "out.h5";
   {
     Hdf5Writer writer(options_for(file), two_bodies());
-    const int value = writer.add_series("/actuators/cable/value", 0);
-    const int effector = writer.add_series("/bodies/beam/effectors/tip", 3);
-    EXPECT_THROW(writer.add_series("/time", 0), std::logic_error);
+    const int value = writer.add_series("/actuators/cable/value", 0, "N");
+    const int effector = writer.add_series("/bodies/beam/effectors/tip", 3, "m");
+    EXPECT_THROW(writer.add_series("/time", 0, "s"), std::logic_error);
     for (int k = 0; k < 1500; ++k) {  // more than one chunk
       const double scalar = 0.5 * k;
       const double row[3] = {1.0 * k, 2.0 * k, 3.0 * k};
@@ -778,13 +819,16 @@ TEST(Hdf5Writer, SeriesMatricesAndAttributesRoundTrip) {
     }
     MatX jacobian(3, 2);
     jacobian << 1, 2, 3, 4, 5, 6;  // row-major reading order
-    writer.write_matrix("/jacobians/young", jacobian, {{"theta", "beam.young"}, {"frame", "4"}});
-    EXPECT_THROW(writer.write_matrix("/jacobians/young", jacobian), std::logic_error);
+    writer.write_matrix("/jacobians/young", jacobian, "m/Pa",
+                        {{"theta", "beam.young"}, {"frame", std::int64_t{4}}, {"scale", 0.5}});
+    EXPECT_THROW(writer.write_matrix("/jacobians/young", jacobian, "m/Pa"), std::logic_error);
     writer.set_attribute("/", "note", "hello");
     writer.set_attribute("/bodies/beam", "young", 2.5e5);
     writer.set_attribute("/bodies/beam", "young", 3.5e5);  // replaced
     writer.set_attribute("/jacobians", "frames", "last");
-    EXPECT_THROW(writer.set_attribute("/calibration", "converged", 1.0), std::logic_error);
+    writer.set_attribute("/jacobians", "count", 7);
+    writer.set_attribute("/jacobians", "big", std::int64_t{1} << 40);
+    EXPECT_THROW(writer.set_attribute("/calibration", "converged", 1), std::logic_error);
     writer.finish("complete");
   }
   H5File h5(file);
@@ -800,7 +844,16 @@ TEST(Hdf5Writer, SeriesMatricesAndAttributesRoundTrip) {
   EXPECT_EQ(shape_of(h5.id, "/jacobians/young"), std::vector<hsize_t>({3, 2}));
   EXPECT_EQ(read_doubles(h5.id, "/jacobians/young"), std::vector<double>({1, 2, 3, 4, 5, 6}));
   EXPECT_EQ(string_attribute(h5.id, "/jacobians/young", "theta"), "beam.young");
-  EXPECT_EQ(string_attribute(h5.id, "/jacobians/young", "frame"), "4");
+  EXPECT_EQ(number_attribute<long long>(h5.id, "/jacobians/young", "frame", H5T_NATIVE_LLONG), 4);
+  EXPECT_TRUE(attribute_class_is(h5.id, "/jacobians/young", "frame", H5T_INTEGER));
+  EXPECT_TRUE(attribute_class_is(h5.id, "/jacobians/young", "scale", H5T_FLOAT));
+  EXPECT_TRUE(attribute_class_is(h5.id, "/jacobians/young", "theta", H5T_STRING));
+  EXPECT_EQ(number_attribute<long long>(h5.id, "/jacobians", "count", H5T_NATIVE_LLONG), 7);
+  EXPECT_TRUE(attribute_class_is(h5.id, "/jacobians", "count", H5T_INTEGER));
+  EXPECT_EQ(number_attribute<long long>(h5.id, "/jacobians", "big", H5T_NATIVE_LLONG), 1LL << 40);
+  EXPECT_EQ(string_attribute(h5.id, "/actuators/cable/value", "units"), "N");
+  EXPECT_EQ(string_attribute(h5.id, "/bodies/beam/effectors/tip", "units"), "m");
+  EXPECT_EQ(string_attribute(h5.id, "/jacobians/young", "units"), "m/Pa");
   EXPECT_EQ(string_attribute(h5.id, "/", "note"), "hello");
   EXPECT_EQ(number_attribute<double>(h5.id, "/bodies/beam", "young", H5T_NATIVE_DOUBLE), 3.5e5);
   EXPECT_EQ(string_attribute(h5.id, "/jacobians", "frames"), "last");
@@ -822,16 +875,212 @@ TEST(Hdf5Writer, LargeSceneTextAndNoFrames) {
   EXPECT_TRUE(well_formed_xml(read_text(dir / "out.xmf"), problem)) << problem;
 }
 
+// Every dataset the writer creates, whatever the call, has a string `units`.
+herr_t collect_units(hid_t object, const char* name, const H5O_info_t* info, void* data) {
+  if (info->type == H5O_TYPE_DATASET) {
+    auto* units = static_cast<std::map<std::string, std::string>*>(data);
+    const hid_t attribute = H5Aopen_by_name(object, name, "units", H5P_DEFAULT, H5P_DEFAULT);
+    std::string value = "<missing>";
+    if (attribute >= 0) {
+      value = string_attribute(object, name, "units");
+      H5Aclose(attribute);
+    }
+    (*units)["/" + std::string(name)] = value;
+  }
+  return 0;
+}
+
+TEST(Hdf5Writer, EveryDatasetHasUnits) {
+  const fs::path dir = test_dir();
+  WriterOptions options = options_for(dir / "out.h5");
+  options.write_contact_force = true;
+  {
+    Hdf5Writer writer(options, two_bodies());
+    const int series = writer.add_series("/actuators/cavity/volume", 0, "m^3");
+    const int table = writer.add_table("/contact/mode", {}, Hdf5Writer::Element::i8, "1");
+    writer.write_strings("/contact/names", {"beam", "ball", "floor"}, "1");
+    VecX x = VecX::Zero(3 * kNodes), force = VecX::Ones(3 * kNodes);
+    for (int k = 0; k < 2; ++k) {
+      writer.append_frame(k, x, &x, 0.0, &force);
+      const double value = k;
+      const std::int8_t mode = 1;
+      writer.append_series(series, &value);
+      writer.append_rows(table, &mode, 1);
+    }
+    writer.write_matrix("/jacobians/poisson", MatX::Ones(3 * kNodes, 2), "m");
+    writer.finish("complete");
+  }
+  H5File h5(dir / "out.h5");
+  ASSERT_GE(h5.id, 0);
+  std::map<std::string, std::string> units;
+  H5Ovisit(h5.id, H5_INDEX_NAME, H5_ITER_NATIVE, collect_units, &units);
+  const std::map<std::string, std::string> expected_units{
+      {"/time", "s"},           {"/solver/step_seconds", "s"}, {"/actuators/cavity/volume", "m^3"},
+      {"/contact/mode", "1"},   {"/contact/names", "1"},       {"/jacobians/poisson", "m"}};
+  for (const auto& [path, unit] : expected_units) EXPECT_EQ(units[path], unit) << path;
+  for (const std::string body : {"beam", "ball"}) {
+    const std::string group = "/bodies/" + body;
+    EXPECT_EQ(units[group + "/rest"], "m");
+    EXPECT_EQ(units[group + "/tets"], "1");
+    EXPECT_EQ(units[group + "/surface"], "1");
+    EXPECT_EQ(units[group + "/x"], "m");
+    EXPECT_EQ(units[group + "/v"], "m/s");
+    EXPECT_EQ(units[group + "/displacement"], "m");
+    EXPECT_EQ(units[group + "/contact_force"], "N");
+    for (int k = 0; k < 2; ++k) {
+      const std::string frame = "/" + std::to_string(k);
+      EXPECT_EQ(units["/xdmf/" + body + "/x" + frame], "m");
+      EXPECT_EQ(units["/xdmf/" + body + "/v" + frame], "m/s");
+      EXPECT_EQ(units["/xdmf/" + body + "/displacement" + frame], "m");
+      EXPECT_EQ(units["/xdmf/" + body + "/contact_force" + frame], "N");
+    }
+  }
+  EXPECT_EQ(units.size(), expected_units.size() + 2 * (7 + 2 * 4));
+  for (const auto& [path, unit] : units) EXPECT_NE(unit, "<missing>") << path;
+}
+
+// /bodies/<b>/displacement = x - rest, /bodies/<b>/contact_force as given, both
+// frame by frame, and both in the XDMF files.
+TEST(Hdf5Writer, DisplacementAndContactForceFrames) {
+  const fs::path dir = test_dir();
+  WriterOptions options = options_for(dir / "out.h5");
+  options.write_contact_force = true;
+  const auto force_value = [](int frame, int entry) { return frame == 0 ? 0.0 : 0.5 * frame - 0.125 * entry; };
+  {
+    Hdf5Writer writer(options, two_bodies());
+    VecX x(3 * kNodes), v(3 * kNodes), force(3 * kNodes);
+    for (int k = 0; k < 3; ++k) {
+      for (int e = 0; e < 3 * kNodes; ++e) {
+        x[e] = x_value(k, e);
+        v[e] = v_value(k, e);
+        force[e] = force_value(k, e);
+      }
+      writer.append_frame(time_value(k), x, &v, k == 0 ? 0.0 : 0.5 + k, &force);
+    }
+    VecX wrong(3);
+    EXPECT_THROW(writer.append_frame(1.0, x, &v, 0.0, &wrong), std::logic_error);
+    EXPECT_THROW(writer.append_frame(1.0, x, &v, 0.0, nullptr), std::logic_error);
+    writer.finish("complete");
+  }
+  H5File h5(dir / "out.h5");
+  ASSERT_GE(h5.id, 0);
+  expect_frames(h5.id, 3, true);
+  int first_node = 0;
+  for (const OutputBody& body : two_bodies()) {
+    const auto n = static_cast<int>(body.rest.cols());
+    const std::string group = "/bodies/" + body.name;
+    ASSERT_EQ(shape_of(h5.id, group + "/displacement"), std::vector<hsize_t>({3, static_cast<hsize_t>(n), 3}));
+    ASSERT_EQ(shape_of(h5.id, group + "/contact_force"), std::vector<hsize_t>({3, static_cast<hsize_t>(n), 3}));
+    const auto u = read_doubles(h5.id, group + "/displacement");
+    const auto f = read_doubles(h5.id, group + "/contact_force");
+    for (int k = 0; k < 3; ++k)
+      for (int e = 0; e < 3 * n; ++e) {
+        const int entry = 3 * first_node + e;
+        ASSERT_EQ(u[static_cast<std::size_t>(3 * n * k + e)], x_value(k, entry) - body.rest(e % 3, e / 3));
+        ASSERT_EQ(f[static_cast<std::size_t>(3 * n * k + e)], force_value(k, entry));
+      }
+    first_node += n;
+    const std::string text = read_text(dir / ("out." + body.name + ".xmf"));
+    EXPECT_EQ(count_of(text, "<Attribute Name=\"contact_force\" AttributeType=\"Vector\" Center=\"Node\">"), 3);
+    EXPECT_EQ(count_of(text, ":/xdmf/" + body.name + "/contact_force/2<"), 1);
+  }
+  EXPECT_EQ(count_of(read_text(dir / "out.xmf"), "<Attribute Name=\"contact_force\""), 2 * 3);
+}
+
+// gzip: the per-frame node datasets are shuffled and deflated, one frame per chunk,
+// and read back identical to the uncompressed file; the other datasets are not
+// filtered.
+TEST(Hdf5Writer, CompressedFramesReadBackIdentical) {
+  const fs::path dir = test_dir();
+  for (const int level : {0, 1, 9}) {
+    WriterOptions options = options_for(dir / ("out" + std::to_string(level) + ".h5"));
+    options.gzip_level = level;
+    options.write_contact_force = true;
+    Hdf5Writer writer(options, two_bodies());
+    VecX x(3 * kNodes), v(3 * kNodes);
+    for (int k = 0; k < 4; ++k) {
+      for (int e = 0; e < 3 * kNodes; ++e) {
+        x[e] = x_value(k, e);
+        v[e] = v_value(k, e);
+      }
+      writer.append_frame(time_value(k), x, &v, k == 0 ? 0.0 : 0.5 + k, &v);
+    }
+    writer.finish("complete");
+  }
+  H5File plain(dir / "out0.h5");
+  for (const int level : {1, 9}) {
+    H5File packed(dir / ("out" + std::to_string(level) + ".h5"));
+    ASSERT_GE(packed.id, 0);
+    expect_frames(packed.id, 4, true);
+    for (const std::string body : {"beam", "ball"})
+      for (const std::string field : {"x", "v", "displacement", "contact_force", "rest"}) {
+        const std::string path = "/bodies/" + body + "/" + field;
+        EXPECT_EQ(read_doubles(packed.id, path), read_doubles(plain.id, path)) << path;
+        const hid_t dataset = H5Dopen2(packed.id, path.c_str(), H5P_DEFAULT);
+        const hid_t creation = H5Dget_create_plist(dataset);
+        if (field == "rest") {
+          EXPECT_NE(H5Pget_layout(creation), H5D_CHUNKED) << path;
+        } else {
+          ASSERT_EQ(H5Pget_nfilters(creation), 2) << path;
+          unsigned flags = 0, filter_config = 0;
+          std::size_t count = 1;
+          unsigned deflate_level = 0;
+          EXPECT_EQ(H5Pget_filter2(creation, 0, &flags, &count, &deflate_level, 0, nullptr, &filter_config),
+                    H5Z_FILTER_SHUFFLE);
+          count = 1;
+          EXPECT_EQ(H5Pget_filter2(creation, 1, &flags, &count, &deflate_level, 0, nullptr, &filter_config),
+                    H5Z_FILTER_DEFLATE);
+          EXPECT_EQ(deflate_level, static_cast<unsigned>(level));
+          hsize_t chunk[3] = {0, 0, 0};
+          ASSERT_EQ(H5Pget_chunk(creation, 3, chunk), 3);
+          EXPECT_EQ(chunk[0], 1u);
+          EXPECT_EQ(chunk[2], 3u);
+        }
+        H5Pclose(creation);
+        H5Dclose(dataset);
+      }
+    const hid_t time = H5Dopen2(packed.id, "/time", H5P_DEFAULT);
+    const hid_t creation = H5Dget_create_plist(time);
+    EXPECT_EQ(H5Pget_nfilters(creation), 0);
+    H5Pclose(creation);
+    H5Dclose(time);
+    // The views read through the compressed chunks.
+    EXPECT_EQ(read_doubles(packed.id, "/xdmf/ball/v/3"), read_doubles(plain.id, "/xdmf/ball/v/3"));
+  }
+}
+
+TEST(Hdf5Writer, ExistingPerBodyXdmfIsNotOverwrittenWithoutForce) {
+  const fs::path dir = test_dir();
+  std::ofstream(dir / "out.ball.xmf") << "mine";
+  try {
+    Hdf5Writer writer(options_for(dir / "out.h5"), two_bodies());
+    FAIL() << "no InputError";
+  } catch (const InputError& e) {
+    EXPECT_EQ(std::string(e.what()), (dir / "out.ball.xmf").string() + ": output file exists (use --force to overwrite)");
+  }
+  EXPECT_EQ(read_text(dir / "out.ball.xmf"), "mine");
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator()), 1);
+  WriterOptions options = options_for(dir / "out.h5");
+  options.force = true;
+  {
+    Hdf5Writer writer(options, two_bodies());
+    append_frames(writer, 0, 1, true);
+    writer.finish("complete");
+  }
+  EXPECT_NE(read_text(dir / "out.ball.xmf"), "mine");
+}
+
 TEST(Hdf5Writer, LibraryVersion) {
   EXPECT_TRUE(std::regex_match(softdiff::io::hdf5_version(), std::regex(R"(1\.\d+\.\d+)")));
 }
 
 TEST(Xdmf, EscapesNames) {
   EXPECT_EQ(softdiff::io::xml_escape("a<b>&\"c'"), "a&lt;b&gt;&amp;&quot;c&apos;");
-  const std::string text = softdiff::io::xdmf_text("R&D.h5", {{"b<1>", 4, 1}}, {0.0, 0.5}, false);
+  const std::string text = softdiff::io::xdmf_text("R&D.h5", {{"b<1>", 4, 1}}, {0.0, 0.5}, {"x"});
   std::string problem;
   EXPECT_TRUE(well_formed_xml(text, problem)) << problem << "\n" << text;
-  EXPECT_NE(text.find("R&amp;D.h5:/bodies/b&lt;1&gt;/x"), std::string::npos);
+  EXPECT_NE(text.find("R&amp;D.h5:/xdmf/b&lt;1&gt;/x/1<"), std::string::npos);
+  EXPECT_NE(text.find("R&amp;D.h5:/bodies/b&lt;1&gt;/tets<"), std::string::npos);
   EXPECT_NE(text.find("<Time Value=\"0.5\"/>"), std::string::npos);
 }
 

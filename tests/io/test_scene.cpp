@@ -244,6 +244,22 @@ TEST_F(Scene, Defaults) {
   EXPECT_TRUE(s.output.file.empty());
   EXPECT_EQ(s.output.every, 1);
   EXPECT_FALSE(s.output.v || s.output.contact || s.output.actuation || s.output.effectors);
+  EXPECT_EQ(s.output.gzip_level, 0);
+}
+
+// output.compression: none | gzip (level 6) | gzip:LEVEL, LEVEL 1..9 (docs/scene.md).
+TEST_F(Scene, OutputCompression) {
+  EXPECT_EQ(load(kBase + "output: {compression: none}\n").output.gzip_level, 0);
+  EXPECT_EQ(load(kBase + "output: {compression: gzip}\n").output.gzip_level, 6);
+  EXPECT_EQ(load(kBase + "output: {compression: 'gzip:1'}\n").output.gzip_level, 1);
+  EXPECT_EQ(load(kBase + "output:\n  compression: gzip:9\n").output.gzip_level, 9);
+  EXPECT_EQ(load(kBase, {"output.compression=gzip:3"}).output.gzip_level, 3);
+  const std::string message = "output.compression: must be none, gzip or gzip:LEVEL with LEVEL in 1..9; got ";
+  expect_error(kBase + "output:\n  compression: gzip:10\n", ":13:3: " + message + "'gzip:10'");
+  expect_error(kBase + "output:\n  compression: zstd\n", ":13:3: " + message + "'zstd'");
+  expect_error(kBase + "output:\n  compression: gzip:0\n", ":13:3: " + message + "'gzip:0'");
+  expect_error(kBase + "output:\n  compression: GZIP\n", ":13:3: " + message + "'GZIP'");
+  expect_error(kBase + "output:\n  compression: 6\n", ":13:3: " + message + "'6'");
 }
 
 TEST_F(Scene, StaticIntegratorNeedsNoTimeStep) {

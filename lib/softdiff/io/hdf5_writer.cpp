@@ -4,7 +4,9 @@
 // - File format: HDF5's default (earliest) library-version bounds. Files are readable
 //   by any HDF5 >= 1.8 (h5py, h5dump, ParaView), and a file left open by a killed
 //   process carries no "file is open for writing" superblock flag (the 1.10 format
-//   would), so readers open it without h5clear.
+//   would), so readers open it without h5clear. The XDMF files' views
+//   (/xdmf/..., HDF5 virtual datasets) are the one object that needs HDF5 >= 1.10
+//   (the library raises the version of those objects alone; the superblock stays).
 // - Frames: every per-frame dataset is chunked with an unlimited first dimension.
 //   A frame of x/v that is at least 64 KiB is one chunk, written straight from the
 //   caller's buffer (no chunk cache, no fill value: HDF5 then copies nothing).
@@ -236,7 +238,9 @@ struct BodyOutput {
   Eigen::Index first_node = 0;  // offset in the global node-major x
   Eigen::Index nodes = 0;
   Eigen::Index tets = 0;
-  Appendable x, v;
+  VecX rest;          // (3n) node-major rest positions
+  VecX displacement;  // (3n) x - rest of the frame being appended (sized at creation)
+  Appendable x, v, displacement_frames, contact_force;
 };
 
 bool exists_as_file_system_entry(const fs::path& path) {
@@ -370,6 +374,9 @@ struct Hdf5Writer::Impl {
       for (std::size_t j = 0; j < i; ++j)
         if (input[j].name == name) throw InputError(final_file.string() + ": two bodies are named '" + name + "'");
       SOFTDIFF_DEMAND(input[i].rest.cols() > 0, "body '" + name + "' has no nodes");
+      const fs::path xdmf_body = xdmf_body_path(final_file, name);
+      if (!options.force && exists_as_file_system_entry(xdmf_body))
+        throw InputError(xdmf_body.string() + ": output file exists (use --force to overwrite)");
     }
   }
 
@@ -417,11 +424,12 @@ struct Hdf5Writer::Impl {
 
   // A (rows, cols) dataset written once from row-major memory of type `memory_type`.
   void write_table(const std::string& path, hid_t file_type, hid_t memory_type, hsize_t rows, hsize_t cols,
-                   const void* data) {
+                   const void* data, const std::string& units) {
     const std::array<hsize_t, 2> shape{rows, cols};
     Handle space(H5Screate_simple(2, shape.data(), nullptr), H5Sclose);
     if (!space.valid()) fail("cannot create the dataspace of " + path);
     Handle dataset = create_dataset(path, file_type, space.get(), H5P_DEFAULT, H5P_DEFAULT);
+    set_string_attribute(dataset.get(), "units", units);
     if (rows * cols > 0 && H5Dwrite(dataset.get(), memory_type, H5S_ALL, H5S_ALL, H5P_DEFAULT, data) < 0)
       fail("cannot write " + path);
     if (!dataset.reset()) fail("cannot close " + path);
@@ -429,9 +437,11 @@ struct Hdf5Writer::Impl {
 
   // An empty (0, d1[, d2]) float64 dataset, unlimited along its first dimension.
   // `direct`: one row per chunk, written straight from the caller's memory.
+  // `gzip_level` > 0: shuffled and deflated chunks.
   Appendable create_appendable(const std::string& path, std::vector<hsize_t> row_shape, hsize_t chunk_rows,
-                               hsize_t chunk_cols, bool direct, hid_t file_type = H5T_IEEE_F64LE,
-                               hid_t memory_type = H5T_NATIVE_DOUBLE) {
+                               hsize_t chunk_cols, bool direct, const std::string& units,
+                               hid_t file_type = H5T_IEEE_F64LE, hid_t memory_type = H5T_NATIVE_DOUBLE,
+                               int gzip_level = 0) {
     Appendable out;
     out.path = path;
     out.memory_type = memory_type;
@@ -458,20 +468,31 @@ struct Hdf5Writer::Impl {
     // H5Dwrite then writes the caller's buffer to the file without a copy.
     if (direct && H5Pset_fill_time(creation.get(), H5D_FILL_TIME_NEVER) < 0)
       fail("cannot set up the fill value of " + path);
+    // Byte shuffle first: the sign and exponent bytes of neighbouring float64 values
+    // line up and deflate finds them (x of configs/trunk.yaml: 0.88 of its size with
+    // shuffle, 0.95 without; docs/output.md "Compression").
+    if (gzip_level > 0 &&
+        (H5Pset_shuffle(creation.get()) < 0 || H5Pset_deflate(creation.get(), static_cast<unsigned>(gzip_level)) < 0))
+      fail("cannot set up the compression of " + path);
     out.dataset = create_dataset(path, file_type, out.file_space.get(), creation.get(), access.get());
+    set_string_attribute(out.dataset.get(), "units", units);
     return out;
   }
 
-  // Frames of (n, 3): one frame per chunk when a frame is large enough.
-  Appendable create_frames(const std::string& path, Eigen::Index nodes) {
+  // Frames of (n, 3): one frame per chunk when a frame is large enough, or when
+  // compressed (each chunk is then compressed once, when its frame is appended, and
+  // never read back or rewritten; reading frame k decompresses one chunk).
+  Appendable create_frames(const std::string& path, Eigen::Index nodes, const std::string& units) {
     const std::size_t frame_bytes = static_cast<std::size_t>(nodes) * 3 * sizeof(double);
-    const hsize_t frames_per_chunk = rows_per_chunk(frame_bytes, kFrameChunkBytes, kMaxChunkRows);
+    const bool compressed = options.gzip_level > 0;
+    const hsize_t frames_per_chunk = compressed ? 1 : rows_per_chunk(frame_bytes, kFrameChunkBytes, kMaxChunkRows);
     return create_appendable(path, {static_cast<hsize_t>(nodes), 3}, frames_per_chunk, kMaxChunkNodes,
-                             /*direct=*/frames_per_chunk == 1);
+                             /*direct=*/frames_per_chunk == 1, units, H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE,
+                             options.gzip_level);
   }
 
-  Appendable create_scalar_series(const std::string& path) {
-    return create_appendable(path, {}, kMaxChunkRows, 0, false);
+  Appendable create_scalar_series(const std::string& path, const std::string& units) {
+    return create_appendable(path, {}, kMaxChunkRows, 0, false, units);
   }
 
   void open(const WriterOptions& opts, const std::vector<OutputBody>& input) {
@@ -518,7 +539,7 @@ struct Hdf5Writer::Impl {
     set_string_attribute(file.get(), "created", iso8601_utc_now());
     set_string_attribute(file.get(), "status", "running");
 
-    time = create_scalar_series("/time");
+    time = create_scalar_series("/time", "s");
     create_group("/bodies");
     bodies.reserve(input.size());
     for (const OutputBody& body : input) {
@@ -533,17 +554,21 @@ struct Hdf5Writer::Impl {
       // Eigen's column-major (3, n) / (4, m) / (3, k) storage is the row-major
       // (n, 3) / (m, 4) / (k, 3) layout of the datasets: written as is.
       write_table(group + "/rest", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, static_cast<hsize_t>(out.nodes), 3,
-                  body.rest.data());
+                  body.rest.data(), "m");
       write_table(group + "/tets", H5T_STD_I64LE, H5T_NATIVE_INT, static_cast<hsize_t>(out.tets), 4,
-                  body.tets.data());
+                  body.tets.data(), "1");
       write_table(group + "/surface", H5T_STD_I64LE, H5T_NATIVE_INT, static_cast<hsize_t>(body.surface.cols()), 3,
-                  body.surface.data());
-      out.x = create_frames(group + "/x", out.nodes);
-      if (options.write_v) out.v = create_frames(group + "/v", out.nodes);
+                  body.surface.data(), "1");
+      out.rest = Eigen::Map<const VecX>(body.rest.data(), 3 * out.nodes);
+      out.displacement.resize(3 * out.nodes);
+      out.x = create_frames(group + "/x", out.nodes, "m");
+      if (options.write_v) out.v = create_frames(group + "/v", out.nodes, "m/s");
+      out.displacement_frames = create_frames(group + "/displacement", out.nodes, "m");
+      if (options.write_contact_force) out.contact_force = create_frames(group + "/contact_force", out.nodes, "N");
       bodies.push_back(std::move(out));
     }
     create_group("/solver");
-    step_seconds = create_scalar_series("/solver/step_seconds");
+    step_seconds = create_scalar_series("/solver/step_seconds", "s");
     times.reserve(1024);
   }
 
@@ -600,14 +625,30 @@ struct Hdf5Writer::Impl {
     write_attribute(object, name, H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, &value);
   }
 
+  void set_int64_attribute(hid_t object, const std::string& name, std::int64_t value) const {
+    write_attribute(object, name, H5T_STD_I64LE, H5T_NATIVE_INT64, &value);
+  }
+
+  void set_typed_attribute(hid_t object, const Attribute& attribute) const {
+    if (const auto* text = std::get_if<std::string>(&attribute.value))
+      set_string_attribute(object, attribute.name, *text);
+    else if (const auto* real = std::get_if<double>(&attribute.value))
+      set_double_attribute(object, attribute.name, *real);
+    else
+      set_int64_attribute(object, attribute.name, std::get<std::int64_t>(attribute.value));
+  }
+
   // ---- frames
 
-  void append_frame(double t, const VecX& x, const VecX* v, double seconds) {
+  void append_frame(double t, const VecX& x, const VecX* v, double seconds, const VecX* contact_force) {
     SOFTDIFF_DEMAND(!finished, "append_frame after finish");
     SOFTDIFF_DEMAND(x.size() == 3 * total_nodes,
                     "x has " + std::to_string(x.size()) + " entries, expected " + std::to_string(3 * total_nodes));
     if (options.write_v)
       SOFTDIFF_DEMAND(v != nullptr && v->size() == 3 * total_nodes, "v is missing or has the wrong size");
+    if (options.write_contact_force)
+      SOFTDIFF_DEMAND(contact_force != nullptr && contact_force->size() == 3 * total_nodes,
+                      "contact_force is missing or has the wrong size");
     if (!reserve_room(reserve_bytes)) {
       last_failure = std::strerror(errno);
       throw ComputationError(partial_name() + ": cannot write frame " + std::to_string(frames) + ": " + last_failure +
@@ -616,8 +657,15 @@ struct Hdf5Writer::Impl {
 
     const Appendable* failed = nullptr;
     for (BodyOutput& body : bodies) {
-      if (!body.x.append(x.data() + 3 * body.first_node)) { failed = &body.x; break; }
-      if (options.write_v && !body.v.append(v->data() + 3 * body.first_node)) { failed = &body.v; break; }
+      const auto first = 3 * body.first_node;
+      if (!body.x.append(x.data() + first)) { failed = &body.x; break; }
+      if (options.write_v && !body.v.append(v->data() + first)) { failed = &body.v; break; }
+      body.displacement.noalias() = x.segment(first, 3 * body.nodes) - body.rest;
+      if (!body.displacement_frames.append(body.displacement.data())) { failed = &body.displacement_frames; break; }
+      if (options.write_contact_force && !body.contact_force.append(contact_force->data() + first)) {
+        failed = &body.contact_force;
+        break;
+      }
     }
     if (failed == nullptr && !step_seconds.append(&seconds)) failed = &step_seconds;
     if (failed == nullptr && !time.append(&t)) failed = &time;
@@ -628,6 +676,8 @@ struct Hdf5Writer::Impl {
       for (BodyOutput& body : bodies) {
         body.x.roll_back(file.get(), rows);
         if (options.write_v) body.v.roll_back(file.get(), rows);
+        body.displacement_frames.roll_back(file.get(), rows);
+        if (options.write_contact_force) body.contact_force.roll_back(file.get(), rows);
       }
       step_seconds.roll_back(file.get(), rows);
       time.roll_back(file.get(), rows);
@@ -648,7 +698,7 @@ struct Hdf5Writer::Impl {
     SOFTDIFF_DEMAND(!path_exists(path), path + " already exists in the output file");
   }
 
-  int add_series(const std::string& path, int width) {
+  int add_series(const std::string& path, int width, const std::string& units) {
     SOFTDIFF_DEMAND(!finished, "add_series after finish");
     SOFTDIFF_DEMAND(width >= 0, "series width must be >= 0");
     require_new_path(path);
@@ -656,7 +706,7 @@ struct Hdf5Writer::Impl {
     const hsize_t chunk_rows = rows_per_chunk(row_bytes, kSeriesChunkBytes, kMaxChunkRows);
     std::vector<hsize_t> row_shape;
     if (width > 0) row_shape.push_back(static_cast<hsize_t>(width));
-    series.push_back(create_appendable(path, row_shape, chunk_rows, static_cast<hsize_t>(width), false));
+    series.push_back(create_appendable(path, row_shape, chunk_rows, static_cast<hsize_t>(width), false, units));
     return static_cast<int>(series.size()) - 1;
   }
 
@@ -676,7 +726,8 @@ struct Hdf5Writer::Impl {
     }
   }
 
-  int add_table(const std::string& path, const std::vector<int>& row_shape, Hdf5Writer::Element type) {
+  int add_table(const std::string& path, const std::vector<int>& row_shape, Hdf5Writer::Element type,
+                const std::string& units) {
     SOFTDIFF_DEMAND(!finished, "add_table after finish");
     SOFTDIFF_DEMAND(row_shape.size() <= 2, "tables have at most 3 dimensions");
     require_new_path(path);
@@ -697,7 +748,7 @@ struct Hdf5Writer::Impl {
     }
     const hsize_t chunk_rows = rows_per_chunk(row_bytes, kSeriesChunkBytes, kMaxChunkRows);
     const hsize_t chunk_cols = shape.empty() ? 1 : shape[0];
-    series.push_back(create_appendable(path, shape, chunk_rows, chunk_cols, false, file_type, memory_type));
+    series.push_back(create_appendable(path, shape, chunk_rows, chunk_cols, false, units, file_type, memory_type));
     return static_cast<int>(series.size()) - 1;
   }
 
@@ -718,7 +769,7 @@ struct Hdf5Writer::Impl {
     }
   }
 
-  void write_strings(const std::string& path, const std::vector<std::string>& values) {
+  void write_strings(const std::string& path, const std::vector<std::string>& values, const std::string& units) {
     SOFTDIFF_DEMAND(!finished, "write_strings after finish");
     require_new_path(path);
     Handle type(H5Tcopy(H5T_C_S1), H5Tclose);
@@ -728,6 +779,7 @@ struct Hdf5Writer::Impl {
     Handle space(H5Screate_simple(1, shape.data(), nullptr), H5Sclose);
     if (!space.valid()) fail("cannot create the dataspace of " + path);
     Handle dataset = create_dataset(path, type.get(), space.get(), H5P_DEFAULT, H5P_DEFAULT);
+    set_string_attribute(dataset.get(), "units", units);
     std::vector<const char*> pointers;
     for (const auto& v : values) pointers.push_back(v.c_str());
     if (!values.empty() && H5Dwrite(dataset.get(), type.get(), H5S_ALL, H5S_ALL, H5P_DEFAULT, pointers.data()) < 0)
@@ -735,18 +787,84 @@ struct Hdf5Writer::Impl {
     if (!dataset.reset()) fail("cannot close " + path);
   }
 
-  void write_matrix(const std::string& path, const MatX& value,
-                    const std::vector<std::pair<std::string, std::string>>& attributes) {
+  void write_matrix(const std::string& path, const MatX& value, const std::string& units,
+                    const std::vector<Attribute>& attributes) {
     SOFTDIFF_DEMAND(!finished, "write_matrix after finish");
     require_new_path(path);
     // Eigen stores MatX column-major; the dataset is row-major.
     const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> rows = value;
     write_table(path, H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, static_cast<hsize_t>(rows.rows()),
-                static_cast<hsize_t>(rows.cols()), rows.data());
+                static_cast<hsize_t>(rows.cols()), rows.data(), units);
     if (!attributes.empty()) {
       Handle dataset = open_object(path);
-      for (const auto& [name, text] : attributes) set_string_attribute(dataset.get(), name, text);
+      for (const Attribute& attribute : attributes) set_typed_attribute(dataset.get(), attribute);
     }
+  }
+
+  // ---- the XDMF files' per-frame views
+
+  // The node fields of every frame, as named in /bodies/<b>/ and in the XDMF.
+  std::vector<std::string> node_fields() const {
+    std::vector<std::string> fields{"x"};
+    if (options.write_v) fields.push_back("v");
+    fields.push_back("displacement");
+    if (options.write_contact_force) fields.push_back("contact_force");
+    return fields;
+  }
+
+  // /xdmf/<body>/<field>/<k>: frame k of /bodies/<body>/<field> as an (n, 3) virtual
+  // dataset (a mapping to the slab of the source, no copy of the values), so that
+  // the XDMF names each frame's data as a plain HDF dataset (xdmf.hpp). About 0.5 kB
+  // per view.
+  void write_frame_views() {
+    if (frames == 0) return;
+    Handle links(H5Pcreate(H5P_LINK_CREATE), H5Pclose);
+    if (!links.valid() || H5Pset_create_intermediate_group(links.get(), 1) < 0)
+      fail("cannot set up link creation properties");
+    for (const BodyOutput& body : bodies) {
+      const std::array<hsize_t, 2> shape{static_cast<hsize_t>(body.nodes), 3};
+      const std::array<hsize_t, 3> source_shape{static_cast<hsize_t>(frames), shape[0], 3};
+      Handle view_space(H5Screate_simple(2, shape.data(), nullptr), H5Sclose);
+      Handle source_space(H5Screate_simple(3, source_shape.data(), nullptr), H5Sclose);
+      if (!view_space.valid() || !source_space.valid()) fail("cannot create the dataspaces of the frame views");
+      for (const std::string& field : node_fields()) {
+        const std::string source = "/bodies/" + body.name + "/" + field;
+        // The source name is a printf-like pattern for HDF5: '%' is written '%%'.
+        std::string pattern;
+        for (const char c : source) pattern += c == '%' ? std::string("%%") : std::string(1, c);
+        const std::string units = field == "v" ? "m/s" : field == "contact_force" ? "N" : "m";
+        for (long k = 0; k < frames; ++k) {
+          const std::string path = frame_view_path(body.name, field, k);
+          const std::array<hsize_t, 3> start{static_cast<hsize_t>(k), 0, 0}, count{1, shape[0], 3};
+          Handle creation(H5Pcreate(H5P_DATASET_CREATE), H5Pclose);
+          if (!creation.valid() ||
+              H5Sselect_hyperslab(source_space.get(), H5S_SELECT_SET, start.data(), nullptr, count.data(), nullptr) < 0 ||
+              H5Pset_virtual(creation.get(), view_space.get(), ".", pattern.c_str(), source_space.get()) < 0)
+            fail("cannot set up the view " + path);
+          Handle view(H5Dcreate2(file.get(), path.c_str(), H5T_IEEE_F64LE, view_space.get(), links.get(),
+                                 creation.get(), H5P_DEFAULT),
+                      H5Dclose);
+          if (!view.valid()) fail("cannot create the view " + path);
+          set_string_attribute(view.get(), "units", units);
+        }
+      }
+    }
+  }
+
+  // out.xmf (every body) and out.<body>.xmf (one each), xdmf.hpp, beside the HDF5
+  // file where the frames went: the output's name, or a side file (out.interrupted.h5
+  // -> out.interrupted.xmf, out.interrupted.<body>.xmf).
+  void write_xdmf_files(const fs::path& h5_file) const {
+    std::vector<XdmfBody> described;
+    described.reserve(bodies.size());
+    for (const BodyOutput& body : bodies)
+      described.push_back({body.name, static_cast<long>(body.nodes), static_cast<long>(body.tets)});
+    const std::string h5_name = h5_file.filename().string();
+    const std::vector<std::string> fields = node_fields();
+    for (const XdmfBody& body : described)
+      write_text_file_atomically(xdmf_body_path(h5_file, body.name), xdmf_text(h5_name, {body}, times, fields));
+    fs::path whole = h5_file;
+    write_text_file_atomically(whole.replace_extension(".xmf"), xdmf_text(h5_name, described, times, fields));
   }
 
   // ---- finishing
@@ -758,6 +876,8 @@ struct Hdf5Writer::Impl {
     for (BodyOutput& body : bodies) {
       ok = body.x.close() && ok;
       ok = body.v.close() && ok;
+      ok = body.displacement_frames.close() && ok;
+      ok = body.contact_force.close() && ok;
     }
     ok = step_seconds.close() && ok;
     ok = time.close() && ok;
@@ -791,6 +911,7 @@ struct Hdf5Writer::Impl {
     written_file = partial_file;
     std::string problem;  // why the file is not a clean, closed file with its status
     try {
+      write_frame_views();
       set_string_attribute(file.get(), "status", status);
     } catch (const std::exception& e) {
       problem = std::string(e.what()) + " (the file's status still says running)";
@@ -830,12 +951,7 @@ struct Hdf5Writer::Impl {
       throw ComputationError(problem + " (the frames written so far are in " + written_file.string() + ")");
     }
 
-    std::vector<XdmfBody> described;
-    described.reserve(bodies.size());
-    for (const BodyOutput& body : bodies) described.push_back({body.name, static_cast<long>(body.nodes), static_cast<long>(body.tets)});
-    fs::path xdmf = target;
-    xdmf.replace_extension(".xmf");
-    write_text_file_atomically(xdmf, xdmf_text(target.filename().string(), described, times, options.write_v));
+    write_xdmf_files(target);
   }
 };
 
@@ -856,27 +972,32 @@ Hdf5Writer::~Hdf5Writer() {
   }
 }
 
-void Hdf5Writer::append_frame(double time, const VecX& x, const VecX* v, double step_seconds) {
-  impl_->append_frame(time, x, v, step_seconds);
+void Hdf5Writer::append_frame(double time, const VecX& x, const VecX* v, double step_seconds,
+                              const VecX* contact_force) {
+  impl_->append_frame(time, x, v, step_seconds, contact_force);
 }
 
-int Hdf5Writer::add_series(const std::string& path, int width) { return impl_->add_series(path, width); }
+int Hdf5Writer::add_series(const std::string& path, int width, const std::string& units) {
+  return impl_->add_series(path, width, units);
+}
 
 void Hdf5Writer::append_series(int handle, const double* row) { impl_->append_series(handle, row); }
 
-int Hdf5Writer::add_table(const std::string& path, const std::vector<int>& row_shape, Element type) {
-  return impl_->add_table(path, row_shape, type);
+int Hdf5Writer::add_table(const std::string& path, const std::vector<int>& row_shape, Element type,
+                          const std::string& units) {
+  return impl_->add_table(path, row_shape, type, units);
 }
 
 void Hdf5Writer::append_rows(int handle, const void* rows, long count) { impl_->append_rows(handle, rows, count); }
 
-void Hdf5Writer::write_strings(const std::string& path, const std::vector<std::string>& values) {
-  impl_->write_strings(path, values);
+void Hdf5Writer::write_strings(const std::string& path, const std::vector<std::string>& values,
+                               const std::string& units) {
+  impl_->write_strings(path, values, units);
 }
 
-void Hdf5Writer::write_matrix(const std::string& path, const MatX& value,
-                              const std::vector<std::pair<std::string, std::string>>& attributes) {
-  impl_->write_matrix(path, value, attributes);
+void Hdf5Writer::write_matrix(const std::string& path, const MatX& value, const std::string& units,
+                              const std::vector<Attribute>& attributes) {
+  impl_->write_matrix(path, value, units, attributes);
 }
 
 void Hdf5Writer::set_attribute(const std::string& object_path, const std::string& name, const std::string& value) {
@@ -885,10 +1006,24 @@ void Hdf5Writer::set_attribute(const std::string& object_path, const std::string
   impl_->set_string_attribute(object.get(), name, value);
 }
 
+void Hdf5Writer::set_attribute(const std::string& object_path, const std::string& name, const char* value) {
+  set_attribute(object_path, name, std::string(value));
+}
+
 void Hdf5Writer::set_attribute(const std::string& object_path, const std::string& name, double value) {
   SOFTDIFF_DEMAND(!impl_->finished, "set_attribute after finish");
   const Handle object = impl_->open_object(object_path);
   impl_->set_double_attribute(object.get(), name, value);
+}
+
+void Hdf5Writer::set_attribute(const std::string& object_path, const std::string& name, std::int64_t value) {
+  SOFTDIFF_DEMAND(!impl_->finished, "set_attribute after finish");
+  const Handle object = impl_->open_object(object_path);
+  impl_->set_int64_attribute(object.get(), name, value);
+}
+
+void Hdf5Writer::set_attribute(const std::string& object_path, const std::string& name, int value) {
+  set_attribute(object_path, name, static_cast<std::int64_t>(value));
 }
 
 void Hdf5Writer::finish(const std::string& status) { impl_->finish(status); }
@@ -907,12 +1042,14 @@ std::filesystem::path side_file_name(const std::filesystem::path& file, const st
   return side;
 }
 
-std::vector<std::filesystem::path> output_file_names(const std::filesystem::path& file) {
+std::vector<std::filesystem::path> output_file_names(const std::filesystem::path& file,
+                                                     const std::vector<std::string>& body_names) {
   std::vector<fs::path> names;
   const auto add = [&](const fs::path& h5) {
     names.push_back(h5);
     fs::path xdmf = h5;
     names.push_back(xdmf.replace_extension(".xmf"));
+    for (const std::string& body : body_names) names.push_back(xdmf_body_path(h5, body));
   };
   add(file);
   fs::path partial = file;
@@ -921,27 +1058,37 @@ std::vector<std::filesystem::path> output_file_names(const std::filesystem::path
   return names;
 }
 
-OutputEstimate estimate_output(const std::vector<OutputBody>& bodies, bool write_v, long frames,
-                               double series_per_frame, const std::string& h5_name) {
+OutputEstimate estimate_output(const std::vector<OutputBody>& bodies, bool write_v, bool write_contact_force,
+                               long frames, double series_per_frame, const std::string& h5_name) {
   OutputEstimate e;
   double fixed = 64 * 1024;  // superblock, groups, attributes (measured: about 20 KiB)
   e.frame_bytes = 16 + series_per_frame;  // /time, /solver/step_seconds
+  // Per node and frame: x, displacement, and v and the contact force when written.
+  std::vector<std::string> fields{"x", "displacement"};
+  if (write_v) fields.push_back("v");
+  if (write_contact_force) fields.push_back("contact_force");
+  const auto node_fields = static_cast<double>(fields.size());
   std::vector<XdmfBody> described;
   for (const OutputBody& b : bodies) {
     fixed += 8.0 * static_cast<double>(b.rest.size() + b.tets.size() + b.surface.size());
-    e.frame_bytes += 24.0 * static_cast<double>(b.rest.cols()) * (write_v ? 2 : 1);
+    e.frame_bytes += 24.0 * static_cast<double>(b.rest.cols()) * node_fields;
+    e.frame_bytes += 512.0 * node_fields;  // the frame's views /xdmf/<b>/<field>/<k> (about 0.5 kB each)
     described.push_back({b.name, static_cast<long>(b.rest.cols()), static_cast<long>(b.tets.cols())});
   }
   const auto frames_d = static_cast<double>(std::max<long>(frames, 1));
   e.hdf5_bytes = fixed + e.frame_bytes * frames_d;
-  // The XDMF grows by the same text per frame: measured on one and two frames (the
-  // second time with 17 digits), plus the longer frame numbers of a long run (in the
-  // frame's name and in each slab, which also holds the frame count).
-  const double one = static_cast<double>(xdmf_text(h5_name, described, {0.0}, write_v).size());
-  const double two = static_cast<double>(xdmf_text(h5_name, described, {0.0, 0.1234567890123456}, write_v).size());
-  const double digits = static_cast<double>(std::to_string(std::max<long>(frames, 1)).size()) - 1;
-  const double slabs = static_cast<double>(described.size()) * (write_v ? 2 : 1);
-  e.xdmf_bytes = one + (two - one + digits * (1 + 2 * slabs)) * (frames_d - 1);
+  // The XDMF files (out.xmf, and out.<body>.xmf per body) grow by the same text per
+  // frame: measured on one and two frames (the second time with 17 digits), plus the
+  // longer frame numbers of a long run (in each view's name).
+  const auto per_frame = [&](const std::vector<XdmfBody>& these) {
+    const double one = static_cast<double>(xdmf_text(h5_name, these, {0.0}, fields).size());
+    const double two = static_cast<double>(xdmf_text(h5_name, these, {0.0, 0.1234567890123456}, fields).size());
+    const double digits = static_cast<double>(std::to_string(std::max<long>(frames, 1)).size()) - 1;
+    const double views = static_cast<double>(these.size()) * node_fields;
+    return one + (two - one + digits * views) * (frames_d - 1);
+  };
+  e.xdmf_bytes = per_frame(described);
+  for (const XdmfBody& b : described) e.xdmf_bytes += per_frame({b});
   return e;
 }
 

@@ -546,6 +546,18 @@ class Reader {
       }
     if (const Node* jacobians = get(o, "jacobians"))
       for (const Node& j : jacobians->items) out.jacobians.push_back(j.scalar);
+    if (const Entry* compression = o && o->is_map() ? o->find("compression") : nullptr)
+      out.gzip_level = compression_level(*compression);
+  }
+
+  // output.compression: none | gzip (level 6, gzip's default) | gzip:LEVEL, LEVEL 1..9.
+  int compression_level(const Entry& e) const {
+    const std::string& text = e.value.scalar;
+    if (text == "none") return 0;
+    if (text == "gzip") return 6;
+    if (text.size() == 6 && text.compare(0, 5, "gzip:") == 0 && text[5] >= '1' && text[5] <= '9') return text[5] - '0';
+    ctx_.fail(e.key_mark, "output.compression",
+              "must be none, gzip or gzip:LEVEL with LEVEL in 1..9; got '" + text + "'");
   }
 
   const schema::Context& ctx_;

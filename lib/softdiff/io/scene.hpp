@@ -148,6 +148,7 @@ struct OutputDesc {
   std::filesystem::path file;   // resolved against the scene file's folder; empty if absent (the CLI then uses -o or "<scene stem>.h5" in the current directory)
   long every = 1;
   bool v = false, contact = false, actuation = false, effectors = false;  // x is always written
+  int gzip_level = 0;           // output.compression: 0 none (default), 1..9 gzip level of the per-frame datasets
   std::vector<std::string> jacobians;
 };
 

@@ -163,6 +163,7 @@ SpecPtr output() {
       key("file", text(true)),
       key("every", integer(ge(1), LONG_MAX)),
       key("fields", list(field_names, "a list of fields (x, v, contact, actuation, effectors)", 0, true)),
+      key("compression", text(true)),  // none | gzip | gzip:LEVEL, checked by the scene reader
       planned(key("jacobians", list(parameters, "a list of parameters", 0, true)), "jacobians", empty_list),
   });
 }

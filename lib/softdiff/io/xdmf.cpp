@@ -35,56 +35,76 @@ std::string number(double value) {
   return std::string(buffer, result.ptr);
 }
 
-// Frame k of a node-centred (T, n, 3) dataset. The slab is written in the XDMF 3
-// library's own heavy-data syntax, "file:dataset|start:stride:count:dataspace",
-// which ParaView's Xdmf3 readers read directly; a HyperSlab DataItem
-// (ItemType="HyperSlab") is skipped by them ("unrecognized array type").
-void append_frame_slab(std::string& out, const std::string& indent, const std::string& heavy,
-                       long frame, long frames, long nodes) {
-  const std::string n = std::to_string(nodes);
-  out += indent + "<DataItem Dimensions=\"1 " + n + " 3\" NumberType=\"Float\" Precision=\"8\" Format=\"HDF\">" +
-         heavy + "|" + std::to_string(frame) + " 0 0:1 1 1:1 " + n + " 3:" + std::to_string(frames) + " " + n +
-         " 3</DataItem>\n";
+// A plain HDF DataItem naming a whole dataset of the given shape.
+void append_data_item(std::string& out, const std::string& indent, const std::string& dimensions, const char* type,
+                      const std::string& heavy) {
+  out += indent + "<DataItem Dimensions=\"" + dimensions + "\" NumberType=\"" + type +
+         "\" Precision=\"8\" Format=\"HDF\">" + heavy + "</DataItem>\n";
+}
+
+// One body's grid at frame k: topology, geometry (the view of x) and the node fields.
+void append_body_grid(std::string& out, const std::string& indent, const std::string& file, const XdmfBody& body,
+                      long frame, const std::string* time, const std::vector<std::string>& fields) {
+  const std::string name = xml_escape(body.name);
+  const std::string m = std::to_string(body.tets);
+  const std::string n3 = std::to_string(body.nodes) + " 3";
+  const auto view = [&](const std::string& field) {
+    return file + ":" + xml_escape(frame_view_path(body.name, field, frame));
+  };
+  out += indent + "<Grid Name=\"" + name + "\" GridType=\"Uniform\">\n";
+  if (time != nullptr) out += indent + "  <Time Value=\"" + *time + "\"/>\n";
+  out += indent + "  <Topology TopologyType=\"Tetrahedron\" NumberOfElements=\"" + m + "\">\n";
+  append_data_item(out, indent + "    ", m + " 4", "Int", file + ":/bodies/" + name + "/tets");
+  out += indent + "  </Topology>\n";
+  out += indent + "  <Geometry GeometryType=\"XYZ\">\n";
+  append_data_item(out, indent + "    ", n3, "Float", view("x"));
+  out += indent + "  </Geometry>\n";
+  for (const std::string& field : fields) {
+    out += indent + "  <Attribute Name=\"" + xml_escape(field) + "\" AttributeType=\"Vector\" Center=\"Node\">\n";
+    append_data_item(out, indent + "    ", n3, "Float", view(field));
+    out += indent + "  </Attribute>\n";
+  }
+  out += indent + "</Grid>\n";
 }
 
 }  // namespace
 
+std::string frame_view_path(const std::string& body, const std::string& field, long frame) {
+  return "/xdmf/" + body + "/" + field + "/" + std::to_string(frame);
+}
+
+std::filesystem::path xdmf_body_path(const std::filesystem::path& h5_file, const std::string& body) {
+  std::filesystem::path path = h5_file;
+  path.replace_extension();
+  path += "." + body + ".xmf";
+  return path;
+}
+
 std::string xdmf_text(const std::string& h5_name, const std::vector<XdmfBody>& bodies,
-                      const std::vector<double>& times, bool with_velocity) {
+                      const std::vector<double>& times, const std::vector<std::string>& fields) {
   const std::string file = xml_escape(h5_name);
+  std::vector<const XdmfBody*> shown;  // bodies ParaView can show (nodes and tets)
+  for (const XdmfBody& body : bodies)
+    if (body.nodes > 0 && body.tets > 0) shown.push_back(&body);
+  const bool single = shown.size() == 1;
   const long frames = static_cast<long>(times.size());
   std::string out;
-  out.reserve(512 + times.size() * (200 + bodies.size() * (with_velocity ? 1400 : 900)));
+  out.reserve(512 + times.size() * (200 + shown.size() * (700 + 300 * fields.size())));
   out += "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n";
-  out += "<!-- softdiff output: open with ParaView's Xdmf3 Reader T (or S). Frame k of "
-         "/bodies/NAME/x is its slab \"k 0 0:1 1 1:1 n 3\" (start:stride:count). -->\n";
+  out += "<!-- softdiff output: ParaView (Xdmf3 Reader S or T) and meshio.xdmf.TimeSeriesReader read it. "
+         "Frame k of /bodies/BODY/FIELD is the HDF5 virtual dataset /xdmf/BODY/FIELD/k. -->\n";
   out += "<Xdmf Version=\"3.0\">\n";
   out += "  <Domain>\n";
   out += "    <Grid Name=\"softdiff\" GridType=\"Collection\" CollectionType=\"Temporal\">\n";
   for (long k = 0; k < frames; ++k) {
-    out += "      <Grid Name=\"frame " + std::to_string(k) +
-           "\" GridType=\"Collection\" CollectionType=\"Spatial\">\n";
-    out += "        <Time Value=\"" + number(times[static_cast<std::size_t>(k)]) + "\"/>\n";
-    for (const XdmfBody& body : bodies) {
-      if (body.nodes <= 0 || body.tets <= 0) continue;  // nothing ParaView could show
-      const std::string name = xml_escape(body.name);
-      const std::string group = file + ":/bodies/" + name;
-      const std::string m = std::to_string(body.tets);
-      out += "        <Grid Name=\"" + name + "\" GridType=\"Uniform\">\n";
-      out += "          <Topology TopologyType=\"Tetrahedron\" NumberOfElements=\"" + m + "\">\n";
-      out += "            <DataItem Dimensions=\"" + m +
-             " 4\" NumberType=\"Int\" Precision=\"8\" Format=\"HDF\">" + group + "/tets</DataItem>\n";
-      out += "          </Topology>\n";
-      out += "          <Geometry GeometryType=\"XYZ\">\n";
-      append_frame_slab(out, "            ", group + "/x", k, frames, body.nodes);
-      out += "          </Geometry>\n";
-      if (with_velocity) {
-        out += "          <Attribute Name=\"v\" AttributeType=\"Vector\" Center=\"Node\">\n";
-        append_frame_slab(out, "            ", group + "/v", k, frames, body.nodes);
-        out += "          </Attribute>\n";
-      }
-      out += "        </Grid>\n";
+    const std::string time = number(times[static_cast<std::size_t>(k)]);
+    if (single) {
+      append_body_grid(out, "      ", file, *shown.front(), k, &time, fields);
+      continue;
     }
+    out += "      <Grid Name=\"frame " + std::to_string(k) + "\" GridType=\"Collection\" CollectionType=\"Spatial\">\n";
+    out += "        <Time Value=\"" + time + "\"/>\n";
+    for (const XdmfBody* body : shown) append_body_grid(out, "        ", file, *body, k, nullptr, fields);
     out += "      </Grid>\n";
   }
   out += "    </Grid>\n";

@@ -1,21 +1,28 @@
 #pragma once
-// The XDMF file written beside an output file (out.h5 -> out.xmf) so that ParaView
-// (either XDMF reader) opens the frames of /bodies/<name>/x as a time series.
+// The XDMF files written beside an output file, read by ParaView's Xdmf3 readers
+// ("Xdmf3 Reader S" / "T") and by meshio 7's xdmf.TimeSeriesReader:
+//   out.h5 -> out.xmf          every body (ParaView);
+//          -> out.<body>.xmf   one body per file (meshio reads one mesh per file).
+// With a single body, out.xmf has the per-body layout too.
 //
-// Layout (XDMF 3, for ParaView's "Xdmf3 Reader T" / "Xdmf3 Reader S"):
+// Layout (XDMF 3):
 //   Domain
 //     Grid "softdiff" (Collection, Temporal)
-//       Grid "frame k" (Collection, Spatial), Time = /time[k]
-//         Grid "<body>" (Uniform)
-//           Topology Tetrahedron      <- out.h5:/bodies/<body>/tets (m, 4)
-//           Geometry XYZ              <- out.h5:/bodies/<body>/x|k 0 0:1 1 1:1 n 3:T n 3
-//           Attribute "v" (Node, Vector) <- the same slab of /bodies/<body>/v (if written)
-// A frame is selected with the XDMF 3 library's heavy-data slab syntax
-// ("file:dataset|start:stride:count:dataspace"), not with a HyperSlab DataItem:
-// ParaView's Xdmf3 readers skip HyperSlab DataItems (no points), and its legacy
-// XDMF (2) reader does not read the slab syntax. Checked with ParaView 5.11.
-// Heavy data is referenced by the .h5 file's name alone (same folder), so the pair
-// of files can be moved together; that name cannot contain ':' or '|'.
+//       one body:   Grid "<body>" (Uniform), Time = /time[k]         <- frame k
+//       several:    Grid "frame k" (Collection, Spatial), Time = /time[k]
+//                     Grid "<body>" (Uniform)                         (per body)
+//         Topology Tetrahedron       <- out.h5:/bodies/<body>/tets (m, 4)
+//         Geometry XYZ               <- out.h5:/xdmf/<body>/x/<k>  (n, 3)
+//         Attribute "<field>" (Node, Vector) <- out.h5:/xdmf/<body>/<field>/<k>
+//           for field in x, v (when written), displacement, contact_force (when written)
+// /xdmf/<body>/<field>/<k> is an HDF5 virtual dataset: a view of frame k of
+// /bodies/<body>/<field> (T, n, 3) that stores a mapping, not the values. Every
+// DataItem is a plain HDF DataItem naming a whole dataset: meshio's reader accepts
+// nothing else (no HyperSlab DataItem, no "file:path|slab" syntax), and ParaView's
+// Xdmf3 readers skip HyperSlab DataItems. meshio reads the mesh (points and cells)
+// once, from the first frame; the positions of frame k are its point data "x".
+// Heavy data is referenced by the .h5 file's name alone (same folder), so the files
+// can be moved together; that name cannot contain ':' or '|'.
 #include <filesystem>
 #include <string>
 #include <string_view>
@@ -29,10 +36,17 @@ struct XdmfBody {
   long tets = 0;   // m: rows of /bodies/<name>/tets
 };
 
+// The view of frame k of /bodies/<body>/<field>: "/xdmf/<body>/<field>/<k>".
+std::string frame_view_path(const std::string& body, const std::string& field, long frame);
+
+// The per-body XDMF file beside `h5_file`: out.h5 -> out.<body>.xmf.
+std::filesystem::path xdmf_body_path(const std::filesystem::path& h5_file, const std::string& body);
+
 // The whole document. `h5_name`: the HDF5 file as referenced (its file name);
-// `times`: one entry per frame (T frames).
+// `times`: one entry per frame (T frames); `fields`: the node fields of each frame,
+// written as attributes; "x" (the geometry) must be among them.
 std::string xdmf_text(const std::string& h5_name, const std::vector<XdmfBody>& bodies,
-                      const std::vector<double>& times, bool with_velocity);
+                      const std::vector<double>& times, const std::vector<std::string>& fields);
 
 // Writes `text` to `path` through a temporary file in the same folder and an atomic
 // rename. Throws ComputationError on failure (the temporary file is removed).
