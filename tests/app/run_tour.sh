@@ -5,7 +5,8 @@
 # calibrate, follow), the demos with --steps, the library example to 6 steps and 4
 # iterations (its ctest case). Paths of the tour (scripts/, configs/, meshes/, build/)
 # are taken from the source tree and SOFTDIFF_BUILD_DIR (default SOURCE_DIR/build).
-# Each line's time is printed.
+# Each line's time is printed. TOUR_FULL=1 runs the lines as written (no shortening),
+# TOUR_PASSES=1 once: how the README's times were measured.
 # Usage: run_tour.sh SOURCE_DIR [BUILD_DIR]
 set -euo pipefail
 src="$(cd "$1" && pwd)"
@@ -21,7 +22,7 @@ tour="$(awk '/^## A short tour/ {in_section = 1} in_section && /^```sh/ {in_bloc
 shorten() {
   local c="$1"
   c="$(sed -E 's/[[:space:]]+#[[:space:]].*$//' <<<"$c")"  # the comment
-  case "$c" in
+  [[ "${TOUR_FULL:-0}" == 1 ]] || case "$c" in
     "scripts/softdiff simulate "*static*) ;;  # a static scene: its load steps are few
     "scripts/softdiff simulate "* | "scripts/softdiff control "* | scripts/control_*_demo* | "scripts/calibration_demo"*)
       if [[ "$c" == *"--steps "* ]]; then
@@ -42,7 +43,7 @@ trap 'rm -rf "$work"' EXIT
 cd "$work"
 total_start=$EPOCHREALTIME
 elapsed() { awk -v a="$1" -v b="$EPOCHREALTIME" 'BEGIN { printf "%.1f", b - a }'; }
-for pass in 1 2; do
+for pass in $(seq "${TOUR_PASSES:-2}"); do
   while IFS= read -r command; do
     [[ -z "${command// }" ]] && continue
     short="$(shorten "$command")"
