@@ -5,7 +5,7 @@
 # calibrate, follow), the demos with --steps, the library example to 6 steps and 4
 # iterations (its ctest case). Paths of the tour (scripts/, configs/, meshes/, build/)
 # are taken from the source tree and SOFTDIFF_BUILD_DIR (default SOURCE_DIR/build).
-# Each line's time is printed. TOUR_FULL=1 runs the lines as written (no shortening),
+# check-grad to 1 step. Each line's time is printed. TOUR_FULL=1 runs the lines as written (no shortening),
 # TOUR_PASSES=1 once: how the README's times were measured.
 # Usage: run_tour.sh SOURCE_DIR [BUILD_DIR]
 set -euo pipefail
@@ -24,6 +24,8 @@ shorten() {
   c="$(sed -E 's/[[:space:]]+#[[:space:]].*$//' <<<"$c")"  # the comment
   [[ "${TOUR_FULL:-0}" == 1 ]] || case "$c" in
     "scripts/softdiff simulate "*static*) ;;  # a static scene: its load steps are few
+    "scripts/softdiff check-grad "*)
+      c="$(sed -E "s/--steps [0-9]+/--steps 1/" <<<"$c")" ;;
     "scripts/softdiff simulate "* | "scripts/softdiff control "* | scripts/control_*_demo* | "scripts/calibration_demo"*)
       if [[ "$c" == *"--steps "* ]]; then
         c="$(sed -E "s/--steps [0-9]+/--steps $steps/" <<<"$c")"
