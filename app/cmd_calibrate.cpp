@@ -254,7 +254,7 @@ void add_calibrate(CLI::App& app, CalibrateOptions& o) {
   add_run_options(app, o.output,
                   "Output HDF5 file: the scene simulated with the identified parameters, plus /calibration "
                   "(default: <scene stem>_calibrated.h5)",
-                  o.force, o.set, o.threads, o.strict, o.quiet, "No per-iteration lines", o.json);
+                  o.force, o.set, o.threads, o.strict, o.quiet, "No progress bar, no per-iteration lines", o.json);
 }
 
 int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
@@ -317,6 +317,15 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
   co.ftol = o.tolerance;
   co.xtol = o.tolerance;
   co.strict = o.strict;
+  // On a terminal: a progress bar over each run's steps ("run 7 [====  ] 40/100 steps"),
+  // erased before each iteration's line.
+  Progress progress(0, !o.quiet);
+  co.on_step = [&](int run, long step, long steps) {
+    if (step == 0)
+      progress.start(steps, "run " + std::to_string(run));
+    else
+      progress.update(step);
+  };
   const auto print = [&](const optim::CalibrationIteration& it) {
     if (o.quiet) return;
     std::ostringstream s;
@@ -327,11 +336,12 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
     s << ", cost " << it.cost << ", |gradient| " << it.gradient_norm << ", damping " << it.damping << " ("
       << it.evaluations << " runs, " << it.seconds << " s)";
     if (it.iteration > 0) s << ", " << it.rejected << " trial steps rejected (" << it.failed << " failed to run)";
-    note(s.str());
-    if (it.failed > 0) note("  last failed trial: " + it.last_failure);
+    note(progress, s.str());
+    if (it.failed > 0) note(progress, "  last failed trial: " + it.last_failure);
   };
   const auto t_run = Clock::now();
   const optim::CalibrationResult result = optim::calibrate(model, params.ids, init, target, co, print);
+  progress.finish();
   const double run_seconds = seconds_since(t_run);
   if (!o.quiet)
     note(std::string(result.converged ? "converged" : "did not converge") + " after " + std::to_string(result.iterations) +
@@ -346,7 +356,9 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
   so.output = out_path.string();
   so.force = o.force;
   so.strict = o.strict;
-  so.quiet = true;
+  so.quiet = o.quiet;  // its progress bar
+  so.summary = false;
+  so.progress_label = "final run";
   const auto write_calibration = [&](io::Hdf5Writer& w) {
     const Eigen::Index p = static_cast<Eigen::Index>(params.ids.size());
     MatX table(static_cast<Eigen::Index>(result.history.size()), p + 5);

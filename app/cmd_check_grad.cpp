@@ -26,12 +26,14 @@ namespace softdiff::app {
 
 namespace {
 
-// x_N and v_N stacked (6n) after `steps` steps of `model` from `initial`.
-VecX run(const Model& model, const State& initial, long steps) {
+// x_N and v_N stacked (6n) after `steps` steps of `model` from `initial`; each step
+// (load step) advances `progress`.
+VecX run(const Model& model, const State& initial, long steps, Progress& progress) {
   Data data(model);
   State s = initial, next = initial;
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
-    const StepStatus st = integrator::solve_static(model, data, initial, next);
+    const StepStatus st = integrator::solve_static(model, data, initial, next,
+                                                   [&](long, const State&) { progress.advance(); });
     if (!st.ok()) throw ComputationError("a finite-difference run failed: " + describe(model, st));
     VecX y = VecX::Zero(2 * next.x.size());
     y.head(next.x.size()) = next.x;
@@ -42,6 +44,7 @@ VecX run(const Model& model, const State& initial, long steps) {
     if (!st.ok() && st.code != StepStatus::Code::not_converged)
       throw ComputationError("a finite-difference run failed: " + describe(model, st));
     std::swap(s, next);
+    progress.advance();
   }
   VecX y(2 * s.x.size());
   y << s.x, s.v;
@@ -102,6 +105,7 @@ void add_check_grad(CLI::App& app, CheckGradOptions& o) {
   app.add_option("--set", o.set, "Override a scene value: KEY=VALUE (repeatable)");
   app.add_option("--threads", o.threads, "OpenMP threads (default: all cores)")->check(CLI::NonNegativeNumber);
   app.add_flag("--json", o.json, "Print the table as one JSON object on stdout");
+  app.add_flag("--quiet", o.quiet, "No progress bar");
 }
 
 int run_check_grad(const CheckGradOptions& o) {
@@ -142,12 +146,17 @@ int run_check_grad(const CheckGradOptions& o) {
       for (int k = 0; k < o.directions; ++k) g.columns.push_back(g.name + " direction " + std::to_string(k));
     }
 
+  // Progress on a terminal, in steps (load steps) over every run: the analytic one,
+  // then two per column (three for a one-sided difference, counted when met).
+  const long run_steps = is_static ? model.step.static_load_steps : o.steps;
+  Progress progress(run_steps * (1 + 2 * sel.layout.size(model)), !o.quiet);
   // Analytic: forward sensitivities, or the implicit function theorem at the equilibrium.
   Data data(model);
   State final;
   MatX dx, dv;
   if (is_static) {
-    const StepStatus st = integrator::solve_static(model, data, model.initial, final);
+    const StepStatus st =
+        integrator::solve_static(model, data, model.initial, final, [&](long, const State&) { progress.advance(); });
     if (!st.ok()) throw ComputationError("the analytic run failed: " + describe(model, st));
     if (!integrator::static_sensitivities(model, data, final, {sel.layout.parameters, sel.layout.actuation}, dx))
       throw ComputationError("the derivative of the equilibrium failed");
@@ -155,6 +164,7 @@ int run_check_grad(const CheckGradOptions& o) {
   } else {
     const StepStatus st = diff::forward_sensitivities(model, data, model.initial, o.steps, sel.layout, final, dx, dv);
     if (!st.ok()) throw ComputationError("the analytic run failed: " + describe(model, st));
+    progress.advance(o.steps);
   }
   MatX J(2 * n3, dx.cols());
   J << dx, dv;
@@ -188,7 +198,9 @@ int run_check_grad(const CheckGradOptions& o) {
         Model m2 = model;
         diff::set_parameter(mp, id, value + e);
         diff::set_parameter(m2, id, value + 2 * e);
-        J_fd.col(c) = (-3 * run(model, sp, o.steps) + 4 * run(mp, sp, o.steps) - run(m2, sp, o.steps)) / (2 * e);
+        progress.set_total(progress.total() + run_steps);
+        J_fd.col(c) = (-3 * run(model, sp, o.steps, progress) + 4 * run(mp, sp, o.steps, progress) -
+                       run(m2, sp, o.steps, progress)) / (2 * e);
         noise[c] = 1e-14 * output_size / (2 * e);
         continue;
       }
@@ -214,9 +226,11 @@ int run_check_grad(const CheckGradOptions& o) {
       (is_x ? sp.x : sp.v) += e * d;
       (is_x ? sm.x : sm.v) -= e * d;
     }
-    J_fd.col(c) = (run(mp, sp, o.steps) - run(mm, sm, o.steps)) / (2 * e);
+    J_fd.col(c) = (run(mp, sp, o.steps, progress) - run(mm, sm, o.steps, progress)) / (2 * e);
     noise[c] = 1e-14 * output_size / (2 * e);
   }
+
+  progress.finish();
 
   // The table.
   bool passed = true;

@@ -119,7 +119,7 @@ void add_control(CLI::App& app, ControlOptions& o) {
                "No QP: every actuator at its upper limit at every step (the paper's gripper heuristic, for comparison; "
                "the /control datasets are written the same way)");
   add_run_options(app, o.output, "Output HDF5 file (default: <scene stem>_control.h5)", o.force, o.set, o.threads,
-                  o.strict, o.quiet, "No summary", o.json);
+                  o.strict, o.quiet, "No progress bar, no summary", o.json);
 }
 
 int run_control(const ControlOptions& o, const std::string& command_line) {
@@ -259,7 +259,8 @@ int run_control(const ControlOptions& o, const std::string& command_line) {
   so.output = out_path.string();
   so.force = o.force;
   so.strict = o.strict;
-  so.quiet = true;
+  so.quiet = o.quiet;   // the progress bar over the steps
+  so.summary = false;   // control's own summary below
   const auto t_run = Clock::now();
   const int code = simulate_model(so, scene, model, t_setup, command_line, hooks);
   const double run_seconds = seconds_since(t_run);

@@ -358,6 +358,7 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
   std::string status = "complete";
   std::string run_error;  // a failure that is not the computation's (disk full, out of memory)
   Progress progress(total, !o.quiet);
+  progress.start(total, o.progress_label);
   auto t_run = Clock::now();
 
   try {
@@ -408,7 +409,10 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
           if (o.strict) {
             failure = s;
           } else {
-            if (warnings_newton++ == 0) warn(describe(model, s) + " (further such warnings are counted, not shown)");
+            if (warnings_newton++ == 0) {
+              progress.clear();
+              warn(describe(model, s) + " (further such warnings are counted, not shown)");
+            }
             s = StepStatus{};
           }
         } else if (!s.ok()) {
@@ -432,8 +436,10 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
             c.detail = d.str();
             if (o.strict)
               failure = c;
-            else if (warnings_contact++ == 0)
+            else if (warnings_contact++ == 0) {
+              progress.clear();
               warn(describe(model, c) + " (further such warnings are counted, not shown; --strict makes it an error)");
+            }
           }
         }
         timings += data.timings;
@@ -540,7 +546,7 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
   finishing.unlock();
 
   const long n = std::max<long>(1, steps_done);
-  if (!o.quiet) {
+  if (!o.quiet && o.summary) {
     std::ostringstream s;
     s.precision(3);
     s << steps_done << (is_static ? " load steps" : " steps") << " in " << run_seconds << " s (setup "

@@ -32,6 +32,10 @@ struct SimulateOptions {
   std::string jacobian;
   int threads = 0;
   bool strict = false, quiet = false, json = false;
+  // simulate_model only: the closing summary line (calibrate and control print their
+  // own; their --quiet also silences the progress bar).
+  bool summary = true;
+  std::string progress_label;  // before the progress bar (e.g. "final run")
 };
 void add_simulate(CLI::App& app, SimulateOptions& o);
 int run_simulate(const SimulateOptions& o, const std::string& command_line);
@@ -73,7 +77,7 @@ struct CheckGradOptions {
   int directions = 4;
   std::vector<std::string> set;
   int threads = 0;
-  bool json = false;
+  bool json = false, quiet = false;
 };
 void add_check_grad(CLI::App& app, CheckGradOptions& o);
 int run_check_grad(const CheckGradOptions& o);

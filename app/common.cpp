@@ -5,6 +5,7 @@
 #include <softdiff/io/hdf5_writer.hpp>
 #include <softdiff/io/scene.hpp>
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <csignal>
@@ -98,29 +99,50 @@ Json& Json::value(const std::string& k, const std::vector<double>& v) {
   return end_array();
 }
 
-Progress::Progress(long total, bool enabled)
-    : total_(total), enabled_(enabled && isatty(STDERR_FILENO)), start_(std::chrono::steady_clock::now()), last_(start_) {}
+Progress::Progress(long total, bool enabled, std::string unit)
+    : total_(total), enabled_(enabled && isatty(STDERR_FILENO)), unit_(std::move(unit)),
+      start_(std::chrono::steady_clock::now()), last_(start_) {}
+
+void Progress::start(long total, std::string label) {
+  total_ = total;
+  done_ = 0;
+  label_ = std::move(label);
+  start_ = last_ = std::chrono::steady_clock::now();
+}
 
 void Progress::update(long done) {
+  done_ = done;
   if (!enabled_) return;
   const auto now = std::chrono::steady_clock::now();
-  if (done < total_ && std::chrono::duration<double>(now - last_).count() < 0.1) return;
+  if (done < total_ && drawn_ > 0 && std::chrono::duration<double>(now - last_).count() < 0.1) return;
   last_ = now;
   const double elapsed = std::chrono::duration<double>(now - start_).count();
   const double rate = elapsed > 0 ? done / elapsed : 0;
   const double eta = rate > 0 ? (total_ - done) / rate : 0;
   constexpr int width = 30;
-  const int filled = total_ > 0 ? static_cast<int>(width * done / total_) : width;
-  std::string bar(filled, '=');
+  const int filled = total_ > 0 ? static_cast<int>(width * std::min(done, total_) / total_) : width;
+  std::string bar(static_cast<std::size_t>(filled), '=');
   bar.resize(width, ' ');
-  std::fprintf(stderr, "\r[%s] %ld/%ld steps  %.1f steps/s  ETA %.0f s   ", bar.c_str(), done, total_, rate, eta);
+  char line[256];
+  const int n = std::snprintf(line, sizeof line, "%s%s[%s] %ld/%ld %s  %.1f %s/s  ETA %.0f s", label_.c_str(),
+                              label_.empty() ? "" : " ", bar.c_str(), done, total_, unit_.c_str(), rate, unit_.c_str(), eta);
+  const int len = std::min<int>(n, static_cast<int>(sizeof line) - 1);
+  // Pad over a longer previous line.
+  std::fprintf(stderr, "\r%s%*s", line, std::max(0, drawn_ - len), "");
+  drawn_ = std::max(drawn_, len);
   std::fflush(stderr);
 }
 
-void Progress::finish() {
-  if (!enabled_) return;
-  std::fprintf(stderr, "\r%*s\r", 80, "");
+void Progress::clear() {
+  if (!enabled_ || drawn_ == 0) return;
+  std::fprintf(stderr, "\r%*s\r", drawn_, "");
   std::fflush(stderr);
+  drawn_ = 0;
+}
+
+void note(Progress& progress, const std::string& message) {
+  progress.clear();
+  note(message);
 }
 
 std::string join_argv(int argc, char** argv) {

@@ -42,18 +42,39 @@ class Json {
 };
 std::string json_escape(const std::string& s);
 
-// Progress bar on stderr when it is a terminal (not on a pipe, not with --quiet).
+// Progress bar on stderr when it is a terminal (not on a pipe, not with --quiet):
+//   [=====     ] 40/100 steps  12.3 steps/s  ETA 5 s
+// one line redrawn in place (at most 10 times a second, and at the end). `unit` names
+// what is counted ("steps", "runs"); a label set with start() prefixes the bar (e.g.
+// "run 3"). simulate, control, check-grad and calibrate draw their progress with it.
 class Progress {
  public:
-  Progress(long total, bool enabled);
+  Progress(long total, bool enabled, std::string unit = "steps");
+  ~Progress() { clear(); }  // an error message after an exception starts on a clean line
+  Progress(const Progress&) = delete;
+  Progress& operator=(const Progress&) = delete;
+  // A new count from 0 (rate and ETA restart), with an optional label before the bar.
+  void start(long total, std::string label = "");
   void update(long done);
-  void finish();
+  void advance(long n = 1) { update(done_ + n); }
+  void set_total(long total) { total_ = total; }
+  long total() const { return total_; }
+  // Erases the bar (before a message line, and at the end); the next update redraws it.
+  void clear();
+  void finish() { clear(); }
+  bool enabled() const { return enabled_; }
 
  private:
   long total_;
+  long done_ = 0;
   bool enabled_;
+  std::string unit_, label_;
+  int drawn_ = 0;  // characters of the line on the terminal
   std::chrono::steady_clock::time_point start_, last_;
 };
+
+// note() with a Progress bar on the terminal: erases the bar first.
+void note(Progress& progress, const std::string& message);
 
 std::string join_argv(int argc, char** argv);
 

@@ -91,7 +91,8 @@ std::string describe_values(const Model& model, const std::vector<ParameterId>& 
 }  // namespace
 
 void residual(const Model& model, const std::vector<ParameterId>& parameters, const std::vector<double>& values,
-              const CalibrationTarget& target, bool strict, VecX& r, MatX& J) {
+              const CalibrationTarget& target, bool strict, VecX& r, MatX& J,
+              const std::function<void(long step, long steps)>& on_step) {
   SOFTDIFF_DEMAND(parameters.size() == values.size(), "calibration: one value per parameter");
   SOFTDIFF_DEMAND(!target.frames.empty(), "calibration: the target has no frame");
   Model m = model;
@@ -106,7 +107,11 @@ void residual(const Model& model, const std::vector<ParameterId>& parameters, co
   };
   if (m.step.integrator == IntegratorKind::static_equilibrium) {
     State eq;
-    const StepStatus st = integrator::solve_static(m, data, m.initial, eq);
+    const long load_steps = m.step.static_load_steps;
+    if (on_step) on_step(0, load_steps);
+    const StepStatus st = integrator::solve_static(m, data, m.initial, eq, [&](long k, const State&) {
+      if (on_step) on_step(k, load_steps);
+    });
     if (!st.ok()) failed(st);
     MatX dx;
     integrator::StaticTheta theta{parameters, false};
@@ -122,6 +127,7 @@ void residual(const Model& model, const std::vector<ParameterId>& parameters, co
   State s = m.initial, next = m.initial;
   std::size_t f = 0;
   if (target.frames[0] == 0) fill_rows(target, static_cast<int>(f++), s.x, nullptr, r, J);
+  if (on_step) on_step(0, target.steps());
   for (long k = 1; k <= target.steps(); ++k) {
     const StepStatus st = integrator::implicit_euler_step(m, data, s, next, k);
     if (!st.ok()) failed(st);
@@ -141,6 +147,7 @@ void residual(const Model& model, const std::vector<ParameterId>& parameters, co
       failed(c);
     }
     std::swap(s, next);
+    if (on_step) on_step(k, target.steps());
     if (f < target.frames.size() && target.frames[f] == k) {
       fill_rows(target, static_cast<int>(f), s.x, &sensitivity.dx_dtheta(), r, J);
       ++f;
@@ -160,9 +167,10 @@ constexpr double kFailedCostFactor = 10;
 // runs the simulation with its sensitivities; the Jacobian of the last two evaluated
 // points is kept, so that df() at an accepted point costs nothing.
 struct Functor : Eigen::DenseFunctor<double> {
-  Functor(const Model& model, const std::vector<ParameterId>& parameters, const CalibrationTarget& target, bool strict)
+  Functor(const Model& model, const std::vector<ParameterId>& parameters, const CalibrationTarget& target, bool strict,
+          const std::function<void(int, long, long)>& on_step)
       : Eigen::DenseFunctor<double>(static_cast<int>(parameters.size()), static_cast<int>(target.residual_size())),
-        model(model), parameters(parameters), target(target), strict(strict) {}
+        model(model), parameters(parameters), target(target), strict(strict), on_step(on_step) {}
 
   struct Evaluation {
     VecX z, r;
@@ -179,7 +187,10 @@ struct Functor : Eigen::DenseFunctor<double> {
       if (e.z.size() == z.size() && e.z == z) return e;
     Evaluation e;
     e.z = z;
-    residual(model, parameters, physical(z), target, strict, e.r, e.J);
+    const int run = evaluations + 1;
+    residual(model, parameters, physical(z), target, strict, e.r, e.J, [&](long k, long n) {
+      if (on_step) on_step(run, k, n);
+    });
     ++evaluations;
     cache[next] = std::move(e);
     const Evaluation& out = cache[next];
@@ -223,6 +234,7 @@ struct Functor : Eigen::DenseFunctor<double> {
   const std::vector<ParameterId>& parameters;
   const CalibrationTarget& target;
   bool strict;
+  const std::function<void(int, long, long)>& on_step;
   Evaluation cache[2];
   int next = 0;
   int evaluations = 0;
@@ -263,7 +275,7 @@ CalibrationResult calibrate(const Model& model, const std::vector<ParameterId>& 
                             const CalibrationOptions& options, const IterationCallback& callback) {
   SOFTDIFF_DEMAND(parameters.size() == initial.size() && !parameters.empty(), "calibrate: one initial value per parameter");
   const auto t0 = std::chrono::steady_clock::now();
-  Functor functor(model, parameters, target, options.strict);
+  Functor functor(model, parameters, target, options.strict, options.on_step);
   Eigen::LevenbergMarquardt<Functor> lm(functor);
   lm.setFtol(options.ftol);
   lm.setXtol(options.xtol);

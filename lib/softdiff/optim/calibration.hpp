@@ -68,6 +68,10 @@ struct CalibrationOptions {
   double xtol = 1e-10;      // relative step in the internal coordinates
   double gtol = 0;          // cosine between r and J's columns (0: off)
   bool strict = false;      // a contact solve that misses its tolerance is an error
+  // Called as every run starts (step 0) and after each of its steps (load steps of a
+  // static scene), with the run's number (1-based, counting every simulation) and its
+  // steps: a progress display.
+  std::function<void(int run, long step, long steps)> on_step;
 };
 
 struct CalibrationIteration {
@@ -99,8 +103,10 @@ struct CalibrationResult {
 // Residual r(p) and dr/dp (rows: the target's, columns: the parameters) of `model`
 // with the parameters set to `values`. Throws ComputationError if the run fails (with
 // the step and the reason) or, with strict, if a contact solve misses its tolerance.
+// on_step: called with (0, steps) first, then after each step (load step) with (step, steps).
 void residual(const Model& model, const std::vector<ParameterId>& parameters, const std::vector<double>& values,
-              const CalibrationTarget& target, bool strict, VecX& r, MatX& J);
+              const CalibrationTarget& target, bool strict, VecX& r, MatX& J,
+              const std::function<void(long step, long steps)>& on_step = {});
 
 using IterationCallback = std::function<void(const CalibrationIteration&)>;
 
