@@ -285,7 +285,8 @@ TEST(OutputSafety, FullDiskAtCreationExitsCleanly) {
   write_text(dir / "scene.yaml", scene_text(kBeam, 3));
   Tmpfs disk(dir / "disk", "2m");
   SKIP_UNLESS_MOUNTED(disk);
-  // Almost full: the estimate (about 330 kB) does not fit: refused before the run.
+  // Almost full: the estimate (about 450 kB: 4 frames of x and the displacement, their
+  // views, the XDMF files) does not fit: refused before the run.
   disk.fill(16);
   CliRun r = run_cli("simulate scene.yaml -o disk/out.h5", dir);
   EXPECT_EQ(r.code, 2) << r.err;
@@ -295,7 +296,7 @@ TEST(OutputSafety, FullDiskAtCreationExitsCleanly) {
   // Room for the estimate but not for the writer's reserve (the frame and the
   // close): the file cannot be created. Exit 1, nothing left, no crash.
   fs::remove(dir / "disk/fill");
-  disk.fill(420);
+  disk.fill(600);
   r = run_cli("simulate scene.yaml -o disk/out.h5", dir);
   EXPECT_EQ(r.code, 1) << r.err;
   EXPECT_NE(r.err.find("No space left on device"), std::string::npos) << r.err;
@@ -309,7 +310,7 @@ TEST(OutputSafety, FullDiskAtCreationExitsCleanly) {
 TEST(OutputSafety, DiskFullDuringTheRunIsReportedAsFailed) {
   const auto dir = fresh_dir("disk_midrun");
   write_text(dir / "scene.yaml", scene_text(kBeam, 20000, "output: {every: 20}\n"));
-  Tmpfs disk(dir / "disk", "40m");
+  Tmpfs disk(dir / "disk", "80m");  // the estimate (1001 frames): about 52 MB
   SKIP_UNLESS_MOUNTED(disk);
   const auto run = start_cli("simulate scene.yaml -o disk/out.h5", dir);
   // Some frames flushed (every 10 frames), then the disk fills.
@@ -342,9 +343,10 @@ TEST(OutputSafety, OutputThatCannotFitIsRefusedBeforeTheRun) {
   SKIP_UNLESS_MOUNTED(disk);
   const CliRun r = run_cli("simulate scene.yaml -o disk/out.h5 --steps 10000000", dir);
   EXPECT_EQ(r.code, 2) << r.err;
-  // 10000001 frames of 1025 nodes: 24.6 kB each, 246 GB, plus the XDMF.
-  EXPECT_NE(r.err.find("the output will take about 25"), std::string::npos) << r.err;
-  EXPECT_NE(r.err.find(" GB (10000001 frames x 24.6 kB in HDF5, plus "), std::string::npos) << r.err;
+  // 10000001 frames of 1025 nodes: x and the displacement (49.2 kB) and their views
+  // (1 kB) per frame, 502 GB, plus the XDMF files.
+  EXPECT_NE(r.err.find("the output will take about 52"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find(" GB (10000001 frames x 50.2 kB in HDF5, plus "), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("free"), std::string::npos) << r.err;
   EXPECT_FALSE(fs::exists(dir / "disk/out.h5"));
   EXPECT_FALSE(fs::exists(dir / "disk/out.h5.partial"));
@@ -354,13 +356,13 @@ TEST(OutputSafety, LargeOutputIsAnnounced) {
   const auto dir = fresh_dir("large");
   write_text(dir / "scene.yaml", scene_text(kBeam, 3));
   if (fs::space(dir).available < 20e9) GTEST_SKIP() << "needs 20 GB free in " << dir << " for the estimate to fit";
-  // 500000 frames x 24.6 kB = 12.3 GB: above the 10 GB warning; stopped at once.
-  const auto run = start_cli("simulate scene.yaml -o out.h5 --steps 500000", dir);
+  // 250000 frames x 50.2 kB = 12.6 GB: above the 10 GB warning; stopped at once.
+  const auto run = start_cli("simulate scene.yaml -o out.h5 --steps 250000", dir);
   ASSERT_TRUE(wait_until(run, [&] { return fs::exists(dir / "out.h5.partial"); })) << err_of(run);
   kill(run.pid, SIGTERM);
   EXPECT_EQ(wait_exit(run), 1);
-  EXPECT_NE(err_of(run).find("warning: the output will take about 12."), std::string::npos) << err_of(run);
-  EXPECT_NE(err_of(run).find(" GB (500001 frames x 24.6 kB in HDF5"), std::string::npos) << err_of(run);
+  EXPECT_NE(err_of(run).find("warning: the output will take about 13"), std::string::npos) << err_of(run);
+  EXPECT_NE(err_of(run).find(" GB (250001 frames x 50.2 kB in HDF5"), std::string::npos) << err_of(run);
 }
 
 // ---- outputs that are inputs

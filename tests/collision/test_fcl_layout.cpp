@@ -11,7 +11,8 @@
 #include <memory>
 #include <vector>
 
-namespace {
+// A named namespace: this file is compiled in a unity batch with others.
+namespace fcl_layout {
 
 struct Leaf : fcl::CollisionObjectd {
   explicit Leaf(const std::shared_ptr<fcl::CollisionGeometryd>& g) : fcl::CollisionObjectd(g) {}
@@ -44,4 +45,4 @@ TEST(FclLayout, LibfclReadsTheBoxesSoftdiffSets) {
   EXPECT_EQ(pairs, n - 1);
 }
 
-}  // namespace
+}  // namespace fcl_layout

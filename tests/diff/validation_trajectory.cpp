@@ -150,8 +150,15 @@ TEST(TrajectoryDerivatives, ActuationSequenceGradientMatchesFiniteDifferences) {
                 if (k == kSteps) bx += c;
               }, adj).ok());
   ASSERT_EQ(adj.lambda_a.cols(), kSteps);
+  // The step: the runs' positions carry round-off of ~1e-13 relative (30 steps of
+  // CHOLMOD solves), so the difference quotient's round-off is ~1e-13 |c.x| / (2 e). At
+  // e = 1e-5 lambda it reached 2.7e-6 relative on the portable build (it shrinks as 1/e:
+  // 8e-8 at 1e-4, 1.4e-9 at 1e-3), too close to the 1e-6 bound and dependent on the
+  // instruction set's rounding. At e = 1e-3 lambda both the round-off and the truncation
+  // error (e^2 times the third derivative) stay below 2e-9 relative at all three steps
+  // (measured).
   for (long k : {0L, 14L, 29L}) {
-    const double e = 1e-5 * actuation(0, k);
+    const double e = 1e-3 * actuation(0, k);
     MatX ap = actuation, am = actuation;
     ap(0, k) += e;
     am(0, k) -= e;

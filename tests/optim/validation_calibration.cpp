@@ -23,6 +23,7 @@
 #include <softdiff/integrator/implicit_euler.hpp>
 #include <softdiff/optim/calibration.hpp>
 #include <support/contact.hpp>
+#include <optim/calibration_targets.hpp>
 #include <support/meshes.hpp>
 #include <support/model_builder.hpp>
 
@@ -71,24 +72,9 @@ Model supported_beam(double young = 1e5) {
   return model;
 }
 
-// Every frame 1..steps of a run.
-optim::CalibrationTarget all_frames(const Model& model) {
-  optim::CalibrationTarget t;
-  Data data(model);
-  State s = model.initial, next;
-  for (long k = 1; k <= kSteps; ++k) {
-    const StepStatus st = integrator::implicit_euler_step(model, data, s, next, k);
-    EXPECT_TRUE(st.ok()) << describe(model, st);
-    std::swap(s, next);
-    t.frames.push_back(k);
-    t.states.push_back(s.x);
-  }
-  return t;
-}
-
 void recovers(Parameter kind, double truth, double tolerance) {
   const Model truth_model = kind == Parameter::young ? beam(truth) : beam(1e6, truth);
-  const optim::CalibrationTarget target = all_frames(truth_model);
+  const optim::CalibrationTarget target = test::every_frame_target(truth_model, kSteps);
   for (const double factor : {0.2, 5.0}) {
     const optim::CalibrationResult r =
         optim::calibrate(truth_model, {{kind, 0}}, {factor * truth}, target, optim::CalibrationOptions{});
@@ -106,7 +92,7 @@ TEST(Calibration, RecoversPoissonFromFarGuesses) { recovers(Parameter::poisson, 
 
 TEST(Calibration, ResidualJacobianAgainstCentralDifferences) {
   const Model m = beam();
-  const optim::CalibrationTarget target = all_frames(beam(1.3e6));
+  const optim::CalibrationTarget target = test::every_frame_target(beam(1.3e6), kSteps);
   VecX r, rp, rm;
   MatX J, Jp, Jm;
   optim::residual(m, {{Parameter::young, 0}}, {1e6}, target, false, r, J);
@@ -120,7 +106,7 @@ TEST(Calibration, ResidualJacobianAgainstCentralDifferences) {
 TEST(Calibration, ThroughContactFromGuessesThatKeepTheContacts) {
   const double truth = 1e5;
   const Model truth_model = supported_beam(truth);
-  const optim::CalibrationTarget target = all_frames(truth_model);
+  const optim::CalibrationTarget target = test::every_frame_target(truth_model, kSteps);
   {
     Data data(truth_model);
     State s = truth_model.initial, next;
@@ -157,7 +143,7 @@ TEST(Calibration, MarkersWithNoiseScatterAsThePredictedAccuracy) {
     mk.w = Eigen::Vector4d(1, 0, 0, 0);
     clean.markers.push_back(mk);
   }
-  const optim::CalibrationTarget states = all_frames(m);
+  const optim::CalibrationTarget states = test::every_frame_target(m, kSteps);
   clean.frames = states.frames;
   for (int f = 0; f < static_cast<int>(clean.frames.size()); ++f)
     for (int k = 0; k < 8; ++k)

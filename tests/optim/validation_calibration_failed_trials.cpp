@@ -13,6 +13,7 @@
 #include <softdiff/data.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
 #include <softdiff/optim/calibration.hpp>
+#include <optim/calibration_targets.hpp>
 #include <support/meshes.hpp>
 #include <support/model_builder.hpp>
 
@@ -36,24 +37,10 @@ Model stiff_guess_beam(double young) {
   return test::make_model(test::box_mesh(8, 2, 2, 0.2, 0.02, 0.02), spec, Vec3(0, 0, -9.81), 0.01, kFailedTrialSteps);
 }
 
-optim::CalibrationTarget every_frame(const Model& model) {
-  optim::CalibrationTarget t;
-  Data data(model);
-  State s = model.initial, next;
-  for (long k = 1; k <= kFailedTrialSteps; ++k) {
-    const StepStatus st = integrator::implicit_euler_step(model, data, s, next, k);
-    EXPECT_TRUE(st.ok()) << describe(model, st);
-    std::swap(s, next);
-    t.frames.push_back(k);
-    t.states.push_back(s.x);
-  }
-  return t;
-}
-
 TEST(CalibrationFailedTrials, RecoversYoungFromTenAndAHundredTimesTheTruth) {
   const double truth = 1e6;
   const Model model = stiff_guess_beam(truth);
-  const optim::CalibrationTarget target = every_frame(model);
+  const optim::CalibrationTarget target = test::every_frame_target(model, kFailedTrialSteps);
   int failed = 0;
   for (const double factor : {10.0, 100.0}) {
     const optim::CalibrationResult r =

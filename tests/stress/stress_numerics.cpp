@@ -328,10 +328,20 @@ TEST(Stress, MassRatio1e6) {
   EXPECT_NE(plain.outcome.message.find("of body 'light'"), std::string::npos) << plain.outcome.message;
   report("mass ratio 1e6, heavy cube on a light one", describe_stack(plain));
 
+  // With psd_projection the run sits at the limit of what the NCP resolves (a 1e6 mass
+  // ratio across the interface): whether ADMM stalls and an element of the light cube
+  // then inverts, or the run completes, depends on round-off. The -march=native build
+  // stalled from step 5 and inverted at step 19; the portable build completes its 100
+  // steps. Either outcome must be bounded, or a clear error naming the light body.
   const StackResult heavy_on_light = stack(true, true);
-  EXPECT_GE(heavy_on_light.unconverged, 1);
-  EXPECT_EQ(heavy_on_light.outcome.status.code, StepStatus::Code::inverted_element) << heavy_on_light.outcome.message;
-  EXPECT_NE(heavy_on_light.outcome.message.find("of body 'light'"), std::string::npos) << heavy_on_light.outcome.message;
+  if (heavy_on_light.outcome.ok()) {
+    EXPECT_LE(heavy_on_light.floor, 1e-9);
+    EXPECT_LE(heavy_on_light.interface, 1e-4);
+  } else {
+    EXPECT_EQ(heavy_on_light.outcome.status.code, StepStatus::Code::inverted_element) << heavy_on_light.outcome.message;
+    EXPECT_NE(heavy_on_light.outcome.message.find("of body 'light'"), std::string::npos)
+        << heavy_on_light.outcome.message;
+  }
   expect_bounded_or_clear_error(heavy_on_light.outcome, "heavy on light", true, 20);
   report("mass ratio 1e6, heavy cube on a light one (psd_projection)", describe_stack(heavy_on_light));
 }
