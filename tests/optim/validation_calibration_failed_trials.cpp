@@ -54,7 +54,9 @@ TEST(CalibrationFailedTrials, RecoversYoungFromTenAndAHundredTimesTheTruth) {
       EXPECT_LE(r.history[i].failed, r.history[i].rejected);
       rejected += r.history[i].rejected;
       failed_here += r.history[i].failed;
-      if (r.history[i].failed > 0) EXPECT_FALSE(r.history[i].last_failure.empty());
+      if (r.history[i].failed > 0) {
+        EXPECT_FALSE(r.history[i].last_failure.empty());
+      }
     }
     EXPECT_EQ(rejected, r.rejected);
     EXPECT_EQ(failed_here, r.failed);
