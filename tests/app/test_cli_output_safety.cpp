@@ -8,6 +8,7 @@
 //
 // The disk tests mount small tmpfs folders (root only: skipped otherwise).
 #include <support/cli.hpp>
+#include <support/h5.hpp>
 
 #include <gtest/gtest.h>
 #include <hdf5.h>
@@ -75,22 +76,9 @@ std::string status_of(const fs::path& file) {
   H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
   const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
   if (f < 0) return "<cannot open>";
-  std::string value = "<no status>";
-  const hid_t a = H5Aopen(f, "status", H5P_DEFAULT);
-  if (a >= 0) {
-    const hid_t type = H5Aget_type(a);
-    char* text = nullptr;
-    const hid_t memory = H5Tcopy(H5T_C_S1);
-    H5Tset_size(memory, H5T_VARIABLE);
-    H5Tset_cset(memory, H5Tget_cset(type));
-    if (H5Tis_variable_str(type) > 0 && H5Aread(a, memory, &text) >= 0 && text != nullptr) value = text;
-    H5free_memory(text);
-    H5Tclose(memory);
-    H5Tclose(type);
-    H5Aclose(a);
-  }
+  const std::string value = softdiff::test::h5_string_attribute(f, "/", "status");
   H5Fclose(f);
-  return value;
+  return value.empty() ? "<no status>" : value;
 }
 
 // Rows of a dataset (its first dimension); -1 if the file or dataset cannot be read.
