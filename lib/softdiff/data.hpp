@@ -4,6 +4,7 @@
 #include <softdiff/collision/contact_set.hpp>
 #include <softdiff/collision/detection.hpp>
 #include <softdiff/contact/ncp.hpp>
+#include <softdiff/contact/sparse_delassus.hpp>
 #include <softdiff/fem/assembly.hpp>
 #include <softdiff/integrator/linear_solver.hpp>
 #include <softdiff/model.hpp>
@@ -53,7 +54,8 @@ struct ContactData {
   collision::DetectionStats stats;
   double margin = 0;                // detection margin of the step: max(margin, 2 h max|v|)
   SparseMatrix Ht;                  // (3n, 3nc) H_c^T, projected (no fixed dof)
-  MatX G;                           // (3nc, 3nc) Delassus h H_c A^{-1} H_c^T
+  MatX G;                           // (3nc, 3nc) Delassus h H_c A^{-1} H_c^T (dense backend; empty on the sparse one)
+  contact::SparseDelassus sparse;   // the same as an operator (sparse backend, NcpResult::sparse)
   VecX g;                           // (3nc) H_c v_free + (0, 0, phi_i / h)
   VecX mu;                          // (nc)
   VecX lambda;                      // (3nc) contact forces (N) in each frame (t1, t2, n)

@@ -1,11 +1,16 @@
-// The contact stage of the step (issue "Frictional contact"): a slab pressed onto a
-// plane by gravity with 10, 100 and 1000 active vertex contacts, for ADMM and PGS.
+// The contact stage of the step (issues "Frictional contact", "Contact at scale"): a
+// slab pressed onto a plane by gravity with 10, 100, 1000, 5000 and 20000 active vertex
+// contacts, for ADMM and PGS, on the automatic backend (dense G up to 400 contacts, the
+// sparse operator beyond) and, up to 1000 contacts, on the dense one.
 // After 5 warm-up steps (contacts established, warm start in place), each iteration
 // is one step. Counters (per step): contacts, step_ms and its split detection_ms,
 // delassus_ms (H_c, G from forward solves, g), ncp_ms (solver + polish),
 // correction_ms (one more solve), fem_ms (assembly + factorization + free solve);
 // iterations (ADMM/PGS); floor_ms: a bare CHOLMOD factorize + solve of the same A in
-// the same run; ratio = step_ms / floor_ms. BM_Gripper: the same counters on the
+// the same run; ratio = step_ms / floor_ms; free_ms: a step of the same slab with
+// contact disabled (it falls freely), same run; over_free = step_ms / free_ms;
+// rho_updates: ADMM's factorizations of G + rho I (dense) or A + (h/c) H^T H (sparse);
+// sparse: 1 if the step used the sparse backend. BM_Gripper: the same counters on the
 // shipped gripper scene (soft fingers, self-contact, a fixed object).
 #include <softdiff/collision/obstacle.hpp>
 #include <softdiff/data.hpp>
@@ -19,7 +24,9 @@
 
 #include <benchmark/benchmark.h>
 
+#include <algorithm>
 #include <chrono>
+#include <vector>
 #include <string>
 
 using namespace softdiff;
@@ -28,10 +35,12 @@ namespace {
 
 constexpr long kGripperWarmup = 100;  // steps until the fingers hold the object (configs/gripper.yaml)
 
-Model slab(int contacts, contact::NcpSolverKind solver) {
+Model slab(int contacts, contact::NcpSolverKind solver, contact::NcpBackend backend) {
   int nx = 4, ny = 1;  // (nx + 1)(ny + 1) bottom vertices
   if (contacts == 100) nx = ny = 9;
   if (contacts == 1000) { nx = 39; ny = 24; }
+  if (contacts == 5000) nx = ny = 70;    // 5041
+  if (contacts == 20000) nx = ny = 141;  // 20164
   test::BodySpec spec;
   spec.young = 1e5;
   spec.poisson = 0.3;
@@ -44,8 +53,24 @@ Model slab(int contacts, contact::NcpSolverKind solver) {
   cs.ncp.solver = solver;
   cs.ncp.tolerance = 1e-8;
   cs.ncp.max_iterations = 5000;
+  cs.ncp.backend = backend;
   test::enable_contact(model, {test::plane(Vec3(0, 0, 1), 0)}, cs);
   return model;
+}
+
+// Wall seconds of one step of `model` without contact (the same state), median of 3.
+double free_step_seconds(Model model, const State& s, long k) {
+  model.contact.enabled = false;
+  Data data(model);
+  State next;
+  std::vector<double> t;
+  for (int r = 0; r < 3; ++r) {
+    const auto t0 = std::chrono::steady_clock::now();
+    (void)integrator::implicit_euler_step(model, data, s, next, k);
+    t.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  }
+  std::sort(t.begin(), t.end());
+  return t[1];
 }
 
 // Runs `warmup` steps, then one step per benchmark iteration (the state advances),
@@ -64,7 +89,7 @@ void time_contact_steps(benchmark::State& st, const Model& model, long warmup) {
     std::swap(s, next);
   }
   StepTimings total;
-  double wall = 0, iterations = 0, contacts = 0;
+  double wall = 0, iterations = 0, contacts = 0, rho_updates = 0, sparse = 0;
   long steps = 0;
   for (auto _ : st) {
     const auto t0 = Clock::now();
@@ -77,6 +102,8 @@ void time_contact_steps(benchmark::State& st, const Model& model, long warmup) {
     std::swap(s, next);
     total += data.timings;
     iterations += data.contact.result.iterations;
+    rho_updates += data.contact.result.rho_updates;
+    sparse += data.contact.result.sparse;
     contacts += data.contact.contacts.size();
     ++steps;
   }
@@ -103,16 +130,25 @@ void time_contact_steps(benchmark::State& st, const Model& model, long warmup) {
   st.counters["iterations"] = iterations / steps;
   st.counters["floor_ms"] = 1e3 * floor;
   st.counters["ratio"] = wall / steps / floor;
-  st.SetLabel(model.contact.ncp.solver == contact::NcpSolverKind::admm ? "admm" : "pgs");
+  const double free = free_step_seconds(model, s, k + 1);
+  st.counters["free_ms"] = 1e3 * free;
+  st.counters["over_free"] = wall / steps / free;
+  st.counters["rho_updates"] = rho_updates / steps;
+  st.counters["sparse"] = sparse / steps;
+  st.SetLabel(std::string(model.contact.ncp.solver == contact::NcpSolverKind::admm ? "admm" : "pgs") +
+              (model.contact.ncp.backend == contact::NcpBackend::dense ? " dense" : " auto"));
 }
 
+// range(0): contacts; range(1): 0 admm, 1 pgs; range(2): 0 automatic, 1 dense backend.
 void BM_Contact(benchmark::State& st) {
   const auto solver = st.range(1) == 0 ? contact::NcpSolverKind::admm : contact::NcpSolverKind::pgs;
-  time_contact_steps(st, slab(static_cast<int>(st.range(0)), solver), 5);
+  const auto backend = st.range(2) == 0 ? contact::NcpBackend::automatic : contact::NcpBackend::dense;
+  time_contact_steps(st, slab(static_cast<int>(st.range(0)), solver, backend), 5);
 }
 
 BENCHMARK(BM_Contact)
-    ->ArgsProduct({{10, 100, 1000}, {0, 1}})
+    ->ArgsProduct({{10, 100, 1000, 5000, 20000}, {0, 1}, {0}})
+    ->ArgsProduct({{100, 1000}, {0, 1}, {1}})
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime()
     ->MinTime(0.5);

@@ -10,19 +10,31 @@
 
 namespace softdiff::test {
 
+// sigma = G lambda + g of the last step's contact solution, computed independently
+// of the solver: from the dense G (dense backend), else as h H A^{-1} H^T lambda + g
+// with the step's factorization (sparse backend, which never forms G).
+inline VecX contact_sigma(const Data& data, double h) {
+  const auto& cd = data.contact;
+  if (cd.G.rows() == cd.g.size()) return cd.G * cd.lambda + cd.g;
+  const VecX f = cd.Ht * cd.lambda;
+  VecX dv;
+  EXPECT_TRUE(data.solver->solve(f, dv));
+  return h * (cd.Ht.transpose() * dv) + cd.g;
+}
+
 // The contact solution of the last step, checked independently of the solver's own
-// report: residuals recomputed from (G, g, mu, lambda) (ncp_residuals), lambda in
-// each cone to `tolerance` relative, sigma + Gamma in the dual cone, and the modes
-// consistent with lambda and sigma.
-inline void expect_valid_contact_solution(const Data& data, double tolerance, const std::string& where) {
+// report: residuals recomputed from (sigma, g, mu, lambda) (ncp_residuals_at, sigma
+// from contact_sigma), lambda in each cone to `tolerance` relative, sigma + Gamma in
+// the dual cone, and the modes consistent with lambda and sigma.
+inline void expect_valid_contact_solution(const Data& data, double tolerance, const std::string& where, double h) {
   const auto& cd = data.contact;
   const int nc = cd.contacts.size();
   if (nc == 0) return;
-  const contact::NcpResiduals r = contact::ncp_residuals(cd.G, cd.g, cd.mu, cd.lambda);
+  const VecX sigma = contact_sigma(data, h);
+  const contact::NcpResiduals r = contact::ncp_residuals_at(sigma, cd.g, cd.mu, cd.lambda);
   EXPECT_LE(r.primal, tolerance) << where;
   EXPECT_LE(r.dual, tolerance) << where;
   EXPECT_LE(r.complementarity, tolerance) << where;
-  const VecX sigma = cd.G * cd.lambda + cd.g;
   const double lscale = std::max(cd.lambda.cwiseAbs().maxCoeff(), 1e-300);
   const double vscale = std::max(cd.g.cwiseAbs().maxCoeff(), 1e-300);
   for (int i = 0; i < nc; ++i) {

@@ -111,15 +111,24 @@ StepStatus resolve_contacts(const Model& model, Data& data, const State& in, Vec
     return status;
   }
 
-  // H_c^T, G = h H A^{-1} H^T, g = H v_free + phi / h on normal rows.
+  // H_c^T, G = h H A^{-1} H^T (dense backend) or its operator (sparse backend),
+  // g = H v_free + phi / h on normal rows.
   t0 = Clock::now();
   contact_jacobian_transpose(model, cd.contacts, cd.Ht);
-  if (!data.solver->inverse_congruence(cd.Ht, cd.G)) {
-    status.code = StepStatus::Code::solver_failed;
-    status.detail = "iterative linear solver did not reach its tolerance (Delassus matrix)";
-    return status;
+  const auto& ncp = model.contact.ncp;
+  const bool sparse = ncp.backend == NcpBackend::sparse ||
+                      (ncp.backend == NcpBackend::automatic && nc > ncp.dense_max_contacts);
+  if (sparse) {
+    cd.G.resize(0, 0);
+    cd.sparse.bind(*data.solver, data.A, cd.Ht, h, model.solver);
+  } else {
+    if (!data.solver->inverse_congruence(cd.Ht, cd.G)) {
+      status.code = StepStatus::Code::solver_failed;
+      status.detail = "iterative linear solver did not reach its tolerance (Delassus matrix)";
+      return status;
+    }
+    cd.G *= h;
   }
-  cd.G *= h;
   cd.g.noalias() = cd.Ht.transpose() * v;
   cd.mu.resize(nc);
   for (int i = 0; i < nc; ++i) {
@@ -139,8 +148,14 @@ StepStatus resolve_contacts(const Model& model, Data& data, const State& in, Vec
     if (it != cd.previous_keys.end() && it->first == key)
       cd.lambda.segment<3>(3 * i) = cd.previous_lambda.segment<3>(3 * it->second);
   }
-  cd.result = cd.solver.solve(cd.G, cd.g, cd.mu, model.contact.ncp, cd.lambda, cd.sigma, cd.modes);
+  cd.result = sparse ? cd.solver.solve(cd.sparse, cd.g, cd.mu, ncp, cd.lambda, cd.sigma, cd.modes)
+                     : cd.solver.solve(cd.G, cd.g, cd.mu, ncp, cd.lambda, cd.sigma, cd.modes);
   data.timings.ncp += seconds_since(t0);
+  if (sparse && cd.sparse.failed()) {
+    status.code = StepStatus::Code::solver_failed;
+    status.detail = "iterative linear solver did not reach its tolerance (sparse contact solve)";
+    return status;
+  }
   for (int k = 0; k < cd.lambda.size(); ++k)
     if (!std::isfinite(cd.lambda[k])) {
       status.code = StepStatus::Code::non_finite;

@@ -1,5 +1,6 @@
 #include <softdiff/core/avx512_gcc12.hpp>  // first: see there
 #include <softdiff/contact/ncp.hpp>
+#include <softdiff/contact/sparse_delassus.hpp>
 
 #include <softdiff/core/assert.hpp>
 
@@ -181,6 +182,14 @@ NcpResiduals ncp_residuals(const MatX& G, const VecX& g, const VecX& mu, const V
   return residuals_of(lambda, sigma, mu, g_scale(g));
 }
 
+NcpResiduals ncp_residuals_at(const VecX& sigma, const VecX& g, const VecX& mu, const VecX& lambda) {
+  SOFTDIFF_DEMAND(g.size() == 3 * mu.size() && sigma.size() == g.size() && lambda.size() == g.size(),
+                  "sizes: expected sigma, g and lambda (3nc), mu (nc); got sigma " + std::to_string(sigma.size()) +
+                      ", g " + std::to_string(g.size()) + ", lambda " + std::to_string(lambda.size()) + ", mu " +
+                      std::to_string(mu.size()));
+  return residuals_of(lambda, sigma, mu, g_scale(g));
+}
+
 namespace {
 
 // Every buffer of a solve; shapes in terms of n = 3 nc. (NcpSolver::Workspace is this;
@@ -208,13 +217,21 @@ struct Buffers {
   VecX Gw;                       // storage of G_W (column-major, 9 nw^2; grown when a set needs it)
   VecX gw, muw, lw, sw;          // (n), (nc), (n), (n)
   Eigen::CompleteOrthogonalDecomposition<MatX> cod;
+  // sparse operator (NcpSolver::solve(SparseDelassus&, ...))
+  MatX Gs;                       // a dense G_W or G_AA of a small set
+  VecX ga, la, sa, mua;          // the active set's problem, (3 na), (na)
+  std::vector<int> set_a;        // positions in the working set of the active contacts of a sparse round
+  std::vector<int> ids_a;        // their contact ids
+  VecX lambda_alt, sigma_alt;    // (n) the polished candidate of a sparse round
+  std::vector<Mode> modes_a;
+  std::vector<double> gnn;       // (nc) G_NN,i where known (dense G_W), else the power-iteration scale
 
   void resize(Eigen::Index n) {
     if (x.size() == n) return;
     muw.resize(n / 3);
     in_set.resize(static_cast<std::size_t>(n / 3));
     for (VecX* v : {&x, &y, &z, &s, &rhs, &x_prev, &y_prev, &power, &lambda_best, &lambda_p, &sigma_p, &lambda_kept,
-                     &sigma_kept, &gw, &lw, &sw})
+                     &sigma_kept, &gw, &lw, &sw, &lambda_alt, &sigma_alt})
       v->resize(n);
   }
 };
@@ -277,38 +294,70 @@ double largest_eigenvalue(const Eigen::Ref<const MatX>& G, VecRef v, VecRef w) {
 // iterations, ADMM stops and PGS continues from its iterate with the remaining budget
 // (counted in iterations and in fallback_iterations). 415-contact self-contact dump,
 // tolerance 1e-8: ADMM alone 3248 iterations / 3.5 s, hybrid 100 + 1882 / 0.26 s.
-// The NCP residuals of y are checked every iteration (one product G y, cheaper than
-// the two triangular solves of the x-step).
-NcpResult admm(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma, int stall_window) {
+// With the dense G, the NCP residuals of y are checked every iteration (one product
+// G y, cheaper than the two triangular solves of the x-step).
+// The Delassus operator as ADMM sees it: the dense G with a dense Cholesky factor of
+// G + c I kept in the workspace (DenseOperator), or the sparse operator of
+// sparse_delassus.hpp (SparseOperator). cheap_apply: a product G y costs less than the
+// x-step, so the NCP residuals are checked every iteration; otherwise (a product is a
+// sparse solve) every sparse_check_every iterations and whenever ADMM's own primal and
+// dual residuals are within the tolerance.
+struct DenseOperator {
+  static constexpr bool cheap_apply = true;
+  Buffers& w;
+  const Eigen::Ref<const MatX>& G;
+  Eigen::Index n;
+  std::optional<Eigen::LLT<Eigen::Ref<MatX>>> llt{};
+  bool ok = true;
+  double largest_eigenvalue() { return softdiff::contact::largest_eigenvalue(G, w.power.head(n), w.rhs.head(n)); }
+  void apply(const VecCRef& y, VecRef out) { out.noalias() = G * y; }
+  // G + c I, factorized in place in w.A's storage (grown once to the largest n seen).
+  bool factorize(double c) {
+    if (w.A.size() < n * n) w.A.resize(n * n);
+    Eigen::Map<MatX> A(w.A.data(), n, n);
+    A = G;
+    A.diagonal().array() += c;
+    llt.emplace(A);
+    return llt->info() == Eigen::Success;
+  }
+  void solve(VecRef r) { llt->solveInPlace(r); }
+};
+
+struct SparseOperator {
+  static constexpr bool cheap_apply = false;
+  SparseDelassus& d;
+  bool ok = true;  // false once an iterative solve missed its tolerance
+  // Power iterations: L only sets rho's scale; warm-started across steps.
+  double largest_eigenvalue() { return d.largest_eigenvalue(8); }
+  void apply(const VecCRef& y, VecRef out) { ok = d.apply(y, out) && ok; }
+  bool factorize(double c) { return d.factorize_shifted(c); }
+  void solve(VecRef r) { ok = d.solve_shifted(r) && ok; }
+};
+constexpr int sparse_check_every = 10;
+
+template <typename Operator>
+NcpResult admm(Buffers& w, Operator& op, const Problem& p, VecRef lambda, VecRef sigma, int stall_window) {
   NcpResult result;
   const Eigen::Index n = 3 * static_cast<Eigen::Index>(p.nc);
   // Views on the leading parts of the workspace (its buffers only grow).
   auto x = w.x.head(n), y = w.y.head(n), z = w.z.head(n), s = w.s.head(n), rhs = w.rhs.head(n);
   auto x_prev = w.x_prev.head(n), y_prev = w.y_prev.head(n), xr = w.power.head(n);
-  double L = largest_eigenvalue(p.G, w.power.head(n), rhs);
+  double L = op.largest_eigenvalue();
   if (!(L > 0) || !std::isfinite(L)) L = 1;  // G = 0: any scale (sigma = g does not depend on lambda)
   const double eta = 1e-6 * L;
   const double cond = L / eta;
   const double rho_increment = std::pow(cond, 0.05);
   const double rho_min = 1e-8 * L, rho_max = 1e8 * L;
   double rho = std::sqrt(L * eta) * std::pow(cond, 0.2);
-
-  // G + (rho + eta) I, factorized in place in w.A's storage (grown once to the largest n seen).
-  if (w.A.size() < n * n) w.A.resize(n * n);
-  Eigen::Map<MatX> A(w.A.data(), n, n);
-  std::optional<Eigen::LLT<Eigen::Ref<MatX>>> llt;
   auto factorize = [&]() {
-    A = p.G;
-    A.diagonal().array() += rho + eta;
-    llt.emplace(A);
     ++result.rho_updates;
-    return llt->info() == Eigen::Success;
+    return op.factorize(rho + eta);
   };
 
   // Warm start: y = P_K(lambda), z = P_K*(sigma + Gamma(sigma)) at y.
   x = lambda;
   for (int i = 0; i < p.nc; ++i) y.segment<3>(3 * i) = project_cone(x.segment<3>(3 * i), p.mu[i]);
-  sigma.noalias() = p.G * y;
+  op.apply(y, sigma);
   sigma += p.g;
   for (int i = 0; i < p.nc; ++i) {
     const Vec3 v = de_saxce(sigma.segment<3>(3 * i), p.mu[i]);
@@ -320,6 +369,7 @@ NcpResult admm(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma, int st
   if (result.residuals.max() <= p.tolerance) return result;
   if (!factorize()) return result;
   double window_start = result.residuals.max();
+  bool sigma_current = true;  // sigma = G lambda + g
 
   for (int it = 1; it <= p.max_iterations; ++it) {
     x_prev = x;
@@ -329,7 +379,7 @@ NcpResult admm(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma, int st
       s[3 * i + 2] = p.mu[i] * z.segment<2>(3 * i).norm();
     }
     rhs = rho * y + eta * x + z - p.g - s;
-    llt->solveInPlace(rhs);
+    op.solve(rhs);
     x = rhs;
     // Over-relaxation (Boyd et al. 2011, sec. 3.4.3): the y- and z-steps see
     // alpha x + (1 - alpha) y_prev instead of x.
@@ -337,29 +387,41 @@ NcpResult admm(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma, int st
     rhs = xr - z / rho;
     for (int i = 0; i < p.nc; ++i) y.segment<3>(3 * i) = project_cone(rhs.segment<3>(3 * i), p.mu[i]);
     z -= rho * (xr - y);
-
-    sigma.noalias() = p.G * y;
-    sigma += p.g;
     result.iterations = it;
-    if (!all_finite(y) || !all_finite(sigma)) break;  // guard; lambda keeps the last finite iterate
-    lambda = y;
-    result.residuals = residuals_of(lambda, sigma, p.mu, p.vscale);
-    if (result.residuals.max() <= p.tolerance) break;
-    // Stall: less than a factor 10 of progress over the last stall_window iterations.
-    if (stall_window > 0 && it % stall_window == 0) {
-      const double now = result.residuals.max();
-      if (now > 0.1 * window_start) {
-        result.fallback_iterations = -1;  // tells the caller (set to the PGS count there)
-        break;
-      }
-      window_start = now;
-    }
 
-    // Residual balancing (scaled, see above). Reuses rhs as scratch.
+    // ADMM's own residuals (scaled, for the balancing below). Reuses rhs as scratch.
     const double lscale = std::max(y.cwiseAbs().maxCoeff(), tiny);
     const double primal = (x - y).cwiseAbs().maxCoeff() / lscale;
     rhs = rho * (y - y_prev) + eta * (x - x_prev);
     const double dual = rhs.cwiseAbs().maxCoeff() / p.vscale;
+
+    if (Operator::cheap_apply || it % sparse_check_every == 0 || std::max(primal, dual) <= p.tolerance ||
+        it == p.max_iterations) {
+      op.apply(y, sigma);
+      sigma += p.g;
+      if (!all_finite(y) || !all_finite(sigma)) {  // guard; lambda keeps the last finite iterate
+        sigma_current = false;
+        break;
+      }
+      lambda = y;
+      sigma_current = true;
+      result.residuals = residuals_of(lambda, sigma, p.mu, p.vscale);
+      if (result.residuals.max() <= p.tolerance) break;
+      // Stall: less than a factor 10 of progress over the last stall_window iterations.
+      if (stall_window > 0 && it % stall_window == 0) {
+        const double now = result.residuals.max();
+        if (now > 0.1 * window_start) {
+          result.fallback_iterations = -1;  // tells the caller (set to the PGS count there)
+          break;
+        }
+        window_start = now;
+      }
+    } else if (!all_finite(y)) {
+      break;
+    }
+
+    // Residual balancing: if the scaled primal residual ||x - y|| / lscale exceeds 10
+    // times the scaled dual one, rho *= (L/m)^0.05, and the converse.
     double rho_new = rho;
     if (primal > 10 * dual)
       rho_new = std::min(rho * rho_increment, rho_max);
@@ -371,9 +433,16 @@ NcpResult admm(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma, int st
     }
   }
   // sigma of the returned lambda (it is already, unless the guard stopped the loop).
-  sigma.noalias() = p.G * lambda;
-  sigma += p.g;
+  if (!sigma_current || Operator::cheap_apply) {
+    op.apply(lambda, sigma);
+    sigma += p.g;
+  }
   return result;
+}
+
+NcpResult admm(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma, int stall_window) {
+  DenseOperator op{w, p.G, 3 * static_cast<Eigen::Index>(p.nc)};
+  return admm(w, op, p, lambda, sigma, stall_window);
 }
 
 // Projected Gauss-Seidel on the contacts, each contact's block split into its normal
@@ -453,20 +522,28 @@ NcpResult pgs(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma) {
   return result;
 }
 
-void classify(const Problem& p, const VecCRef& lambda, const VecCRef& sigma, std::vector<Mode>& modes) {
-  const double Gmax = std::max(p.G.diagonal().maxCoeff(), tiny);
-  modes.resize(static_cast<std::size_t>(p.nc));
-  for (int i = 0; i < p.nc; ++i) {
-    const double rho = 1 / std::max(p.G(3 * i + 2, 3 * i + 2), 1e-12 * Gmax);
-    const Vec3 z = lambda.segment<3>(3 * i) - rho * de_saxce(sigma.segment<3>(3 * i), p.mu[i]);
+// The modes of (lambda, sigma), with rho_i = 1 / G_NN,i from gnn(i) (Gmax: the largest,
+// for the floor 1e-12 Gmax).
+template <typename Diagonal>
+void classify_by(int nc, const VecCRef& mu, const VecCRef& lambda, const VecCRef& sigma, const Diagonal& gnn,
+                 double Gmax, std::vector<Mode>& modes) {
+  modes.resize(static_cast<std::size_t>(nc));
+  for (int i = 0; i < nc; ++i) {
+    const double rho = 1 / std::max(gnn(i), 1e-12 * Gmax);
+    const Vec3 z = lambda.segment<3>(3 * i) - rho * de_saxce(sigma.segment<3>(3 * i), mu[i]);
     const double t = z.head<2>().norm();
-    if (p.mu[i] * t <= -z[2])
+    if (mu[i] * t <= -z[2])
       modes[i] = Mode::breaking;  // z in the polar cone of K, P_K(z) = 0 (mu = 0: z_N <= 0)
-    else if (p.mu[i] > 0 && t <= p.mu[i] * z[2])
+    else if (mu[i] > 0 && t <= mu[i] * z[2])
       modes[i] = Mode::sticking;  // z inside K
     else
       modes[i] = Mode::sliding;   // P_K(z) on the boundary (mu = 0: the ray)
   }
+}
+
+void classify(const Problem& p, const VecCRef& lambda, const VecCRef& sigma, std::vector<Mode>& modes) {
+  const double Gmax = std::max(p.G.diagonal().maxCoeff(), tiny);
+  classify_by(p.nc, p.mu, lambda, sigma, [&](int i) { return p.G(3 * i + 2, 3 * i + 2); }, Gmax, modes);
 }
 
 // Polish: Newton on the mode equations F(u) = 0 over the forces u of the active
@@ -758,6 +835,214 @@ NcpResult NcpSolver::solve(const MatX& G, const VecX& g, const VecX& mu, const N
     result.working_set_fallback = options.working_set;
   }
   result.converged = result.residuals.max() <= options.tolerance;
+  for (const Mode mode : modes) {
+    if (mode == Mode::sticking) ++result.sticking;
+    if (mode == Mode::sliding) ++result.sliding;
+    if (mode == Mode::breaking) ++result.breaking;
+  }
+  return result;
+}
+
+}  // namespace softdiff::contact
+
+namespace softdiff::contact {
+
+// The sparse path (ncp.hpp; docs/method.md "Contact at scale"). The working set of
+// working_set_solve() with G as an operator: the full sigma = G_:W lambda_W + g is one
+// solve, so screening costs no dense G. Each reduced problem: on its dense G_W (at most
+// dense_max_contacts contacts: the dense path's solve_core, ADMM or PGS, then the
+// polish), or by ADMM on the operator; then, if its active contacts are at most
+// polish_max_active, the polish on their dense G_AA (a candidate, kept if the full
+// residuals are lower). A reduced solve that fails (or exhausts its budget) before the
+// set covers every contact is retried once on all of them. Modes are classified with
+// rho_i = 1 / G_NN,i where a dense G_W gave it, else 1 / L (L the power iteration's
+// largest eigenvalue; the modes at a solution do not depend on rho_i).
+NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, const NcpOptions& options, VecX& lambda,
+                           VecX& sigma, std::vector<Mode>& modes) {
+  const Eigen::Index n = g.size();
+  SOFTDIFF_DEMAND(n == 3 * mu.size() && 3 * static_cast<Eigen::Index>(G.contacts()) == n,
+                  "sizes: expected 3 nc rows of g for the operator's " + std::to_string(G.contacts()) +
+                      " contacts; got g " + std::to_string(n) + ", mu " + std::to_string(mu.size()));
+  if (!work_) work_ = std::make_shared<Workspace>();
+  Workspace& w = *work_;
+  w.resize(n);
+  const int nc = static_cast<int>(mu.size());
+  if (lambda.size() != n || !lambda.allFinite()) lambda.setZero(n);
+  sigma.resize(n);
+  NcpResult result;
+  result.sparse = true;
+  if (!g.allFinite() || !mu.allFinite() || (nc > 0 && mu.minCoeff() < 0)) {
+    lambda.setZero();
+    sigma.setZero();
+    modes.assign(static_cast<std::size_t>(nc), Mode::breaking);
+    result.residuals = {infinity, infinity, infinity};
+    result.breaking = nc;
+    return result;
+  }
+  const double vscale = g_scale(g), tol = options.tolerance;
+  w.gnn.assign(static_cast<std::size_t>(nc), 0.0);
+  double Gscale = 0;  // the largest known G_NN,i or eigenvalue
+  const MatX none;    // the Problem's G on the operator path (unused there)
+  auto violates = [&](int i) {
+    return project_cone(-de_saxce(sigma.segment<3>(3 * i), mu[i]), mu[i]).norm() > tol * vscale;
+  };
+  // The full sigma for lambda supported on the current restriction `set` (lw: its forces).
+  auto full_sigma = [&](const std::vector<int>& set, VecX& lam, VecX& sig) {
+    sig = g;
+    if (set.empty()) return;
+    const Eigen::Index m = 3 * static_cast<Eigen::Index>(set.size());
+    for (std::size_t b = 0; b < set.size(); ++b) w.rhs.segment<3>(3 * b) = lam.segment<3>(3 * set[b]);
+    G.apply_full(w.rhs.head(m), w.power.head(n));  // power: scratch here
+    sig += w.power.head(n);
+  };
+
+  // Warm start (projected) and the first working set.
+  for (int i = 0; i < nc; ++i) lambda.segment<3>(3 * i) = project_cone(lambda.segment<3>(3 * i), mu[i]);
+  w.set.clear();
+  for (int i = 0; i < nc; ++i)
+    if (lambda.segment<3>(3 * i).squaredNorm() > 0) w.set.push_back(i);
+  if (!w.set.empty()) G.restrict_to(w.set);
+  full_sigma(w.set, lambda, sigma);
+  for (int i = 0; i < nc; ++i)
+    w.in_set[i] = !options.working_set || lambda.segment<3>(3 * i).squaredNorm() > 0 || violates(i);
+
+  // The polish of a round solved on the operator (lw, sw over the set W of nw
+  // contacts): on the dense G_AA of its active contacts, if they are at most
+  // polish_max_active. The candidate (the polished forces on A, 0 elsewhere) goes to
+  // lambda_alt, with its full sigma in sigma_alt; returns whether there is one.
+  auto polish_sparse = [&](int nw, Eigen::Index m) {
+    if (!options.polish) return false;
+    const auto gnn = [&](int b) { return w.gnn[w.set[b]] > 0 ? w.gnn[w.set[b]] : Gscale; };
+    classify_by(nw, w.muw.head(nw), w.lw.head(m), w.sw.head(m), gnn, std::max(Gscale, tiny), w.modes_set);
+    w.set_a.clear();
+    w.ids_a.clear();
+    for (int b = 0; b < nw; ++b)
+      if (w.modes_set[b] != Mode::breaking) {
+        w.set_a.push_back(b);
+        w.ids_a.push_back(w.set[b]);
+      }
+    const int na = static_cast<int>(w.set_a.size());
+    if (na == 0 || na > options.polish_max_active) return false;
+    const Eigen::Index ma = 3 * static_cast<Eigen::Index>(na);
+    G.restrict_to(w.ids_a);
+    G.dense(w.Gs);
+    w.ga.resize(ma);
+    w.la.resize(ma);
+    w.sa.resize(ma);
+    w.mua.resize(na);
+    for (int a = 0; a < na; ++a) {
+      w.ga.segment<3>(3 * a) = w.gw.segment<3>(3 * w.set_a[a]);
+      w.la.segment<3>(3 * a) = w.lw.segment<3>(3 * w.set_a[a]);
+      w.mua[a] = w.muw[w.set_a[a]];
+    }
+    w.sa.noalias() = w.Gs * w.la;
+    w.sa += w.ga;
+    const Problem pa{w.Gs, w.ga, w.mua, na, vscale, tol, 0};
+    NcpResiduals ra = residuals_of(w.la, w.sa, w.mua, vscale);
+    classify(pa, w.la, w.sa, w.modes_a);
+    bool candidate = false;
+    if (polish_rounds(w, pa, w.la, w.sa, w.modes_a, ra)) {
+      w.lambda_alt.setZero(n);
+      for (int a = 0; a < na; ++a) w.lambda_alt.segment<3>(3 * w.ids_a[a]) = w.la.segment<3>(3 * a);
+      full_sigma(w.ids_a, w.lambda_alt, w.sigma_alt);
+      candidate = true;
+    }
+    G.restrict_to(w.set);
+    return candidate;
+  };
+
+  int spent = 0;  // iterations before the retry on every contact (which gets a budget of its own)
+  for (;;) {
+    w.set.clear();
+    for (int i = 0; i < nc; ++i)
+      if (w.in_set[i]) w.set.push_back(i);
+    const int nw = static_cast<int>(w.set.size());
+    const Eigen::Index m = 3 * static_cast<Eigen::Index>(nw);
+    ++result.working_set_rounds;
+    result.working_set_size = nw;
+    if (nw == 0) {  // nothing pushes: lambda = 0 is the solution
+      lambda.setZero();
+      sigma = g;
+      result.residuals = residuals_of(lambda, sigma, mu, vscale);
+      break;
+    }
+    G.restrict_to(w.set);
+    for (int b = 0; b < nw; ++b) {
+      w.gw.segment<3>(3 * b) = g.segment<3>(3 * w.set[b]);
+      w.lw.segment<3>(3 * b) = lambda.segment<3>(3 * w.set[b]);
+      w.muw[b] = mu[w.set[b]];
+    }
+    const int budget = options.max_iterations - (result.iterations - spent);
+    NcpResult sub;
+    bool polish_candidate = false;
+    if (nw <= options.dense_max_contacts) {
+      G.dense(w.Gs);
+      for (int b = 0; b < nw; ++b) {
+        w.gnn[w.set[b]] = w.Gs(3 * b + 2, 3 * b + 2);
+        Gscale = std::max(Gscale, w.gnn[w.set[b]]);
+      }
+      const Problem r{w.Gs, w.gw.head(m), w.muw.head(nw), nw, vscale, tol, budget};
+      sub = solve_core(w, r, options, w.lw.head(m), w.sw.head(m), w.modes_set);
+    } else {
+      ++result.sparse_rounds;
+      // ADMM on the operator. When it stalls (as on the dense path: less than 10x in
+      // admm_stall_window iterations), the polish is tried on its iterate; if that does
+      // not reach the tolerance, ADMM restarts from there once and runs to the tolerance
+      // or the budget (PGS would need G's columns; restarting at every stall would
+      // reset rho and the multiplier each time), then the polish again.
+      for (int attempt = 0;; ++attempt) {
+        const Problem r{none, w.gw.head(m), w.muw.head(nw), nw, vscale, tol,
+                        budget - sub.iterations};
+        SparseOperator op{G};
+        const int window = options.admm_fallback && attempt == 0 ? admm_stall_window : 0;
+        const NcpResult part = admm(w, op, r, w.lw.head(m), w.sw.head(m), window);
+        sub.iterations += part.iterations;
+        sub.rho_updates += part.rho_updates;
+        sub.residuals = part.residuals;
+        Gscale = std::max(Gscale, G.last_eigenvalue());
+        const bool stalled = part.fallback_iterations < 0;
+        polish_candidate = polish_sparse(nw, m);
+        if (!stalled || sub.iterations >= budget || part.iterations == 0) break;
+        if (polish_candidate && residuals_of(w.lambda_alt, w.sigma_alt, mu, vscale).max() <= tol) break;
+      }
+    }
+    result.iterations += sub.iterations;
+    result.rho_updates += sub.rho_updates;
+    result.fallback_iterations += sub.fallback_iterations;
+    result.polished = sub.polished;
+    // Scatter (lambda is 0 outside W) and the full sigma.
+    for (int b = 0; b < nw; ++b) lambda.segment<3>(3 * w.set[b]) = w.lw.segment<3>(3 * b);
+    full_sigma(w.set, lambda, sigma);
+    result.residuals = residuals_of(lambda, sigma, mu, vscale);
+    if (polish_candidate) {
+      const NcpResiduals rp = residuals_of(w.lambda_alt, w.sigma_alt, mu, vscale);
+      if (rp.max() < result.residuals.max()) {
+        lambda = w.lambda_alt;
+        sigma = w.sigma_alt;
+        result.residuals = rp;
+        result.polished = true;
+        sub.residuals = rp;  // the round's outcome (an upper bound of its reduced residuals)
+      }
+    }
+    result.converged = result.residuals.max() <= tol;
+    if (result.converged || !all_finite(lambda) || G.failed()) break;
+    const bool sub_failed = sub.residuals.max() > tol || result.iterations - spent >= options.max_iterations;
+    if (sub_failed) {
+      if (nw == nc || result.working_set_fallback) break;
+      // Retry once on every contact, from here, with a budget of its own.
+      result.working_set_fallback = true;
+      spent = result.iterations;
+      std::fill(w.in_set.begin(), w.in_set.end(), 1);
+      continue;
+    }
+    bool grown = false;
+    for (int i = 0; i < nc; ++i)
+      if (!w.in_set[i] && violates(i)) w.in_set[i] = grown = true;
+    if (!grown) break;
+  }
+  const auto gnn = [&](int i) { return w.gnn[i] > 0 ? w.gnn[i] : Gscale; };
+  classify_by(nc, mu, lambda, sigma, gnn, std::max(Gscale, tiny), modes);
+  result.converged = result.residuals.max() <= tol && !G.failed();
   for (const Mode mode : modes) {
     if (mode == Mode::sticking) ++result.sticking;
     if (mode == Mode::sliding) ++result.sliding;

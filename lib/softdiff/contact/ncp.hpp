@@ -25,6 +25,11 @@
 namespace softdiff::contact {
 
 enum class NcpSolverKind { admm, pgs };
+// Where the Delassus matrix lives (docs/method.md "Contact at scale"): dense, formed
+// as G = h H A^{-1} H^T (cost and memory (3 nc)^2), or sparse, as an operator on the
+// step's factorization (sparse_delassus.hpp). automatic: dense up to
+// dense_max_contacts contacts, sparse beyond.
+enum class NcpBackend { automatic, dense, sparse };
 enum class Mode : std::int8_t { breaking = 0, sticking = 1, sliding = 2 };
 
 struct NcpOptions {
@@ -41,6 +46,12 @@ struct NcpOptions {
   // contacts (a few times): beyond this many it is skipped (O(na^3) would exceed the
   // rest of the step) and the solver's tolerance stands.
   int polish_max_active = 400;
+  NcpBackend backend = NcpBackend::automatic;
+  // The crossover (measured, docs/method.md "Contact at scale"): the dense G for up to
+  // this many contacts (automatic backend); on the sparse path, a working set of at
+  // most this many contacts is solved on its dense G_W (the same solver as the dense
+  // path), a larger one by ADMM on the sparse operator.
+  int dense_max_contacts = 400;
 };
 
 // Scaled residuals (method.md): primal = max_i dist(lambda_i, K_mu) / max(|lambda|_inf, tiny);
@@ -62,16 +73,30 @@ struct NcpResult {
   int working_set_size = 0;     // contacts in the last working set
   bool working_set_fallback = false;  // the working set failed; the full problem was solved
   int fallback_iterations = 0;  // ADMM: PGS sweeps after ADMM stalled (included in iterations)
+  bool sparse = false;          // solved on the sparse operator (NcpSolver::solve(SparseDelassus&, ...))
+  int sparse_rounds = 0;        // sparse: reduced problems solved by ADMM on the operator (the others on a dense G_W)
 };
 
 NcpResiduals ncp_residuals(const MatX& G, const VecX& g, const VecX& mu, const VecX& lambda);
+// The same from sigma = G lambda + g computed by the caller (the sparse backend has no G).
+NcpResiduals ncp_residuals_at(const VecX& sigma, const VecX& g, const VecX& mu, const VecX& lambda);
 
 // Solver with a reusable workspace (sized on first use, grows only).
+class SparseDelassus;
+
 class NcpSolver {
  public:
   // lambda: in, the warm start (size 3 nc; zeros for none); out, the solution.
   // sigma: out, G lambda + g. modes: out, one per contact.
   NcpResult solve(const MatX& G, const VecX& g, const VecX& mu, const NcpOptions& options, VecX& lambda,
+                  VecX& sigma, std::vector<Mode>& modes);
+  // The same problem with G as a sparse operator (never formed for all contacts): the
+  // working set as above, each reduced problem on its dense G_W when it has at most
+  // options.dense_max_contacts contacts, else ADMM on the operator (PGS needs G's
+  // columns: solver pgs runs ADMM there), polished on the dense G_AA of its active
+  // contacts when they are at most polish_max_active. G is left restricted to some
+  // subset (callers restrict it again).
+  NcpResult solve(SparseDelassus& G, const VecX& g, const VecX& mu, const NcpOptions& options, VecX& lambda,
                   VecX& sigma, std::vector<Mode>& modes);
 
  private:

@@ -11,13 +11,37 @@ namespace softdiff::contact {
 
 void NcpDerivative::compute(const MatX& G, const VecX& mu, const VecX& lambda, const VecX& sigma,
                             const std::vector<Mode>& modes) {
+  const int nc = static_cast<int>(mu.size());
+  SOFTDIFF_DEMAND(G.rows() == 3 * nc && G.cols() == 3 * nc,
+                  "NcpDerivative::compute: G does not match " + std::to_string(nc) + " contacts");
+  set_active(mu, lambda, sigma, modes);
+  const double L = std::max(G.diagonal().maxCoeff(), 1e-300);
+  assemble(mu, lambda, sigma, modes, L, [&](int a, int b) { return G.block<3, 3>(3 * active_[a], 3 * active_[b]); });
+}
+
+void NcpDerivative::compute_active(const MatX& G_AA, const VecX& mu, const VecX& lambda, const VecX& sigma,
+                                   const std::vector<Mode>& modes) {
+  set_active(mu, lambda, sigma, modes);
+  const Eigen::Index m = 3 * static_cast<Eigen::Index>(active_.size());
+  SOFTDIFF_DEMAND(G_AA.rows() == m && G_AA.cols() == m,
+                  "NcpDerivative::compute_active: G_AA is not 3 na x 3 na for " + std::to_string(active_.size()) +
+                      " active contacts");
+  const double L = m > 0 ? std::max(G_AA.diagonal().maxCoeff(), 1e-300) : 1.0;
+  assemble(mu, lambda, sigma, modes, L, [&](int a, int b) { return G_AA.block<3, 3>(3 * a, 3 * b); });
+}
+
+void NcpDerivative::set_active(const VecX& mu, const VecX& lambda, const VecX& sigma, const std::vector<Mode>& modes) {
   nc_ = static_cast<int>(mu.size());
-  SOFTDIFF_DEMAND(G.rows() == 3 * nc_ && G.cols() == 3 * nc_ && lambda.size() == 3 * nc_ && sigma.size() == 3 * nc_ &&
-                      static_cast<int>(modes.size()) == nc_,
+  SOFTDIFF_DEMAND(lambda.size() == 3 * nc_ && sigma.size() == 3 * nc_ && static_cast<int>(modes.size()) == nc_,
                   "NcpDerivative::compute: sizes do not match " + std::to_string(nc_) + " contacts");
   active_.clear();
   for (int i = 0; i < nc_; ++i)
     if (modes[i] != Mode::breaking) active_.push_back(i);
+}
+
+template <typename Block>
+void NcpDerivative::assemble(const VecX& mu, const VecX& lambda, const VecX& sigma, const std::vector<Mode>& modes,
+                             double L, const Block& G_ab) {
   const int na = static_cast<int>(active_.size()), m = 3 * na;
   degenerate_ = 0;
   rank_deficiency_ = 0;
@@ -25,13 +49,12 @@ void NcpDerivative::compute(const MatX& G, const VecX& mu, const VecX& lambda, c
   R_ = MatX::Zero(m, 3 * nc_);
   D_ = MatX::Zero(m, nc_);
   if (na == 0) return;
-  const double L = std::max(G.diagonal().maxCoeff(), 1e-300);
   MatX& J = J_;
   J.resize(m, m);
   bool all_sticking = true;
   for (int a = 0; a < na; ++a) {
     const int i = active_[a];
-    for (int b = 0; b < na; ++b) J.block<3, 3>(3 * a, 3 * b) = G.block<3, 3>(3 * i, 3 * active_[b]);
+    for (int b = 0; b < na; ++b) J.block<3, 3>(3 * a, 3 * b) = G_ab(a, b);
     R_.block<3, 3>(3 * a, 3 * i).setIdentity();
     if (modes[i] == Mode::sticking) continue;
     all_sticking = false;
@@ -46,7 +69,7 @@ void NcpDerivative::compute(const MatX& G, const VecX& mu, const VecX& lambda, c
     if (mui > 0 && sn > 0) {
       const Eigen::Vector2d t = sT / sn;
       const Eigen::Matrix2d P = (mui * lN / sn) * (Eigen::Matrix2d::Identity() - t * t.transpose());
-      for (int b = 0; b < na; ++b) J.block<2, 3>(3 * a, 3 * b) += L * P * G.block<2, 3>(3 * i, 3 * active_[b]);
+      for (int b = 0; b < na; ++b) J.block<2, 3>(3 * a, 3 * b) += L * P * G_ab(a, b).template topRows<2>();
       J.block<2, 1>(3 * a, 3 * a + 2) += L * mui * t;
       R_.block<2, 2>(3 * a, 3 * i) = L * P;
       D_.block<2, 1>(3 * a, i) = L * lN * t;

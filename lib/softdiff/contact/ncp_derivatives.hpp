@@ -32,6 +32,12 @@ class NcpDerivative {
  public:
   // At the solution (lambda, sigma, modes) of NCP(G, g, mu).
   void compute(const MatX& G, const VecX& mu, const VecX& lambda, const VecX& sigma, const std::vector<Mode>& modes);
+  // The same from G_AA alone (3 na x 3 na, the active contacts in increasing order):
+  // the sparse backend, which never forms G (the scale L is then max diag G_AA).
+  void compute_active(const MatX& G_AA, const VecX& mu, const VecX& lambda, const VecX& sigma,
+                      const std::vector<Mode>& modes);
+  // The active (non-breaking) contacts of (modes), as compute() selects them.
+  const std::vector<int>& active_contacts() const { return active_; }
 
   // dlambda (3 nc) for b (3 nc) and dmu (nc; empty: zero).
   void jvp(const VecX& b, const VecX& dmu, VecX& dlambda) const;
@@ -43,6 +49,11 @@ class NcpDerivative {
   int active() const { return static_cast<int>(active_.size()); }
 
  private:
+  void set_active(const VecX& mu, const VecX& lambda, const VecX& sigma, const std::vector<Mode>& modes);
+  template <typename Block>
+  void assemble(const VecX& mu, const VecX& lambda, const VecX& sigma, const std::vector<Mode>& modes, double L,
+                const Block& G_ab);
+
   int nc_ = 0;
   std::vector<int> active_;  // active contact ids
   // J's factorization: Cholesky when every active contact sticks (J = G_AA, symmetric)

@@ -174,7 +174,20 @@ void StepDerivatives::prepare_contact(const Model& model, const Data& data, cons
       ++nondifferentiable_contacts_;
     }
   }
-  if (nc > 0) ncp_.compute(cd.G, cd.mu, cd.lambda, cd.sigma, cd.modes);
+  if (nc > 0 && cd.G.rows() == 3 * nc) {
+    ncp_.compute(cd.G, cd.mu, cd.lambda, cd.sigma, cd.modes);
+  } else if (nc > 0) {
+    // Sparse backend (no G): the mode-fixed system needs G_AA of the active contacts
+    // only, one congruence with the step's factorization.
+    active_ids_.clear();
+    for (int i = 0; i < nc; ++i)
+      if (cd.modes[i] != contact::Mode::breaking) active_ids_.push_back(i);
+    contact::select_contact_columns(cd.Ht, active_ids_, Ht_active_);
+    SOFTDIFF_DEMAND(data.solver->inverse_congruence(Ht_active_, G_active_),
+                    "iterative linear solver did not reach its tolerance (contact derivative)");
+    G_active_ *= model.step.dt;
+    ncp_.compute_active(G_active_, cd.mu, cd.lambda, cd.sigma, cd.modes);
+  }
   contact_v_ = out.v;
 }
 

@@ -131,6 +131,9 @@ class StepDerivatives {
 
   std::vector<collision::ContactGeometryDerivative> geometry_;
   contact::NcpDerivative ncp_;
+  std::vector<int> active_ids_;     // sparse backend: the active contacts,
+  SparseMatrix Ht_active_;          //   their columns of H_c^T
+  MatX G_active_;                   //   and G_AA
   VecX contact_v_;                   // the v_f the contact derivatives were prepared for
   int nondifferentiable_contacts_ = 0, smoothed_contacts_ = 0;
   VecX b_, dlambda_, bar_lambda_, bar_b_, bar_mu_, y2_;

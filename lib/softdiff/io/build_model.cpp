@@ -259,6 +259,10 @@ void build_contact(const SceneDesc& scene, Model& model) {
   settings.ncp.tolerance = c.tolerance;
   settings.ncp.max_iterations = c.max_iterations;
   settings.ncp.polish = c.polish;
+  settings.ncp.backend = c.backend == ContactDesc::Backend::dense    ? contact::NcpBackend::dense
+                         : c.backend == ContactDesc::Backend::sparse ? contact::NcpBackend::sparse
+                                                                     : contact::NcpBackend::automatic;
+  settings.ncp.dense_max_contacts = c.dense_max_contacts;
   settings.smoothing.samples = c.smoothing_samples;
   settings.smoothing.sigma = c.smoothing_sigma > 0 ? c.smoothing_sigma : 0.1 * c.margin;
   settings.smoothing.seed = static_cast<std::uint64_t>(c.smoothing_seed);

@@ -486,6 +486,11 @@ class Reader {
     d.tolerance = number(get(c, "tolerance"), d.tolerance);
     d.max_iterations = static_cast<int>(integer(get(c, "max_iterations"), d.max_iterations));
     d.polish = boolean(get(c, "polish"), d.polish);
+    if (const Node* backend = get(c, "backend"))
+      d.backend = backend->scalar == "dense"    ? ContactDesc::Backend::dense
+                  : backend->scalar == "sparse" ? ContactDesc::Backend::sparse
+                                                : ContactDesc::Backend::automatic;
+    d.dense_max_contacts = static_cast<int>(integer(get(c, "dense_max_contacts"), d.dense_max_contacts));
     if (const Node* sm = get(c, "smoothing")) {
       d.smoothing_samples = static_cast<int>(integer(get(*sm, "samples"), d.smoothing_samples));
       d.smoothing_sigma = number(get(*sm, "sigma"), d.smoothing_sigma);

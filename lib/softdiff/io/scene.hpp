@@ -116,6 +116,8 @@ struct ContactDesc {
   double tolerance = 1e-8;
   int max_iterations = 1000;
   bool polish = true;            // extension
+  enum class Backend { automatic, dense, sparse } backend = Backend::automatic;  // extension
+  int dense_max_contacts = 400;  // extension: the automatic backend's crossover
   // extension: randomized smoothing of the collision-detection derivatives
   int smoothing_samples = 16;
   double smoothing_sigma = 0;    // 0: margin / 10

@@ -96,6 +96,8 @@ SpecPtr contact() {
       key("tolerance", number(gt(0))),
       key("max_iterations", integer(ge(1))),
       key("polish", boolean()),  // extension
+      key("backend", choice({"auto", "dense", "sparse"})),  // extension (docs/method.md "Contact at scale")
+      key("dense_max_contacts", integer(ge(0))),            // extension
       key("smoothing", map({      // extension: collision-detection derivatives
                            key("samples", integer(ge(0), 1000000)),
                            key("sigma", number(gt(0))),

@@ -1,0 +1,188 @@
+// The Delassus operator without its dense matrix: see sparse_delassus.hpp.
+#include <softdiff/contact/sparse_delassus.hpp>
+
+#include <softdiff/core/assert.hpp>
+
+#include <algorithm>
+#include <cmath>
+
+namespace softdiff::contact {
+
+namespace {
+
+// Scatter the values of X (upper, compressed) into out (nnz S) on the pattern of S,
+// zeros elsewhere. False (out unspecified) if some entry of X is outside S.
+bool scatter_into(const SparseMatrix& X, const SparseMatrix& S, VecX& out) {
+  out.setZero(S.nonZeros());
+  const int* so = S.outerIndexPtr();
+  const int* si = S.innerIndexPtr();
+  for (int j = 0; j < X.outerSize(); ++j) {
+    int p = so[j];
+    const int end = so[j + 1];
+    for (SparseMatrix::InnerIterator it(X, j); it; ++it) {
+      while (p < end && si[p] < it.row()) ++p;
+      if (p == end || si[p] != it.row()) return false;
+      out[p] += it.value();
+    }
+  }
+  return true;
+}
+
+// The pattern of X with unit values (for unions of patterns).
+SparseMatrix ones_like(const SparseMatrix& X) {
+  SparseMatrix P = X;
+  std::fill(P.valuePtr(), P.valuePtr() + P.nonZeros(), 1.0);
+  return P;
+}
+
+// The pattern of the 3x3 node blocks that X (upper, dofs) touches, upper triangle, unit
+// values: structural, so that the analyzed pattern does not depend on which entries of
+// H (frame components) or of H^T H (cancellations) happen to be exactly zero.
+SparseMatrix node_block_pattern(const SparseMatrix& X) {
+  std::vector<Eigen::Triplet<double, int>> t;
+  t.reserve(static_cast<std::size_t>(9 * X.nonZeros()));
+  for (int j = 0; j < X.outerSize(); ++j)
+    for (SparseMatrix::InnerIterator it(X, j); it; ++it) {
+      const int bi = 3 * (static_cast<int>(it.row()) / 3), bj = 3 * (j / 3);
+      for (int a = 0; a < 3; ++a)
+        for (int b = 0; b < 3; ++b)
+          if (bi + a <= bj + b) t.emplace_back(bi + a, bj + b, 1.0);
+    }
+  SparseMatrix P(X.rows(), X.cols());
+  P.setFromTriplets(t.begin(), t.end(), [](double a, double) { return a; });
+  return P;
+}
+
+}  // namespace
+
+void select_contact_columns(const SparseMatrix& Ht, const std::vector<int>& ids, SparseMatrix& out) {
+  const int m = static_cast<int>(ids.size());
+  out.resize(Ht.rows(), 3 * m);
+  Eigen::VectorXi per_column(3 * m);
+  for (int b = 0; b < m; ++b)
+    for (int r = 0; r < 3; ++r) {
+      const int j = 3 * ids[b] + r;
+      per_column[3 * b + r] = Ht.outerIndexPtr()[j + 1] - Ht.outerIndexPtr()[j];
+    }
+  out.reserve(per_column);
+  for (int b = 0; b < m; ++b)
+    for (int r = 0; r < 3; ++r)
+      for (SparseMatrix::InnerIterator it(Ht, 3 * ids[b] + r); it; ++it) out.insert(it.row(), 3 * b + r) = it.value();
+  out.makeCompressed();
+}
+
+void SparseDelassus::bind(integrator::LinearSolver& A_solver, const SparseMatrix& A_upper, const SparseMatrix& Ht,
+                          double h, const integrator::SolverOptions& options) {
+  SOFTDIFF_DEMAND(A_upper.rows() == Ht.rows() && Ht.cols() % 3 == 0, "SparseDelassus::bind: sizes");
+  A_solver_ = &A_solver;
+  A_ = &A_upper;
+  Ht_ = &Ht;
+  h_ = h;
+  nc_ = static_cast<int>(Ht.cols() / 3);
+  options_ = options;
+  failed_ = false;
+  restrict_to_all();
+}
+
+void SparseDelassus::restrict_to_all() {
+  W_.resize(static_cast<std::size_t>(nc_));
+  for (int i = 0; i < nc_; ++i) W_[i] = i;
+  HtW_ = *Ht_;
+  pattern_ready_ = false;
+  c_ = 0;
+}
+
+void SparseDelassus::restrict_to(const std::vector<int>& W) {
+  W_ = W;
+  select_contact_columns(*Ht_, W, HtW_);
+  pattern_ready_ = false;
+  c_ = 0;
+}
+
+bool SparseDelassus::apply(const Eigen::Ref<const VecX>& y, Eigen::Ref<VecX> out) {
+  u_.noalias() = HtW_ * y;
+  const bool ok = A_solver_->solve(u_, w_);
+  failed_ = failed_ || !ok;
+  out.noalias() = h_ * (HtW_.transpose() * w_);
+  return ok;
+}
+
+bool SparseDelassus::apply_full(const Eigen::Ref<const VecX>& y, Eigen::Ref<VecX> out) {
+  u_.noalias() = HtW_ * y;
+  const bool ok = A_solver_->solve(u_, w_);
+  failed_ = failed_ || !ok;
+  out.noalias() = h_ * (Ht_->transpose() * w_);
+  return ok;
+}
+
+bool SparseDelassus::dense(MatX& G) {
+  const bool ok = A_solver_->inverse_congruence(HtW_, G);
+  failed_ = failed_ || !ok;
+  G *= h_;
+  return ok;
+}
+
+void SparseDelassus::build_pattern() {
+  // P = H_W^T H_W, upper triangle.
+  const SparseMatrix full = HtW_ * HtW_.transpose();
+  const SparseMatrix P = full.triangularView<Eigen::Upper>();
+  const SparseMatrix blocks = node_block_pattern(P);
+  bool contained = analyzed_ && S_.rows() == A_->rows() && scatter_into(blocks, S_, p_values_);  // (a test)
+  if (!contained) {
+    // S = S (or A's pattern, the first time) + P's node blocks; analyzed once.
+    SparseMatrix base = analyzed_ && S_.rows() == A_->rows() ? ones_like(S_) : ones_like(*A_);
+    S_ = base + blocks;
+    S_.makeCompressed();
+    if (!B_solver_) B_solver_ = integrator::make_linear_solver(options_);
+    B_solver_->analyze(S_);
+    analyzed_ = true;
+    ++analyses_;
+  }
+  SOFTDIFF_DEMAND(scatter_into(P, S_, p_values_), "SparseDelassus: H^T H outside the analyzed pattern");
+  SOFTDIFF_DEMAND(scatter_into(*A_, S_, a_values_), "SparseDelassus: A outside the analyzed pattern");
+  pattern_ready_ = true;
+}
+
+bool SparseDelassus::factorize_shifted(double c) {
+  SOFTDIFF_DEMAND(c > 0, "SparseDelassus::factorize_shifted: the shift must be positive");
+  if (!pattern_ready_) build_pattern();
+  Eigen::Map<VecX>(S_.valuePtr(), S_.nonZeros()) = a_values_ + (h_ / c) * p_values_;
+  ++factorizations_;
+  c_ = 0;
+  if (!B_solver_->factorize(S_).ok) return false;
+  c_ = c;
+  return true;
+}
+
+bool SparseDelassus::solve_shifted(Eigen::Ref<VecX> r) {
+  SOFTDIFF_DEMAND(c_ > 0, "SparseDelassus::solve_shifted without factorize_shifted");
+  u_.noalias() = HtW_ * r;
+  const bool ok = B_solver_->solve(u_, w_);
+  failed_ = failed_ || !ok;
+  r.noalias() -= (h_ / c_) * (HtW_.transpose() * w_);
+  r /= c_;
+  return ok;
+}
+
+double SparseDelassus::largest_eigenvalue(int iterations) {
+  const Eigen::Index m = 3 * static_cast<Eigen::Index>(W_.size());
+  if (m == 0) return 0;
+  if (power_.size() != m || !(power_.norm() > 0)) {
+    power_.resize(m);
+    for (Eigen::Index k = 0; k < m; ++k) power_[k] = 1.0 + 0.01 * static_cast<double>(k % 7);
+  }
+  power_ /= power_.norm();
+  power_next_.resize(m);
+  double L = 0;
+  for (int it = 0; it < iterations; ++it) {
+    if (!apply(power_, power_next_)) break;
+    const double n = power_next_.norm();
+    if (!(n > 0) || !std::isfinite(n)) break;
+    L = n;
+    power_ = power_next_ / n;
+  }
+  last_eigenvalue_ = L;
+  return L;
+}
+
+}  // namespace softdiff::contact

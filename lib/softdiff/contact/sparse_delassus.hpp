@@ -1,0 +1,97 @@
+#pragma once
+// The Delassus operator G = h H A^{-1} H^T of a step without its dense matrix
+// (docs/method.md "Contact at scale"; Carpentier, Le Lidec, Montaut 2024, sec. IV-C,
+// "sparse linear backend"). A is the step's system matrix (factorized once by the
+// step), H = H_c the contact Jacobian (3 nc x 3n, projected). Every operation costs
+// sparse solves, not (3 nc)^2:
+//   apply        G_WW y = h H_W A^{-1} H_W^T y                 (one solve with A's factor)
+//   apply_full   G_:W y (all contacts' rows)                    (one solve)
+//   shifted      (G_WW + c I)^{-1} r by the Woodbury identity
+//                  (c I + h H_W A^{-1} H_W^T)^{-1} = (1/c) (I - (h/c) H_W B^{-1} H_W^T),
+//                  B = A + (h/c) H_W^T H_W,
+//                sparse, symmetric positive definite (A is, H^T H >= 0): one CHOLMOD
+//                factorization per c, one solve per application.
+//   dense        G_WW as a dense matrix, for small sets W (LinearSolver::inverse_congruence).
+// W is a subset of the contacts (restrict_to); after bind() it is all of them.
+//
+// B's sparsity pattern is pattern(A) + pattern(H_W^T H_W). H_i couples the <= 4 nodes
+// of contact i: a vertex-obstacle contact's 3x3 block is already in A's pattern; a
+// soft-soft contact couples nodes that share no element. The pattern that was analyzed
+// (CHOLMOD's ordering and symbolic factorization) only grows: a new B whose pattern it
+// contains is scattered into it (explicit zeros elsewhere) and refactorized
+// numerically; otherwise the union is analyzed once. With vertex-obstacle contacts
+// only, the analysis is that of A's pattern, once per scene (analyses() counts them).
+// A change of c rescales one value array (B = A_S + (h/c) P_S on the analyzed
+// pattern S) and refactorizes: no analysis, no allocation.
+#include <softdiff/core/types.hpp>
+#include <softdiff/integrator/linear_solver.hpp>
+
+#include <memory>
+#include <vector>
+
+namespace softdiff::contact {
+
+// out = the columns of Ht (3n x 3 nc) of the contacts ids (3 per contact, in order).
+void select_contact_columns(const SparseMatrix& Ht, const std::vector<int>& ids, SparseMatrix& out);
+
+class SparseDelassus {
+ public:
+  // For one step: A_solver holds the factorization of A_upper (the step's system,
+  // upper triangle, the model's fixed pattern); Ht = H_c^T (3n x 3 nc); h the step's
+  // force-to-velocity factor. Keeps references to all three until the next bind.
+  // options: the kind of solver used for B (as for A).
+  void bind(integrator::LinearSolver& A_solver, const SparseMatrix& A_upper, const SparseMatrix& Ht, double h,
+            const integrator::SolverOptions& options);
+
+  int contacts() const { return nc_; }
+  // Restrict to the contacts W (ascending ids). Invalidates the shifted factorization.
+  void restrict_to(const std::vector<int>& W);
+  void restrict_to_all();
+  int size() const { return static_cast<int>(W_.size()); }
+
+  // out = G_WW y (3|W|). False: an iterative solver missed its tolerance.
+  bool apply(const Eigen::Ref<const VecX>& y, Eigen::Ref<VecX> out);
+  // out = G_:W y (3 nc): the velocities of every contact for forces on W.
+  bool apply_full(const Eigen::Ref<const VecX>& y, Eigen::Ref<VecX> out);
+  // G_WW, dense (3|W| x 3|W|).
+  bool dense(MatX& G);
+  // Factorize B for the shift c > 0; false if B is not positive definite (A is not).
+  bool factorize_shifted(double c);
+  // r <- (G_WW + c I)^{-1} r with the last factorize_shifted(c).
+  bool solve_shifted(Eigen::Ref<VecX> r);
+  // Largest eigenvalue of G_WW by power iteration (iterations applies), warm-started
+  // from the previous call's vector when the size matches (steps change little).
+  double largest_eigenvalue(int iterations);
+
+  double last_eigenvalue() const { return last_eigenvalue_; }
+  // An iterative linear solver (cg) missed its tolerance since bind().
+  bool failed() const { return failed_; }
+  int analyses() const { return analyses_; }          // symbolic analyses of B
+  Eigen::Index pattern_nonzeros() const { return S_.nonZeros(); }  // of the analyzed pattern (upper)
+  int factorizations() const { return factorizations_; }
+
+ private:
+  void build_pattern();  // P = H_W^T H_W (upper), S grown if needed, values scattered
+
+  integrator::LinearSolver* A_solver_ = nullptr;
+  const SparseMatrix* A_ = nullptr;
+  const SparseMatrix* Ht_ = nullptr;
+  double h_ = 0;
+  int nc_ = 0;
+  integrator::SolverOptions options_;
+  std::vector<int> W_;
+  SparseMatrix HtW_;                 // (3n x 3|W|) columns of Ht for W
+  bool pattern_ready_ = false;       // S holds B's pattern for the current W
+  double c_ = 0;                     // the shift of the current factorization (0: none)
+  // The analyzed pattern S (upper, compressed) and B = A_S + (h/c) P_S on it.
+  SparseMatrix S_;
+  VecX a_values_, p_values_;         // (nnz S) A and H_W^T H_W scattered into S
+  std::unique_ptr<integrator::LinearSolver> B_solver_;
+  bool analyzed_ = false;
+  VecX u_, w_, power_, power_next_;  // (3n) scratch; (3|W|) power iteration
+  double last_eigenvalue_ = 0;
+  bool failed_ = false;
+  int analyses_ = 0, factorizations_ = 0;
+};
+
+}  // namespace softdiff::contact

@@ -1,0 +1,301 @@
+// The sparse contact backend (docs/method.md "Contact at scale"): the Delassus
+// operator of sparse_delassus.hpp against the dense G = h H A^{-1} H^T of the same
+// step, its symbolic analyses, and the NCP solved on it against the dense solver.
+//
+// Scenes: a slab on a plane (vertex-obstacle contacts: H^T H inside A's pattern) and a
+// small box resting on a larger one on a plane (soft-soft vertex-triangle contacts:
+// H^T H couples nodes of two bodies, outside A's pattern). One step with the dense
+// backend gives the reference G from the same factorization.
+//
+// Tolerances: G and the operator use the same factor; their products differ by
+// round-off of a few solves, ~1e-15 relative; 1e-11 leaves room for the condition of
+// A (~1e4 here) without hiding a wrong term (a missing h or a missing contact changes
+// the result at O(1)). The shifted solve (G + c I)^{-1} r by Woodbury cancels about
+// ||G|| / c digits: with c >= 1e-3 ||G||, 1e-9.
+#include <softdiff/contact/ncp.hpp>
+#include <softdiff/contact/sparse_delassus.hpp>
+#include <softdiff/data.hpp>
+#include <softdiff/integrator/implicit_euler.hpp>
+#include <support/contact.hpp>
+#include <support/meshes.hpp>
+#include <support/model_builder.hpp>
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Cholesky>
+#include <random>
+
+using namespace softdiff;
+
+namespace sparse_delassus_test {
+
+constexpr double kG = 9.81;
+
+Model slab_model() {
+  test::BodySpec spec;
+  spec.young = 1e5;
+  spec.rayleigh_stiffness = 1e-3;
+  Model model = test::make_model(test::box_mesh(6, 5, 1, 0.06, 0.05, 0.01), spec, Vec3(0, 0, -kG), 0.005, 3);
+  test::ContactSpec cs;
+  cs.mu = 0.4;
+  cs.ncp.tolerance = 1e-10;
+  cs.ncp.max_iterations = 5000;
+  cs.ncp.backend = contact::NcpBackend::dense;
+  test::enable_contact(model, {test::plane(Vec3(0, 0, 1), 0)}, cs);
+  return model;
+}
+
+// A 0.04 m cube (2x2x2 cells) resting 0.2 mm above a 0.1 x 0.1 x 0.02 slab that rests
+// on the plane; the cube's vertices touch the slab's top triangles.
+Model stack_model() {
+  test::BodySpec spec;
+  spec.young = 1e5;
+  spec.rayleigh_stiffness = 1e-3;
+  mesh::TetMesh bottom = test::box_mesh(4, 4, 1, 0.1, 0.1, 0.02);
+  mesh::TetMesh top = test::box_mesh(2, 2, 2, 0.04, 0.04, 0.04);
+  top.X.row(0).array() += 0.031;
+  top.X.row(1).array() += 0.027;
+  top.X.row(2).array() += 0.0202;
+  Model model = test::make_model({{bottom, spec, "slab"}, {top, spec, "cube"}}, Vec3(0, 0, -kG), 0.005, 3);
+  test::ContactSpec cs;
+  cs.mu = 0.3;
+  cs.ncp.tolerance = 1e-10;
+  cs.ncp.max_iterations = 5000;
+  cs.ncp.backend = contact::NcpBackend::dense;
+  test::enable_contact(model, {test::plane(Vec3(0, 0, 1), 0)}, cs);
+  model.contact.detection.pairs.push_back({1, 0, 0.3});  // cube on slab
+  return model;
+}
+
+// Steps until contacts exist (at most model.step.steps); data then holds that step's
+// factorization, H_c^T and dense G.
+void step_to_contact(const Model& model, Data& data) {
+  State s = model.initial, next;
+  for (long k = 1; k <= model.step.steps; ++k) {
+    const StepStatus st = integrator::implicit_euler_step(model, data, s, next, k);
+    ASSERT_TRUE(st.ok()) << describe(model, st);
+    std::swap(s, next);
+    if (data.contact.contacts.size() > 0 && k >= 2) return;
+  }
+}
+
+VecX random_vector(Eigen::Index n, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1);
+  VecX v(n);
+  for (Eigen::Index k = 0; k < n; ++k) v[k] = u(rng);
+  return v;
+}
+
+// Every operation of the operator against the dense G of the same step.
+void expect_operator_matches_dense(const Model& model, Data& data, const char* what) {
+  const auto& cd = data.contact;
+  const int nc = cd.contacts.size();
+  ASSERT_GT(nc, 3) << what;
+  ASSERT_EQ(cd.G.rows(), 3 * nc) << what;
+  const MatX& G = cd.G;
+  const double Gnorm = G.norm();
+  contact::SparseDelassus op;
+  op.bind(*data.solver, data.A, cd.Ht, model.step.dt, model.solver);
+  ASSERT_EQ(op.contacts(), nc);
+
+  // All contacts: G y.
+  const VecX y = random_vector(3 * nc, 1);
+  VecX Gy(3 * nc);
+  ASSERT_TRUE(op.apply(y, Gy));
+  EXPECT_LE((Gy - G * y).norm(), 1e-11 * Gnorm * y.norm()) << what;
+
+  // A subset W (every other contact): G_WW y, G_:W y, dense G_WW.
+  std::vector<int> W;
+  for (int i = 0; i < nc; i += 2) W.push_back(i);
+  const Eigen::Index m = 3 * static_cast<Eigen::Index>(W.size());
+  MatX G_WW(m, m), G_W(3 * nc, m);
+  for (std::size_t b = 0; b < W.size(); ++b) {
+    G_W.middleCols<3>(3 * b) = G.middleCols<3>(3 * W[b]);
+    for (std::size_t a = 0; a < W.size(); ++a) G_WW.block<3, 3>(3 * a, 3 * b) = G.block<3, 3>(3 * W[a], 3 * W[b]);
+  }
+  op.restrict_to(W);
+  EXPECT_EQ(op.size(), static_cast<int>(W.size()));
+  const VecX yw = random_vector(m, 2);
+  VecX out(m), out_full(3 * nc);
+  ASSERT_TRUE(op.apply(yw, out));
+  ASSERT_TRUE(op.apply_full(yw, out_full));
+  EXPECT_LE((out - G_WW * yw).norm(), 1e-11 * Gnorm * yw.norm()) << what;
+  EXPECT_LE((out_full - G_W * yw).norm(), 1e-11 * Gnorm * yw.norm()) << what;
+  MatX D;
+  ASSERT_TRUE(op.dense(D));
+  EXPECT_LE((D - G_WW).norm(), 1e-11 * Gnorm) << what;
+
+  // (G_WW + c I)^{-1} r for two shifts (two numeric factorizations, one analysis).
+  // The power iteration's L: a Rayleigh-type estimate from below, converging at the
+  // rate of the ratio of the two largest eigenvalues (close on a slab); ADMM needs only
+  // its scale: within a factor 2.
+  const double L = op.largest_eigenvalue(50);
+  const Eigen::SelfAdjointEigenSolver<MatX> eig(G_WW, Eigen::EigenvaluesOnly);
+  const double lmax = eig.eigenvalues().maxCoeff();
+  EXPECT_LE(L, lmax * (1 + 1e-12)) << what;
+  EXPECT_GE(L, 0.5 * lmax) << what;
+  for (const double c : {1e-3 * L, 1.0 * L}) {
+    ASSERT_TRUE(op.factorize_shifted(c)) << what;
+    MatX shifted = G_WW;
+    shifted.diagonal().array() += c;
+    const VecX r = random_vector(m, 3);
+    const VecX expected = shifted.llt().solve(r);
+    VecX x = r;
+    ASSERT_TRUE(op.solve_shifted(x));
+    EXPECT_LE((x - expected).norm(), 1e-9 * expected.norm()) << what << " c = " << c;
+  }
+  EXPECT_EQ(op.analyses(), 1) << what;
+  EXPECT_EQ(op.factorizations(), 2) << what;
+  // Another subset whose H^T H lies in the analyzed pattern: no new analysis, and the
+  // same accuracy on it.
+  std::vector<int> V;
+  for (int i = 0; i < nc; i += 4) V.push_back(i);
+  const Eigen::Index mv = 3 * static_cast<Eigen::Index>(V.size());
+  MatX G_VV(mv, mv);
+  for (std::size_t b = 0; b < V.size(); ++b)
+    for (std::size_t a = 0; a < V.size(); ++a) G_VV.block<3, 3>(3 * a, 3 * b) = G.block<3, 3>(3 * V[a], 3 * V[b]);
+  op.restrict_to(V);
+  ASSERT_TRUE(op.factorize_shifted(L));
+  EXPECT_EQ(op.analyses(), 1) << what;
+  G_VV.diagonal().array() += L;
+  const VecX r = random_vector(mv, 4);
+  const VecX expected = G_VV.llt().solve(r);
+  VecX x = r;
+  ASSERT_TRUE(op.solve_shifted(x));
+  EXPECT_LE((x - expected).norm(), 1e-9 * expected.norm()) << what << " on a second subset";
+}
+
+TEST(SparseDelassus, MatchesTheDenseDelassusWithObstacleContacts) {
+  const Model model = slab_model();
+  Data data(model);
+  step_to_contact(model, data);
+  expect_operator_matches_dense(model, data, "slab on a plane");
+}
+
+TEST(SparseDelassus, MatchesTheDenseDelassusWithSoftSoftContacts) {
+  const Model model = stack_model();
+  Data data(model);
+  step_to_contact(model, data);
+  int soft_soft = 0;
+  for (const auto& c : data.contact.contacts.contacts) soft_soft += c.kind != collision::ContactKind::vertex_obstacle;
+  ASSERT_GT(soft_soft, 0) << "the cube must touch the slab";
+  expect_operator_matches_dense(model, data, "cube on slab");
+}
+
+// Vertex-obstacle contacts only: B's pattern is A's, whatever the contact set; the
+// soft-soft contacts need more than A's pattern (so that test exercises the growth).
+TEST(SparseDelassus, PatternIsTheSystemsForObstacleContactsAndGrowsForSoftSoft) {
+  for (const bool soft : {false, true}) {
+    const Model model = soft ? stack_model() : slab_model();
+    Data data(model);
+    step_to_contact(model, data);
+    contact::SparseDelassus op;
+    op.bind(*data.solver, data.A, data.contact.Ht, model.step.dt, model.solver);
+    ASSERT_TRUE(op.factorize_shifted(1.0));
+    if (soft)
+      EXPECT_GT(op.pattern_nonzeros(), data.A.nonZeros());
+    else
+      EXPECT_EQ(op.pattern_nonzeros(), data.A.nonZeros());
+  }
+}
+
+// The NCP on the operator against the dense solver on G, both to 1e-10: the working
+// set's reduced problems on the operator (dense_max_contacts 0: ADMM on the operator;
+// large: the dense G_W of the set) and on G. The slab's G has full rank (one node per
+// contact): lambda is unique, and 1e-6 relative is what 1e-10 on the scaled residuals
+// guarantees with its condition number (< 1e4). The stack's soft-soft G is rank
+// deficient: sigma is compared, and the residuals recomputed from the dense G.
+TEST(SparseNcp, AgreesWithTheDenseSolver) {
+  for (const bool soft : {false, true}) {
+    const Model model = soft ? stack_model() : slab_model();
+    Data data(model);
+    step_to_contact(model, data);
+    const auto& cd = data.contact;
+    const int nc = cd.contacts.size();
+    contact::NcpOptions o = model.contact.ncp;
+    o.tolerance = 1e-10;
+    o.max_iterations = 20000;
+    VecX lam_d = VecX::Zero(3 * nc), sig_d;
+    std::vector<contact::Mode> modes_d, modes_s;
+    contact::NcpSolver dense_solver;
+    const auto rd = dense_solver.solve(cd.G, cd.g, cd.mu, o, lam_d, sig_d, modes_d);
+    ASSERT_TRUE(rd.converged);
+    for (const int dense_max : {0, 1000}) {
+      for (const bool working_set : {true, false}) {
+        const std::string what = std::string(soft ? "stack" : "slab") + ", dense_max_contacts " +
+                                 std::to_string(dense_max) + (working_set ? ", working set" : "");
+        o.dense_max_contacts = dense_max;
+        o.working_set = working_set;
+        contact::SparseDelassus op;
+        op.bind(*data.solver, data.A, cd.Ht, model.step.dt, model.solver);
+        VecX lam = VecX::Zero(3 * nc), sig;
+        contact::NcpSolver solver;
+        const auto r = solver.solve(op, cd.g, cd.mu, o, lam, sig, modes_s);
+        EXPECT_TRUE(r.sparse) << what;
+        EXPECT_TRUE(r.converged) << what << " residual " << r.residuals.max();
+        EXPECT_EQ(r.sparse_rounds > 0, dense_max == 0) << what;
+        // The solver's sigma is G lambda + g, and its residuals are the true ones.
+        EXPECT_LE((sig - (cd.G * lam + cd.g)).norm(), 1e-11 * (cd.G.norm() * lam.norm() + cd.g.norm())) << what;
+        EXPECT_LE(contact::ncp_residuals(cd.G, cd.g, cd.mu, lam).max(), 1e-10) << what;
+        EXPECT_LE((sig - sig_d).norm(), 1e-6 * std::max(sig_d.norm(), cd.g.norm())) << what;
+        if (!soft) {
+          EXPECT_LE((lam - lam_d).norm(), 1e-6 * lam_d.norm()) << what;
+          EXPECT_EQ(modes_s, modes_d) << what;
+        }
+      }
+    }
+  }
+}
+
+// Warm-started from the solution, the sparse solve is one round with nothing to do.
+TEST(SparseNcp, WarmStartFromTheSolution) {
+  const Model model = slab_model();
+  Data data(model);
+  step_to_contact(model, data);
+  const auto& cd = data.contact;
+  contact::NcpOptions o = model.contact.ncp;
+  o.dense_max_contacts = 0;
+  contact::SparseDelassus op;
+  op.bind(*data.solver, data.A, cd.Ht, model.step.dt, model.solver);
+  VecX lam = cd.lambda, sig;
+  std::vector<contact::Mode> modes;
+  contact::NcpSolver solver;
+  const auto r = solver.solve(op, cd.g, cd.mu, o, lam, sig, modes);
+  EXPECT_TRUE(r.converged);
+  EXPECT_EQ(r.iterations, 0);
+  EXPECT_EQ(r.working_set_rounds, 1);
+  EXPECT_LE((lam - cd.lambda).norm(), 1e-12 * cd.lambda.norm());
+}
+
+// A whole trajectory with the sparse backend (the automatic choice forced by a
+// crossover of 0) against the dense one: the same steps within the NCP tolerance.
+// Both solve each step's NCP to 1e-10 relative (velocities |g| ~ 0.1 m/s, dt 5 ms):
+// positions agree to ~1e-10 * 0.1 * 0.005 per step; 1e-9 m over 20 steps.
+TEST(SparseNcp, TrajectoryMatchesTheDenseBackend) {
+  for (const bool soft : {false, true}) {
+    Model dense = soft ? stack_model() : slab_model();
+    dense.step.steps = 20;
+    Model sparse = dense;
+    sparse.contact.ncp.backend = contact::NcpBackend::automatic;
+    sparse.contact.ncp.dense_max_contacts = 0;
+    Data dd(dense), ds(sparse);
+    State a = dense.initial, b = sparse.initial, na, nb;
+    double worst = 0;
+    int sparse_steps = 0;
+    for (long k = 1; k <= dense.step.steps; ++k) {
+      ASSERT_TRUE(integrator::implicit_euler_step(dense, dd, a, na, k).ok());
+      ASSERT_TRUE(integrator::implicit_euler_step(sparse, ds, b, nb, k).ok());
+      EXPECT_TRUE(ds.contact.result.converged) << "step " << k;
+      sparse_steps += ds.contact.result.sparse;
+      EXPECT_EQ(ds.contact.G.size(), 0) << "the sparse backend formed G";
+      std::swap(a, na);
+      std::swap(b, nb);
+      worst = std::max(worst, (a.x - b.x).cwiseAbs().maxCoeff());
+    }
+    EXPECT_GT(sparse_steps, 10) << (soft ? "stack" : "slab");
+    EXPECT_LT(worst, 1e-9) << (soft ? "stack" : "slab");
+  }
+}
+
+}  // namespace sparse_delassus_test
