@@ -282,7 +282,7 @@ void write_table_h5(const fs::path& path, const Table& t) {
 // The PNG: matplotlib (Debian's python3-matplotlib) draws the table's value over the
 // two axes; cells that several jobs share (other axes) show their mean.
 const char* kPlotScript = R"PY(
-import csv, sys
+import csv, os, sys
 import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
@@ -295,16 +295,18 @@ for r in rows:
     if r.get(value, "") != "": cells.setdefault((r[x], r[y]), []).append(float(r[value]))
 grid = [[float("nan")] * len(xs) for _ in ys]
 for (a, b), v in cells.items(): grid[ys.index(b)][xs.index(a)] = sum(v) / len(v)
-fig, ax = plt.subplots(figsize=(1.2 + 1.1 * len(xs), 1.2 + 0.6 * len(ys)), constrained_layout=True)
+fig, ax = plt.subplots(figsize=(max(5.0, 2.0 + 1.2 * len(xs)), max(3.2, 1.8 + 0.5 * len(ys))), constrained_layout=True)
 im = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis")
 finite = [v for row in grid for v in row if v == v]
 lo, hi = (min(finite), max(finite)) if finite else (0.0, 1.0)
 for j, row in enumerate(grid):
     for i, v in enumerate(row):
         light = hi > lo and (v - lo) / (hi - lo) > 0.6  # viridis is light at the top
-        if v == v: ax.text(i, j, "%.3g" % v, ha="center", va="center", color="k" if light else "w", fontsize=8)
-ax.set_xticks(range(len(xs)), xs, rotation=30 if max(map(len, xs)) > 6 else 0)
-ax.set_yticks(range(len(ys)), ys)
+        if v == v: ax.text(i, j, "%.4g" % v, ha="center", va="center", color="k" if light else "w", fontsize=8)
+# File names (targets, marker CSVs) by their stem.
+short = lambda v: os.path.splitext(os.path.basename(v))[0] if "/" in v or v.endswith((".h5", ".csv")) else v
+ax.set_xticks(range(len(xs)), [short(v) for v in xs], rotation=30 if max(len(short(v)) for v in xs) > 6 else 0, ha="right" if max(len(short(v)) for v in xs) > 6 else "center")
+ax.set_yticks(range(len(ys)), [short(v) for v in ys])
 ax.set_xlabel(x); ax.set_ylabel(y)
 fig.colorbar(im, ax=ax, label=value)
 ax.set_title("softdiff collect: %s (%d jobs)" % (value, len(rows)), fontsize=9)
