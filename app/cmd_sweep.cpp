@@ -335,6 +335,9 @@ int run_sweep(const SweepOptions& o) {
   if (!o.quiet)
     note(std::to_string(pending.size()) + " of " + std::to_string(jobs.size()) + " jobs, " + std::to_string(at_once) +
          " at a time, " + std::to_string(threads) + " thread" + (threads > 1 ? "s" : "") + " each -> " + dir.string());
+  // The lines are POSIX shell (jobs.txt): whatever the user's login shell ($SHELL, which
+  // GNU parallel would use otherwise).
+  ::setenv("PARALLEL_SHELL", "/bin/sh", 1);
   Progress progress(static_cast<long>(pending.size()), !o.quiet, "jobs");
   const auto t0 = std::chrono::steady_clock::now();
   const int rc = run_program({engine_path, "--will-cite", "--jobs", std::to_string(at_once), "--joblog",

@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 #include <hdf5.h>
 
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -200,9 +201,12 @@ TEST(CliSweep, ParallelRunsTheJobsResumesAndCollects) {
   const auto t = job0.find("--threads ");
   ASSERT_NE(t, std::string::npos);
   const std::string threads = job0.substr(t + 10, job0.find(' ', t + 10) - t - 10);
+  // (OpenBLAS's threads too, as the job line sets them.)
+  ::setenv("OPENBLAS_NUM_THREADS", threads.c_str(), 1);
   r = run_cli("simulate beam.yaml --strict --set bodies.beam.material.young=1.0e6 --set bodies.beam.mesh_scale=1 --threads " +
                   threads + " -o direct.h5 --quiet",
               dir);
+  ::unsetenv("OPENBLAS_NUM_THREADS");
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_EQ(dataset(out / "0.h5", "/bodies/beam/x"), dataset(dir / "direct.h5", "/bodies/beam/x"));
 
