@@ -248,7 +248,9 @@ std::vector<SweepJob> expand_sweep(const SweepDesc& sweep) {
     for (std::size_t a = 0; a < sweep.axes.size(); ++a) {
       const SweepAxis& axis = sweep.axes[a];
       const std::string& v = axis.values[job.index[a]];
-      if (axis.kind == SweepAxis::Kind::args) {
+      if (axis.kind == SweepAxis::Kind::args && axis.name.rfind("--", 0) == 0) {
+        job.args.push_back(axis.name + "=" + v);  // one word: a value may start with '-' (--target=-0.03,0,0.1)
+      } else if (axis.kind == SweepAxis::Kind::args) {
         job.args.push_back(axis.name);
         job.args.push_back(v);
       } else {

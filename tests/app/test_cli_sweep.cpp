@@ -111,7 +111,7 @@ TEST(CliSweep, ExpandsInGridOrderWithZipAndArgsGrid) {
     EXPECT_TRUE(contains(j, std::string("bodies.beam.material.young=") + young[y])) << id << ": " << j;
     EXPECT_TRUE(contains(j, std::string("bodies.beam.material.poisson=") + poisson[z])) << id << ": " << j;
     EXPECT_TRUE(contains(j, std::string("bodies.beam.material.density=") + density[z])) << id << ": " << j;
-    EXPECT_TRUE(contains(j, " --steps " + std::to_string(s + 1) + " ")) << id << ": " << j;
+    EXPECT_TRUE(contains(j, " --steps=" + std::to_string(s + 1) + " ")) << id << ": " << j;
     EXPECT_TRUE(contains(j, (dir / "out" / (std::to_string(id) + ".h5")).string())) << id << ": " << j;
     // --jobs 2 on this machine: cores / 2 threads each (at least 1), for OpenMP and OpenBLAS.
     EXPECT_TRUE(contains(j, " --threads ")) << j;
@@ -263,6 +263,34 @@ TEST(CliSweep, ParallelRunsTheJobsResumesAndCollects) {
   r = run_cli("sweep s.yaml -o out --resume", dir);
   EXPECT_EQ(r.code, 2);
   EXPECT_TRUE(contains(r.err, "differs from s.yaml")) << r.err;
+}
+
+// control through a sweep: a goal with a leading minus as an args_grid value (one
+// word, --target=-...), and collect's final_distance equal to the output's last
+// /control/distance.
+TEST(CliSweep, ControlGoalsAndTheirFinalDistance) {
+  const fs::path dir = fresh_dir("control");
+  write_text(dir / "c.yaml", "softdiff_sweep: 1\n"
+                             "scene: " + (kRoot / "configs/trunk.yaml").string() + "\n"
+                             "command: control\n"
+                             "args: [\"--steps\", \"2\"]\n"
+                             "args_grid:\n"
+                             "  --target: [\"-0.0305,-0.1481,0.0945\", \"0,-0.15,0.1\"]\n");
+  CliRun r = run_cli("sweep c.yaml -o out --jobs 2", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  r = run_cli("collect out", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const auto table = lines(read_text(dir / "out/results.csv"));
+  ASSERT_EQ(table.size(), 3u);
+  EXPECT_EQ(table[0].substr(0, 21), "job,--target,status,e");
+  EXPECT_TRUE(contains(table[1], "0,\"-0.0305,-0.1481,0.0945\",complete,0,")) << table[1];
+  for (int id : {0, 1}) {
+    const std::vector<double> distance = dataset(dir / "out" / (std::to_string(id) + ".h5"), "/control/distance");
+    ASSERT_EQ(distance.size(), 3u);
+    EXPECT_EQ(std::stod(table[static_cast<std::size_t>(id) + 1].substr(table[static_cast<std::size_t>(id) + 1].rfind(',') + 1)),
+              distance.back())
+        << table[0];
+  }
 }
 
 TEST(CliSweep, CollectNeedsASweepFolder) {
