@@ -13,6 +13,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <csignal>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -339,6 +340,15 @@ int run_sweep(const SweepOptions& o) {
   // GNU parallel would use otherwise).
   ::setenv("PARALLEL_SHELL", "/bin/sh", 1);
   Progress progress(static_cast<long>(pending.size()), !o.quiet, "jobs");
+  // SIGINT (Ctrl-C), SIGTERM, SIGHUP reach GNU parallel and the jobs (one process
+  // group; a handler, unlike an ignored signal, is not inherited through exec): each
+  // job stops as docs/cli.md "Signals" says. The sweep itself waits for them and
+  // then reports.
+  struct sigaction on_signal {}, previous[3];
+  on_signal.sa_handler = [](int) {};
+  sigemptyset(&on_signal.sa_mask);
+  const int watched[3] = {SIGINT, SIGTERM, SIGHUP};
+  for (int i = 0; i < 3; ++i) sigaction(watched[i], &on_signal, &previous[i]);
   const auto t0 = std::chrono::steady_clock::now();
   const int rc = run_program({engine_path, "--will-cite", "--jobs", std::to_string(at_once), "--joblog",
                               (dir / "joblog.txt").string(), "-a", (dir / "run.txt").string()},
@@ -349,10 +359,12 @@ int run_sweep(const SweepOptions& o) {
                              });
   progress.finish();
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  if (rc < 0 || rc > 101) {  // parallel's own failure (> 101), not its count of failed jobs
-    error("parallel failed (exit " + std::to_string(rc) + "); its log: " + (dir / "joblog.txt").string());
-    return kExitFailed;
-  }
+  for (int i = 0; i < 3; ++i) sigaction(watched[i], &previous[i], nullptr);
+  // parallel's own failure or a signal (> 101), not its count of failed jobs.
+  const bool stopped = rc < 0 || rc > 101;
+  if (stopped)
+    error("parallel stopped (exit " + std::to_string(rc) + ": a signal, or its own failure; its log: " +
+          (dir / "joblog.txt").string() + "); softdiff sweep --resume runs the jobs not complete");
 
   // 4. Summary: failures with their exit codes and messages.
   long complete = 0;
@@ -366,17 +378,19 @@ int run_sweep(const SweepOptions& o) {
       ++complete;
       continue;
     }
+    if (code < 0 && status == "missing" && stopped) continue;  // never started
+
     failures.push_back(job_name(sweep, j) + ": " + status + ", exit " + (code < 0 ? "?" : std::to_string(code)) + ": " +
                        last_line(read_file(job_file(dir, id, "log"))));
   }
   char rate[64];
-  std::snprintf(rate, sizeof rate, "%.3g s (%.0f jobs/hour)", seconds, seconds > 0 ? pending.size() * 3600.0 / seconds : 0.0);
+  std::snprintf(rate, sizeof rate, "%.3g s (%.0f jobs/hour)", seconds, seconds > 0 ? complete * 3600.0 / seconds : 0.0);
   if (!o.quiet || !failures.empty())
     note(std::to_string(complete) + " of " + std::to_string(pending.size()) + " jobs complete in " + rate +
          (failures.empty() ? "" : ", " + std::to_string(failures.size()) + " failed:"));
   for (const auto& f : failures) std::fprintf(stderr, "  %s\n", f.c_str());
   if (!o.quiet && failures.empty()) note("softdiff collect " + dir.string() + " makes the table");
-  return failures.empty() ? kExitOk : kExitFailed;
+  return failures.empty() && !stopped ? kExitOk : kExitFailed;
 }
 
 }  // namespace softdiff::app

@@ -10,12 +10,19 @@
 #include <gtest/gtest.h>
 #include <hdf5.h>
 
+#include <chrono>
+#include <csignal>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
+
+#include <sys/types.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 namespace softdiff_sweep_test {
 
@@ -291,6 +298,47 @@ TEST(CliSweep, ControlGoalsAndTheirFinalDistance) {
               distance.back())
         << table[0];
   }
+}
+
+// Ctrl-C: SIGINT to the sweep's process group (as a terminal sends it) stops the
+// running jobs (status interrupted), GNU parallel starts no more, and the sweep
+// reports them and exits 1. 3 jobs of 400 beam steps (tens of seconds each), 2 at a time.
+TEST(CliSweep, SigintStopsTheJobsAndTheSweepReports) {
+  const fs::path dir = fresh_dir("sigint");
+  write_scene(dir);
+  write_text(dir / "s.yaml", "softdiff_sweep: 1\nscene: beam.yaml\ncommand: simulate\nargs: [\"--steps\", \"400\"]\n"
+                             "grid: {bodies.beam.material.young: [1.0e6, 2.0e6, 3.0e6]}\n");
+  const std::string cmd = "cd '" + dir.string() + "' && exec '" SOFTDIFF_CLI "' sweep s.yaml -o out --jobs 2 "
+                          ">stdout.txt 2>stderr.txt </dev/null";
+  const pid_t pid = fork();
+  if (pid == 0) {
+    setpgid(0, 0);  // its own process group, as a shell's foreground job
+    execl("/bin/sh", "sh", "-c", cmd.c_str(), static_cast<char*>(nullptr));
+    _exit(127);
+  }
+  ASSERT_GT(pid, 0);
+  setpgid(pid, pid);
+  // Both running jobs have written a frame (their .partial exists); a bound of 120 s
+  // against a hung test, not a timing assertion.
+  bool running = false;
+  for (int i = 0; i < 6000 && !running; ++i) {
+    running = fs::exists(dir / "out/0.h5.partial") && fs::exists(dir / "out/1.h5.partial");
+    if (!running) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  ASSERT_TRUE(running) << read_text(dir / "stderr.txt");
+  kill(-pid, SIGINT);
+  int status = 0;
+  ASSERT_EQ(waitpid(pid, &status, 0), pid);
+  ASSERT_TRUE(WIFEXITED(status));
+  EXPECT_EQ(WEXITSTATUS(status), 1);
+  const std::string err = read_text(dir / "stderr.txt");
+  EXPECT_TRUE(contains(err, "parallel stopped (exit")) << err;
+  EXPECT_TRUE(contains(err, "softdiff sweep --resume runs the jobs not complete")) << err;
+  for (int id : {0, 1}) {
+    EXPECT_EQ(attribute(dir / "out" / (std::to_string(id) + ".h5"), "status"), "interrupted") << id;
+    EXPECT_TRUE(contains(err, "job " + std::to_string(id) + " (bodies.beam.material.young=")) << err;
+  }
+  EXPECT_FALSE(fs::exists(dir / "out/2.h5")) << "job 2 never started";
 }
 
 TEST(CliSweep, CollectNeedsASweepFolder) {
