@@ -1,5 +1,5 @@
 // softdiff collect DIR: one row per job of a sweep (CSV, and HDF5 with the same
-// columns), and a PNG of one result over two axes (docs/cli.md "Sweeps").
+// columns), and a PNG of one result over two axes (docs/cli.md "sweep and collect").
 #include "commands.hpp"
 #include "common.hpp"
 #include "sweep.hpp"
@@ -143,7 +143,7 @@ class Output {
   hid_t file_ = -1;
 };
 
-// The command's scalar results of a complete output (docs/cli.md "Sweeps", collect).
+// The command's scalar results of a complete output (docs/cli.md "sweep and collect", collect).
 void read_results(const Output& out, const std::string& command, Table& t, std::size_t row) {
   const std::vector<double> step_seconds = out.read("/solver/step_seconds");
   if (step_seconds.size() > 1) {

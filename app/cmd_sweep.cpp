@@ -1,5 +1,5 @@
 // softdiff sweep SWEEP.yaml: expand a sweep into jobs, validate every job, and run them
-// through GNU parallel (locally) or a Slurm job array (docs/cli.md "Sweeps").
+// through GNU parallel (locally) or a Slurm job array (docs/cli.md "sweep and collect").
 #include "commands.hpp"
 #include "common.hpp"
 #include "sweep.hpp"
@@ -190,7 +190,7 @@ int slurm_cpus(const std::vector<std::string>& opts) {
 }  // namespace
 
 void add_sweep(CLI::App& app, SweepOptions& o) {
-  app.add_option("sweep", o.file, "Sweep file (YAML, docs/cli.md \"Sweeps\")")->required()->check(CLI::ExistingFile);
+  app.add_option("sweep", o.file, "Sweep file (YAML, docs/cli.md \"sweep and collect\")")->required()->check(CLI::ExistingFile);
   app.add_option("-o,--output", o.dir, "Output folder (default: the sweep file's stem in the current folder)");
   app.add_option("--jobs", o.jobs,
                  "Jobs at a time (default: one per core); each job gets cores / jobs threads (--threads)")
@@ -210,7 +210,7 @@ int run_sweep(const SweepOptions& o) {
   const fs::path dir = fs::absolute(o.dir.empty() ? fs::path(o.file).stem() : fs::path(o.dir)).lexically_normal();
   const int cores = available_cores();
 
-  // Jobs at a time and threads per job: jobs x threads <= cores (docs/cli.md "Sweeps").
+  // Jobs at a time and threads per job: jobs x threads <= cores (docs/cli.md "sweep and collect").
   int threads = 1;
   long at_once = o.jobs ? *o.jobs : 0;
   if (o.slurm) {

@@ -125,7 +125,7 @@ struct ControlOptions {
 void add_control(CLI::App& app, ControlOptions& o);
 int run_control(const ControlOptions& o, const std::string& command_line);
 
-// softdiff sweep / collect (docs/cli.md "Sweeps"; sweep.hpp: the file format).
+// softdiff sweep / collect (docs/cli.md "sweep and collect"; sweep.hpp: the file format).
 struct SweepOptions {
   std::string file;
   std::string dir;

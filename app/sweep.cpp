@@ -1,4 +1,4 @@
-// Sweep files: parsing and expansion (sweep.hpp; the format: docs/cli.md "Sweeps").
+// Sweep files: parsing and expansion (sweep.hpp; the format: docs/cli.md "sweep and collect").
 #include "sweep.hpp"
 
 #include <softdiff/core/error.hpp>

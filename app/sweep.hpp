@@ -1,5 +1,5 @@
 #pragma once
-// Sweep files (docs/cli.md "Sweeps"): parsing, expansion into jobs, the job's command
+// Sweep files (docs/cli.md "sweep and collect"): parsing, expansion into jobs, the job's command
 // line, and the files a sweep leaves in its folder. Shared by `softdiff sweep` and
 // `softdiff collect` (which re-expands the copy DIR/sweep.yaml to know every job's axes).
 #include <filesystem>

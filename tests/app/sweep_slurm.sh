@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# A real Slurm run of `softdiff sweep --slurm` (docs/cli.md "Sweeps"): a one-node Slurm
+# A real Slurm run of `softdiff sweep --slurm` (docs/cli.md "sweep and collect"): a one-node Slurm
 # on localhost started here (Debian's munge and slurm-wlm: munged with a generated key,
 # slurmctld and slurmd with a generated slurm.conf, everything in a temporary folder,
 # free ports), a 4-job array of 2-step beam runs submitted with --jobs 2 (%2), waited

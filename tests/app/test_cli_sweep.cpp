@@ -1,4 +1,4 @@
-// softdiff sweep / collect (docs/cli.md "Sweeps"): the expansion of a sweep file into
+// softdiff sweep / collect (docs/cli.md "sweep and collect"): the expansion of a sweep file into
 // jobs (grid order, zip, args_grid), the validation of every job before anything runs
 // (exit 2 naming the job, nothing written), a real GNU parallel run of a small sweep
 // (2 steps of the shipped beam per job) whose results equal the same commands run
