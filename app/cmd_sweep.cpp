@@ -280,7 +280,7 @@ int run_sweep(const SweepOptions& o) {
     std::fputs(o.slurm ? script.c_str() : jobs_txt.c_str(), stdout);
     if (!o.quiet)
       note(std::to_string(jobs.size()) + " jobs valid, " + std::to_string(pending.size()) + " to run" +
-           (o.slurm ? "" : " (" + std::to_string(at_once) + " at a time, " + std::to_string(threads) + " threads each)") +
+           (o.slurm ? "" : " (" + std::to_string(at_once) + " at a time, " + std::to_string(threads) + (threads > 1 ? " threads" : " thread") + " each)") +
            "; nothing run (--dry-run)");
     return kExitOk;
   }
