@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 #include <hdf5.h>
 
+#include <algorithm>
 #include <chrono>
 #include <csignal>
 #include <cstdlib>
@@ -297,6 +298,41 @@ TEST(CliSweep, ControlGoalsAndTheirFinalDistance) {
     EXPECT_EQ(std::stod(table[static_cast<std::size_t>(id) + 1].substr(table[static_cast<std::size_t>(id) + 1].rfind(',') + 1)),
               distance.back())
         << table[0];
+  }
+}
+
+// calibrate through a sweep: collect's identified value, final_cost, converged and
+// iterations are the /calibration attributes of each job's output.
+TEST(CliSweep, CalibrationResultsAreTheOutputsAttributes) {
+  const fs::path dir = fresh_dir("calibrate");
+  write_scene(dir);
+  CliRun r = run_cli("simulate beam.yaml --set bodies.beam.material.young=2e5 -o target.h5 --quiet", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  write_text(dir / "c.yaml", "softdiff_sweep: 1\nscene: beam.yaml\ncommand: calibrate\n"
+                             "args: [\"--param\", \"young\", \"--target\", \"target.h5\"]\n"
+                             "args_grid: {--init: [\"1e5\", \"4e5\"]}\n");
+  r = run_cli("sweep c.yaml -o out --jobs 2", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  r = run_cli("collect out", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const auto table = lines(read_text(dir / "out/results.csv"));
+  ASSERT_EQ(table.size(), 3u);
+  const auto head = csv_fields(table[0]);
+  const auto col = [&](const std::string& name) {
+    const auto it = std::find(head.begin(), head.end(), name);
+    EXPECT_NE(it, head.end()) << name << " in " << table[0];
+    return static_cast<std::size_t>(it - head.begin());
+  };
+  for (int id : {0, 1}) {
+    const auto row = csv_fields(table[static_cast<std::size_t>(id) + 1]);
+    const fs::path h5 = dir / "out" / (std::to_string(id) + ".h5");
+    H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
+    const hid_t f = H5Fopen(h5.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+    ASSERT_GE(f, 0) << h5;
+    for (const char* name : {"young", "final_cost", "converged", "iterations"})
+      EXPECT_EQ(std::stod(row[col(name)]), softdiff::test::h5_number_attribute(f, "/calibration", name)) << name;
+    H5Fclose(f);
+    EXPECT_NEAR(std::stod(row[col("young")]) / 2e5, 1.0, 1e-6) << table[static_cast<std::size_t>(id) + 1];
   }
 }
 
