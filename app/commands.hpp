@@ -125,6 +125,25 @@ struct ControlOptions {
 void add_control(CLI::App& app, ControlOptions& o);
 int run_control(const ControlOptions& o, const std::string& command_line);
 
+// softdiff sweep / collect (docs/cli.md "sweep and collect"; sweep.hpp: the file format).
+struct SweepOptions {
+  std::string file;
+  std::string dir;
+  std::optional<long> jobs;
+  bool resume = false, dry_run = false, slurm = false, quiet = false;
+  std::vector<std::string> slurm_opts;
+};
+void add_sweep(CLI::App& app, SweepOptions& o);
+int run_sweep(const SweepOptions& o);
+
+struct CollectOptions {
+  std::string dir;
+  std::string table;  // default DIR/results.csv
+  bool quiet = false;
+};
+void add_collect(CLI::App& app, CollectOptions& o);
+int run_collect(const CollectOptions& o);
+
 std::string version_text();
 
 // CLI11 checks whose messages a person reads ("--dt: must be > 0 s, got 0"), for

@@ -34,6 +34,13 @@ int main(int argc, char** argv) {
   auto* check_cmd = app.add_subcommand("check-grad", "Check the analytic derivatives against central finite differences");
   add_check_grad(*check_cmd, check_grad);
 
+  SweepOptions sweep;
+  auto* sweep_cmd = app.add_subcommand("sweep", "Run a parameter sweep: GNU parallel locally, or a Slurm job array (--slurm)");
+  add_sweep(*sweep_cmd, sweep);
+  CollectOptions collect;
+  auto* collect_cmd = app.add_subcommand("collect", "Tabulate a sweep's results (CSV and HDF5) and plot one over two axes (PNG)");
+  add_collect(*collect_cmd, collect);
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -54,6 +61,8 @@ int main(int argc, char** argv) {
       if (calibrate_cmd->parsed()) return run_calibrate(calibrate, join_argv(argc, argv));
       if (control_cmd->parsed()) return run_control(control, join_argv(argc, argv));
       if (check_cmd->parsed()) return run_check_grad(check_grad);
+      if (sweep_cmd->parsed()) return run_sweep(sweep);
+      if (collect_cmd->parsed()) return run_collect(collect);
     } catch (const softdiff::InputError& e) {
       error(e.what());
       return kExitBadInput;
