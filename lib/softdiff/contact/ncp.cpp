@@ -310,6 +310,8 @@ struct DenseOperator {
   std::optional<Eigen::LLT<Eigen::Ref<MatX>>> llt{};
   bool ok = true;
   double largest_eigenvalue() { return softdiff::contact::largest_eigenvalue(G, w.power.head(n), w.rhs.head(n)); }
+  double initial_rho(double rho) const { return rho; }
+  void final_rho(double) {}
   void apply(const VecCRef& y, VecRef out) { out.noalias() = G * y; }
   // G + c I, factorized in place in w.A's storage (grown once to the largest n seen).
   bool factorize(double c) {
@@ -329,11 +331,20 @@ struct SparseOperator {
   bool ok = true;  // false once an iterative solve missed its tolerance
   // Power iterations: L only sets rho's scale; warm-started across steps.
   double largest_eigenvalue() { return d.largest_eigenvalue(8); }
+  // rho from the previous solve on this operator (the previous step's), if any: the
+  // balanced value changes little from step to step, and each change costs a
+  // factorization of B.
+  double initial_rho(double rho) const { return d.last_rho() > 0 ? d.last_rho() : rho; }
+  void final_rho(double rho) { d.set_last_rho(rho); }
   void apply(const VecCRef& y, VecRef out) { ok = d.apply(y, out) && ok; }
   bool factorize(double c) { return d.factorize_shifted(c); }
   void solve(VecRef r) { ok = d.solve_shifted(r) && ok; }
 };
 constexpr int sparse_check_every = 10;
+// The operator's rho schedule: a change of rho refactorizes B (as costly as the step's
+// own factorization), so residual balancing acts only every sparse_rho_interval
+// iterations (with the dense G, every iteration).
+constexpr int sparse_rho_interval = 25;
 
 template <typename Operator>
 NcpResult admm(Buffers& w, Operator& op, const Problem& p, VecRef lambda, VecRef sigma, int stall_window) {
@@ -348,7 +359,7 @@ NcpResult admm(Buffers& w, Operator& op, const Problem& p, VecRef lambda, VecRef
   const double cond = L / eta;
   const double rho_increment = std::pow(cond, 0.05);
   const double rho_min = 1e-8 * L, rho_max = 1e8 * L;
-  double rho = std::sqrt(L * eta) * std::pow(cond, 0.2);
+  double rho = std::clamp(op.initial_rho(std::sqrt(L * eta) * std::pow(cond, 0.2)), rho_min, rho_max);
   auto factorize = [&]() {
     ++result.rho_updates;
     return op.factorize(rho + eta);
@@ -423,15 +434,17 @@ NcpResult admm(Buffers& w, Operator& op, const Problem& p, VecRef lambda, VecRef
     // Residual balancing: if the scaled primal residual ||x - y|| / lscale exceeds 10
     // times the scaled dual one, rho *= (L/m)^0.05, and the converse.
     double rho_new = rho;
-    if (primal > 10 * dual)
+    const bool balance = Operator::cheap_apply || it % sparse_rho_interval == 0;
+    if (balance && primal > 10 * dual)
       rho_new = std::min(rho * rho_increment, rho_max);
-    else if (dual > 10 * primal)
+    else if (balance && dual > 10 * primal)
       rho_new = std::max(rho / rho_increment, rho_min);
     if (rho_new != rho) {
       rho = rho_new;
       if (!factorize()) break;
     }
   }
+  op.final_rho(rho);
   // sigma of the returned lambda (it is already, unless the guard stopped the loop).
   if (!sigma_current || Operator::cheap_apply) {
     op.apply(lambda, sigma);

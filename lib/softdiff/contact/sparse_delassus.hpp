@@ -64,6 +64,9 @@ class SparseDelassus {
   double largest_eigenvalue(int iterations);
 
   double last_eigenvalue() const { return last_eigenvalue_; }
+  // ADMM's rho at the end of the last solve on this operator (kept across bind()).
+  double last_rho() const { return last_rho_; }
+  void set_last_rho(double rho) { last_rho_ = rho; }
   // An iterative linear solver (cg) missed its tolerance since bind().
   bool failed() const { return failed_; }
   int analyses() const { return analyses_; }          // symbolic analyses of B
@@ -89,7 +92,7 @@ class SparseDelassus {
   std::unique_ptr<integrator::LinearSolver> B_solver_;
   bool analyzed_ = false;
   VecX u_, w_, power_, power_next_;  // (3n) scratch; (3|W|) power iteration
-  double last_eigenvalue_ = 0;
+  double last_eigenvalue_ = 0, last_rho_ = 0;
   bool failed_ = false;
   int analyses_ = 0, factorizations_ = 0;
 };
