@@ -457,7 +457,7 @@ TEST_F(Scene, MissingRequiredKey) {
 
 TEST_F(Scene, StepsAndDuration) {
   expect_error(edit("steps: 10", "steps: 10\n  duration: 0.1"), ":5:3: simulation.duration: give either 'steps' or 'duration', not both");
-  expect_error(edit("  steps: 10\n", ""), ":2:1: simulation: missing 'steps' or 'duration' (integrator implicit_euler needs exactly one)");
+  expect_error(edit("  steps: 10\n", ""), ":2:1: simulation: missing 'steps' or 'duration' (integrators implicit_euler and bdf2 need exactly one)");
   expect_error(edit("steps: 10", "duration: 0.305"),
                ":4:3: simulation.duration: must be a multiple of dt = 0.01 (to 1e-9 relative), got 0.305 = 30.5 dt; use steps or a "
                "multiple of dt");
