@@ -200,10 +200,10 @@ TEST(Bdf2Validation, CantileverOrderAgainstModalSolution) {
 
 // The case on this mesh: gravity as a step load, which excites every mode.
 // Modes with w h >> 1 are damped by both methods while the modal solution keeps them,
-// so the error stalls at their share of the tip motion (measured here, printed); BDF2 is
-// the more accurate at every dt, and its error at dt = 2.5e-4 is below a third of
-// implicit Euler's (the first mode's phase error, second order, dominates it down to
-// there).
+// so BDF2's error stalls near their share of the tip motion (printed: 4.4% at dt = 1e-3,
+// 1.4% at 2.5e-4); implicit Euler's amplitude decay of the first mode, first order,
+// keeps its error far above (20%, 8.7%). Asserted: BDF2 is the more accurate at both dt,
+// and at 2.5e-4 by more than 3x (measured 6x).
 TEST(Bdf2Validation, CantileverStepLoadAgainstModalSolution) {
   const Modal ref = modal_solution(cantilever(IntegratorKind::bdf2, 1e-3, 1, Vec3(0, 0, -9.81)));
   for (double dt : {1e-3, 2.5e-4}) {
