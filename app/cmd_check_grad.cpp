@@ -8,6 +8,7 @@
 #include <softdiff/data.hpp>
 #include <softdiff/diff/parameters.hpp>
 #include <softdiff/diff/trajectory.hpp>
+#include <softdiff/integrator/bdf2.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
 #include <softdiff/integrator/static_solver.hpp>
 #include <softdiff/integrator/static_solver_derivatives.hpp>
@@ -39,10 +40,12 @@ VecX run(const Model& model, const State& initial, long steps, Progress& progres
     y.head(next.x.size()) = next.x;
     return y;
   }
+  State previous;  // BDF2's history
   for (long k = 1; k <= steps; ++k) {
-    const StepStatus st = integrator::implicit_euler_step(model, data, s, next, k);
+    const StepStatus st = integrator::time_step(model, data, s, k > 1 ? &previous : nullptr, next, k);
     if (!st.ok() && st.code != StepStatus::Code::not_converged)
       throw ComputationError("a finite-difference run failed: " + describe(model, st));
+    std::swap(previous, s);
     std::swap(s, next);
     progress.advance();
   }

@@ -132,8 +132,8 @@ int run_control(const ControlOptions& o, const std::string& command_line) {
   report.strict = o.strict;
   const Model model = io::build_model(scene, &report);
   for (const auto& w : report.warnings) warn(w);
-  if (model.step.integrator != IntegratorKind::implicit_euler)
-    throw InputError("control: the scene's integrator must be implicit_euler (inverse dynamics is per time step)");
+  if (model.step.integrator == IntegratorKind::static_equilibrium)
+    throw InputError("control: the scene's integrator must be implicit_euler or bdf2 (inverse dynamics is per time step)");
   if (model.actuation.actuators.empty()) throw InputError("control: the scene has no actuators to control");
   parse_theta("control", "actuation", model);  // the step is differentiated with respect to the actuation
   const auto& effectors = model.actuation.effectors;
@@ -213,6 +213,8 @@ int run_control(const ControlOptions& o, const std::string& command_line) {
   if (o.max_actuation)
     for (const auto& a : model.actuation.actuators)
       if (!a.has_limits) throw InputError("--max-actuation: actuator '" + a.name + "' has no limits");
+  State history_state, history_next;
+  long history_step = 0;
   hooks.actuation = [&](long k, const State& s, VecX& lambda) {
     if (o.max_actuation) {
       lambda.resize(na);
@@ -223,7 +225,15 @@ int run_control(const ControlOptions& o, const std::string& command_line) {
     }
     const auto t0 = Clock::now();
     optim::ControlStep info;
-    const StepStatus st = controller.compute(model, s, k, goals.at(static_cast<double>(k) * model.step.dt), previous, lambda, info);
+    // BDF2's history: the state the hook saw at step k - 1 (steps run in order).
+    const State* history = k > 1 && history_step == k - 1 ? &history_state : nullptr;
+    const StepStatus st =
+        controller.compute(model, s, k, goals.at(static_cast<double>(k) * model.step.dt), previous, lambda, info, history);
+    if (st.ok()) {
+      history_next = s;
+      std::swap(history_state, history_next);
+      history_step = k;
+    }
     control_seconds += seconds_since(t0);
     if (!st.ok()) return st;
     kkt_max = std::max(kkt_max, info.kkt);

@@ -108,7 +108,7 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
     j.begin_array("warnings");
     for (const auto& w : report.warnings) j.value("", w);
     j.end_array();
-    j.value("integrator", is_static ? "static" : "implicit_euler").value("dt", model.step.dt).value("steps", model.step.steps);
+    j.value("integrator", is_static ? "static" : model.step.integrator == IntegratorKind::bdf2 ? "bdf2" : "implicit_euler").value("dt", model.step.dt).value("steps", model.step.steps);
     j.value("dofs", 3L * fem.num_nodes).value("fixed_dofs", fem.num_fixed_dofs).value("nonzeros", fem.pattern.nnz());
     j.value("colors", static_cast<long>(fem.pattern.color_begin.size()) - 1).value("total_mass", fem.total_mass);
     j.begin_array("bodies");
@@ -157,7 +157,8 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
   if (is_static)
     std::printf("integrator  static, %d load steps\n", model.step.static_load_steps);
   else
-    std::printf("integrator  implicit_euler, dt %g s, %ld steps (%g s), newton_iterations %d\n", model.step.dt,
+    std::printf("integrator  %s, dt %g s, %ld steps (%g s), newton_iterations %d\n",
+                model.step.integrator == IntegratorKind::bdf2 ? "bdf2" : "implicit_euler", model.step.dt,
                 model.step.steps, model.step.dt * model.step.steps, model.step.newton_iterations);
   std::printf("system      %d dofs (%ld fixed), %ld nonzeros in the upper triangle, %zu element colors\n",
               3 * fem.num_nodes, fem.num_fixed_dofs, fem.pattern.nnz(), fem.pattern.color_begin.size() - 1);

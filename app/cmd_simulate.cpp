@@ -7,6 +7,7 @@
 #include <softdiff/core/assert.hpp>
 #include <softdiff/core/error.hpp>
 #include <softdiff/data.hpp>
+#include <softdiff/integrator/bdf2.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
 #include <softdiff/integrator/static_solver.hpp>
 #include <softdiff/integrator/static_solver_derivatives.hpp>
@@ -391,6 +392,7 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
         derivative_seconds += seconds_since(td);
       }
     } else {
+      State previous;  // the state before `state` (BDF2), set after the first step
       for (long k = 1; k <= total; ++k) {
         if (SignalWatch::stop_requested()) {
           status = "interrupted";
@@ -403,7 +405,9 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
           s = hooks.actuation(k, state, applied);
           applied_set = true;
         }
-        if (s.ok()) s = integrator::implicit_euler_step(model, data, state, next, k, hooks.actuation ? &applied : nullptr);
+        if (s.ok())
+          s = integrator::time_step(model, data, state, k > 1 ? &previous : nullptr, next, k,
+                                    hooks.actuation ? &applied : nullptr);
         const double step_seconds = seconds_since(t0);
         if (s.code == StepStatus::Code::not_converged) {
           if (o.strict) {
@@ -462,6 +466,7 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
             smoothed_total += sd.smoothed_contacts();
           }
         }
+        std::swap(previous, state);  // BDF2's history
         std::swap(state, next);
         steps_done = k;
         if (k % every == 0 || k == total) {

@@ -87,6 +87,14 @@ struct Data {
   std::unique_ptr<integrator::LinearSolver> solver;
   bool analyzed = false;            // symbolic factorization done (once per scene)
   bool factor_is_current = false;   // the factor matches A (constant matrices are factorized once)
+  double A_h = 0;                   // the h data.A was assembled with (assemble_system_matrix)
+  // The step's effective input (integrator/bdf2.hpp): the last step is the implicit
+  // Euler step of size h from hat = (1 + c) in - c previous, c = history_weight:
+  // implicit Euler h = dt, c = 0 (hat = in); BDF2 after its first step h = 2 dt / 3,
+  // c = 1/3. Written by the step, read by its derivatives.
+  double h = 0;
+  double history_weight = 0;
+  State hat;                        // (3n) x, v; t = t_i
   int newton_iterations_used = 0;
   double newton_residual = 0;
   int static_shifted_iterations = 0;  // solve_static: Newton iterations of the last solve whose

@@ -13,7 +13,9 @@
 
 namespace softdiff {
 
-enum class IntegratorKind { implicit_euler, static_equilibrium };
+// bdf2: x_{n+1} = 4/3 x_n - 1/3 x_{n-1} + 2/3 h v_{n+1}, its first step implicit Euler
+// (integrator/bdf2.hpp).
+enum class IntegratorKind { implicit_euler, static_equilibrium, bdf2 };
 
 struct StepSettings {
   IntegratorKind integrator = IntegratorKind::implicit_euler;

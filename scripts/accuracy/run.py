@@ -59,14 +59,14 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="accuracy")
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--only", choices=["beam", "contact"])
+    ap.add_argument("--only", choices=["beam", "contact", "bdf2"])
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--resume", action="store_true")
     a = ap.parse_args()
 
     if not os.path.exists(softdiff_bin()):
         sys.exit("accuracy: no softdiff binary at %s (set SOFTDIFF_BIN or build it)" % softdiff_bin())
-    if a.only != "contact" and not which("ccx"):
+    if a.only not in ("contact", "bdf2") and not which("ccx"):
         sys.exit("accuracy: CalculiX `ccx` not found (Debian: apt-get install calculix-ccx)")
     if not which("gmsh"):
         sys.exit("accuracy: gmsh not found")
@@ -95,6 +95,11 @@ def main():
         tc = time.time()
         text = contact.run(out, cache, a.threads, a.quick)
         parts.append(text + "\n\ncontact part: %.0f s wall" % (time.time() - tc))
+    if a.only in (None, "bdf2"):
+        import bdf2_beam
+        td = time.time()
+        text = bdf2_beam.run(out, cache, a.threads, a.quick)
+        parts.append(text + "\n\nbdf2 part: %.0f s wall" % (time.time() - td))
     footer = ["", "total: %.0f s wall; load average at the end: %s"
               % (time.time() - t0, " ".join("%.2f" % x for x in os.getloadavg()))]
     text = "\n".join(header) + "\n\n".join(parts) + "\n".join(footer) + "\n"

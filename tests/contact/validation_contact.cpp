@@ -50,7 +50,7 @@ State run(const Model& model, Data& data, State s, long steps, double tol, F&& a
     if (require_converged) {
       EXPECT_TRUE(data.contact.result.converged) << "step " << k;
     }
-    test::expect_valid_contact_solution(data, tol, "step " + std::to_string(k), model.step.dt);
+    test::expect_valid_contact_solution(data, tol, "step " + std::to_string(k));
     std::swap(s, next);
     after_step(k, s);
   }

@@ -6,6 +6,7 @@
 // (CHOLMOD, libgomp) are not counted: they are not softdiff's loops.
 #include <softdiff/data.hpp>
 #include <softdiff/fem/assembly.hpp>
+#include <softdiff/integrator/bdf2.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
 #include <support/meshes.hpp>
 #include <support/model_builder.hpp>
@@ -97,6 +98,29 @@ TEST(NoAllocation, AssemblyAndStepAllocateNothing) {
       EXPECT_EQ(c.count(), 0) << material::law_name(law) << ": the step allocated";
     }
   }
+}
+
+// BDF2 (integrator/bdf2.hpp): after its first two steps (implicit Euler, then the first
+// BDF2 step, which sizes data.hat), a BDF2 step allocates nothing either.
+TEST(NoAllocation, Bdf2StepAllocatesNothing) {
+  test::BodySpec spec;
+  spec.law = material::Law::neo_hookean;
+  spec.rayleigh_mass = 0.1;
+  spec.rayleigh_stiffness = 0.01;
+  spec.fixed = [](const Vec3& p) { return p.x() < 1e-9; };
+  Model model = test::make_model(test::box_mesh(8, 3, 3, 0.1, 0.02, 0.02), spec);
+  model.step.integrator = IntegratorKind::bdf2;
+  Data data(model);
+  State previous = model.initial, s = model.initial, next = model.initial;
+  ASSERT_TRUE(integrator::bdf2_step(model, data, s, nullptr, next, 1).ok());
+  std::swap(previous, s);
+  std::swap(s, next);
+  ASSERT_TRUE(integrator::bdf2_step(model, data, s, &previous, next, 2).ok());
+  std::swap(previous, s);
+  std::swap(s, next);
+  Counting c;
+  ASSERT_TRUE(integrator::bdf2_step(model, data, s, &previous, next, 3).ok());
+  EXPECT_EQ(c.count(), 0) << "the BDF2 step allocated";
 }
 
 }  // namespace

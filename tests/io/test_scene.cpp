@@ -457,7 +457,7 @@ TEST_F(Scene, MissingRequiredKey) {
 
 TEST_F(Scene, StepsAndDuration) {
   expect_error(edit("steps: 10", "steps: 10\n  duration: 0.1"), ":5:3: simulation.duration: give either 'steps' or 'duration', not both");
-  expect_error(edit("  steps: 10\n", ""), ":2:1: simulation: missing 'steps' or 'duration' (integrator implicit_euler needs exactly one)");
+  expect_error(edit("  steps: 10\n", ""), ":2:1: simulation: missing 'steps' or 'duration' (integrators implicit_euler and bdf2 need exactly one)");
   expect_error(edit("steps: 10", "duration: 0.305"),
                ":4:3: simulation.duration: must be a multiple of dt = 0.01 (to 1e-9 relative), got 0.305 = 30.5 dt; use steps or a "
                "multiple of dt");
@@ -472,7 +472,7 @@ TEST_F(Scene, BadEnumListsValidValues) {
   expect_error(edit("      young", "      law: neohookean\n      young"),
                ":9:7: bodies[0].material.law: must be one of: corotational, stvk, neo_hookean, linear; got 'neohookean' (did you mean "
                "'neo_hookean'?)");
-  expect_error(edit("  dt", "  integrator: explicit\n  dt"), ":3:3: simulation.integrator: must be one of: implicit_euler, static; got 'explicit'");
+  expect_error(edit("  dt", "  integrator: explicit\n  dt"), ":3:3: simulation.integrator: must be one of: implicit_euler, bdf2, static; got 'explicit'");
   expect_error(kBase + "linear_solver: cholesky\n", ":12:1: linear_solver: must be one of: cholmod, ldlt, cg; got 'cholesky'");
   expect_error(kBase + "    mass: lumpd\n", ":12:5: bodies[0].mass: must be one of: lumped, consistent; got 'lumpd' (did you mean 'lumped'?)");
   expect_error(kBase + "    type: rigid\n",

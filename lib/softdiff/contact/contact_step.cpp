@@ -19,10 +19,9 @@ namespace {
 // Between soft surfaces only the model's margin counts on the penetrating side: a
 // vertex behind a triangle by more than that is the other face of a thin part, not a
 // contact. margin: the (widened) margin detection used; v_i, v_free: the velocities.
-void drop_inert_contacts(const Model& model, double margin, const VecX& v_i, const VecX& v_free,
+void drop_inert_contacts(const Model& model, double h, double margin, const VecX& v_i, const VecX& v_free,
                          std::vector<collision::Contact>& list) {
   const auto& fixed = model.fem.fixed;
-  const double h = model.step.dt;
   const double base = model.contact.detection.margin;
   const bool widened = margin > base;
   list.erase(std::remove_if(list.begin(), list.end(),
@@ -78,9 +77,8 @@ void contact_jacobian_transpose(const Model& model, const collision::ContactSet&
   Ht.makeCompressed();
 }
 
-StepStatus resolve_contacts(const Model& model, Data& data, const State& in, VecX& v, long step_index) {
+StepStatus resolve_contacts(const Model& model, Data& data, const State& in, VecX& v, long step_index, double h) {
   auto& cd = data.contact;
-  const double h = model.step.dt;
   StepStatus status;
   status.step = step_index;
 
@@ -96,7 +94,7 @@ StepStatus resolve_contacts(const Model& model, Data& data, const State& in, Vec
   const double margin = std::max(model.contact.detection.margin, 2 * h * std::sqrt(speed));
   cd.margin = margin;
   cd.stats = cd.detector->detect(in.x, cd.contacts, margin);
-  drop_inert_contacts(model, margin, in.v, v, cd.contacts.contacts);
+  drop_inert_contacts(model, h, margin, in.v, v, cd.contacts.contacts);
   data.timings.detection += seconds_since(t0);
   const int nc = cd.contacts.size();
   cd.v_free = v;

@@ -17,7 +17,11 @@ namespace softdiff::contact {
 // v: in, v_free; out, v_f. Returns not ok for a failed solve. A contact solve that
 // misses its tolerance is not a failure here: data.contact.result.converged tells
 // (the caller warns, or stops with --strict).
-StepStatus resolve_contacts(const Model& model, Data& data, const State& in, VecX& v, long step_index);
+// h: the step's effective size (dt for implicit Euler, 2 dt / 3 for BDF2, whose
+// positions are x_f = x^ + h v_f with x^ = 4/3 x_n - 1/3 x_{n-1}; `in` is then the
+// state (x^, v^)): the scale of G = h H A^{-1} H^T, of the correction and of the gap
+// term phi / h.
+StepStatus resolve_contacts(const Model& model, Data& data, const State& in, VecX& v, long step_index, double h);
 
 // H_c^T (3n x 3nc) of a contact set: column 3i+r is row r of H_i = C_i^T sum_k w_k E_k,
 // with the fixed dofs' rows removed (H_c <- H_c Pi).

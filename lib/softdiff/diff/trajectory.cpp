@@ -4,7 +4,8 @@
 #include <softdiff/core/assert.hpp>
 
 #include <algorithm>
-#include <softdiff/integrator/implicit_euler.hpp>
+#include <softdiff/integrator/bdf2.hpp>
+#include <softdiff/integrator/bdf2_derivatives.hpp>
 
 namespace softdiff::diff {
 
@@ -88,7 +89,14 @@ ForwardSensitivity::ForwardSensitivity(const Model& model, ThetaLayout theta)
 }
 
 bool ForwardSensitivity::advance(const Model& model, const Data& data, const State& in, const State& out) {
+  (void)in;  // the step's input as its derivative sees it is data.hat
   const Eigen::Index np = theta_.actuation_offset(), na = theta_.actuation ? num_actuators(model) : 0;
+  // BDF2 (data.history_weight != 0): the step also depends on the previous state, whose
+  // sensitivities are kept (one more pair of 3n x k matrices).
+  const bool multistep = data.history_weight != 0;
+  if (multistep) SOFTDIFF_DEMAND(previous_dx_.cols() == dx_.cols(), "ForwardSensitivity: a BDF2 step without a previous step");
+  next_dx_.resize(dx_.rows(), dx_.cols());
+  next_dv_.resize(dv_.rows(), dv_.cols());
   for (Eigen::Index c = 0; c < dx_.cols(); ++c) {
     t_.x = dx_.col(c);
     t_.v = dv_.col(c);
@@ -98,10 +106,21 @@ bool ForwardSensitivity::advance(const Model& model, const Data& data, const Sta
       t_.p = VecX::Unit(np, c);
     else if (c < np + na)
       t_.lambda_a = VecX::Unit(num_actuators(model), c - np);
-    if (!step_->jvp(model, data, in, out, t_, r_)) return false;
-    dx_.col(c) = r_.x;
-    dv_.col(c) = r_.v;
+    if (multistep) {
+      previous_.x = previous_dx_.col(c);
+      previous_.v = previous_dv_.col(c);
+    } else {
+      previous_.x.resize(0);
+      previous_.v.resize(0);
+    }
+    if (!integrator::multistep_jvp(*step_, model, data, out, t_, previous_, r_)) return false;
+    next_dx_.col(c) = r_.x;
+    next_dv_.col(c) = r_.v;
   }
+  previous_dx_.swap(dx_);
+  previous_dv_.swap(dv_);
+  dx_.swap(next_dx_);
+  dv_.swap(next_dv_);
   return true;
 }
 
@@ -109,11 +128,12 @@ StepStatus forward_sensitivities(const Model& model, Data& data, const State& in
                                  const ThetaLayout& theta, State& final, MatX& dx_dtheta, MatX& dv_dtheta,
                                  const SensitivityObserver& observer) {
   ForwardSensitivity sensitivity(model, theta);
-  State s = initial, next = initial;
+  State s = initial, next = initial, previous;
   for (long step = 1; step <= steps; ++step) {
-    const StepStatus st = integrator::implicit_euler_step(model, data, s, next, step);
+    const StepStatus st = integrator::time_step(model, data, s, step > 1 ? &previous : nullptr, next, step);
     if (!st.ok()) return st;
     if (!sensitivity.advance(model, data, s, next)) return derivative_failed(step);
+    std::swap(previous, s);
     std::swap(s, next);
     if (observer) observer(step, s, sensitivity.dx_dtheta(), sensitivity.dv_dtheta());
   }
@@ -151,7 +171,8 @@ StepStatus record(const Model& model, Data& data, const State& initial, long ste
       override_values = &lambda;
     }
     if (model.contact.enabled) tape.warm_start.push_back({data.contact.previous_keys, data.contact.previous_lambda});
-    const StepStatus st = integrator::implicit_euler_step(model, data, tape.frames.back(), next, step, override_values);
+    const State* previous = step > 1 ? &tape.frames[tape.frames.size() - 2] : nullptr;
+    const StepStatus st = integrator::time_step(model, data, tape.frames.back(), previous, next, step, override_values);
     if (!st.ok()) return st;
     tape.frames.push_back(next);
     tape.lambda_a.push_back(data.lambda_a);
@@ -172,9 +193,15 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
   bar.v = VecX::Zero(n);
   if (loss) loss(T, tape.frames[static_cast<std::size_t>(T)], bar.x, bar.v);
   integrator::StepCotangent cot;
+  // BDF2: step s depends on frames s-1 and s-2; `pending` holds the cotangent of frame
+  // s-1 that step s+1 sent back through its history (zero for implicit Euler).
+  integrator::StateTangent pending, bar_previous;
+  pending.x = VecX::Zero(n);
+  pending.v = VecX::Zero(n);
   State out;
   for (long step = T; step >= 1; --step) {
     const State& in = tape.frames[static_cast<std::size_t>(step - 1)];
+    const State* previous = step > 1 ? &tape.frames[static_cast<std::size_t>(step - 2)] : nullptr;
     // Recompute the step's record (linearization, factorization) from its input state,
     // with the NCP warm start it had.
     if (model.contact.enabled && static_cast<long>(tape.warm_start.size()) == T) {
@@ -183,17 +210,19 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
       data.contact.previous_lambda = w.lambda;
     }
     const StepStatus st =
-        integrator::implicit_euler_step(model, data, in, out, step, &tape.lambda_a[static_cast<std::size_t>(step - 1)]);
+        integrator::time_step(model, data, in, previous, out, step, &tape.lambda_a[static_cast<std::size_t>(step - 1)]);
     if (!st.ok()) return st;
     const State& recorded = tape.frames[static_cast<std::size_t>(step)];
     result.recompute_mismatch = std::max({result.recompute_mismatch, (out.x - recorded.x).cwiseAbs().maxCoeff(),
                                           (out.v - recorded.v).cwiseAbs().maxCoeff()});
-    if (!derivatives.vjp(model, data, in, out, bar, cot)) return derivative_failed(step);
+    if (!integrator::multistep_vjp(derivatives, model, data, out, bar, cot, bar_previous)) return derivative_failed(step);
     result.theta.head(np) += cot.p;
     result.lambda_a.col(step - 1) = cot.lambda_a;
     if (theta.actuation) result.theta.segment(np, na) += cot.lambda_a;
-    bar.x = cot.x;
-    bar.v = cot.v;
+    bar.x = cot.x + pending.x;
+    bar.v = cot.v + pending.v;
+    pending.x = bar_previous.x;
+    pending.v = bar_previous.v;
     if (loss) loss(step - 1, in, bar.x, bar.v);
   }
   result.x0 = bar.x;

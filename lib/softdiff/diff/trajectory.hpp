@@ -69,8 +69,10 @@ class ForwardSensitivity {
   ThetaLayout theta_;
   std::unique_ptr<integrator::StepDerivatives> step_;
   MatX dx_, dv_;
+  MatX previous_dx_, previous_dv_;  // BDF2: the sensitivities of the previous state
+  MatX next_dx_, next_dv_;          // workspace
   integrator::StepTangent t_;
-  integrator::StateTangent r_;
+  integrator::StateTangent r_, previous_;
 };
 
 // Called after each successful step k (1-based) with the state reached and the

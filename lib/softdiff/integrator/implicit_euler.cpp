@@ -83,6 +83,7 @@ void project(const Model& model, VecX& b) {
 void assemble_system_matrix(const Model& model, double h, const VecX& K_damping, const VecX& K, Data& data) {
   assemble_system_matrix(model, h, K_damping, K, data.A);
   data.factor_is_current = false;
+  data.A_h = h;
 }
 
 void assemble_system_matrix(const Model& model, double h, const VecX& K_damping, const VecX& K, SparseMatrix& matrix) {
@@ -156,15 +157,22 @@ StepStatus check_state(const Model& model, const State& state, long step_index) 
 
 StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, State& out, long step_index,
                                const VecX* lambda_a) {
+  data.h = model.step.dt;
+  data.history_weight = 0;
+  data.hat = in;
+  return backward_euler_stage(model, data, in, out, step_index, lambda_a, model.step.dt, in.t + model.step.dt);
+}
+
+StepStatus backward_euler_stage(const Model& model, Data& data, const State& in, State& out, long step_index,
+                                const VecX* lambda_a, double h, double t_next) {
   const auto& fem = model.fem;
-  const double h = model.step.dt;
   data.timings = {};
   auto t0 = Clock::now();
 
   // 1. Linearization at x_i: f_int, K (the record the derivatives use). With a
   // constant system matrix (all bodies `linear`), K and the factor of A are kept
   // from the first step and f_int = -K (x_i - X).
-  const bool reuse = model.constant_system_matrix() && data.factor_is_current;
+  const bool reuse = model.constant_system_matrix() && data.factor_is_current && data.A_h == h;
   if (reuse) {
     data.x_iter = in.x - Eigen::Map<const VecX>(fem.X.data(), 3 * fem.num_nodes);
     fem::symmetric_multiply(fem, data.fem.K_values, data.x_iter, data.fem.f_int);
@@ -191,7 +199,7 @@ StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, 
                           "), got " + std::to_string(lambda_a->size()));
       data.lambda_a = *lambda_a;
     } else {
-      model.actuation.values(in.t + h, data.lambda_a);
+      model.actuation.values(t_next, data.lambda_a);
     }
     data.f_act.setZero();
     model.actuation.add_forces(in.x, data.lambda_a, 1.0, data.f_act);
@@ -222,7 +230,7 @@ StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, 
   // Contact (paper eq. 2): out.v = v_free on entry, v_f on return.
   if (model.contact.enabled) {
     SOFTDIFF_DEMAND(model.step.newton_iterations == 1, "contact needs the linearized step (newton_iterations = 1)");
-    status = contact::resolve_contacts(model, data, in, out.v, step_index);
+    status = contact::resolve_contacts(model, data, in, out.v, step_index, h);
     if (!status.ok()) return status;
   }
 
@@ -310,7 +318,7 @@ StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, 
 
   t0 = Clock::now();
   out.x = in.x + h * out.v;
-  out.t = in.t + h;
+  out.t = t_next;
   status = check_state(model, out, step_index);
   data.timings.other += seconds_since(t0);
   if (status.ok() && !newton_converged) {

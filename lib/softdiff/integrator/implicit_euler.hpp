@@ -24,6 +24,13 @@ namespace softdiff::integrator {
 StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, State& out, long step_index,
                                const VecX* lambda_a = nullptr);
 
+// The implicit Euler stage every one-step and multistep step runs (integrator/bdf2.hpp):
+// the step above of size h from `in`, reaching t_next, with actuation at t_next.
+// implicit_euler_step is this with h = dt, t_next = in.t + dt after recording data.h,
+// data.history_weight = 0 and data.hat = in.
+StepStatus backward_euler_stage(const Model& model, Data& data, const State& in, State& out, long step_index,
+                                const VecX* lambda_a, double h, double t_next);
+
 // Assembles data.A = (1 + h alpha) M + h beta K_damping + h^2 K, projected, per body.
 void assemble_system_matrix(const Model& model, double h, const VecX& K_damping, const VecX& K, Data& data);
 // The same into any matrix A with the model's pattern.

@@ -13,8 +13,8 @@ namespace softdiff::integrator {
 namespace {
 
 void demand_supported(const Model& model) {
-  SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler,
-                  "step derivatives: only the implicit_euler integrator is differentiated in this version");
+  SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler || model.step.integrator == IntegratorKind::bdf2,
+                  "step derivatives: only the implicit_euler and bdf2 integrators are differentiated in this version");
   if (model.step.newton_iterations > 1)
     for (const auto& b : model.fem.bodies)
       SOFTDIFF_DEMAND(!b.psd_projection, "step derivatives: newton_iterations > 1 with psd_projection (body '" +
@@ -22,6 +22,10 @@ void demand_supported(const Model& model) {
 }
 
 bool is_newton(const Model& model) { return model.step.newton_iterations > 1; }
+
+// The step size of the record: data.h (dt for implicit Euler, 2 dt / 3 for BDF2), or
+// dt before any step.
+double step_size(const Model& model, const Data& data) { return data.h > 0 ? data.h : model.step.dt; }
 
 void demand_size(const VecX& v, Eigen::Index n, const char* name) {
   SOFTDIFF_DEMAND(v.size() == 0 || v.size() == n, std::string(name) + ": expected size " + std::to_string(n) +
@@ -33,20 +37,7 @@ void demand_size(const VecX& v, Eigen::Index n, const char* name) {
 StepDerivatives::StepDerivatives(const Model& model, std::vector<ParameterId> parameters)
     : parameters_(std::move(parameters)) {
   const auto nb = static_cast<Eigen::Index>(model.fem.bodies.size());
-  const double h = model.step.dt;
-  h_alpha_.resize(nb);
-  k_coef_.resize(nb);
-  for (Eigen::Index b = 0; b < nb; ++b) {
-    h_alpha_[b] = h * model.fem.bodies[b].rayleigh_mass;
-    k_coef_[b] = h * model.fem.bodies[b].rayleigh_stiffness + h * h;
-  }
-  minus_h_ = VecX::Constant(nb, -h);
-  // The coefficient of dK~(x_i)[dx_i] w: -(h beta + h^2) in the linearized step (K(x_i)
-  // is both the damping's and the elastic stiffness), -h beta with Newton (only the
-  // damping D = alpha M + beta K(x_i) depends on x_i through K; the elastic force is at x_f).
-  minus_k_coef_ = -k_coef_;
-  if (model.step.newton_iterations > 1)
-    for (Eigen::Index b = 0; b < nb; ++b) minus_k_coef_[b] = -h * model.fem.bodies[b].rayleigh_stiffness;
+  set_step_size(model, model.step.dt);
   for (const auto& p : parameters_) {
     if (p.kind == Parameter::friction) {
       SOFTDIFF_DEMAND(model.contact.enabled && p.body >= 0 &&
@@ -60,6 +51,25 @@ StepDerivatives::StepDerivatives(const Model& model, std::vector<ParameterId> pa
   const Eigen::Index n = 3L * model.fem.num_nodes;
   for (VecX* v : {&r_, &y_, &q_, &w_, &delta_, &tmp_, &tmp2_, &zero_, &q_extra_}) *v = VecX::Zero(n);
   zero_bodies_ = VecX::Zero(nb);
+}
+
+void StepDerivatives::set_step_size(const Model& model, double h) {
+  if (h == coef_h_) return;
+  coef_h_ = h;
+  const auto nb = static_cast<Eigen::Index>(model.fem.bodies.size());
+  h_alpha_.resize(nb);
+  k_coef_.resize(nb);
+  for (Eigen::Index b = 0; b < nb; ++b) {
+    h_alpha_[b] = h * model.fem.bodies[b].rayleigh_mass;
+    k_coef_[b] = h * model.fem.bodies[b].rayleigh_stiffness + h * h;
+  }
+  minus_h_ = VecX::Constant(nb, -h);
+  // The coefficient of dK~(x_i)[dx_i] w: -(h beta + h^2) in the linearized step (K(x_i)
+  // is both the damping's and the elastic stiffness), -h beta with Newton (only the
+  // damping D = alpha M + beta K(x_i) depends on x_i through K; the elastic force is at x_f).
+  minus_k_coef_ = -k_coef_;
+  if (model.step.newton_iterations > 1)
+    for (Eigen::Index b = 0; b < nb; ++b) minus_k_coef_[b] = -h * model.fem.bodies[b].rayleigh_stiffness;
 }
 
 void StepDerivatives::body_scaled_product(const Model& model, const VecX& values, const VecX& w, const VecX& scale,
@@ -84,7 +94,7 @@ bool StepDerivatives::parameter_column(const Model& model, const Data& data, con
   if (id.kind == Parameter::friction) return true;  // acts through the NCP only (friction_dmu)
   const auto& fem = model.fem;
   const auto& body = fem.bodies[static_cast<std::size_t>(id.body)];
-  const double h = model.step.dt;
+  const double h = step_size(model, data);
   const Eigen::Index begin = 3 * body.node_begin, len = 3 * body.num_nodes;
   // The coefficient of the stiffness that multiplies w: h beta + h^2 (linearized: K(x_i)
   // in A and b), h beta (Newton: the elastic force is f(x_f), only D has K(x_i)).
@@ -185,7 +195,7 @@ void StepDerivatives::prepare_contact(const Model& model, const Data& data, cons
     contact::select_contact_columns(cd.Ht, active_ids_, Ht_active_);
     SOFTDIFF_DEMAND(data.solver->inverse_congruence(Ht_active_, G_active_),
                     "iterative linear solver did not reach its tolerance (contact derivative)");
-    G_active_ *= model.step.dt;
+    G_active_ *= step_size(model, data);
     ncp_.compute_active(G_active_, cd.mu, cd.lambda, cd.sigma, cd.modes);
   }
   contact_v_ = out.v;
@@ -193,7 +203,7 @@ void StepDerivatives::prepare_contact(const Model& model, const Data& data, cons
 
 void StepDerivatives::add_contact_force_jvp(const Model& model, const Data& data, const VecX& dx, VecX& r) const {
   const auto& cd = data.contact;
-  const double h = model.step.dt;
+  const double h = step_size(model, data);
   for (int i = 0; i < cd.contacts.size(); ++i) {
     const auto& c = cd.contacts.contacts[i];
     const auto& g = geometry_[static_cast<std::size_t>(i)];
@@ -210,7 +220,7 @@ void StepDerivatives::add_contact_force_jvp(const Model& model, const Data& data
 void StepDerivatives::contact_sigma_jvp(const Model& model, const Data& data, const State& out, const VecX& dx,
                                         const VecX& dv0, VecX& b) const {
   const auto& cd = data.contact;
-  const double h = model.step.dt;
+  const double h = step_size(model, data);
   b.noalias() = cd.Ht.transpose() * dv0;  // H dv0 (projected H)
   for (int i = 0; i < cd.contacts.size(); ++i) {
     const auto& c = cd.contacts.contacts[i];
@@ -232,7 +242,7 @@ void StepDerivatives::contact_sigma_jvp(const Model& model, const Data& data, co
 void StepDerivatives::add_contact_geometry_vjp(const Model& model, const Data& data, const State& out, const VecX& y,
                                                const VecX& bar_b, VecX& bar_x) const {
   const auto& cd = data.contact;
-  const double h = model.step.dt;
+  const double h = step_size(model, data);
   for (int i = 0; i < cd.contacts.size(); ++i) {
     const auto& c = cd.contacts.contacts[i];
     const auto& g = geometry_[static_cast<std::size_t>(i)];
@@ -261,15 +271,17 @@ LinearSolver* StepDerivatives::system(const Model& model, const Data& data, cons
   // dR/dv = (1 + h alpha) M + h beta K~(x_i) + h^2 K(x_f), the system matrix at the
   // last iterate (Newton's own last factorization is one iterate earlier). Assembled
   // and factorized once per step (cached by v_f), into this object's workspace.
-  if (newton_v_.size() == out.v.size() && newton_v_ == out.v) return newton_solver_.get();
+  const double h = step_size(model, data);
+  if (newton_v_.size() == out.v.size() && newton_v_ == out.v && newton_h_ == h) return newton_solver_.get();
   if (!newton_solver_) {
     newton_A_ = model.fem.pattern.structure;
     newton_solver_ = make_linear_solver(model.solver);
     newton_solver_->analyze(newton_A_);
   }
-  assemble_system_matrix(model, model.step.dt, data.K_i_values, data.fem.K_values, newton_A_);
+  assemble_system_matrix(model, h, data.K_i_values, data.fem.K_values, newton_A_);
   if (!newton_solver_->factorize(newton_A_).ok) return nullptr;
   newton_v_ = out.v;
+  newton_h_ = h;
   return newton_solver_.get();
 }
 
@@ -283,7 +295,8 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
   demand_size(d.v, n, "tangent v");
   demand_size(d.lambda_a, na, "tangent lambda_a");
   demand_size(d.p, static_cast<Eigen::Index>(parameters_.size()), "tangent p");
-  const double h = model.step.dt;
+  const double h = step_size(model, data);
+  set_step_size(model, h);
   const bool newton = is_newton(model);
   const VecX& dx = d.x.size() ? d.x : zero_;
   const VecX& dv = d.v.size() ? d.v : zero_;
@@ -366,7 +379,8 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
   const auto na = static_cast<Eigen::Index>(model.actuation.actuators.size());
   demand_size(bar_out.x, n, "cotangent x");
   demand_size(bar_out.v, n, "cotangent v");
-  const double h = model.step.dt;
+  const double h = step_size(model, data);
+  set_step_size(model, h);
   const bool newton = is_newton(model);
   delta_ = out.v - in.v;
   LinearSolver* solver = system(model, data, out);

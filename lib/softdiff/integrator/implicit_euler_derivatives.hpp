@@ -110,7 +110,11 @@ class StepDerivatives {
   // dR/dv at the converged Newton iterate (assembled and factorized here, once per step).
   LinearSolver* system(const Model& model, const Data& data, const State& out);
 
+  // The coefficients below for the record's step size h (data.h: dt, or 2 dt / 3 for BDF2).
+  void set_step_size(const Model& model, double h);
+
   std::vector<ParameterId> parameters_;
+  double coef_h_ = -1;               // the h of the coefficients
   VecX h_alpha_, k_coef_;            // (bodies) h alpha_b, h beta_b + h^2
   VecX minus_h_, minus_k_coef_;      // (bodies) -h, -(coefficient of K~(x_i) w): -(h beta_b + h^2), Newton -h beta_b
   VecX zero_bodies_;                 // (bodies) zeros
@@ -140,6 +144,7 @@ class StepDerivatives {
   SparseMatrix newton_A_;            // Newton: dR/dv at x_f (the pattern's structure)
   std::unique_ptr<LinearSolver> newton_solver_;
   VecX newton_v_;                    // the v_f newton_A_ was factorized for
+  double newton_h_ = 0;              // and its step size
 };
 
 }  // namespace softdiff::integrator

@@ -272,8 +272,9 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
   Model model;
   model.name = scene.name;
   const auto& sim = scene.simulation;
-  model.step.integrator =
-      sim.integrator == Integrator::static_equilibrium ? IntegratorKind::static_equilibrium : IntegratorKind::implicit_euler;
+  model.step.integrator = sim.integrator == Integrator::static_equilibrium ? IntegratorKind::static_equilibrium
+                           : sim.integrator == Integrator::bdf2            ? IntegratorKind::bdf2
+                                                                           : IntegratorKind::implicit_euler;
   model.step.dt = sim.dt;
   model.step.steps = sim.steps;
   model.step.gravity = sim.gravity;

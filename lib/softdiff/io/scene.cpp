@@ -31,7 +31,7 @@
 //   - `softdiff`, `bodies` (non-empty), and per body `name`, `mesh`, `material` with
 //     `young`, `poisson`, `density` are required; material.law defaults to corotational,
 //     body type to soft; damping values are >= 0.
-//   - implicit_euler needs exactly one of steps/duration; with integrator static,
+//   - implicit_euler and bdf2 need exactly one of steps/duration; with integrator static,
 //     dt, steps and duration are errors (they mean nothing there).
 //   - Empty actuators/effectors/obstacles/jacobians lists are accepted. A `contact`
 //     section is enabled unless it says `enabled: false`; `contact: {enabled: false}`
@@ -163,7 +163,9 @@ class Reader {
     const Node* s = section ? &section->value : nullptr;
     const yaml::Mark at = section ? section->key_mark : root.mark;
     if (const Node* n = get(s, "integrator"))
-      sim.integrator = n->scalar == "static" ? Integrator::static_equilibrium : Integrator::implicit_euler;
+      sim.integrator = n->scalar == "static" ? Integrator::static_equilibrium
+                       : n->scalar == "bdf2" ? Integrator::bdf2
+                                             : Integrator::implicit_euler;
     sim.gravity = vec3(get(s, "gravity"), sim.gravity);
     sim.newton_iterations = static_cast<int>(integer(get(s, "newton_iterations"), sim.newton_iterations));
     sim.newton_tolerance = number(get(s, "newton_tolerance"), sim.newton_tolerance);
@@ -187,7 +189,7 @@ class Reader {
       ctx_.fail(second->key_mark, "simulation." + second->key, "give either 'steps' or 'duration', not both");
     }
     if (!steps && !duration)
-      ctx_.fail(at, "simulation", "missing 'steps' or 'duration' (integrator implicit_euler needs exactly one)");
+      ctx_.fail(at, "simulation", "missing 'steps' or 'duration' (integrators implicit_euler and bdf2 need exactly one)");
     if (steps) {
       sim.steps = static_cast<long>(*yaml::to_integer(steps->value));
       return;

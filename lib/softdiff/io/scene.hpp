@@ -125,7 +125,7 @@ struct ContactDesc {
   Where where;
 };
 
-enum class Integrator { implicit_euler, static_equilibrium };
+enum class Integrator { implicit_euler, static_equilibrium, bdf2 };
 enum class LinearSolverKind { cholmod, ldlt, cg };
 
 struct SimulationDesc {

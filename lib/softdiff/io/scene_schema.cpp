@@ -130,7 +130,7 @@ SpecPtr body() {
 
 SpecPtr simulation() {
   return map({
-      key("integrator", choice({"implicit_euler", "static"})),
+      key("integrator", choice({"implicit_euler", "bdf2", "static"})),
       key("dt", number(gt(0))),
       excludes(key("duration", number(gt(0))), "steps"),
       excludes(key("steps", integer(ge(1), LONG_MAX)), "duration"),

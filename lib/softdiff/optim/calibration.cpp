@@ -6,6 +6,7 @@
 #include <softdiff/data.hpp>
 #include <softdiff/diff/parameters.hpp>
 #include <softdiff/diff/trajectory.hpp>
+#include <softdiff/integrator/bdf2.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
 #include <softdiff/integrator/static_solver.hpp>
 #include <softdiff/integrator/static_solver_derivatives.hpp>
@@ -124,12 +125,12 @@ void residual(const Model& model, const std::vector<ParameterId>& parameters, co
   diff::ThetaLayout layout;
   layout.parameters = parameters;
   diff::ForwardSensitivity sensitivity(m, layout);
-  State s = m.initial, next = m.initial;
+  State s = m.initial, next = m.initial, previous;  // previous: BDF2's history
   std::size_t f = 0;
   if (target.frames[0] == 0) fill_rows(target, static_cast<int>(f++), s.x, nullptr, r, J);
   if (on_step) on_step(0, target.steps());
   for (long k = 1; k <= target.steps(); ++k) {
-    const StepStatus st = integrator::implicit_euler_step(m, data, s, next, k);
+    const StepStatus st = integrator::time_step(m, data, s, k > 1 ? &previous : nullptr, next, k);
     if (!st.ok()) failed(st);
     if (strict && m.contact.enabled && !data.contact.result.converged) {
       StepStatus c;
@@ -146,6 +147,7 @@ void residual(const Model& model, const std::vector<ParameterId>& parameters, co
       c.detail = "the derivative of the step failed";
       failed(c);
     }
+    std::swap(previous, s);
     std::swap(s, next);
     if (on_step) on_step(k, target.steps());
     if (f < target.frames.size() && target.frames[f] == k) {

@@ -2,6 +2,7 @@
 #include <softdiff/optim/control.hpp>
 
 #include <softdiff/core/assert.hpp>
+#include <softdiff/integrator/bdf2.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
 #include <softdiff/optim/box_qp.hpp>
 
@@ -15,7 +16,8 @@ InverseDynamics::InverseDynamics(const Model& model, const ControlOptions& optio
   SOFTDIFF_DEMAND(options.effector >= 0 && options.effector < static_cast<int>(eff.size()), "control: no such effector");
   SOFTDIFF_DEMAND(!model.actuation.actuators.empty(), "control: the scene has no actuators");
   SOFTDIFF_DEMAND(options.filter > 0 && options.filter <= 1, "control: filter must be in (0, 1]");
-  SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler, "control: needs the implicit Euler integrator");
+  SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler || model.step.integrator == IntegratorKind::bdf2,
+                  "control: needs the implicit Euler or BDF2 integrator");
   derivatives_ = std::make_unique<integrator::StepDerivatives>(model, std::vector<ParameterId>{});
   const Eigen::Index na = static_cast<Eigen::Index>(model.actuation.actuators.size());
   const double inf = std::numeric_limits<double>::infinity();
@@ -54,10 +56,10 @@ double InverseDynamics::contact_force_norm(const Model& model, const Data& data)
 }
 
 StepStatus InverseDynamics::compute(const Model& model, const State& s, long k, const Vec3& goal, const VecX& previous,
-                                    VecX& lambda_out, ControlStep& info) {
+                                    VecX& lambda_out, ControlStep& info, const State* history) {
   const Eigen::Index na = previous.size();
   SOFTDIFF_DEMAND(na == lo_.size(), "control: one actuation value per actuator");
-  const StepStatus st = integrator::implicit_euler_step(model, data_, s, prediction_, k, &previous);
+  const StepStatus st = integrator::time_step(model, data_, s, k > 1 ? history : nullptr, prediction_, k, &previous);
   if (!st.ok() && st.code != StepStatus::Code::not_converged) return st;
   const auto& e = model.actuation.effectors[static_cast<std::size_t>(options_.effector)].effector;
   info.predicted = e.position(prediction_.x);
@@ -74,7 +76,7 @@ StepStatus InverseDynamics::compute(const Model& model, const State& s, long k, 
   integrator::StateTangent r;
   for (Eigen::Index j = 0; j < nd; ++j) {
     t.lambda_a = options_.shared ? VecX(VecX::Ones(na)) : VecX(VecX::Unit(na, j));
-    if (!derivatives_->jvp(model, data_, s, prediction_, t, r)) {
+    if (!derivatives_->jvp(model, data_, data_.hat, prediction_, t, r)) {  // BDF2: at (x^, v^)
       StepStatus f;
       f.code = StepStatus::Code::solver_failed;
       f.step = k;

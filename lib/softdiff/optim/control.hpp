@@ -56,8 +56,9 @@ class InverseDynamics {
   InverseDynamics(const Model& model, const ControlOptions& options);
   // The actuation of step k (1-based) from state s, given the previous actuation
   // (n_a). Returns the prediction step's status (not ok: lambda_out unset).
+  // history: the state before s (BDF2, k > 1; ignored by implicit Euler).
   StepStatus compute(const Model& model, const State& s, long k, const Vec3& goal, const VecX& previous, VecX& lambda_out,
-                     ControlStep& info);
+                     ControlStep& info, const State* history = nullptr);
   // The nodal contact force norm of the effector's body for a step's record (N).
   double contact_force_norm(const Model& model, const Data& data) const;
 

@@ -1,0 +1,32 @@
+#pragma once
+// Derivatives of the BDF2 step (sibling of bdf2.hpp; docs/method.md "BDF2",
+// "Derivatives of the BDF2 step").
+//
+// The step is (x_f, v_f) = Phi_h'(x^, v^, lambda_a, p), the implicit Euler step of size
+// h' = data.h from x^ = (1 + c) x_n - c x_{n-1}, v^ = (1 + c) v_n - c v_{n-1},
+// c = data.history_weight (1/3; 0 and h' = dt for the first step and for implicit
+// Euler). So its tangent is implicit Euler's (StepDerivatives, at the record's hat
+// state and h') applied to
+//     dx^ = (1 + c) dx_n - c dx_{n-1},   dv^ = (1 + c) dv_n - c dv_{n-1},
+// and its cotangent splits implicit Euler's bar_x^, bar_v^ into
+//     bar_x_n = (1 + c) bar_x^,  bar_x_{n-1} = -c bar_x^   (and the same for v).
+// On fixed dofs x^ = x_n exactly (bdf2.cpp), so there dx^ = dx_n, bar_x_n = bar_x^.
+// Everything else (lambda_a, parameters, contact through the NCP of the step) is
+// implicit Euler's at (x^, v^, h'). These functions serve both integrators: with
+// c = 0 they are StepDerivatives::jvp / vjp.
+#include <softdiff/integrator/implicit_euler_derivatives.hpp>
+
+namespace softdiff::integrator {
+
+// d_in: tangents of x_n, v_n, lambda_a, p; d_previous: of x_{n-1}, v_{n-1} (empty:
+// zero). data: the record of the step (implicit_euler_step, bdf2_step or time_step)
+// that produced out.
+bool multistep_jvp(StepDerivatives& derivatives, const Model& model, const Data& data, const State& out,
+                   const StepTangent& d_in, const StateTangent& d_previous, StateTangent& d_out);
+
+// bar_in: cotangents of x_n, v_n, lambda_a, p; bar_previous: of x_{n-1}, v_{n-1}
+// (zero vectors for an implicit Euler step).
+bool multistep_vjp(StepDerivatives& derivatives, const Model& model, const Data& data, const State& out,
+                   const StateTangent& bar_out, StepCotangent& bar_in, StateTangent& bar_previous);
+
+}  // namespace softdiff::integrator

@@ -1,0 +1,204 @@
+// BDF2 with frictional contact (docs/method.md "BDF2", "Contact with BDF2"): the
+// analytic cases of tests/contact/validation_contact.cpp behave with BDF2 as with
+// implicit Euler:
+//  - a cube on an incline (mu = 0.5): stuck at 25 degrees, sliding at 30 with the
+//    acceleration g (sin a - mu cos a);
+//  - a beam on two supports damped to rest: the normal forces carry the weight, no
+//    penetration;
+//  - a cube dropped on a plane (an impact): no bounce, no sinking.
+// Every step's contact solution is checked independently (support/contact_checks.hpp).
+#include <softdiff/data.hpp>
+#include <softdiff/integrator/bdf2.hpp>
+#include <support/contact.hpp>
+#include <support/contact_checks.hpp>
+#include <support/meshes.hpp>
+#include <support/model_builder.hpp>
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <iostream>
+#include <numbers>
+
+using namespace softdiff;
+
+namespace bdf2_contact_validation {
+
+constexpr double kG = 9.81;
+constexpr double kDeg = std::numbers::pi / 180;
+
+template <class F>
+State run(const Model& model, Data& data, long steps, double tol, F&& after_step) {
+  State s = model.initial, next = s, previous;
+  for (long k = 1; k <= steps; ++k) {
+    const StepStatus st = integrator::time_step(model, data, s, k > 1 ? &previous : nullptr, next, k);
+    EXPECT_TRUE(st.ok()) << describe(model, st);
+    if (!st.ok()) break;
+    EXPECT_TRUE(data.contact.result.converged) << "step " << k;
+    test::expect_valid_contact_solution(data, tol, "step " + std::to_string(k));
+    std::swap(previous, s);
+    std::swap(s, next);
+    after_step(k, s);
+  }
+  return s;
+}
+
+// The incline of validation_contact.cpp (0.1 m cube, 3x3x3 cells, E 1e6, beta 1e-3,
+// dt 2e-3, gravity tilted by the angle), with BDF2.
+struct InclineResult {
+  double slip = 0;          // max |x displacement| over 0.1-0.5 s of the bottom nodes in contact
+  double acceleration = 0;  // mean x acceleration of the nodes' mean over 0.1-0.5 s
+};
+
+InclineResult incline(double angle_deg, double mu) {
+  test::BodySpec spec;
+  spec.young = 1e6;
+  spec.poisson = 0.3;
+  spec.density = 1000;
+  spec.rayleigh_stiffness = 1e-3;
+  const double a = angle_deg * kDeg;
+  const Vec3 g(kG * std::sin(a), 0, -kG * std::cos(a));
+  const double dt = 2e-3;
+  Model model = test::make_model(test::box_mesh(3, 3, 3, 0.1, 0.1, 0.1), spec, g, dt, 250);
+  model.step.integrator = IntegratorKind::bdf2;
+  test::ContactSpec cs;
+  cs.mu = mu;
+  cs.ncp.tolerance = 1e-10;
+  cs.ncp.max_iterations = 5000;
+  test::enable_contact(model, {test::plane(Vec3(0, 0, 1), 0)}, cs);
+  Data data(model);
+  int bottom = 0;
+  for (int i = 0; i < model.fem.num_nodes; ++i) bottom += model.fem.X(2, i) < 1e-12;
+  InclineResult r;
+  State at_start;
+  const long k0 = std::lround(0.1 / dt), k1 = std::lround(0.5 / dt);
+  double v0 = 0;
+  auto mean_vx = [&](const State& st) {
+    double m = 0;
+    for (int i = 0; i < model.fem.num_nodes; ++i) m += st.v[3 * i];
+    return m / model.fem.num_nodes;
+  };
+  run(model, data, k1, 1e-9, [&](long k, const State& st) {
+    EXPECT_EQ(data.contact.contacts.size(), bottom) << "step " << k;
+    if (k == k0) {
+      at_start = st;
+      v0 = mean_vx(st);
+    }
+    if (k > k0) {
+      const auto& cd = data.contact;
+      for (int c = 0; c < cd.contacts.size(); ++c) {
+        if (cd.modes[c] == contact::Mode::breaking) continue;
+        const int i = cd.contacts.contacts[c].nodes[0];
+        r.slip = std::max(r.slip, std::abs(st.x[3 * i] - at_start.x[3 * i]));
+      }
+    }
+    if (k == k1) r.acceleration = (mean_vx(st) - v0) / 0.4;
+  });
+  return r;
+}
+
+}  // namespace bdf2_contact_validation
+
+using namespace bdf2_contact_validation;
+
+// The thresholds are those of implicit Euler's test (validation_contact.cpp): stuck
+// below 1e-7 m of slip, the sliding acceleration within 1%.
+TEST(Bdf2ContactValidation, InclineSticksAt25AndSlidesAt30Degrees) {
+  EXPECT_LT(incline(25, 0.5).slip, 1e-7);  // tan 25 = 0.466 < 0.5
+  const double a = 30 * kDeg;
+  const double expected = kG * (std::sin(a) - 0.5 * std::cos(a));
+  const InclineResult r = incline(30, 0.5);
+  std::cout << "incline 30 degrees, bdf2: acceleration " << r.acceleration << " m/s^2, analytic " << expected << "\n";
+  EXPECT_NEAR(r.acceleration, expected, 0.01 * expected);
+}
+
+// The beam of validation_contact.cpp on two box supports, damped to rest (alpha 20).
+// At rest v_{n+1} = v_n = v_{n-1} = 0, so the BDF2 step reads h' (P + f_int + H^T
+// lambda) = 0, and sum f_int = 0: the normal forces equal the weight (to the NCP's
+// tolerance, 1e-6 relative as for implicit Euler).
+TEST(Bdf2ContactValidation, BeamOnTwoSupportsCarriesItsWeight) {
+  test::BodySpec spec;
+  spec.young = 5e5;
+  spec.poisson = 0.3;
+  spec.density = 1000;
+  spec.rayleigh_mass = 20;
+  const double dt = 0.01;
+  Model model = test::make_model(test::box_mesh(20, 2, 2, 0.5, 0.05, 0.05), spec, Vec3(0, 0, -kG), dt, 300);
+  model.step.integrator = IntegratorKind::bdf2;
+  test::ContactSpec cs;
+  cs.mu = 0.3;
+  cs.ncp.tolerance = 1e-10;
+  cs.ncp.max_iterations = 5000;
+  test::enable_contact(model,
+                       {test::box(Vec3(0.03, 0.025, -0.05), Vec3(0.02, 0.05, 0.05), "left"),
+                        test::box(Vec3(0.47, 0.025, -0.05), Vec3(0.02, 0.05, 0.05), "right")},
+                       cs);
+  Data data(model);
+  double min_gap = 0;
+  const State end = run(model, data, 300, 1e-9, [&](long, const State&) {
+    for (const auto& c : data.contact.contacts.contacts) min_gap = std::min(min_gap, c.gap);
+  });
+  double weight = 0;
+  for (int i = 0; i < model.fem.num_nodes; ++i) weight -= model.fem.gravity_force[3 * i + 2];
+  double fz = 0;
+  const auto& cd = data.contact;
+  for (int i = 0; i < cd.contacts.size(); ++i) fz += (cd.contacts.contacts[i].frame * cd.lambda.segment<3>(3 * i))[2];
+  EXPECT_GT(cd.contacts.size(), 0);
+  EXPECT_NEAR(fz, weight, 1e-6 * weight);
+  EXPECT_LT(end.v.cwiseAbs().maxCoeff(), 1e-6);
+  // Gaps are measured at x^ (the BDF2 extrapolation), which can sit slightly below
+  // the plane the last step reached; the step drives phi(x^) + h' v_N to zero, so the
+  // penetration left is of the order of the solver tolerance.
+  EXPECT_GT(min_gap, -1e-9);
+}
+
+// An impact: the cube dropped from 1 cm at rest onto a frictionless plane, damped as
+// the sphere of validation_contact.cpp (E 1e5, alpha 10, beta 0.02: its elastic
+// rebound is damped within the contact time, so the exact motion does not bounce
+// either). The velocity-level NCP makes the contact inelastic. The criteria, as there:
+//   - no bounce: once the normal forces carry it, they stay > 0 at every later step;
+//   - no sinking: no node below the plane by more than 1e-9 m (the NCP drives
+//     phi(x^) + h' v_N to 0 to its tolerance, 1e-10 relative);
+//   - it comes to rest: kinetic energy at 0.8 s below 1e-3 of that at the impact.
+// (The energy is not checked for monotone decrease step by step: BDF2 is dissipative
+// in its own two-step norm, not in the energy of each frame.)
+TEST(Bdf2ContactValidation, DroppedCubeDoesNotBounceOrSink) {
+  test::BodySpec spec;
+  spec.young = 1e5;
+  spec.poisson = 0.3;
+  spec.density = 1000;
+  spec.rayleigh_stiffness = 0.02;
+  spec.rayleigh_mass = 10;
+  const double dt = 2e-3;
+  Model model = test::make_model(test::box_mesh(3, 3, 3, 0.1, 0.1, 0.1), spec, Vec3(0, 0, -kG), dt, 400);
+  model.step.integrator = IntegratorKind::bdf2;
+  for (int i = 0; i < model.fem.num_nodes; ++i) model.initial.x[3 * i + 2] += 0.01;
+  test::ContactSpec cs;
+  cs.mu = 0;
+  cs.ncp.tolerance = 1e-10;
+  cs.ncp.max_iterations = 5000;
+  test::enable_contact(model, {test::plane(Vec3(0, 0, 1), 0)}, cs);
+  Data data(model);
+  auto kinetic = [&](const State& s) { return 0.5 * s.v.dot(model.fem.mass_diagonal.cwiseProduct(s.v)); };
+  bool carried = false;
+  long airborne_after = 0;
+  double impact_kinetic = 0;
+  const State end = run(model, data, 400, 1e-9, [&](long k, const State& s) {
+    const auto& cd = data.contact;
+    double fn = 0;
+    for (int c = 0; c < cd.contacts.size(); ++c) fn += cd.lambda[3 * c + 2];
+    if (!carried && fn > 0) {
+      carried = true;
+      impact_kinetic = kinetic(s);
+    } else if (carried) {
+      airborne_after += !(fn > 0);
+    }
+    double z = 1;
+    for (int i = 0; i < model.fem.num_nodes; ++i) z = std::min(z, s.x[3 * i + 2]);
+    EXPECT_GT(z, -1e-9) << "step " << k;
+  });
+  ASSERT_TRUE(carried);
+  EXPECT_EQ(airborne_after, 0);
+  EXPECT_LT(kinetic(end), 1e-3 * impact_kinetic);
+}
