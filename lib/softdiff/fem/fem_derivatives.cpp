@@ -70,6 +70,8 @@ Vec12 as12(const Mat34& m) { return Eigen::Map<const Vec12>(m.data()); }
 Mat34 as34(const Vec12& v) { return Eigen::Map<const Mat34>(v.data()); }
 
 void check_sizes(const FemModel& model, const VecX& v, const char* name) {
+  SOFTDIFF_DEMAND(model.num_quadratic == 0,
+                  "the derivatives of quadratic (10-node) elements are not implemented yet (issue 18, stage 4)");
   SOFTDIFF_DEMAND(v.size() == 3L * model.num_nodes, std::string(name) + ": expected size 3n = " +
                                                           std::to_string(3L * model.num_nodes) + ", got " +
                                                           std::to_string(v.size()));

@@ -293,6 +293,10 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
     fem::BodyModel b;
     b.name = bd.name;
     b.mesh = read_gmsh(bd.mesh);
+    if (bd.elements == ElementOrder::linear && b.mesh.order == 2)
+      fail(bd.elements_where, "linear elements on the quadratic mesh " + b.mesh.source +
+                                  " are not supported; mesh it with `gmsh -3 -order 1` or remove `elements: linear`");
+    if (bd.elements == ElementOrder::quadratic && b.mesh.order == 1) mesh::elevate_to_quadratic(b.mesh);
     if (report) {
       if (b.mesh.orphan_nodes > 0)
         report->warnings.push_back(b.mesh.source + ": " + std::to_string(b.mesh.orphan_nodes) +
