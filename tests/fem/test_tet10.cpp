@@ -171,7 +171,14 @@ TEST_P(Tet10Law, ForcesAndStiffnessMatchFiniteDifferences) {
   ASSERT_EQ(model.fem.num_quadratic, 1);
   fem::FemData data;
   data.resize(model.fem);
-  const VecX x = deformed(model, rng);
+  VecX x = deformed(model, rng);
+  if (GetParam().psd) {
+    // Compressed to 60% along z: the unprojected element Hessian is indefinite there,
+    // so the projection is exercised (checked below).
+    for (int i = 0; i < model.fem.num_nodes; ++i)
+      x.segment<3>(3 * i) = Vec3(model.fem.X(0, i), model.fem.X(1, i), 0.6 * model.fem.X(2, i)) +
+                            2e-4 * Vec3(std::sin(7.0 * i), std::cos(5.0 * i), std::sin(3.0 * i));
+  }
   ASSERT_TRUE(fem::evaluate(model.fem, x, {true, true, true}, data));
   const VecX f = data.f_int;
   const MatX K = dense_symmetric(model.fem, data.K_values);
@@ -196,9 +203,19 @@ TEST_P(Tet10Law, ForcesAndStiffnessMatchFiniteDifferences) {
     const auto cK = test::compare(K, -test::fd_jacobian(forces, x, h));
     EXPECT_LT(cK.rel_error, 1e-6) << "K = -df/dx: " << cK.str();
   } else {
-    // The projected K is PSD and equals K where K already is.
+    // The projected K is PSD, and the unprojected one at the same x was not.
     Eigen::SelfAdjointEigenSolver<MatX> eig(K);
     EXPECT_GT(eig.eigenvalues().minCoeff(), -1e-9 * eig.eigenvalues().cwiseAbs().maxCoeff());
+    test::BodySpec plain = spec;
+    plain.psd_projection = false;
+    std::mt19937 rng2(11 + static_cast<int>(GetParam().law));
+    const Model unprojected = test::make_model(curved_element(rng2), plain, Vec3::Zero());
+    fem::FemData d2;
+    d2.resize(unprojected.fem);
+    ASSERT_TRUE(fem::evaluate(unprojected.fem, x, {false, false, true}, d2));
+    Eigen::SelfAdjointEigenSolver<MatX> eig2(dense_symmetric(unprojected.fem, d2.K_values));
+    EXPECT_LT(eig2.eigenvalues().minCoeff(), -1e-6 * eig2.eigenvalues().cwiseAbs().maxCoeff())
+        << "the test state should make the element Hessian indefinite";
   }
 }
 

@@ -68,25 +68,39 @@ std::string run_gmsh(const std::string& args, const fs::path& out) {
   return "";
 }
 
+// The test .geo files set Mesh.ElementOrder = 1, which overrides gmsh's `-order 2`:
+// a copy in the scratch folder that sets 2.
+fs::path order2_copy(const fs::path& geo) {
+  std::ifstream in(geo);
+  std::string text(std::istreambuf_iterator<char>(in), {});
+  const std::string from = "Mesh.ElementOrder = 1;";
+  const auto at = text.find(from);
+  if (at != std::string::npos) text.replace(at, from.size(), "Mesh.ElementOrder = 2;");
+  const fs::path out = scratch() / (geo.stem().string() + "_o2.geo");
+  std::ofstream(out) << text;
+  return out;
+}
+
 struct CubeFiles {
   fs::path linear, a41, b41, a22, b22;
   std::string failure;
 };
 
-// tests/data/cube_groups.geo meshed once (linear), then raised to order 2 by gmsh
-// (`-order 2` on the saved mesh: the same vertices) and saved in the four encodings.
+// tests/data/cube_groups.geo meshed linear, and at order 2 (gmsh meshes at order 1,
+// then adds the mid-edge nodes: the same vertices and tets), saved in the four encodings.
 const CubeFiles& cube_files() {
   static const CubeFiles files = [] {
     CubeFiles f;
-    const fs::path geo = fs::path(SOFTDIFF_SOURCE_DIR) / "tests/data/cube_groups.geo";
+    const fs::path geo1 = fs::path(SOFTDIFF_SOURCE_DIR) / "tests/data/cube_groups.geo";
+    const fs::path geo = order2_copy(geo1);
     f.linear = scratch() / "cube_o1.msh";
     f.a41 = scratch() / "cube_o2_a41.msh";
     f.b41 = scratch() / "cube_o2_b41.msh";
     f.a22 = scratch() / "cube_o2_a22.msh";
     f.b22 = scratch() / "cube_o2_b22.msh";
     for (const auto& [args, out] : std::vector<std::pair<std::string, fs::path>>{
-             {"-3 \"" + geo.string() + "\" -format msh41", f.linear},
-             {"\"" + f.linear.string() + "\" -order 2 -save -format msh41", f.a41},
+             {"-3 \"" + geo1.string() + "\" -format msh41", f.linear},
+             {"-3 \"" + geo.string() + "\" -format msh41", f.a41},
              {"\"" + f.a41.string() + "\" -save -format msh41 -bin", f.b41},
              {"\"" + f.a41.string() + "\" -save -format msh22", f.a22},
              {"\"" + f.a41.string() + "\" -save -format msh22 -bin", f.b22}}) {
@@ -200,9 +214,9 @@ TEST(GmshQuadratic, ElevatedLinearMeshEqualsGmshOrderTwo) {
 // spheres. The isoparametric volume (4-point rule, sum of w det J) is much closer to
 // the exact pi (b^3 - a^3) / 6 than the straight-sided one.
 TEST(GmshQuadratic, CurvedEdgesOnASphere) {
-  const fs::path geo = fs::path(SOFTDIFF_SOURCE_DIR) / "tests/data/hollow_sphere_octant.geo";
+  const fs::path geo = order2_copy(fs::path(SOFTDIFF_SOURCE_DIR) / "tests/data/hollow_sphere_octant.geo");
   const fs::path out = scratch() / "sphere_o2.msh";
-  const std::string failure = run_gmsh("-3 \"" + geo.string() + "\" -setnumber h 0.005 -order 2 -format msh41", out);
+  const std::string failure = run_gmsh("-3 \"" + geo.string() + "\" -setnumber h 0.005 -format msh41", out);
   ASSERT_TRUE(failure.empty()) << failure;
   const TetMesh m = read_gmsh(out);
   ASSERT_EQ(m.order, 2);

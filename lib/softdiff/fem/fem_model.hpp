@@ -26,7 +26,9 @@ struct BodyModel {
   bool psd_projection = false;
   MassKind mass_kind = MassKind::lumped;
   mesh::TetMesh mesh;                  // the body's mesh with world rest positions (local node indices)
-  Triangles surface;                   // (3, k) outward boundary triangles, local node indices
+  Triangles surface;                   // (3, k) outward boundary triangles, local node indices (quadratic
+                                       // body: each 6-node face split into 4, mesh::split_quadratic_triangles)
+  mesh::Triangles6 surface6;           // (6, k) quadratic body: the outward 6-node boundary faces (gmsh order)
   int value_begin = 0, value_end = 0;  // this body's range in the system pattern's value array
   double bbox_diagonal = 0;            // rest bounding-box diagonal (divergence check scale)
 };

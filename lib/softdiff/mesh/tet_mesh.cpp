@@ -179,6 +179,15 @@ Triangles6 quadratic_triangles(const TetMesh& mesh, const Triangles& tris) {
   return out;
 }
 
+Triangles split_quadratic_triangles(const Triangles6& tris) {
+  static constexpr int kSub[4][3] = {{0, 3, 5}, {3, 1, 4}, {5, 4, 2}, {3, 4, 5}};
+  Triangles out(3, 4 * tris.cols());
+  for (Eigen::Index t = 0; t < tris.cols(); ++t)
+    for (int s = 0; s < 4; ++s)
+      for (int j = 0; j < 3; ++j) out(j, 4 * t + s) = tris(kSub[s][j], t);
+  return out;
+}
+
 void elevate_to_quadratic(TetMesh& mesh) {
   SOFTDIFF_DEMAND(mesh.order == 1, "elevate_to_quadratic: the mesh is already quadratic");
   const int m = mesh.num_tets(), n = mesh.num_nodes();

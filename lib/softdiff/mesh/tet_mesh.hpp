@@ -74,6 +74,11 @@ Triangles boundary_triangles(const Tets& tets);
 // `mesh`'s tets (a triangle edge that is no tet edge gets -1). Rows 0-2 are `tris`.
 Triangles6 quadratic_triangles(const TetMesh& mesh, const Triangles& tris);
 
+// Each 6-node triangle (a, b, c, m_ab, m_bc, m_ca) as the four 3-node triangles
+// (a, m_ab, m_ca), (m_ab, b, m_bc), (m_ca, m_bc, c), (m_ab, m_bc, m_ca), oriented as the
+// 6-node one; triangle t gives columns 4 t .. 4 t + 3.
+Triangles split_quadratic_triangles(const Triangles6& tris);
+
 // Turns a linear mesh into a quadratic one with straight edges: one node at the
 // midpoint of each distinct tet edge, appended after the file's nodes in the order the
 // edges first appear (tets in order, edges in gmsh's order), file_index/file_tag -1;
