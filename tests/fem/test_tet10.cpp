@@ -3,6 +3,7 @@
 // stiffness of every law against finite differences, rigid-motion invariance, the
 // patch test, consistent and HRZ-lumped mass and the consistent gravity load.
 #include <softdiff/fem/assembly.hpp>
+#include <softdiff/fem/fem_derivatives.hpp>
 #include <softdiff/fem/tet10.hpp>
 #include <support/fd.hpp>
 #include <support/meshes.hpp>
@@ -348,5 +349,101 @@ TEST(Tet10Mass, CurvedElementHasPositiveLumpedMassesSummingToTheMass) {
   EXPECT_NEAR(-model.fem.gravity_force.sum(), me, 1e-13 * me);
   for (int i = 0; i < 30; ++i) EXPECT_GT(model.fem.mass_diagonal[i], 0);
 }
+
+// The derivatives of the FEM stage on 10-node elements (fem_derivatives.hpp): the
+// products with dK against central differences of K(x) w, the reverse products as
+// their transposes, and the derivatives in young and poisson against differences of
+// f_int and K w. A 2-element curved patch (a box of 6 straight tets would do, but a
+// curved element exercises the quadrature-point geometry).
+class Tet10Derivatives : public ::testing::TestWithParam<LawCase> {};
+
+TEST_P(Tet10Derivatives, ProductsMatchFiniteDifferences) {
+  std::mt19937 rng(21 + static_cast<int>(GetParam().law));
+  test::BodySpec spec;
+  spec.law = GetParam().law;
+  spec.young = 1e5;
+  spec.poisson = 0.45;
+  spec.psd_projection = GetParam().psd;
+  const Model model = test::make_model(curved_element(rng), spec, Vec3::Zero());
+  VecX x = deformed(model, rng);
+  if (GetParam().psd)  // an indefinite element Hessian, as in ForcesAndStiffnessMatchFiniteDifferences
+    for (int i = 0; i < model.fem.num_nodes; ++i)
+      x.segment<3>(3 * i) = Vec3(model.fem.X(0, i), model.fem.X(1, i), 0.6 * model.fem.X(2, i)) +
+                            2e-4 * Vec3(std::sin(7.0 * i), std::cos(5.0 * i), std::sin(3.0 * i));
+  const int n3 = 3 * model.fem.num_nodes;
+  const VecX u = test::random_vector(n3, 0.01, 1), w = test::random_vector(n3, 1.0, 2), y = test::random_vector(n3, 1.0, 3);
+  const VecX one = VecX::Ones(1), zero = VecX::Zero(1);
+  fem::FemData d;
+  d.resize(model.fem);
+  auto Kw = [&](const VecX& at) {
+    EXPECT_TRUE(fem::evaluate(model.fem, at, {false, false, true}, d));
+    VecX out;
+    fem::symmetric_multiply(model.fem, d.K_values, w, out);
+    return out;
+  };
+  // K u (a = 1): the evaluated stiffness times u. The unprojected K is what a = 1 uses.
+  VecX Ku = VecX::Zero(n3);
+  ASSERT_EQ(fem::add_stiffness_jvp(model.fem, x, u, w, one, zero, Ku), -1);
+  ASSERT_GT(Ku.norm(), 0);
+  // dK~[u] w (c = 1) against (K~(x + h u) w - K~(x - h u) w) / 2h. u has entries up to
+  // 1% of the 1 cm element; h = 1e-4 makes the step 1e-6 of the edge (fd.hpp).
+  VecX dKw = VecX::Zero(n3);
+  ASSERT_EQ(fem::add_stiffness_jvp(model.fem, x, u, w, zero, one, dKw), -1);
+  // Fourth-order central stencil: with psd_projection, K~ has a large third derivative
+  // where an eigenvalue of the element Hessian is near 0 (the projection's divided
+  // differences Gamma_ij have small gaps), and the second-order stencil's h^2 term
+  // was 1e-5 of the result for stvk_psd at h = 1e-4 (measured); this stencil's h^4 term
+  // is far below round-off (eps |K w| / h ~ 1e-12).
+  const double h = 1e-4;
+  const VecX fd = (8 * (Kw(x + h * u) - Kw(x - h * u)) - (Kw(x + 2 * h * u) - Kw(x - 2 * h * u))) / (12 * h);
+  if (GetParam().law == Law::linear) {
+    EXPECT_EQ(dKw.norm(), 0);  // constant K
+    EXPECT_LT(fd.norm(), 1e-9 * Kw(x).norm());  // round-off eps |K w| / h ~ 1e-12 |K w|
+  } else {
+    ASSERT_GT(dKw.norm(), 0);
+    const auto c = test::compare(dKw, fd);
+    EXPECT_LT(c.rel_error, 1e-6) << "dK[u] w: " << c.str();
+  }
+  // Reverse: y^T (a K u + c dK[u] w) = u^T vjp(y) for both parts (dot-product test;
+  // round-off of sums of 90 products: 1e-12 relative).
+  VecX jv = VecX::Zero(n3), vj = VecX::Zero(n3);
+  const VecX ab = VecX::Constant(1, 0.7), cb = VecX::Constant(1, 1.3);
+  ASSERT_EQ(fem::add_stiffness_jvp(model.fem, x, u, w, ab, cb, jv), -1);
+  ASSERT_EQ(fem::add_stiffness_vjp(model.fem, x, y, w, ab, cb, vj), -1);
+  EXPECT_NEAR(y.dot(jv), u.dot(vj), 1e-12 * std::abs(y.dot(jv)) + 1e-300);
+  // young and poisson: df_int/dp and dK~/dp w against central differences of models
+  // rebuilt at p +/- h p (h = 1e-6 relative: fd.hpp).
+  for (auto param : {fem::ElasticParameter::young, fem::ElasticParameter::poisson}) {
+    VecX df = VecX::Zero(n3), dK = VecX::Zero(n3);
+    ASSERT_EQ(fem::add_elastic_parameter_derivative(model.fem, x, 0, param, w, df, dK), -1);
+    const double p0 = param == fem::ElasticParameter::young ? spec.young : spec.poisson, hp = 1e-6 * p0;
+    auto at = [&](double p) {
+      test::BodySpec s2 = spec;
+      (param == fem::ElasticParameter::young ? s2.young : s2.poisson) = p;
+      std::mt19937 rng2(21 + static_cast<int>(GetParam().law));
+      const Model m2 = test::make_model(curved_element(rng2), s2, Vec3::Zero());
+      fem::FemData d2;
+      d2.resize(m2.fem);
+      EXPECT_TRUE(fem::evaluate(m2.fem, x, {false, true, true}, d2));
+      VecX kw;
+      fem::symmetric_multiply(m2.fem, d2.K_values, w, kw);
+      return std::make_pair(VecX(d2.f_int), kw);
+    };
+    const auto plus = at(p0 + hp), minus = at(p0 - hp);
+    const auto cf = test::compare(df, (plus.first - minus.first) / (2 * hp));
+    const auto cK = test::compare(dK, (plus.second - minus.second) / (2 * hp));
+    EXPECT_LT(cf.rel_error, 1e-6) << "df/dp: " << cf.str();
+    EXPECT_LT(cK.rel_error, 1e-6) << "dK/dp w: " << cK.str();
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Laws, Tet10Derivatives,
+                         ::testing::Values(LawCase{Law::linear, false}, LawCase{Law::corotational, false},
+                                           LawCase{Law::stvk, false}, LawCase{Law::neo_hookean, false},
+                                           LawCase{Law::corotational, true}, LawCase{Law::stvk, true},
+                                           LawCase{Law::neo_hookean, true}),
+                         [](const ::testing::TestParamInfo<LawCase>& p) {
+                           return std::string(material::law_name(p.param.law)) + (p.param.psd ? "_psd" : "");
+                         });
 
 }  // namespace tet10_test
