@@ -50,6 +50,7 @@ int info_mesh(const std::string& file, bool json) {
   if (json) {
     Json j;
     j.begin_object().value("file", file).value("nodes", m.num_nodes()).value("tets", m.num_tets());
+    j.value("elements", m.order == 2 ? "quadratic" : "linear").value("nodes_per_tet", m.nodes_per_tet());
     j.value("triangles", static_cast<long>(m.triangles.cols())).value("boundary_triangles", static_cast<long>(surface.cols()));
     j.value("orphan_nodes", m.orphan_nodes).value("reoriented_tets", m.reoriented_tets);
     j.value("bbox_min", v3(q.bbox_min)).value("bbox_max", v3(q.bbox_max));
@@ -79,6 +80,8 @@ int info_mesh(const std::string& file, bool json) {
   std::printf("mesh        %s\n", file.c_str());
   std::printf("nodes       %d (%ld orphan nodes dropped)\n", m.num_nodes(), m.orphan_nodes);
   std::printf("tets        %d (%ld reoriented)\n", m.num_tets(), m.reoriented_tets);
+  std::printf("elements    %s\n", m.order == 2 ? "quadratic (10-node tetrahedra, gmsh type 11)"
+                                               : "linear (4-node tetrahedra, gmsh type 4)");
   std::printf("triangles   %ld in the file, %ld on the boundary\n", static_cast<long>(m.triangles.cols()),
               static_cast<long>(surface.cols()));
   std::printf("bbox        [%.6g, %.6g, %.6g] to [%.6g, %.6g, %.6g]\n", q.bbox_min.x(), q.bbox_min.y(), q.bbox_min.z(),
@@ -120,6 +123,7 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
           .value("law", std::string(material::law_name(b.law)))
           .value("nodes", b.num_nodes)
           .value("tets", b.num_tets)
+          .value("elements", b.mesh.order == 2 ? "quadratic" : "linear")
           .value("size", v3(size.extents))
           .value("mass", size.mass)
           .end_object();
@@ -168,9 +172,9 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
     for (int i = b.node_begin; i < b.node_begin + b.num_nodes; ++i)
       fixed_nodes += (fem.fixed[3 * i] || fem.fixed[3 * i + 1] || fem.fixed[3 * i + 2]) ? 1 : 0;
     const io::BodySize size = io::body_size(model, static_cast<int>(bi));
-    std::printf("body        %s: %d nodes, %d tets, %ld fixed nodes, %s E=%g Pa nu=%g rho=%g kg/m^3, "
+    std::printf("body        %s: %d nodes, %d tets (%s), %ld fixed nodes, %s E=%g Pa nu=%g rho=%g kg/m^3, "
                 "size %.4g x %.4g x %.4g m, mass %.4g kg\n",
-                b.name.c_str(), b.num_nodes, b.num_tets, fixed_nodes, std::string(material::law_name(b.law)).c_str(),
+                b.name.c_str(), b.num_nodes, b.num_tets, b.mesh.order == 2 ? "quadratic" : "linear", fixed_nodes, std::string(material::law_name(b.law)).c_str(),
                 b.young, b.poisson, b.density, size.extents.x(), size.extents.y(), size.extents.z(), size.mass);
   }
   for (const auto& a : model.actuation.actuators) {

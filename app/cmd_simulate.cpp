@@ -168,7 +168,12 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
   wo.command = command_line;
   wo.scene_yaml = scene.text;
   std::vector<io::OutputBody> out_bodies;
-  for (const auto& b : model.fem.bodies) out_bodies.push_back({b.name, b.mesh.X, b.mesh.tets, b.surface});
+  for (const auto& b : model.fem.bodies) {
+    if (b.mesh.order == 2)
+      out_bodies.push_back({b.name, b.mesh.X, b.mesh.tets10, b.surface6});
+    else
+      out_bodies.push_back({b.name, b.mesh.X, b.mesh.tets, b.surface});
+  }
   const bool is_static = model.step.integrator == IntegratorKind::static_equilibrium;
   const long total = is_static ? model.step.static_load_steps : model.step.steps;
   const long every = std::max<long>(1, scene.output.every);

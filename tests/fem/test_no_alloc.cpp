@@ -74,13 +74,18 @@ TEST(NoAllocation, CounterSeesAllocations) {  // the check can fail
 }
 
 TEST(NoAllocation, AssemblyAndStepAllocateNothing) {
+  for (const bool quadratic : {false, true})
   for (auto law : {material::Law::corotational, material::Law::stvk, material::Law::neo_hookean}) {
+    SCOPED_TRACE(quadratic ? "10-node tets" : "4-node tets");
     test::BodySpec spec;
     spec.law = law;
     spec.rayleigh_mass = 0.1;
     spec.rayleigh_stiffness = 0.01;
     spec.fixed = [](const Vec3& p) { return p.x() < 1e-9; };
-    const Model model = test::make_model(test::box_mesh(8, 3, 3, 0.1, 0.02, 0.02), spec);
+    mesh::TetMesh box = test::box_mesh(8, 3, 3, 0.1, 0.02, 0.02);
+    if (quadratic) mesh::elevate_to_quadratic(box);
+    spec.psd_projection = quadratic;  // the 30x30 eigensolver too
+    const Model model = test::make_model(box, spec);
     Data data(model);
     State s = model.initial, next = model.initial;
     ASSERT_TRUE(integrator::implicit_euler_step(model, data, s, next, 1).ok());  // warm-up (symbolic analysis)

@@ -768,10 +768,10 @@ std::vector<BadCase> bad_cases() {
       {"element_count_too_big", f + n + "$Elements\n2\n1 4 2 1 1 1 2 3 4\n$EndElements\n", ":14: ",
        {"expected element tag", "'$EndElements'"}},
       {"no_tets", f + n + "$Elements\n1\n1 2 2 1 1 1 2 3\n$EndElements\n", ": ",
-       {"no linear tetrahedra", "found 1 triangles", "Physical Volume", "gmsh -3"}},
+       {"no tetrahedra", "found 1 triangles", "Physical Volume", "gmsh -3"}},
       {"second_order_tets",
        f + n + "$Elements\n3\n1 4 2 1 1 1 2 3 4\n2 11 2 1 1 1 2 3 4 1 2 3 4 1 2\n3 11 2 1 1 1 2 3 4 1 2 3 4 1 2\n$EndElements\n",
-       ":14: ", {"only linear tetrahedra are supported", "found 2 elements of type 11 (10-node tetrahedron)"}},
+       ":14: ", {"element 2 is a type 11 (10-node tetrahedron)", "(line 13) is a type 4", "one element order"}},
       {"hexahedra", f + n + "$Elements\n2\n1 4 2 1 1 1 2 3 4\n2 5 2 1 1 1 2 3 4 1 2 3 4\n$EndElements\n", ":14: ",
        {"1 elements of type 5 (8-node hexahedron)"}},
       {"unknown_type", f + n + "$Elements\n1\n1 999 2 1 1 1 2 3 4\n$EndElements\n", ":13: ", {"unknown element type 999"}},
@@ -803,7 +803,7 @@ std::vector<BadCase> bad_cases() {
       {"v41_entities_truncated", f41 + "$Entities\n0 0 0 1\n1 0 0 0 1 1 1\n", ":7: ",
        {"expected number of physical tags", "end of file"}},
       {"v41_second_order", f41 + n41 + "$Elements\n2 2 1 2\n3 1 4 1\n1 1 2 3 4\n3 1 11 1\n2 1 2 3 4 1 2 3 4 1 2\n$EndElements\n",
-       ":20: ", {"1 elements of type 11 (10-node tetrahedron)"}},
+       ":21: ", {"element 2 is a type 11 (10-node tetrahedron)", "one element order"}},
   };
 }
 

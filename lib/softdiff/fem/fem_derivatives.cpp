@@ -66,6 +66,149 @@ struct ElementPoint {
   }
 };
 
+// The 10-node element (tet10.hpp): the same products summed over the 4 quadrature
+// points, each a "linear element" with G = dN/dX at the point and V = w_q det J_q
+// (FemModel::qp_G, qp_weight). The projection (psd_projection) acts on the whole
+// 30 x 30 element Hessian K_e = sum_q V_q B_q^T C_q B_q, so its derivative does too.
+using Mat3x10 = Eigen::Matrix<double, 3, 10>;
+using Mat9x30 = Eigen::Matrix<double, 9, 30>;
+
+Mat3x10 gather10(const FemModel& model, const VecX& v, int e) {
+  Mat3x10 v_e;
+  for (int a = 0; a < 10; ++a) v_e.col(a) = v.segment<3>(3 * model.tets10(a, e));
+  return v_e;
+}
+void scatter_add10(const FemModel& model, int e, const Mat3x10& r, VecX& out) {
+  for (int a = 0; a < 10; ++a) out.segment<3>(3 * model.tets10(a, e)) += r.col(a);
+}
+Vec30 as30(const Mat3x10& m) { return Eigen::Map<const Vec30>(m.data()); }
+Mat3x10 as3x10(const Vec30& v) { return Eigen::Map<const Mat3x10>(v.data()); }
+
+struct QuadraticElement {
+  const Eigen::Matrix<double, 3, 10>* G = nullptr;  // 4 points
+  const double* V = nullptr;
+  Mat3 F[4];
+  Mat9 C[4];
+  material::Law law{};
+  material::Lame lame;
+  bool projected = false;
+  material::PsdProjectionDerivative<30> projection;
+
+  bool compute(const FemModel& model, const VecX& x, int e, bool need_projection) {
+    const auto& body = model.bodies[model.tet_body[e]];
+    law = body.law;
+    lame = body.lame;
+    const size_t s0 = 4 * static_cast<size_t>(model.quad_slot[e]);
+    G = &model.qp_G[s0];
+    V = &model.qp_weight[s0];
+    const Mat3x10 x_e = gather10(model, x, e);
+    for (int q = 0; q < 4; ++q) {
+      F[q].noalias() = x_e * G[q].transpose();  // as element10_forces_stiffness computes it
+      if (!(F[q].determinant() > 0)) return false;
+      Mat3 P;
+      if (!material::stress(law, F[q], lame, P, &C[q])) return false;
+    }
+    projected = false;
+    if (need_projection && body.psd_projection) {
+      Mat30 K = Mat30::Zero();
+      for (int q = 0; q < 4; ++q) add_stiffness_from_tangent<10>(C[q], G[q], V[q], K);
+      projection.compute(K);
+      projected = !projection.identity;
+    }
+    return true;
+  }
+  Mat3 dF(int q, const Mat3x10& u_e) const { return u_e * G[q].transpose(); }
+  Mat3x10 spread(int q, const Vec9& s) const { return V[q] * mat3(s) * G[q]; }
+  Mat9x30 B(int q) const {
+    Mat9x30 b = Mat9x30::Zero();
+    for (int a = 0; a < 10; ++a)
+      for (int j = 0; j < 3; ++j)
+        for (int i = 0; i < 3; ++i) b(3 * j + i, 3 * a + i) = G[q](j, a);
+    return b;
+  }
+};
+
+bool quadratic_jvp(const FemModel& model, const VecX& x, const VecX& u, const VecX& w, double ab, double cb, int e,
+                   VecX& out) {
+  QuadraticElement p;
+  if (!p.compute(model, x, e, cb != 0)) return false;
+  const Mat3x10 u_e = gather10(model, u, e), w_e = gather10(model, w, e);
+  Mat3x10 r = Mat3x10::Zero();
+  Mat30 dK = Mat30::Zero();
+  for (int q = 0; q < 4; ++q) {
+    const Mat3 dF_u = p.dF(q, u_e);
+    if (ab != 0) r += ab * p.spread(q, p.C[q] * vec9(dF_u));
+    if (cb != 0) {
+      Mat9 dC;
+      if (!material::stress_hessian_directional(p.law, p.F[q], p.lame, dF_u, dC)) return false;
+      if (!p.projected) r += cb * p.spread(q, dC * vec9(p.dF(q, w_e)));
+      else add_stiffness_from_tangent<10>(dC, p.G[q], p.V[q], dK);
+    }
+  }
+  if (cb != 0 && p.projected) r += cb * as3x10(p.projection.apply(dK) * as30(w_e));
+  scatter_add10(model, e, r, out);
+  return true;
+}
+
+bool quadratic_vjp(const FemModel& model, const VecX& x, const VecX& y, const VecX& w, double ab, double cb, int e,
+                   VecX& out) {
+  QuadraticElement p;
+  if (!p.compute(model, x, e, cb != 0)) return false;
+  const Mat3x10 y_e = gather10(model, y, e), w_e = gather10(model, w, e);
+  Mat3x10 r = Mat3x10::Zero();
+  Mat30 S;
+  if (cb != 0 && p.projected) {
+    const Vec30 yv = as30(y_e), wv = as30(w_e);
+    const Mat30 Y = 0.5 * (yv * wv.transpose() + wv * yv.transpose());
+    S = p.projection.apply(Y);
+  }
+  for (int q = 0; q < 4; ++q) {
+    const Mat3 dF_y = p.dF(q, y_e);
+    if (ab != 0) r += ab * p.spread(q, p.C[q] * vec9(dF_y));
+    if (cb == 0) continue;
+    if (!p.projected) {
+      Mat9 dC;
+      if (!material::stress_hessian_directional(p.law, p.F[q], p.lame, dF_y, dC)) return false;
+      r += cb * p.spread(q, dC * vec9(p.dF(q, w_e)));
+    } else {
+      const Mat9x30 B = p.B(q);
+      const Mat9 S_hat = B * S * B.transpose();
+      Vec9 g;
+      for (int m = 0; m < 9; ++m) {
+        Mat3 E = Mat3::Zero();
+        E(m % 3, m / 3) = 1;
+        Mat9 dC;
+        if (!material::stress_hessian_directional(p.law, p.F[q], p.lame, E, dC)) return false;
+        g[m] = S_hat.cwiseProduct(dC).sum();
+      }
+      r += cb * p.spread(q, g);
+    }
+  }
+  scatter_add10(model, e, r, out);
+  return true;
+}
+
+bool quadratic_parameter_derivative(const FemModel& model, const VecX& x, const material::Lame& dlame,
+                                    const VecX& w, int e, VecX& df, VecX& dKw) {
+  QuadraticElement p;
+  if (!p.compute(model, x, e, true)) return false;
+  const Mat3x10 w_e = gather10(model, w, e);
+  Mat3x10 f = Mat3x10::Zero(), r = Mat3x10::Zero();
+  Mat30 dK = Mat30::Zero();
+  for (int q = 0; q < 4; ++q) {
+    Mat3 P_d;
+    Mat9 C_d;
+    if (!material::stress(p.law, p.F[q], dlame, P_d, &C_d)) return false;
+    f -= p.V[q] * P_d * p.G[q];
+    if (!p.projected) r += p.spread(q, C_d * vec9(p.dF(q, w_e)));
+    else add_stiffness_from_tangent<10>(C_d, p.G[q], p.V[q], dK);
+  }
+  if (p.projected) r = as3x10(p.projection.apply(dK) * as30(w_e));
+  scatter_add10(model, e, f, df);
+  scatter_add10(model, e, r, dKw);
+  return true;
+}
+
 Vec12 as12(const Mat34& m) { return Eigen::Map<const Vec12>(m.data()); }
 Mat34 as34(const Vec12& v) { return Eigen::Map<const Mat34>(v.data()); }
 
@@ -102,6 +245,7 @@ int add_stiffness_jvp(const FemModel& model, const VecX& x, const VecX& u, const
     const int b = model.tet_body[e];
     const double ab = a[b], cb = c[b];
     if (ab == 0 && cb == 0) return true;
+    if (model.quadratic[e]) return quadratic_jvp(model, x, u, w, ab, cb, e, out);
     ElementPoint p;
     if (!p.compute(model, x, e, cb != 0)) return false;
     const Mat3 dF_u = p.dF(gather(model, u, e));
@@ -131,6 +275,7 @@ int add_stiffness_vjp(const FemModel& model, const VecX& x, const VecX& y, const
     const int b = model.tet_body[e];
     const double ab = a[b], cb = c[b];
     if (ab == 0 && cb == 0) return true;
+    if (model.quadratic[e]) return quadratic_vjp(model, x, y, w, ab, cb, e, out);
     ElementPoint p;
     if (!p.compute(model, x, e, cb != 0)) return false;
     const Mat34 y_e = gather(model, y, e);
@@ -191,6 +336,7 @@ int add_elastic_parameter_derivative(const FemModel& model, const VecX& x, int b
   const material::Lame dlame = lame_derivative(model.bodies[body], param);
   return for_each_element_by_color(model, [&](int e) {
     if (model.tet_body[e] != body) return true;
+    if (model.quadratic[e]) return quadratic_parameter_derivative(model, x, dlame, w, e, df, dKw);
     ElementPoint p;
     if (!p.compute(model, x, e, true)) return false;
     Mat3 P_d;

@@ -26,7 +26,9 @@ struct BodyModel {
   bool psd_projection = false;
   MassKind mass_kind = MassKind::lumped;
   mesh::TetMesh mesh;                  // the body's mesh with world rest positions (local node indices)
-  Triangles surface;                   // (3, k) outward boundary triangles, local node indices
+  Triangles surface;                   // (3, k) outward boundary triangles, local node indices (quadratic
+                                       // body: each 6-node face split into 4, mesh::split_quadratic_triangles)
+  mesh::Triangles6 surface6;           // (6, k) quadratic body: the outward 6-node boundary faces (gmsh order)
   int value_begin = 0, value_end = 0;  // this body's range in the system pattern's value array
   double bbox_diagonal = 0;            // rest bounding-box diagonal (divergence check scale)
 };
@@ -36,8 +38,10 @@ struct BodyModel {
 // precomputed scatter indices so that assembly writes straight into the values.
 struct SystemPattern {
   SparseMatrix structure;              // (3n, 3n) upper triangle, values unused (zeros)
-  std::vector<int> element_scatter;    // (78 m): for element e and local dofs i <= j (row-major
-                                       // upper triangle of the 12x12 matrix), the value index
+  std::vector<int> element_scatter;    // for element e and local dofs i <= j (row-major upper triangle
+                                       // of the 12x12, or 30x30 for a quadratic element, matrix), the
+                                       // value index: entries element_scatter_begin[e] .. [e + 1]
+  std::vector<int> element_scatter_begin;  // (m + 1): 78 entries per linear element, 465 per quadratic
   std::vector<int> diagonal;           // (3n) value index of each diagonal entry
   std::vector<int> fixed_offdiagonal;  // value indices in a fixed row or column (off the diagonal)
   std::vector<int> fixed_diagonal;     // value indices of fixed diagonal entries
@@ -66,16 +70,27 @@ struct FemModel {
   int num_nodes = 0;
   int num_tets = 0;
   Mat3X X;                          // (3, n) rest positions, world frame
-  Tets tets;                        // (4, m) global node indices
+  Tets tets;                        // (4, m) global node indices of the vertices
   std::vector<int> tet_body;        // (m) body of each element
-  std::vector<Mat3> Dm_inv;         // (m) inverse rest edge matrix [X1-X0, X2-X0, X3-X0]^-1
-  VecX rest_volume;                 // (m)
+  std::vector<Mat3> Dm_inv;         // (m) inverse rest edge matrix [X1-X0, X2-X0, X3-X0]^-1 (of the vertices)
+  VecX rest_volume;                 // (m) (quadratic: the curved element's volume, sum of qp_weight)
+  // Quadratic (10-node) elements (bodies whose mesh has order 2; fem/tet10.hpp):
+  std::vector<unsigned char> quadratic;  // (m) 1 for a 10-node element
+  Eigen::Matrix<int, 10, Eigen::Dynamic> tets10;  // (10, m) global node indices in gmsh's order (rows
+                                                  // 0-3 == tets); -1 in rows 4-9 of a linear element
+  std::vector<int> quad_slot;       // (m) index of a quadratic element among the quadratic ones, else -1
+  std::vector<Eigen::Matrix<double, 3, 10>> qp_G;  // (4 per slot, 4 s + q) dN_a/dX at the stiffness rule's
+                                                   // point q (column a), rest configuration
+  std::vector<double> qp_weight;    // (4 per slot) w_q det J_q: the point's share of the rest volume
+  int num_quadratic = 0;
+  int element_nodes(int e) const { return quadratic[e] ? 10 : 4; }
   std::vector<unsigned char> fixed; // (3n) 1 if the dof is fixed (projected out)
   long num_fixed_dofs = 0;
   SystemPattern pattern;
   VecX mass_values;                 // (nnz) mass matrix in the pattern (lumped: diagonal only)
-  VecX mass_diagonal;               // (3n) lumped masses (consistent: row sums)
-  VecX gravity_force;               // (3n) M g
+  VecX mass_diagonal;               // (3n) lumped masses (linear consistent: row sums; quadratic: the
+                                    // HRZ masses of both kinds, positive)
+  VecX gravity_force;               // (3n) the consistent load int rho g N_a (= M g for linear elements)
   double total_mass = 0;
 };
 
@@ -90,6 +105,9 @@ inline Eigen::Matrix<double, 3, 4> shape_gradients(const Mat3& Dm_inv) {
   G.col(0) = -(G.col(1) + G.col(2) + G.col(3));
   return G;
 }
+
+// Rest positions (3 x 10) of quadratic element e.
+Eigen::Matrix<double, 3, 10> element_rest_positions10(const FemModel& model, int e);
 
 // Builds geometry (Dm_inv, volumes), mass, the pattern, coloring and gravity from
 // bodies whose `mesh` (world rest positions), material and options are filled in.

@@ -133,6 +133,17 @@ void build_actuation(const SceneDesc& scene, const std::vector<fem::BodyModel>& 
     const BodyDesc& bd = scene.bodies[bi];
     const fem::BodyModel& b = bodies[bi];
     if (bd.actuators.empty() && bd.effectors.empty()) continue;
+    if (b.mesh.order == 2) {
+      // Embedding with the quadratic shape functions and cavities on 6-node triangles
+      // are not implemented yet (issue 18, stage 3): refuse rather than use the vertices.
+      for (const ActuatorDesc& ad : bd.actuators)
+        if (ad.kind != ActuatorDesc::Kind::servo)
+          fail(ad.where, "cable and pressure actuators on quadratic elements are not supported yet (only servos); "
+                         "use a linear mesh for body '" + bd.name + "'");
+      if (!bd.effectors.empty())
+        fail(bd.effectors.front().where, "effectors on quadratic elements are not supported yet; use a linear mesh "
+                                         "for body '" + bd.name + "'");
+    }
     const actuation::PointLocator locator(b.mesh.X, b.mesh.tets);
     std::unordered_map<long, int> by_file_index;
     for (const ActuatorDesc& ad : bd.actuators) {
@@ -298,6 +309,10 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
     fem::BodyModel b;
     b.name = bd.name;
     b.mesh = read_gmsh(bd.mesh);
+    if (bd.elements == ElementOrder::linear && b.mesh.order == 2)
+      fail(bd.elements_where, "linear elements on the quadratic mesh " + b.mesh.source +
+                                  " are not supported; mesh it with `gmsh -3 -order 1` or remove `elements: linear`");
+    if (bd.elements == ElementOrder::quadratic && b.mesh.order == 1) mesh::elevate_to_quadratic(b.mesh);
     if (report) {
       if (b.mesh.orphan_nodes > 0)
         report->warnings.push_back(b.mesh.source + ": " + std::to_string(b.mesh.orphan_nodes) +
@@ -310,6 +325,12 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
     const Mat3 R = rotation_from_euler_deg(bd.rotate_deg);
     b.mesh.X = (R * (bd.mesh_scale * b.mesh.X)).colwise() + bd.translate;
     b.surface = mesh::boundary_triangles(b.mesh.tets);
+    if (b.mesh.order == 2) {
+      // Collision sees each 6-node boundary face as four linear triangles whose
+      // vertices are mesh nodes (method.md, "Quadratic tetrahedra": contact).
+      b.surface6 = mesh::quadratic_triangles(b.mesh, b.surface);
+      b.surface = mesh::split_quadratic_triangles(b.surface6);
+    }
     b.law = bd.material.law;
     b.young = bd.material.young;
     b.poisson = bd.material.poisson;

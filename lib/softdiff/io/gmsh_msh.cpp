@@ -16,6 +16,7 @@
 #include <softdiff/io/gmsh_msh.hpp>
 
 #include <softdiff/core/error.hpp>
+#include <softdiff/fem/tet10.hpp>
 
 #include <Eigen/Geometry>
 
@@ -155,17 +156,17 @@ std::string type_name(long long type) {
 
 // What we do with an element of a given type.
 enum class Kind : unsigned char {
-  tet,          // type 4: the simulation mesh
-  tri,          // type 2: kept for physical groups
-  aux,          // points (15) and lines (1): only their nodes, for physical groups
+  tet,          // type 4 or 11: the simulation mesh
+  tri,          // type 2 or 9: kept for physical groups
+  aux,          // points (15) and lines (1, 8): only their nodes, for physical groups
   skipped,      // other 0D-2D types: counted and ignored
   unsupported,  // other 3D types: an error (after counting them all)
 };
 
 Kind classify(long long type, const TypeInfo& t) {
-  if (type == 4) return Kind::tet;
-  if (type == 2) return Kind::tri;
-  if (type == 15 || type == 1) return Kind::aux;
+  if (type == 4 || type == 11) return Kind::tet;
+  if (type == 2 || type == 9) return Kind::tri;
+  if (type == 15 || type == 1 || type == 8) return Kind::aux;
   return t.dim == 3 ? Kind::unsupported : Kind::skipped;
 }
 
@@ -194,10 +195,12 @@ struct EntityInfo {
 struct RawMesh {
   std::vector<long> node_tag;    // file order
   std::vector<double> node_xyz;  // 3 per node
-  std::vector<int> tet_nodes;    // 4 file node indices per tet, file order
+  int tet_type = 0;              // 4 or 11 (all tets of a file have one type), 0 before the first
+  std::vector<int> tet_nodes;    // 4 (type 4) or 10 (type 11) file node indices per tet, file order
   std::vector<long> tet_tag;
   std::vector<std::size_t> tet_pos;  // file offset of each tet, for messages
-  std::vector<int> tri_nodes;    // 3 per triangle
+  std::vector<int> tri_nodes;    // 3 per triangle (the vertices)
+  std::vector<int> tri_mid;      // 3 per triangle: mid-edge nodes of a 6-node triangle, -1 for type 2
   std::vector<long> tri_tag;
   std::vector<int> aux_nodes;    // nodes of points and lines
   std::vector<Span> spans;
@@ -471,7 +474,16 @@ class Parser {
     switch (kind) {
       case Kind::tet: {
         const std::size_t i = raw_.tet_tag.size();
-        for (int j = 0; j < 4; ++j) raw_.tet_nodes.push_back(resolve(nodes[j], pos, tag, type));
+        if (raw_.tet_type == 0) {
+          raw_.tet_type = static_cast<int>(type);
+          first_tet_pos_ = pos;
+        } else if (raw_.tet_type != type) {
+          fail(pos, "element " + std::to_string(tag) + " is a " + type_name(type) + " but the mesh's first " +
+                        "tetrahedron (" + location(first_tet_pos_) + ") is a " + type_name(raw_.tet_type) +
+                        ": a mesh has one element order (mesh with one Mesh.ElementOrder, or ask for "
+                        "`elements: quadratic` on a linear mesh)");
+        }
+        for (int j = 0; j < num_nodes; ++j) raw_.tet_nodes.push_back(resolve(nodes[j], pos, tag, type));
         raw_.tet_tag.push_back(tag);
         raw_.tet_pos.push_back(pos);
         if (member) add_member(kind, dim, key, i, i + 1, pos);
@@ -480,6 +492,7 @@ class Parser {
       case Kind::tri: {
         const std::size_t i = raw_.tri_tag.size();
         for (int j = 0; j < 3; ++j) raw_.tri_nodes.push_back(resolve(nodes[j], pos, tag, type));
+        for (int j = 3; j < 6; ++j) raw_.tri_mid.push_back(j < num_nodes ? resolve(nodes[j], pos, tag, type) : -1);
         raw_.tri_tag.push_back(tag);
         if (member) add_member(kind, dim, key, i, i + 1, pos);
         break;
@@ -524,6 +537,7 @@ class Parser {
   std::vector<std::pair<long, int>> sorted_;
   std::map<int, long> unsupported_;
   std::size_t first_unsupported_ = kNoPos;
+  std::size_t first_tet_pos_ = kNoPos;
 };
 
 RawMesh Parser::parse() {
@@ -904,7 +918,7 @@ void Parser::read_elements_v2() {
   const unsigned long long count = read_unsigned("number of elements");
   end_line("the number of elements");
   check_count(count, 8, start, "elements");
-  long node_tags[4];
+  long node_tags[10];
   if (!binary_) {
     for (unsigned long long e = 0; e < count; ++e) {
       skip_space();
@@ -1051,8 +1065,9 @@ void Parser::report_unsupported() const {
     if (!list.empty()) list += ", ";
     list += std::to_string(n) + " elements of " + type_name(type);
   }
-  fail(first_unsupported_, "only linear tetrahedra are supported (type 4; mesh with Mesh.ElementOrder = 1 and no "
-                           "recombination), found " + list + " (the first one is here)");
+  fail(first_unsupported_, "only linear and quadratic tetrahedra are supported (types 4 and 11; mesh with "
+                           "Mesh.ElementOrder = 1 or 2, no recombination, no incomplete elements), found " + list +
+                           " (the first one is here)");
 }
 
 // ---------------------------------------------------------------------------
@@ -1078,8 +1093,9 @@ void sort_unique(std::vector<int>& v, std::size_t universe) {
 // `first[i] == i` marks first occurrences. Elements with ignore[i] set (if
 // given) are left out: first[i] = i. O(m log m).
 template <int K>
-std::vector<int> first_occurrence(const std::vector<int>& nodes, const std::vector<char>* ignore = nullptr) {
-  const std::size_t m = nodes.size() / K;
+std::vector<int> first_occurrence(const std::vector<int>& nodes, const std::vector<char>* ignore = nullptr,
+                                  std::size_t stride = K) {
+  const std::size_t m = nodes.size() / stride;
   struct Key {
     std::array<int, K> v;
     int i;
@@ -1091,7 +1107,7 @@ std::vector<int> first_occurrence(const std::vector<int>& nodes, const std::vect
     first[i] = static_cast<int>(i);
     if (ignore && (*ignore)[i]) continue;
     Key& k = keys.emplace_back();
-    std::copy_n(nodes.begin() + static_cast<std::ptrdiff_t>(K * i), K, k.v.begin());
+    std::copy_n(nodes.begin() + static_cast<std::ptrdiff_t>(stride * i), K, k.v.begin());
     std::sort(k.v.begin(), k.v.end());
     k.i = static_cast<int>(i);
   }
@@ -1109,7 +1125,7 @@ TetMesh build_mesh(RawMesh&& raw, const GmshReadOptions& options, const Parser& 
   if (raw_tets == 0) {
     std::string found = std::to_string(raw.tri_tag.size()) + " triangles";
     for (const auto& [type, n] : raw.skipped) found += ", " + std::to_string(n) + " elements of " + type_name(type);
-    parser.fail_file("no linear tetrahedra (element type 4) in the file (found " + found +
+    parser.fail_file("no tetrahedra (element type 4 or 11) in the file (found " + found +
                      "); a simulation mesh needs a 3D mesh (`gmsh -3`), and if the .geo defines physical groups the "
                      "volume must be in a Physical Volume (Gmsh saves only elements of physical groups unless "
                      "Mesh.SaveAll = 1)");
@@ -1118,9 +1134,13 @@ TetMesh build_mesh(RawMesh&& raw, const GmshReadOptions& options, const Parser& 
 
   TetMesh mesh;
   mesh.source = path;
+  const bool quadratic = raw.tet_type == 11;
+  const std::size_t K = quadratic ? 10 : 4;  // nodes per raw tet
+  mesh.order = quadratic ? 2 : 1;
 
-  // Distinct tets in file order (MSH 2 lists an element once per physical group).
-  const std::vector<int> tet_first = first_occurrence<4>(raw.tet_nodes);
+  // Distinct tets in file order (MSH 2 lists an element once per physical group); the
+  // vertices identify a tet.
+  const std::vector<int> tet_first = first_occurrence<4>(raw.tet_nodes, nullptr, K);
   std::vector<int> tet_index(raw_tets);  // raw tet -> mesh tet
   std::vector<std::size_t> tet_raw;      // mesh tet -> raw tet (first occurrence)
   int m = 0;
@@ -1137,7 +1157,7 @@ TetMesh build_mesh(RawMesh&& raw, const GmshReadOptions& options, const Parser& 
   std::vector<int> node_index(file_nodes, -1);
   for (std::size_t i = 0; i < raw_tets; ++i)
     if (tet_first[i] == static_cast<int>(i))
-      for (int j = 0; j < 4; ++j) node_index[static_cast<std::size_t>(raw.tet_nodes[4 * i + j])] = 0;
+      for (std::size_t j = 0; j < K; ++j) node_index[static_cast<std::size_t>(raw.tet_nodes[K * i + j])] = 0;
   int n = 0;
   for (int& k : node_index)
     if (k == 0) k = n++;
@@ -1155,13 +1175,17 @@ TetMesh build_mesh(RawMesh&& raw, const GmshReadOptions& options, const Parser& 
 
   // Tets: volumes, degeneracy, orientation.
   mesh.tets.resize(4, m);
+  if (quadratic) mesh.tets10.resize(10, m);
   mesh.tet_file_tag.resize(static_cast<std::size_t>(m));
   std::vector<double> volume(static_cast<std::size_t>(m));
   double sum_abs = 0;
   for (std::size_t i = 0; i < raw_tets; ++i) {
     if (tet_first[i] != static_cast<int>(i)) continue;
     const int t = tet_index[i];
-    for (int j = 0; j < 4; ++j) mesh.tets(j, t) = node_index[static_cast<std::size_t>(raw.tet_nodes[4 * i + j])];
+    for (int j = 0; j < 4; ++j) mesh.tets(j, t) = node_index[static_cast<std::size_t>(raw.tet_nodes[K * i + j])];
+    if (quadratic)
+      for (int j = 0; j < 10; ++j)
+        mesh.tets10(j, t) = node_index[static_cast<std::size_t>(raw.tet_nodes[K * i + static_cast<std::size_t>(j)])];
     mesh.tet_file_tag[static_cast<std::size_t>(t)] = raw.tet_tag[i];
     const Vec3 a = mesh.X.col(mesh.tets(0, t)), b = mesh.X.col(mesh.tets(1, t)), c = mesh.X.col(mesh.tets(2, t)),
                d = mesh.X.col(mesh.tets(3, t));
@@ -1191,8 +1215,40 @@ TetMesh build_mesh(RawMesh&& raw, const GmshReadOptions& options, const Parser& 
   for (int t = 0; t < m; ++t)
     if (volume[static_cast<std::size_t>(t)] < 0) {
       std::swap(mesh.tets(2, t), mesh.tets(3, t));
+      if (quadratic) {
+        // (a, b, c, d) -> (a, b, d, c) moves the mid-edge nodes too: edges 12 <-> 31 and
+        // 20 <-> 30 (nodes 5 <-> 9, 6 <-> 7); 01 and 32 stay.
+        std::swap(mesh.tets10(2, t), mesh.tets10(3, t));
+        std::swap(mesh.tets10(5, t), mesh.tets10(9, t));
+        std::swap(mesh.tets10(6, t), mesh.tets10(7, t));
+      }
       ++mesh.reoriented_tets;
     }
+  if (quadratic) {
+    // Validity of a curved element: det J > 0 at every quadrature point (fem/tet10.hpp).
+    // Reported relative to the straight element's det J (6 |volume|): 1 for straight edges.
+    std::vector<std::pair<int, double>> invalid;
+    for (int t = 0; t < m; ++t) {
+      Eigen::Matrix<double, 3, 10> X_e;
+      for (int a = 0; a < 10; ++a) X_e.col(a) = mesh.X.col(mesh.tets10(a, t));
+      const double rel = fem::tet10::min_det_jacobian(X_e) / (6.0 * std::abs(volume[static_cast<std::size_t>(t)]));
+      if (!(rel > 0)) invalid.emplace_back(t, rel);
+    }
+    if (!invalid.empty()) {
+      auto pos = [&](int t) { return raw.tet_pos[tet_raw[static_cast<std::size_t>(t)]]; };
+      std::string list;
+      for (std::size_t k = 0; k < std::min<std::size_t>(invalid.size(), 10); ++k) {
+        const int t = invalid[k].first;
+        list += (k ? ", element " : "element ") + std::to_string(mesh.tet_file_tag[static_cast<std::size_t>(t)]) +
+                " (" + parser.location(pos(t)) + ", min det J / det J of the straight element " +
+                num(invalid[k].second) + ")";
+      }
+      if (invalid.size() > 10) list += " and " + std::to_string(invalid.size() - 10) + " more";
+      parser.fail(pos(invalid[0].first),
+                  std::to_string(invalid.size()) + " invalid quadratic tetrahedra (det J <= 0 at a quadrature point: "
+                  "a mid-edge node too far from its edge's midpoint): " + list);
+    }
+  }
 
   // Physical tags of each span; spans on partition interfaces are ignored.
   const auto& entities = raw.has_partitioned_entities ? raw.partitioned_entities : raw.entities;
@@ -1260,6 +1316,8 @@ TetMesh build_mesh(RawMesh&& raw, const GmshReadOptions& options, const Parser& 
             if (tri_index[i] >= 0) g.tris.push_back(tri_index[i]);
             else g.dropped_tris.push_back(tri_first[i]);
             for (int j = 0; j < 3; ++j) g.file_nodes.push_back(raw.tri_nodes[3 * i + j]);
+            for (int j = 0; j < 3; ++j)
+              if (raw.tri_mid[3 * i + j] >= 0) g.file_nodes.push_back(raw.tri_mid[3 * i + j]);
             break;
           case Kind::aux: g.file_nodes.push_back(raw.aux_nodes[i]); break;
           default: break;
@@ -1279,9 +1337,9 @@ TetMesh build_mesh(RawMesh&& raw, const GmshReadOptions& options, const Parser& 
     sort_unique(g.dropped_tris, raw_tris);
     sort_unique(g.file_nodes, file_nodes);
     std::vector<int> nodes;
-    nodes.reserve(4 * g.tets.size() + g.file_nodes.size());
+    nodes.reserve(K * g.tets.size() + g.file_nodes.size());
     for (int t : g.tets)
-      for (int j = 0; j < 4; ++j) nodes.push_back(mesh.tets(j, t));
+      for (int j = 0; j < static_cast<int>(K); ++j) nodes.push_back(quadratic ? mesh.tets10(j, t) : mesh.tets(j, t));
     for (int f : g.file_nodes) {
       const int k = node_index[static_cast<std::size_t>(f)];
       if (k >= 0) nodes.push_back(k);
@@ -1295,6 +1353,18 @@ TetMesh build_mesh(RawMesh&& raw, const GmshReadOptions& options, const Parser& 
     mesh.groups.push_back(std::move(group));
   }
   mesh.skipped_elements = std::move(raw.skipped);
+  if (quadratic) {
+    // Triangles of type 2 in a quadratic mesh: their groups gain the tets' mid-edge nodes.
+    const mesh::Triangles6 tri6 = mesh::quadratic_triangles(mesh, mesh.triangles);
+    for (PhysicalGroup& g : mesh.groups) {
+      if (g.triangles.empty()) continue;
+      const std::size_t before = g.nodes.size();
+      for (int t : g.triangles)
+        for (int j = 3; j < 6; ++j)
+          if (tri6(j, t) >= 0) g.nodes.push_back(tri6(j, t));
+      if (g.nodes.size() > before) sort_unique(g.nodes, static_cast<std::size_t>(n));
+    }
+  }
   return mesh;
 }
 

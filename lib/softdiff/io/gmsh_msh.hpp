@@ -1,9 +1,11 @@
 #pragma once
 // Reader for Gmsh MSH files, versions 2.2 and 4.1, ASCII and binary.
-// Keeps nodes (any tags, non-contiguous), linear tetrahedra (type 4), triangles
-// (type 2), points/lines only as members of physical groups, physical groups and
-// their names. Other element types are skipped with a count (higher-order tets
-// are an error). The mesh is then cleaned:
+// Keeps nodes (any tags, non-contiguous), linear (type 4) or quadratic (type 11, gmsh's
+// node order) tetrahedra, triangles (types 2 and 9; TetMesh::triangles holds their
+// vertices), points/lines (types 15, 1, 8) only as members of physical groups, physical
+// groups and their names. Other element types are skipped with a count (other 3D
+// elements are an error, and so are type 4 and type 11 tets in one file). The mesh is
+// then cleaned:
 //   - nodes that belong to no tetrahedron are dropped (TetMesh::orphan_nodes),
 //   - tets with negative orientation are reordered (TetMesh::reoriented_tets),
 //   - tets whose |volume| is below `degenerate_rel_tol` * (mean |volume|) are an
@@ -15,7 +17,13 @@
 //   - An element listed more than once with the same node set (MSH 2 repeats an
 //     element once per physical group it belongs to) is kept once and belongs to
 //     all those groups; its first occurrence gives its node order and tag.
-//   - A negative tet (a, b, c, d) becomes (a, b, d, c).
+//   - A negative tet (a, b, c, d) becomes (a, b, d, c) (quadratic: mid-edge nodes
+//     5 <-> 9 and 6 <-> 7 follow). Orientation and degeneracy use the vertices.
+//   - Quadratic tets must have det J > 0 at every quadrature point (fem/tet10.hpp);
+//     otherwise an InputError lists them (gmsh tags, min det J relative to the
+//     straight element's).
+//   - Quadratic meshes: a group's `nodes` include its tets' 10 nodes and the mid-edge
+//     nodes of its triangles (from type 9, or from the tets' edges for type 2).
 //   - Degenerate means |volume| <= degenerate_rel_tol * mean |volume|.
 //   - Triangles with a node that is in no tet are not on the body: they are
 //     dropped (TetMesh::dropped_triangles, PhysicalGroup::dropped_triangles).

@@ -238,6 +238,7 @@ struct BodyOutput {
   Eigen::Index first_node = 0;  // offset in the global node-major x
   Eigen::Index nodes = 0;
   Eigen::Index tets = 0;
+  int nodes_per_tet = 4;  // 4 or 10
   VecX rest;          // (3n) node-major rest positions
   VecX displacement;  // (3n) x - rest of the frame being appended (sized at creation)
   Appendable x, v, displacement_frames, contact_force;
@@ -548,6 +549,11 @@ struct Hdf5Writer::Impl {
       out.first_node = total_nodes;
       out.nodes = body.rest.cols();
       out.tets = body.tets.cols();
+      out.nodes_per_tet = body.tets.cols() == 0 ? 4 : static_cast<int>(body.tets.rows());
+      SOFTDIFF_DEMAND(out.nodes_per_tet == 4 || out.nodes_per_tet == 10, "OutputBody::tets: 4 or 10 rows");
+      const int surface_nodes = out.nodes_per_tet == 10 ? 6 : 3;
+      SOFTDIFF_DEMAND(body.surface.cols() == 0 || body.surface.rows() == surface_nodes,
+                      "OutputBody::surface: 3 rows, or 6 for a quadratic body");
       total_nodes += out.nodes;
       const std::string group = "/bodies/" + body.name;
       create_group(group);
@@ -555,10 +561,18 @@ struct Hdf5Writer::Impl {
       // (n, 3) / (m, 4) / (k, 3) layout of the datasets: written as is.
       write_table(group + "/rest", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, static_cast<hsize_t>(out.nodes), 3,
                   body.rest.data(), "m");
-      write_table(group + "/tets", H5T_STD_I64LE, H5T_NATIVE_INT, static_cast<hsize_t>(out.tets), 4,
-                  body.tets.data(), "1");
-      write_table(group + "/surface", H5T_STD_I64LE, H5T_NATIVE_INT, static_cast<hsize_t>(body.surface.cols()), 3,
-                  body.surface.data(), "1");
+      write_table(group + "/tets", H5T_STD_I64LE, H5T_NATIVE_INT, static_cast<hsize_t>(out.tets),
+                  static_cast<hsize_t>(out.nodes_per_tet), body.tets.data(), "1");
+      write_table(group + "/surface", H5T_STD_I64LE, H5T_NATIVE_INT, static_cast<hsize_t>(body.surface.cols()),
+                  static_cast<hsize_t>(surface_nodes), body.surface.data(), "1");
+      if (out.nodes_per_tet == 10) {
+        // XDMF's Tetrahedron_10 lists the edges as VTK does (01 12 20 30 31 32): gmsh's
+        // nodes 8 and 9 swapped (xdmf.hpp).
+        Eigen::MatrixXi xdmf_tets = body.tets;
+        xdmf_tets.row(8).swap(xdmf_tets.row(9));
+        write_table(xdmf_tets_path(body.name), H5T_STD_I64LE, H5T_NATIVE_INT, static_cast<hsize_t>(out.tets), 10,
+                    xdmf_tets.data(), "1");
+      }
       out.rest = Eigen::Map<const VecX>(body.rest.data(), 3 * out.nodes);
       out.displacement.resize(3 * out.nodes);
       out.x = create_frames(group + "/x", out.nodes, "m");
@@ -858,7 +872,8 @@ struct Hdf5Writer::Impl {
     std::vector<XdmfBody> described;
     described.reserve(bodies.size());
     for (const BodyOutput& body : bodies)
-      described.push_back({body.name, static_cast<long>(body.nodes), static_cast<long>(body.tets)});
+      described.push_back(
+          {body.name, static_cast<long>(body.nodes), static_cast<long>(body.tets), body.nodes_per_tet});
     const std::string h5_name = h5_file.filename().string();
     const std::vector<std::string> fields = node_fields();
     for (const XdmfBody& body : described)
@@ -1071,9 +1086,11 @@ OutputEstimate estimate_output(const std::vector<OutputBody>& bodies, bool write
   std::vector<XdmfBody> described;
   for (const OutputBody& b : bodies) {
     fixed += 8.0 * static_cast<double>(b.rest.size() + b.tets.size() + b.surface.size());
+    if (b.tets.rows() == 10) fixed += 8.0 * static_cast<double>(b.tets.size());  // /xdmf/<b>/tets
     e.frame_bytes += 24.0 * static_cast<double>(b.rest.cols()) * node_fields;
     e.frame_bytes += 512.0 * node_fields;  // the frame's views /xdmf/<b>/<field>/<k> (about 0.5 kB each)
-    described.push_back({b.name, static_cast<long>(b.rest.cols()), static_cast<long>(b.tets.cols())});
+    described.push_back(
+        {b.name, static_cast<long>(b.rest.cols()), static_cast<long>(b.tets.cols()), b.tets.rows() == 10 ? 10 : 4});
   }
   const auto frames_d = static_cast<double>(std::max<long>(frames, 1));
   e.hdf5_bytes = fixed + e.frame_bytes * frames_d;

@@ -33,8 +33,8 @@ namespace softdiff::io {
 struct OutputBody {
   std::string name;
   Mat3X rest;           // (3, n) rest positions (after scale/rotate/translate)
-  Tets tets;            // (4, m)
-  Triangles surface;    // (3, k) outward boundary triangles
+  Eigen::MatrixXi tets;     // (4, m), or (10, m) for a quadratic body (gmsh's node order)
+  Eigen::MatrixXi surface;  // (3, k) outward boundary triangles, or (6, k) 6-node ones (gmsh's order)
 };
 
 struct WriterOptions {

@@ -250,6 +250,11 @@ class Reader {
     m.poisson = number(get(material->value, "poisson"), 0);
     m.density = number(get(material->value, "density"), 0);
 
+    d.elements_where = d.where;
+    if (const Entry* elements = body.find("elements")) {
+      d.elements = elements->value.scalar == "quadratic" ? ElementOrder::quadratic : ElementOrder::linear;
+      d.elements_where = where(*elements, path + ".elements");
+    }
     if (const Node* mass = get(body, "mass")) d.mass = mass->scalar == "consistent" ? MassKind::consistent : MassKind::lumped;
     const Node* damping = get(body, "damping");
     d.rayleigh_mass = number(get(damping, "rayleigh_mass"), d.rayleigh_mass);

@@ -65,6 +65,8 @@ struct MaterialDesc {
 };
 
 enum class MassKind { lumped, consistent };
+// `elements`: the mesh's own order (default), or linear / quadratic.
+enum class ElementOrder { mesh, linear, quadratic };
 
 struct BodyDesc {
   std::string name;
@@ -74,6 +76,8 @@ struct BodyDesc {
   Vec3 rotate_deg = Vec3::Zero();  // XYZ Euler angles: R = Rz * Ry * Rx, applied after scale
   MaterialDesc material;
   MassKind mass = MassKind::lumped;
+  ElementOrder elements = ElementOrder::mesh;
+  Where elements_where;           // where `elements` is (or the body), for messages
   double rayleigh_mass = 0, rayleigh_stiffness = 0;
   bool psd_projection = false;
   std::vector<FixedDesc> fixed;

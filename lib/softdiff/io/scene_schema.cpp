@@ -115,6 +115,7 @@ SpecPtr body() {
       key("translate", vec3()),
       key("rotate_deg", vec3()),
       required("material", material()),
+      key("elements", choice({"linear", "quadratic"})),
       key("mass", choice({"lumped", "consistent"})),
       key("damping", map({
                          key("rayleigh_mass", number(ge(0))),

@@ -53,8 +53,13 @@ void append_body_grid(std::string& out, const std::string& indent, const std::st
   };
   out += indent + "<Grid Name=\"" + name + "\" GridType=\"Uniform\">\n";
   if (time != nullptr) out += indent + "  <Time Value=\"" + *time + "\"/>\n";
-  out += indent + "  <Topology TopologyType=\"Tetrahedron\" NumberOfElements=\"" + m + "\">\n";
-  append_data_item(out, indent + "    ", m + " 4", "Int", file + ":/bodies/" + name + "/tets");
+  if (body.nodes_per_tet == 10) {
+    out += indent + "  <Topology TopologyType=\"Tetrahedron_10\" NumberOfElements=\"" + m + "\">\n";
+    append_data_item(out, indent + "    ", m + " 10", "Int", file + ":" + xml_escape(xdmf_tets_path(body.name)));
+  } else {
+    out += indent + "  <Topology TopologyType=\"Tetrahedron\" NumberOfElements=\"" + m + "\">\n";
+    append_data_item(out, indent + "    ", m + " 4", "Int", file + ":/bodies/" + name + "/tets");
+  }
   out += indent + "  </Topology>\n";
   out += indent + "  <Geometry GeometryType=\"XYZ\">\n";
   append_data_item(out, indent + "    ", n3, "Float", view("x"));
@@ -68,6 +73,8 @@ void append_body_grid(std::string& out, const std::string& indent, const std::st
 }
 
 }  // namespace
+
+std::string xdmf_tets_path(const std::string& body) { return "/xdmf/" + body + "/tets"; }
 
 std::string frame_view_path(const std::string& body, const std::string& field, long frame) {
   return "/xdmf/" + body + "/" + field + "/" + std::to_string(frame);

@@ -12,6 +12,10 @@
 //       several:    Grid "frame k" (Collection, Spatial), Time = /time[k]
 //                     Grid "<body>" (Uniform)                         (per body)
 //         Topology Tetrahedron       <- out.h5:/bodies/<body>/tets (m, 4)
+//                  Tetrahedron_10    <- out.h5:/xdmf/<body>/tets (m, 10) for a quadratic body:
+//                                       /bodies/<body>/tets (gmsh's node order) with
+//                                       nodes 8 and 9 swapped (XDMF and VTK list the
+//                                       edges 01 12 20 30 31 32, gmsh 01 12 20 30 32 31)
 //         Geometry XYZ               <- out.h5:/xdmf/<body>/x/<k>  (n, 3)
 //         Attribute "<field>" (Node, Vector) <- out.h5:/xdmf/<body>/<field>/<k>
 //           for field in x, v (when written), displacement, contact_force (when written)
@@ -34,7 +38,11 @@ struct XdmfBody {
   std::string name;
   long nodes = 0;  // n: rows of /bodies/<name>/rest and of each frame of x
   long tets = 0;   // m: rows of /bodies/<name>/tets
+  int nodes_per_tet = 4;  // 4, or 10 (Tetrahedron_10 from /xdmf/<name>/tets)
 };
+
+// The (m, 10) connectivity in XDMF's order of a quadratic body: "/xdmf/<body>/tets".
+std::string xdmf_tets_path(const std::string& body);
 
 // The view of frame k of /bodies/<body>/<field>: "/xdmf/<body>/<field>/<k>".
 std::string frame_view_path(const std::string& body, const std::string& field, long frame);

@@ -53,5 +53,6 @@ bool stress_hessian_directional(Law law, const Mat3& F, const Lame& lame, const 
 }
 
 void project_psd(Mat12& K) { clamp_negative_eigenvalues(K); }
+void project_psd(Mat30& K) { clamp_negative_eigenvalues(K); }
 
 }  // namespace softdiff::material

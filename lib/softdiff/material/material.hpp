@@ -47,5 +47,6 @@ bool stress_hessian_directional(Law law, const Mat3& F, const Lame& lame, const 
 // Symmetric eigenvalue clamp of a 12x12 element Hessian: negative eigenvalues set
 // to zero (the `psd_projection` option). No heap allocation.
 void project_psd(Mat12& K);
+void project_psd(Mat30& K);  // the 10-node element's 30x30 Hessian
 
 }  // namespace softdiff::material

@@ -7,8 +7,10 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <string>
+#include <unordered_map>
 
 namespace softdiff::mesh {
 
@@ -142,6 +144,87 @@ Quality quality(const Mat3X& X, const Tets& tets) {
     q.median_aspect = 0.5 * (lower + q.median_aspect);
   }
   return q;
+}
+
+namespace {
+
+std::uint64_t edge_key(int a, int b) {
+  if (a > b) std::swap(a, b);
+  return (static_cast<std::uint64_t>(static_cast<std::uint32_t>(a)) << 32) | static_cast<std::uint32_t>(b);
+}
+
+// Vertex pair -> mid-edge node of an order-2 mesh.
+std::unordered_map<std::uint64_t, int> mid_edge_map(const TetMesh& mesh) {
+  std::unordered_map<std::uint64_t, int> mid;
+  mid.reserve(static_cast<std::size_t>(mesh.num_tets()) * 2);
+  for (int t = 0; t < mesh.num_tets(); ++t)
+    for (int k = 0; k < 6; ++k)
+      mid.emplace(edge_key(mesh.tets10(kTet10Edge[k][0], t), mesh.tets10(kTet10Edge[k][1], t)), mesh.tets10(4 + k, t));
+  return mid;
+}
+
+}  // namespace
+
+Triangles6 quadratic_triangles(const TetMesh& mesh, const Triangles& tris) {
+  SOFTDIFF_DEMAND(mesh.order == 2, "quadratic_triangles: the mesh is not quadratic");
+  const auto mid = mid_edge_map(mesh);
+  Triangles6 out(6, tris.cols());
+  for (Eigen::Index t = 0; t < tris.cols(); ++t) {
+    for (int k = 0; k < 3; ++k) {
+      out(k, t) = tris(k, t);
+      const auto it = mid.find(edge_key(tris(k, t), tris((k + 1) % 3, t)));
+      out(3 + k, t) = it == mid.end() ? -1 : it->second;
+    }
+  }
+  return out;
+}
+
+Triangles split_quadratic_triangles(const Triangles6& tris) {
+  static constexpr int kSub[4][3] = {{0, 3, 5}, {3, 1, 4}, {5, 4, 2}, {3, 4, 5}};
+  Triangles out(3, 4 * tris.cols());
+  for (Eigen::Index t = 0; t < tris.cols(); ++t)
+    for (int s = 0; s < 4; ++s)
+      for (int j = 0; j < 3; ++j) out(j, 4 * t + s) = tris(kSub[s][j], t);
+  return out;
+}
+
+void elevate_to_quadratic(TetMesh& mesh) {
+  SOFTDIFF_DEMAND(mesh.order == 1, "elevate_to_quadratic: the mesh is already quadratic");
+  const int m = mesh.num_tets(), n = mesh.num_nodes();
+  std::unordered_map<std::uint64_t, int> mid;
+  mid.reserve(static_cast<std::size_t>(m) * 2);
+  mesh.tets10.resize(10, m);
+  mesh.tets10.topRows(4) = mesh.tets;
+  std::vector<std::array<int, 2>> added;
+  for (int t = 0; t < m; ++t)
+    for (int k = 0; k < 6; ++k) {
+      const int a = mesh.tets(kTet10Edge[k][0], t), b = mesh.tets(kTet10Edge[k][1], t);
+      const auto [it, inserted] = mid.emplace(edge_key(a, b), n + static_cast<int>(added.size()));
+      if (inserted) added.push_back({a, b});
+      mesh.tets10(4 + k, t) = it->second;
+    }
+  const int n2 = n + static_cast<int>(added.size());
+  mesh.X.conservativeResize(3, n2);
+  for (std::size_t i = 0; i < added.size(); ++i)
+    mesh.X.col(n + static_cast<Eigen::Index>(i)) = 0.5 * (mesh.X.col(added[i][0]) + mesh.X.col(added[i][1]));
+  mesh.file_index.resize(static_cast<std::size_t>(n2), -1);
+  mesh.file_tag.resize(static_cast<std::size_t>(n2), -1);
+  mesh.added_nodes = static_cast<long>(added.size());
+  mesh.order = 2;
+  for (PhysicalGroup& g : mesh.groups) {
+    if (g.tets.empty() && g.triangles.empty()) continue;
+    std::vector<int> nodes = g.nodes;
+    for (int t : g.tets)
+      for (int k = 0; k < 6; ++k) nodes.push_back(mesh.tets10(4 + k, t));
+    for (int tri : g.triangles)
+      for (int k = 0; k < 3; ++k) {
+        const auto it = mid.find(edge_key(mesh.triangles(k, tri), mesh.triangles((k + 1) % 3, tri)));
+        if (it != mid.end()) nodes.push_back(it->second);
+      }
+    std::sort(nodes.begin(), nodes.end());
+    nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
+    g.nodes = std::move(nodes);
+  }
 }
 
 }  // namespace softdiff::mesh
