@@ -5,8 +5,9 @@
 #include "sweep.hpp"
 
 #include <softdiff/core/error.hpp>
+#include <softdiff/io/hdf5_reader.hpp>
+#include <softdiff/io/hdf5_table.hpp>
 
-#include <hdf5.h>
 #include <fcntl.h>
 #include <spawn.h>
 #include <sys/wait.h>
@@ -48,103 +49,8 @@ std::string number(double v) {
   return buf;
 }
 
-// The softdiff output of a job, read back (read-only; HDF5's error stack silenced:
-// a missing dataset is an absent result, not an error).
-class Output {
- public:
-  explicit Output(const fs::path& p) {
-    H5E_BEGIN_TRY { file_ = H5Fopen(p.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT); }
-    H5E_END_TRY;
-  }
-  ~Output() {
-    if (file_ >= 0) H5Fclose(file_);
-  }
-  Output(const Output&) = delete;
-  Output& operator=(const Output&) = delete;
-  bool ok() const { return file_ >= 0; }
-  bool exists(const std::string& path) const {
-    htri_t e = -1;
-    H5E_BEGIN_TRY { e = H5Lexists(file_, path.c_str(), H5P_DEFAULT); }
-    H5E_END_TRY;
-    return e > 0;
-  }
-  // The whole dataset as float64, with its shape (empty if absent).
-  std::vector<double> read(const std::string& path, std::vector<hsize_t>* shape = nullptr) const {
-    std::vector<double> v;
-    if (!exists(path)) return v;
-    H5E_BEGIN_TRY {
-      const hid_t d = H5Dopen2(file_, path.c_str(), H5P_DEFAULT);
-      if (d >= 0) {
-        const hid_t s = H5Dget_space(d);
-        std::vector<hsize_t> dims(static_cast<std::size_t>(std::max(0, H5Sget_simple_extent_ndims(s))));
-        H5Sget_simple_extent_dims(s, dims.data(), nullptr);
-        std::size_t n = 1;
-        for (hsize_t k : dims) n *= k;
-        v.resize(n);
-        if (n > 0 && H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, v.data()) < 0) v.clear();
-        if (shape) *shape = dims;
-        H5Sclose(s);
-        H5Dclose(d);
-      }
-    }
-    H5E_END_TRY;
-    return v;
-  }
-  // The names in a group (empty if absent).
-  std::vector<std::string> members(const std::string& group) const {
-    std::vector<std::string> names;
-    if (!exists(group)) return names;
-    H5E_BEGIN_TRY {
-      const hid_t g = H5Gopen2(file_, group.c_str(), H5P_DEFAULT);
-      if (g >= 0) {
-        H5Literate(g, H5_INDEX_CRT_ORDER, H5_ITER_INC, nullptr, collect_name, &names);
-        if (names.empty()) H5Literate(g, H5_INDEX_NAME, H5_ITER_INC, nullptr, collect_name, &names);
-        H5Gclose(g);
-      }
-    }
-    H5E_END_TRY;
-    return names;
-  }
-  // The numeric attributes of an object, in creation order (else by name).
-  std::vector<std::pair<std::string, double>> numeric_attributes(const std::string& object) const {
-    std::vector<std::pair<std::string, double>> out;
-    if (!exists(object)) return out;
-    H5E_BEGIN_TRY {
-      const hid_t o = H5Oopen(file_, object.c_str(), H5P_DEFAULT);
-      if (o >= 0) {
-        if (H5Aiterate2(o, H5_INDEX_CRT_ORDER, H5_ITER_INC, nullptr, collect_attribute, &out) < 0 || out.empty()) {
-          out.clear();
-          H5Aiterate2(o, H5_INDEX_NAME, H5_ITER_INC, nullptr, collect_attribute, &out);
-        }
-        H5Oclose(o);
-      }
-    }
-    H5E_END_TRY;
-    return out;
-  }
-
- private:
-  static herr_t collect_name(hid_t, const char* name, const H5L_info_t*, void* data) {
-    static_cast<std::vector<std::string>*>(data)->push_back(name);
-    return 0;
-  }
-  static herr_t collect_attribute(hid_t o, const char* name, const H5A_info_t*, void* data) {
-    const hid_t a = H5Aopen(o, name, H5P_DEFAULT);
-    if (a < 0) return 0;
-    const hid_t type = H5Aget_type(a);
-    const H5T_class_t c = H5Tget_class(type);
-    double v = 0;
-    if ((c == H5T_INTEGER || c == H5T_FLOAT) && H5Aread(a, H5T_NATIVE_DOUBLE, &v) >= 0)
-      static_cast<std::vector<std::pair<std::string, double>>*>(data)->emplace_back(name, v);
-    H5Tclose(type);
-    H5Aclose(a);
-    return 0;
-  }
-  hid_t file_ = -1;
-};
-
 // The command's scalar results of a complete output (docs/cli.md "sweep and collect", collect).
-void read_results(const Output& out, const std::string& command, Table& t, std::size_t row) {
+void read_results(const io::Hdf5Reader& out, const std::string& command, Table& t, std::size_t row) {
   const std::vector<double> step_seconds = out.read("/solver/step_seconds");
   if (step_seconds.size() > 1) {
     double sum = 0;
@@ -155,7 +61,7 @@ void read_results(const Output& out, const std::string& command, Table& t, std::
   const std::vector<std::string> bodies = out.members("/bodies");
   double max_displacement = -1;
   for (const auto& b : bodies) {
-    std::vector<hsize_t> shape;
+    std::vector<std::size_t> shape;
     const std::vector<double> d = out.read("/bodies/" + b + "/displacement", &shape);
     if (shape.size() == 3 && shape[0] > 0) {
       const std::size_t n = shape[1], last = (shape[0] - 1) * n * 3;
@@ -166,7 +72,7 @@ void read_results(const Output& out, const std::string& command, Table& t, std::
   if (max_displacement >= 0) t.set(row, "max_displacement", number(max_displacement), "m");
   for (const auto& b : bodies)
     for (const auto& e : out.members("/bodies/" + b + "/effectors")) {
-      std::vector<hsize_t> shape;
+      std::vector<std::size_t> shape;
       const std::vector<double> p = out.read("/bodies/" + b + "/effectors/" + e, &shape);
       if (shape.size() != 2 || shape[0] == 0 || shape[1] != 3) continue;
       const std::string name = (bodies.size() > 1 ? b + "." : "") + e;
@@ -211,31 +117,10 @@ bool is_number(const std::string& s, double* v) {
   return true;
 }
 
-// The table as HDF5: one dataset per column (float64 where every cell is a number or
-// empty: NaN for empty; else variable-length strings), in the CSV's order (root
-// attribute `columns`), each with its `units`.
+// The table as HDF5 (io::write_hdf5_table): a float64 column where every cell is a
+// number or empty (NaN for empty), else strings, in the CSV's order, each with its units.
 void write_table_h5(const fs::path& path, const Table& t) {
-  const fs::path partial = path.string() + ".partial";
-  const hid_t f = H5Fcreate(partial.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
-  if (f < 0) throw ComputationError(path.string() + ": cannot create the HDF5 table");
-  const auto string_attribute = [](hid_t object, const char* name, const std::string& value) {
-    const hid_t type = H5Tcopy(H5T_C_S1);
-    H5Tset_size(type, H5T_VARIABLE);
-    H5Tset_cset(type, H5T_CSET_UTF8);
-    const hid_t space = H5Screate(H5S_SCALAR);
-    const hid_t a = H5Acreate2(object, name, type, space, H5P_DEFAULT, H5P_DEFAULT);
-    const char* p = value.c_str();
-    H5Awrite(a, type, &p);
-    H5Aclose(a);
-    H5Sclose(space);
-    H5Tclose(type);
-  };
-  std::string names;
-  for (const auto& c : t.columns) names += (names.empty() ? "" : ",") + c;
-  string_attribute(f, "columns", names);
-  const hsize_t n = t.rows.size();
-  const hid_t space = H5Screate_simple(1, &n, nullptr);
-  bool ok = true;
+  std::vector<io::TableColumn> columns;
   for (const auto& c : t.columns) {
     bool numeric = true;
     std::vector<double> values;
@@ -248,35 +133,14 @@ void write_table_h5(const fs::path& path, const Table& t) {
       values.push_back(v);
       texts.push_back(s);
     }
-    const hid_t lcpl = H5Pcreate(H5P_LINK_CREATE);
-    H5Pset_create_intermediate_group(lcpl, 0);
-    hid_t d = -1;
-    if (numeric) {
-      d = H5Dcreate2(f, c.c_str(), H5T_IEEE_F64LE, space, lcpl, H5P_DEFAULT, H5P_DEFAULT);
-      ok = ok && d >= 0 && H5Dwrite(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, values.data()) >= 0;
-    } else {
-      const hid_t type = H5Tcopy(H5T_C_S1);
-      H5Tset_size(type, H5T_VARIABLE);
-      H5Tset_cset(type, H5T_CSET_UTF8);
-      std::vector<const char*> p;
-      for (const auto& s : texts) p.push_back(s.c_str());
-      d = H5Dcreate2(f, c.c_str(), type, space, lcpl, H5P_DEFAULT, H5P_DEFAULT);
-      ok = ok && d >= 0 && H5Dwrite(d, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, p.data()) >= 0;
-      H5Tclose(type);
-    }
-    H5Pclose(lcpl);
-    if (d >= 0) {
-      string_attribute(d, "units", t.units.at(c));
-      H5Dclose(d);
-    }
+    io::TableColumn column{c, t.units.at(c), {}};
+    if (numeric)
+      column.values = std::move(values);
+    else
+      column.values = std::move(texts);
+    columns.push_back(std::move(column));
   }
-  H5Sclose(space);
-  ok = H5Fclose(f) >= 0 && ok;
-  if (!ok) {
-    fs::remove(partial);
-    throw ComputationError(path.string() + ": writing the HDF5 table failed");
-  }
-  fs::rename(partial, path);
+  io::write_hdf5_table(path, columns);
 }
 
 // The PNG: matplotlib (Debian's python3-matplotlib) draws the table's value over the
@@ -386,7 +250,7 @@ int run_collect(const CollectOptions& o) {
       t.set(r, "wall_s", "", "s");
     }
     if (status == "complete") {
-      Output out(found);
+      const io::Hdf5Reader out(found);
       if (out.ok()) read_results(out, sweep.command, t, r);
     }
     complete += status == "complete" && code == 0;

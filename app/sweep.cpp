@@ -2,10 +2,11 @@
 #include "sweep.hpp"
 
 #include <softdiff/core/error.hpp>
+#include <softdiff/io/hdf5_reader.hpp>
+#include <softdiff/io/hdf5_writer.hpp>
 #include <softdiff/io/input_error.hpp>
 #include <softdiff/io/yaml_tree.hpp>
 
-#include <hdf5.h>
 #include <sched.h>
 
 #include <algorithm>
@@ -311,43 +312,18 @@ std::string job_line(const fs::path& program, const SweepDesc& sweep, const Swee
   return line;
 }
 
-std::string output_status(const fs::path& h5) {
-  std::error_code ec;
-  if (!fs::is_regular_file(h5, ec)) return "";
-  std::string value;
-  H5E_BEGIN_TRY {
-    const hid_t f = H5Fopen(h5.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-    if (f >= 0) {
-      const hid_t a = H5Aopen(f, "status", H5P_DEFAULT);
-      if (a >= 0) {
-        const hid_t type = H5Aget_type(a);
-        const hid_t mem = H5Tcopy(H5T_C_S1);
-        H5Tset_size(mem, H5T_VARIABLE);
-        H5Tset_cset(mem, H5Tget_cset(type));
-        char* s = nullptr;
-        if (H5Tis_variable_str(type) > 0 && H5Aread(a, mem, &s) >= 0 && s) value = s;
-        if (s) H5free_memory(s);
-        H5Tclose(mem);
-        H5Tclose(type);
-        H5Aclose(a);
-      }
-      H5Fclose(f);
-    }
-  }
-  H5E_END_TRY;
-  return value;
-}
-
 std::string job_status(const fs::path& dir, long id, fs::path* found) {
-  const std::string stem = std::to_string(id);
+  const fs::path output = dir / (std::to_string(id) + ".h5");
   // The output, else the side files of an unfinished run over an existing output
   // (docs/output.md), else a .partial left by a killed run.
-  for (const std::string& name : {stem + ".h5", stem + ".interrupted.h5", stem + ".diverged.h5", stem + ".failed.h5",
-                                 stem + ".h5.partial"}) {
-    const std::string status = output_status(dir / name);
+  for (const fs::path& file : {output, io::side_file_name(output, "interrupted"),
+                               io::side_file_name(output, "diverged"), io::side_file_name(output, "failed"),
+                               fs::path(output.string() + ".partial")}) {
+    // "": no file, not HDF5, or no status attribute (a file that exists is then "failed").
+    const std::string status = io::read_status(file).value_or("");
     std::error_code ec;
-    if (status.empty() && !fs::exists(dir / name, ec)) continue;
-    if (found) *found = dir / name;
+    if (status.empty() && !fs::exists(file, ec)) continue;
+    if (found) *found = file;
     for (const char* s : {"complete", "interrupted", "diverged", "failed"})
       if (status.rfind(s, 0) == 0) return s;
     return "failed";  // running (a killed run), or not a readable softdiff output

@@ -69,11 +69,9 @@ std::string shell_quote(const std::string& s);
 // DIR/<id>.<ext>
 std::filesystem::path job_file(const std::filesystem::path& dir, long id, const std::string& ext);
 
-// Reads the `status` attribute of an HDF5 output ("" if the file or attribute is absent
-// or unreadable).
-std::string output_status(const std::filesystem::path& h5);
 // complete | interrupted | diverged | failed | missing: the job's status by its files
-// (DIR/<id>.h5, else a side file <id>.interrupted.h5 ... or <id>.h5.partial).
+// (DIR/<id>.h5, else a side file <id>.interrupted.h5 ... or <id>.h5.partial), from
+// their `status` attribute (io::read_status).
 std::string job_status(const std::filesystem::path& dir, long id, std::filesystem::path* found = nullptr);
 
 // CPUs this process may run on (sched_getaffinity), at least 1.

@@ -5,7 +5,8 @@
 #  - with softdiff's pin (-DEIGEN_MAX_ALIGN_BYTES=<libfcl's>) every one must compile;
 #  - without it, AVX2 and AVX-512 change Eigen's alignment, and the guard must stop the
 #    compilation with its message (an AVX-512 build without the pin crashed in libfcl);
-#  - no source includes FCL except through the guard.
+#  - no source includes FCL except through the guard;
+#  - HDF5 appears only in lib/softdiff/io/*.cpp (not in app/ nor in any header).
 # Usage: fcl_abi_guard.sh CXX SOURCE_DIR GENERATED_DIR EIGEN_INCLUDE_DIR ALIGN
 set -uo pipefail
 cxx=$1 src=$2 gen=$3 eigen=$4 align=$5
@@ -43,6 +44,23 @@ if [[ -n $bad ]]; then
   echo "$bad"; failures=$((failures + 1))
 else
   echo "ok: FCL is included only through softdiff/collision/fcl.hpp"
+fi
+# HDF5 only in lib/softdiff/io/*.cpp (STYLE.md section 1: the stage that wraps it; its
+# headers, and app/, see std types only): no <hdf5.h>, no H5* call or type, no hid_t,
+# herr_t or hsize_t anywhere else in lib/ or app/ (comments aside). tests/ may read the
+# files with the C API (tests/support/h5.hpp).
+bad=$(find "$src/lib" "$src/app" -type f \( -name '*.cpp' -o -name '*.hpp' \) | grep -vE '/lib/softdiff/io/[^/]+\.cpp$' |
+      sort | xargs awk '{
+        code = $0; sub(/\/\/.*/, "", code)
+        if (code ~ /#include *[<"]([A-Za-z0-9_]+\/)*hdf5\.h[>"]/ ||
+            code ~ /(^|[^A-Za-z0-9_])(H5[A-Z][A-Za-z0-9_]*|hid_t|herr_t|hsize_t)([^A-Za-z0-9_]|$)/)
+          print FILENAME ":" FNR ": " $0
+      }' || true)
+if [[ -n $bad ]]; then
+  echo "FAIL: HDF5 used outside lib/softdiff/io/*.cpp (use io/hdf5_reader.hpp, io/hdf5_table.hpp, io/hdf5_writer.hpp):"
+  echo "$bad"; failures=$((failures + 1))
+else
+  echo "ok: HDF5 is used only in lib/softdiff/io/*.cpp"
 fi
 echo "fcl_abi_guard: $failures check(s) failed"
 exit $((failures > 0))
