@@ -19,10 +19,9 @@ namespace {
 // Between soft surfaces only the model's margin counts on the penetrating side: a
 // vertex behind a triangle by more than that is the other face of a thin part, not a
 // contact. margin: the (widened) margin detection used; v_i, v_free: the velocities.
-void drop_inert_contacts(const Model& model, double margin, const VecX& v_i, const VecX& v_free,
+void drop_inert_contacts(const Model& model, double h, double margin, const VecX& v_i, const VecX& v_free,
                          std::vector<collision::Contact>& list) {
   const auto& fixed = model.fem.fixed;
-  const double h = model.step.dt;
   const double base = model.contact.detection.margin;
   const bool widened = margin > base;
   list.erase(std::remove_if(list.begin(), list.end(),
@@ -79,8 +78,12 @@ void contact_jacobian_transpose(const Model& model, const collision::ContactSet&
 }
 
 StepStatus resolve_contacts(const Model& model, Data& data, const State& in, VecX& v, long step_index) {
+  return resolve_contacts(model, data, in.x, in.v, model.step.dt, v, step_index, true);
+}
+
+StepStatus resolve_contacts(const Model& model, Data& data, const VecX& x, const VecX& v_previous, double h, VecX& v,
+                            long step_index, bool free_motion_widens) {
   auto& cd = data.contact;
-  const double h = model.step.dt;
   StepStatus status;
   status.step = step_index;
 
@@ -92,11 +95,12 @@ StepStatus resolve_contacts(const Model& model, Data& data, const State& in, Vec
   // and it carries no force unless it closes (docs/method.md "Contact").
   double speed = 0;
   for (Eigen::Index k = 0; k + 2 < v.size(); k += 3)
-    speed = std::max({speed, v.segment<3>(k).squaredNorm(), in.v.segment<3>(k).squaredNorm()});
+    speed = std::max({speed, free_motion_widens ? v.segment<3>(k).squaredNorm() : 0.0,
+                      v_previous.segment<3>(k).squaredNorm()});
   const double margin = std::max(model.contact.detection.margin, 2 * h * std::sqrt(speed));
   cd.margin = margin;
-  cd.stats = cd.detector->detect(in.x, cd.contacts, margin);
-  drop_inert_contacts(model, margin, in.v, v, cd.contacts.contacts);
+  cd.stats = cd.detector->detect(x, cd.contacts, margin);
+  drop_inert_contacts(model, h, margin, v_previous, free_motion_widens ? v : v_previous, cd.contacts.contacts);
   data.timings.detection += seconds_since(t0);
   const int nc = cd.contacts.size();
   cd.v_free = v;
