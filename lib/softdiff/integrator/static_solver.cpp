@@ -232,7 +232,7 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       // below 1e-13 of the model's size, the equilibrium is as exact as doubles allow.
       // (Not with a shifted tangent: its step is not Newton's and may be small far from
       // the equilibrium.)
-      if (!shifted && dx.cwiseAbs().maxCoeff() <= 1e-13 * size_scale) {
+      if (!shifted && (!with_contact || cd.result.converged) && dx.cwiseAbs().maxCoeff() <= 1e-13 * size_scale) {
         out.x += dx;
         break;
       }
