@@ -163,6 +163,7 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       // line search below applies; once A is positive definite again the exact
       // Newton step (quadratic convergence) is back.
       bool shifted = false;
+      bool proximal_grown = false;  // the proximal factor had to grow (counted as shifted)
       proximal = std::max(kProximal, proximal / 10);
       for (int attempt = 0;; ++attempt) {
         t0 = Clock::now();
@@ -191,6 +192,7 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
         // smallest that factorizes), the global shift only beyond kShiftMin.
         if (!proximal_dofs.empty() && proximal < kShiftMin) {
           proximal *= 10;
+          proximal_grown = true;
           continue;
         }
         if (!shifted) {
@@ -203,7 +205,7 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
           shift *= 10;
         }
       }
-      if (shifted || proximal > kProximal) ++data.static_shifted_iterations;
+      if (shifted || proximal_grown) ++data.static_shifted_iterations;
       else shift = 0;
       t0 = Clock::now();
       // Without contact forces in the free solve: the NCP's lambda is the total force.
