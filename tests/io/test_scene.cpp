@@ -495,9 +495,15 @@ TEST_F(Scene, FeaturesNotSupportedYet) {
   expect_error(edit("  steps: 10", "  steps: 10\n  newton_iterations: 3") + "contact: {friction: 0.3}\n",
                ":5:3: simulation.newton_iterations: contact with newton_iterations > 1 is not supported yet (the contact "
                "step is the paper's linearized step)");
-  expect_error(edit("  dt: 0.01\n  steps: 10", "  integrator: static") + "contact: {friction: 0.3}\n",
-               ":3:3: simulation.integrator: contact with integrator 'static' is not supported yet (use implicit_euler "
-               "with damping, or contact: {enabled: false})");
+}
+
+// Contact with integrator static is accepted (docs/method.md "Static equilibrium"); it
+// was an error before the static solver supported it.
+TEST_F(Scene, StaticWithContactIsAccepted) {
+  const SceneDesc s = load(edit("  dt: 0.01\n  steps: 10", "  integrator: static") + "contact: {friction: 0.3}\n");
+  EXPECT_EQ(s.simulation.integrator, Integrator::static_equilibrium);
+  EXPECT_TRUE(s.contact.enabled);
+  EXPECT_EQ(s.contact.friction, 0.3);
 }
 
 // ---------------------------------------------------------------------------

@@ -78,6 +78,11 @@ void contact_jacobian_transpose(const Model& model, const collision::ContactSet&
 }
 
 StepStatus resolve_contacts(const Model& model, Data& data, const State& in, VecX& v, long step_index, double h) {
+  return resolve_contacts(model, data, in.x, in.v, h, v, step_index, true);
+}
+
+StepStatus resolve_contacts(const Model& model, Data& data, const VecX& x, const VecX& v_previous, double h, VecX& v,
+                            long step_index, bool free_motion_widens) {
   auto& cd = data.contact;
   StepStatus status;
   status.step = step_index;
@@ -90,11 +95,12 @@ StepStatus resolve_contacts(const Model& model, Data& data, const State& in, Vec
   // and it carries no force unless it closes (docs/method.md "Contact").
   double speed = 0;
   for (Eigen::Index k = 0; k + 2 < v.size(); k += 3)
-    speed = std::max({speed, v.segment<3>(k).squaredNorm(), in.v.segment<3>(k).squaredNorm()});
+    speed = std::max({speed, free_motion_widens ? v.segment<3>(k).squaredNorm() : 0.0,
+                      v_previous.segment<3>(k).squaredNorm()});
   const double margin = std::max(model.contact.detection.margin, 2 * h * std::sqrt(speed));
   cd.margin = margin;
-  cd.stats = cd.detector->detect(in.x, cd.contacts, margin);
-  drop_inert_contacts(model, h, margin, in.v, v, cd.contacts.contacts);
+  cd.stats = cd.detector->detect(x, cd.contacts, margin);
+  drop_inert_contacts(model, h, margin, v_previous, free_motion_widens ? v : v_previous, cd.contacts.contacts);
   data.timings.detection += seconds_since(t0);
   const int nc = cd.contacts.size();
   cd.v_free = v;

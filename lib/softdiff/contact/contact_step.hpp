@@ -23,6 +23,17 @@ namespace softdiff::contact {
 // term phi / h.
 StepStatus resolve_contacts(const Model& model, Data& data, const State& in, VecX& v, long step_index, double h);
 
+// The same stage for any linearized problem A u = b with contact forces entering as
+// h H_c^T lambda_c: detection at x (margin widened to 2 h max|u| over v_previous and
+// the free solution v; v_previous only when free_motion_widens is false),
+// G = h H A^{-1} H^T, g = H v + (0, 0, phi_i / h), the NCP, and v <- v + h A^{-1} H^T
+// lambda. The dynamic step is (x_i, v_i, dt, true); the static solver's Newton
+// iteration is (x_k, the previous corrected increment, 1, false) with v the increment
+// dx (docs/method.md "Static equilibrium": its free increment includes the rigid
+// motion of a body held by contact alone, which must not widen the margin).
+StepStatus resolve_contacts(const Model& model, Data& data, const VecX& x, const VecX& v_previous, double h, VecX& v,
+                            long step_index, bool free_motion_widens);
+
 // H_c^T (3n x 3nc) of a contact set: column 3i+r is row r of H_i = C_i^T sum_k w_k E_k,
 // with the fixed dofs' rows removed (H_c <- H_c Pi).
 void contact_jacobian_transpose(const Model& model, const collision::ContactSet& contacts, SparseMatrix& Ht);

@@ -1,5 +1,6 @@
 #include <softdiff/integrator/static_solver.hpp>
 
+#include <softdiff/contact/contact_step.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
 
 #include <algorithm>
@@ -17,6 +18,13 @@ namespace {
 // tenfold (1e-3 * 10^16: far beyond any diagonal).
 constexpr double kShiftMin = 1e-3;
 constexpr int kMaxShifts = 16;
+// Contact: a body without fixed dofs is held by its contacts alone, and its K has the
+// rigid motions in its null space. Its free dofs get the proximal term tau_p I with
+// tau_p = kProximal max_i |K_ii| over the body's free dofs (docs/method.md "Static
+// equilibrium"): small enough that its elastic modes converge at a rate ~ tau_p /
+// lambda_min per Newton iteration, large enough for a Cholesky factorization
+// (condition ~ 1 / kProximal).
+constexpr double kProximal = 1e-8;
 
 StepStatus not_converged(long load_step, int iterations, double residual, const char* detail) {
   StepStatus status;
@@ -65,11 +73,48 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
   data.static_shifted_iterations = 0;
   double size_scale = 0;
   for (const auto& b : fem.bodies) size_scale = std::max(size_scale, b.bbox_diagonal);
+  // Contact (docs/method.md "Static equilibrium"): per Newton iteration, the NCP of the
+  // linearized problem at x_k with the same contact stage as the dynamic step, h = 1:
+  // G = H K^{-1} H^T, g = H dx_free + phi, dx = dx_free + K^{-1} H^T lambda. lambda is
+  // the total contact force (not an increment); the residual that decides convergence
+  // is f_int + P + f_act + H_c^T lambda with the last NCP's H_c and lambda.
+  const bool with_contact = model.contact.enabled;
+  auto& cd = data.contact;
+  // Bodies held by contact alone (no fixed dof): their diagonal offsets and free dofs.
+  std::vector<std::vector<int>> proximal_dofs;
+  if (with_contact)
+    for (const auto& b : fem.bodies) {
+      bool any_fixed = false;
+      for (int d = 3 * b.node_begin; d < 3 * (b.node_begin + b.num_nodes); ++d) any_fixed = any_fixed || fem.fixed[d];
+      if (any_fixed) continue;
+      proximal_dofs.emplace_back();
+      for (int d = 3 * b.node_begin; d < 3 * (b.node_begin + b.num_nodes); ++d) proximal_dofs.back().push_back(d);
+    }
+  double proximal = kProximal;  // the proximal factor of the last iteration (grown where K + tau_p I is indefinite)
+  VecX dx_previous = VecX::Zero(3L * fem.num_nodes);  // the last corrected increment (widens the margin)
+  VecX contact_force = VecX::Zero(with_contact ? 3L * fem.num_nodes : 0);  // H_c^T lambda of the last NCP
+  bool contact_solved = false;  // an NCP was solved in this load step
+  if (with_contact) {
+    cd.lambda.resize(0);
+    cd.contacts.contacts.clear();
+    cd.previous_keys.clear();
+    cd.previous_lambda.resize(0);
+    cd.result = {};
+    cd.result.converged = true;
+  }
 
   for (long s = 1; s <= L; ++s) {
     const double factor = static_cast<double>(s) / L;
     double rel = 0;
     int it = 0;
+    contact_solved = false;
+    // Each load step starts with the proximal factor kShiftMin (divided by 10 per
+    // iteration down to kProximal): the first free increment carries the whole
+    // unbalanced load of a body held by contact, and its rigid part R / tau_p enters g;
+    // the NCP's accuracy on sigma is relative to |g|, so a small first tau_p would cost
+    // slip (the contacts stick to what that accuracy allows, ~1e-5 m on a 0.1 m cube
+    // with 1e-8 from the start).
+    proximal = kShiftMin * 10;
     for (;; ++it) {
       auto t0 = Clock::now();
       if (!fem::evaluate(fem, out.x, {true, true, true}, data.fem)) {
@@ -89,8 +134,10 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
         model.actuation.add_forces(out.x, data.lambda_a, 1.0, data.f_act);
         residual += data.f_act;
       }
-      const double reference =
-          std::max({factor * load_norm, data.fem.f_int.norm(), actuated ? data.f_act.norm() : 0.0});
+      // With contact: the last NCP's forces H_c^T lambda (projected already).
+      if (with_contact) residual += contact_force;
+      const double reference = std::max({factor * load_norm, data.fem.f_int.norm(), actuated ? data.f_act.norm() : 0.0,
+                                         with_contact ? contact_force.norm() : 0.0});
       project(model, residual);
       rel = reference > 0 ? residual.norm() / reference : 0.0;
       data.timings.assembly += seconds_since(t0);
@@ -99,7 +146,10 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
         status.step = s;
         return status;
       }
-      if (rel <= settings.static_tolerance) break;
+      // With contact, an equilibrium also needs this load step's contact forces, from
+      // an NCP solved to its tolerance.
+      const bool contact_ok = !with_contact || (contact_solved && cd.result.converged);
+      if (rel <= settings.static_tolerance && contact_ok) break;
       if (it >= settings.static_max_iterations)
         return not_converged(s, it, rel, "static equilibrium not reached (increase static.max_iterations or static.load_steps)");
       // A dx = f + P + H_a^T lambda, A = K + sum_cables lambda d^2L/dx^2 (K = d^2E/dx^2;
@@ -113,6 +163,8 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       // line search below applies; once A is positive definite again the exact
       // Newton step (quadratic convergence) is back.
       bool shifted = false;
+      bool proximal_grown = false;  // the proximal factor had to grow (counted as shifted)
+      proximal = std::max(kProximal, proximal / 10);
       for (int attempt = 0;; ++attempt) {
         t0 = Clock::now();
         double* A = data.A.valuePtr();
@@ -123,12 +175,26 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
         if (shifted)
           for (int d = 0; d < static_cast<int>(fem.pattern.diagonal.size()); ++d)
             if (!fem.fixed[d]) A[fem.pattern.diagonal[d]] += shift;
+        for (const auto& dofs : proximal_dofs) {
+          double diag_max = 0;
+          for (int d : dofs) diag_max = std::max(diag_max, std::abs(data.fem.K_values[fem.pattern.diagonal[d]]));
+          for (int d : dofs) A[fem.pattern.diagonal[d]] += proximal * diag_max;
+        }
         data.timings.assembly += seconds_since(t0);
         t0 = Clock::now();
         status = factorize(model, data, s);
         data.timings.factorization += seconds_since(t0);
         if (status.ok()) break;
         if (status.code != StepStatus::Code::not_positive_definite || attempt >= kMaxShifts) return status;
+        // A body held by contact alone: under stress its K is indefinite along some
+        // rigid rotations (the geometric stiffness of the prestress), which the contacts
+        // constrain. The proximal factor grows tenfold first (on that body only, the
+        // smallest that factorizes), the global shift only beyond kShiftMin.
+        if (!proximal_dofs.empty() && proximal < kShiftMin) {
+          proximal *= 10;
+          proximal_grown = true;
+          continue;
+        }
         if (!shifted) {
           double diag_max = 0;
           for (int d = 0; d < static_cast<int>(fem.pattern.diagonal.size()); ++d)
@@ -139,18 +205,36 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
           shift *= 10;
         }
       }
-      if (shifted) ++data.static_shifted_iterations;
+      if (shifted || proximal_grown) ++data.static_shifted_iterations;
       else shift = 0;
       t0 = Clock::now();
+      // Without contact forces in the free solve: the NCP's lambda is the total force.
+      if (with_contact) residual -= contact_force;
       data.solver->solve(residual, dx);
       project(model, dx);
       data.timings.solve += seconds_since(t0);
+      if (with_contact) {
+        // The contact stage with h = 1: dx <- dx_free + K^{-1} H_c^T lambda.
+        const StepStatus cs = contact::resolve_contacts(model, data, out.x, dx_previous, 1.0, dx, s, false);
+        if (!cs.ok()) return cs;
+        contact_solved = true;
+        contact_force.noalias() = cd.Ht * cd.lambda;
+        // A body held by contact alone moves rigidly (by its weight over tau_p) unless a
+        // contact stops it: a move beyond the scene's size means it rests on nothing.
+        const double moved = dx.cwiseAbs().maxCoeff();
+        if (!proximal_dofs.empty() && !(moved <= size_scale))
+          return not_converged(s, it, rel,
+                               "a body without fixed nodes moved by more than the scene's size in one Newton iteration: "
+                               "its contacts do not hold it (it rests on no support within contact.margin, or the load "
+                               "exceeds what friction holds: no equilibrium)");
+        dx_previous = dx;
+      }
       // Stagnation at round-off: the residual of f_int + P cannot drop below ~eps
       // times the element forces that cancel in it; once the Newton correction is
       // below 1e-13 of the model's size, the equilibrium is as exact as doubles allow.
       // (Not with a shifted tangent: its step is not Newton's and may be small far from
       // the equilibrium.)
-      if (!shifted && dx.cwiseAbs().maxCoeff() <= 1e-13 * size_scale) {
+      if (!shifted && (!with_contact || cd.result.converged) && dx.cwiseAbs().maxCoeff() <= 1e-13 * size_scale) {
         out.x += dx;
         break;
       }
@@ -167,6 +251,14 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       bool accepted = false;
       for (int ls = 0; ls < 40; ++ls, alpha *= 0.5) {
         trial = out.x + alpha * dx;
+        if (with_contact) {
+          // Contact forces have no potential (friction): the full step, shortened only
+          // where it inverts an element (x_k and x_k + dx both satisfy the linearized
+          // contact constraints, so every point between does).
+          if (!fem::evaluate(fem, trial, {true, false, false}, data.fem)) continue;
+          accepted = true;
+          break;
+        }
         if (!actuated || conservative) {
           if (!fem::evaluate(fem, trial, {true, false, false}, data.fem)) continue;  // inverted: shorter step
           const double pi = data.fem.energy - factor * fem.gravity_force.dot(trial) +

@@ -16,6 +16,14 @@
 // the smallest tenfold-grown tau that factorizes (Data::static_shifted_iterations counts
 // those iterations); the exact tangent is used wherever it factorizes (docs/method.md
 // "Indefinite tangent").
+// Contact (model.contact.enabled): each Newton iteration runs the contact stage of the
+// step on the linearized problem (contact::resolve_contacts with h = 1: G = H_c A^{-1}
+// H_c^T, g = H_c dx_free + phi, dx = dx_free + A^{-1} H_c^T lambda, friction on the
+// iteration's increment), takes the full step (no potential: halved only where an
+// element inverts), and converges on f_int + P + H_a^T lambda_a + H_c^T lambda and the
+// NCP's tolerance; data.contact holds the last NCP of the last load step. A body
+// without fixed dofs (held by contact) gets a proximal term on its dofs (docs/method.md
+// "Static equilibrium", "Contact").
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
 

@@ -341,11 +341,19 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
     b.mass_kind = bd.mass == MassKind::consistent ? fem::MassKind::consistent : fem::MassKind::lumped;
     std::vector<unsigned char> fixed_local(3 * b.mesh.num_nodes(), 0);
     resolve_fixed(bd, b.mesh, fixed_local);
-    if (sim.integrator == Integrator::static_equilibrium &&
+    // A body in a contact pair with an obstacle or another body may rest on it (the
+    // static solver's proximal term, docs/method.md "Static equilibrium").
+    const auto& cdesc = scene.contact;
+    const bool held_by_contact =
+        cdesc.enabled && (cdesc.pairs.empty() ? !scene.obstacles.empty()
+                                              : std::any_of(cdesc.pairs.begin(), cdesc.pairs.end(), [&](const auto& p) {
+                                                  return p.first != p.second && (p.first == bd.name || p.second == bd.name);
+                                                }));
+    if (sim.integrator == Integrator::static_equilibrium && !held_by_contact &&
         std::find(fixed_local.begin(), fixed_local.end(), 1) == fixed_local.end()) {
       Where w = bd.where;
       w.path += ".fixed";
-      fail(w, "a static scene needs fixed nodes on every body: body '" + bd.name +
+      fail(w, "a static scene needs fixed nodes on every body not in a contact pair: body '" + bd.name +
                   "' is free, so it has no equilibrium under load");
     }
     fixed.insert(fixed.end(), fixed_local.begin(), fixed_local.end());

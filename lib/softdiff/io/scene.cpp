@@ -45,8 +45,10 @@
 //     contact) or a itself (self-contact for that body only). Without pairs: every
 //     body vs every obstacle with `friction`. self_collision: true adds every body
 //     against itself with `friction`.
-//   - contact with integrator static, or with newton_iterations > 1: not supported
-//     yet (an error naming the key).
+//   - contact with newton_iterations > 1: not supported yet (an error naming the key).
+//     Contact with integrator static is solved per Newton iteration (docs/method.md
+//     "Static equilibrium"); a body without fixed nodes is then allowed if it is in a
+//     contact pair (build_model).
 //   - Numbers are plain YAML numbers: a quoted "1e5" is a string, not a number.
 //     Integers may be written 1e3. Booleans are true/false.
 //   - A map key given with no value (`damping:`) is an empty map; an empty list key
@@ -533,11 +535,6 @@ class Reader {
             ctx_.fail(item.mark, path, "duplicate pair [" + p.first + ", " + p.second + "] (also " + q.where.path + ")");
         d.pairs.push_back(p);
       }
-    const Entry* integrator = nullptr;
-    if (const Node* sim = root.get("simulation"); sim && sim->is_map()) integrator = sim->find("integrator");
-    if (scene.simulation.integrator == Integrator::static_equilibrium)
-      ctx_.fail(integrator ? integrator->key_mark : section->key_mark, "simulation.integrator",
-                "contact with integrator 'static' is not supported yet (use implicit_euler with damping, or contact: {enabled: false})");
     if (scene.simulation.newton_iterations > 1) {
       const Entry* n = root.get("simulation")->find("newton_iterations");
       ctx_.fail(n->key_mark, "simulation.newton_iterations",

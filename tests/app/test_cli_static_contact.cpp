@@ -1,0 +1,71 @@
+// `softdiff simulate` of a static scene with contact (configs/beam_supports_static.yaml):
+// the /contact/* datasets of output.md for the equilibrium frame, and bad input:
+// derivatives of a static scene with contact (not differentiated in this version) and a
+// free body outside every contact pair give exit 2, a message, and no output file.
+#include <support/cli.hpp>
+#include <support/h5.hpp>
+
+#include <gtest/gtest.h>
+#include <hdf5.h>
+
+#include <filesystem>
+#include <string>
+
+using namespace softdiff::test;
+namespace fs = std::filesystem;
+
+namespace cli_static_contact {
+
+const fs::path kRoot = SOFTDIFF_SOURCE_DIR;
+const fs::path kWork = fs::path(SOFTDIFF_TEST_DATA_DIR) / "cli_static_contact";
+const std::string kScene = "'" + (kRoot / "configs/beam_supports_static.yaml").string() + "'";
+
+TEST(CliStaticContact, SimulateWritesTheContactDatasets) {
+  const fs::path dir = fresh_dir(kWork, "simulate");
+  const CliRun r = run_cli("simulate " + kScene + " -o out.h5 --quiet", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const hid_t f = H5Fopen((dir / "out.h5").string().c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  // Frame 0 (rest, no contacts) and the equilibrium of the one load step.
+  EXPECT_EQ(h5_shape(f, "/time"), (std::vector<hsize_t>{2}));
+  EXPECT_EQ(h5_shape(f, "/contact/offsets"), (std::vector<hsize_t>{3}));
+  const auto force_shape = h5_shape(f, "/contact/force");
+  ASSERT_EQ(force_shape.size(), 2u);
+  EXPECT_GT(force_shape[0], 0u);
+  EXPECT_EQ(force_shape[1], 3u);
+  for (const char* d : {"/contact/point", "/contact/frame", "/contact/mode", "/contact/pair"})
+    EXPECT_EQ(h5_shape(f, d)[0], force_shape[0]) << d;
+  EXPECT_EQ(h5_shape(f, "/bodies/beam/contact_force"), (std::vector<hsize_t>{2, 1025, 3}));
+  EXPECT_EQ(h5_shape(f, "/solver/contact_residual"), (std::vector<hsize_t>{2}));
+  // The normal forces (frame component n; the supports' top faces are horizontal) carry
+  // the weight rho g V = 1070 * 9.81 * 0.2 * 0.02 * 0.02 N, to the solver's tolerance
+  // (1e-8 relative on the residual norm; its sum over 3075 dofs: < 1e-6 relative).
+  const std::vector<double> force = h5_read(f, "/contact/force");
+  double normal = 0;
+  for (std::size_t i = 2; i < force.size(); i += 3) normal += force[i];
+  const double weight = 1070 * 9.81 * 0.2 * 0.02 * 0.02;
+  EXPECT_NEAR(normal, weight, 1e-6 * weight);
+  H5Fclose(f);
+}
+
+TEST(CliStaticContact, DerivativesOfStaticContactAreRefused) {
+  const fs::path dir = fresh_dir(kWork, "jacobian");
+  const CliRun r = run_cli("simulate " + kScene + " -o out.h5 --jacobian young", dir);
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_NE(r.err.find("--jacobian: a static scene with contact is not differentiated in this version"),
+            std::string::npos)
+      << r.err;
+  EXPECT_FALSE(fs::exists(dir / "out.h5"));
+}
+
+TEST(CliStaticContact, FreeBodyWithoutContactIsRefused) {
+  const fs::path dir = fresh_dir(kWork, "free");
+  const CliRun r = run_cli("simulate " + kScene + " -o out.h5 --set contact.enabled=false", dir);
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_NE(r.err.find("a static scene needs fixed nodes on every body not in a contact pair: body 'beam' is free"),
+            std::string::npos)
+      << r.err;
+  EXPECT_FALSE(fs::exists(dir / "out.h5"));
+}
+
+}  // namespace cli_static_contact
