@@ -12,10 +12,10 @@ namespace softdiff::test {
 
 // sigma = G lambda + g of the last step's contact solution, computed independently
 // of the solver: from the dense G (dense backend), else as h H A^{-1} H^T lambda + g
-// with the step's factorization and the step's h (data.h: dt, or 2 dt / 3 for BDF2;
-// sparse backend, which never forms G).
-inline VecX contact_sigma(const Data& data) {
-  const double h = data.h;
+// with the step's factorization and the step's h (sparse backend, which never forms
+// G): data.h (dt, or 2 dt / 3 for BDF2) unless given (the static solver: 1).
+inline VecX contact_sigma(const Data& data, double h = 0) {
+  if (h == 0) h = data.h;
   const auto& cd = data.contact;
   if (cd.G.rows() == cd.g.size()) return cd.G * cd.lambda + cd.g;
   const VecX f = cd.Ht * cd.lambda;
@@ -28,11 +28,12 @@ inline VecX contact_sigma(const Data& data) {
 // report: residuals recomputed from (sigma, g, mu, lambda) (ncp_residuals_at, sigma
 // from contact_sigma), lambda in each cone to `tolerance` relative, sigma + Gamma in
 // the dual cone, and the modes consistent with lambda and sigma.
-inline void expect_valid_contact_solution(const Data& data, double tolerance, const std::string& where) {
+inline void expect_valid_contact_solution(const Data& data, double tolerance, const std::string& where,
+                                          double h = 0) {
   const auto& cd = data.contact;
   const int nc = cd.contacts.size();
   if (nc == 0) return;
-  const VecX sigma = contact_sigma(data);
+  const VecX sigma = contact_sigma(data, h);
   const contact::NcpResiduals r = contact::ncp_residuals_at(sigma, cd.g, cd.mu, cd.lambda);
   EXPECT_LE(r.primal, tolerance) << where;
   EXPECT_LE(r.dual, tolerance) << where;
