@@ -799,6 +799,31 @@ NcpResult working_set_solve(Buffers& w, const Problem& p, const NcpOptions& opti
   return result;
 }
 
+// Finite g and mu >= 0 (G is checked by the dense solve; the operator's A is the step's).
+bool input_valid(const VecX& g, const VecX& mu) {
+  return g.allFinite() && mu.allFinite() && (mu.size() == 0 || mu.minCoeff() >= 0);
+}
+
+// The answer to non-finite input (ncp.cpp's header): lambda = 0, sigma = 0, all
+// breaking, infinite residuals, not converged.
+NcpResult invalid_input(VecX& lambda, VecX& sigma, std::vector<Mode>& modes, NcpResult& result) {
+  const int nc = static_cast<int>(lambda.size() / 3);
+  lambda.setZero();
+  sigma.setZero();
+  modes.assign(static_cast<std::size_t>(nc), Mode::breaking);
+  result.residuals = {infinity, infinity, infinity};
+  result.breaking = nc;
+  return result;
+}
+
+void count_modes(const std::vector<Mode>& modes, NcpResult& result) {
+  for (const Mode mode : modes) {
+    if (mode == Mode::sticking) ++result.sticking;
+    if (mode == Mode::sliding) ++result.sliding;
+    if (mode == Mode::breaking) ++result.breaking;
+  }
+}
+
 }  // namespace
 
 struct NcpSolver::Workspace : Buffers {};
@@ -818,14 +843,7 @@ NcpResult NcpSolver::solve(const MatX& G, const VecX& g, const VecX& mu, const N
   sigma.resize(n);
 
   NcpResult result;
-  if (!G.allFinite() || !g.allFinite() || !mu.allFinite() || (nc > 0 && mu.minCoeff() < 0)) {
-    lambda.setZero();
-    sigma.setZero();
-    modes.assign(static_cast<std::size_t>(nc), Mode::breaking);
-    result.residuals = {infinity, infinity, infinity};
-    result.breaking = nc;
-    return result;
-  }
+  if (!G.allFinite() || !input_valid(g, mu)) return invalid_input(lambda, sigma, modes, result);
   const Problem p{G, g, mu, nc, g_scale(g), options.tolerance, options.max_iterations};
   bool done = false;
   if (options.working_set) {
@@ -848,11 +866,7 @@ NcpResult NcpSolver::solve(const MatX& G, const VecX& g, const VecX& mu, const N
     result.working_set_fallback = options.working_set;
   }
   result.converged = result.residuals.max() <= options.tolerance;
-  for (const Mode mode : modes) {
-    if (mode == Mode::sticking) ++result.sticking;
-    if (mode == Mode::sliding) ++result.sliding;
-    if (mode == Mode::breaking) ++result.breaking;
-  }
+  count_modes(modes, result);
   return result;
 }
 
@@ -884,14 +898,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
   sigma.resize(n);
   NcpResult result;
   result.sparse = true;
-  if (!g.allFinite() || !mu.allFinite() || (nc > 0 && mu.minCoeff() < 0)) {
-    lambda.setZero();
-    sigma.setZero();
-    modes.assign(static_cast<std::size_t>(nc), Mode::breaking);
-    result.residuals = {infinity, infinity, infinity};
-    result.breaking = nc;
-    return result;
-  }
+  if (!input_valid(g, mu)) return invalid_input(lambda, sigma, modes, result);
   const double vscale = g_scale(g), tol = options.tolerance;
   w.gnn.assign(static_cast<std::size_t>(nc), 0.0);
   double Gscale = 0;  // the largest known G_NN,i or eigenvalue
@@ -1056,11 +1063,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
   const auto gnn = [&](int i) { return w.gnn[i] > 0 ? w.gnn[i] : Gscale; };
   classify_by(nc, mu, lambda, sigma, gnn, std::max(Gscale, tiny), modes);
   result.converged = result.residuals.max() <= tol && !G.failed();
-  for (const Mode mode : modes) {
-    if (mode == Mode::sticking) ++result.sticking;
-    if (mode == Mode::sliding) ++result.sliding;
-    if (mode == Mode::breaking) ++result.breaking;
-  }
+  count_modes(modes, result);
   return result;
 }
 
