@@ -38,6 +38,8 @@ constexpr long kGripperWarmup = 100;  // steps until the fingers hold the object
 Model slab(int contacts, contact::NcpSolverKind solver, contact::NcpBackend backend) {
   int nx = 4, ny = 1;  // (nx + 1)(ny + 1) bottom vertices
   if (contacts == 100) nx = ny = 9;
+  if (contacts == 200) { nx = 14; ny = 13; }  // 210
+  if (contacts == 400) nx = ny = 19;         // 400
   if (contacts == 1000) { nx = 39; ny = 24; }
   if (contacts == 5000) nx = ny = 70;    // 5041
   if (contacts == 20000) nx = ny = 141;  // 20164
@@ -54,6 +56,7 @@ Model slab(int contacts, contact::NcpSolverKind solver, contact::NcpBackend back
   cs.ncp.tolerance = 1e-8;
   cs.ncp.max_iterations = 5000;
   cs.ncp.backend = backend;
+  if (backend == contact::NcpBackend::sparse) cs.ncp.dense_max_contacts = 0;  // ADMM on the operator throughout
   test::enable_contact(model, {test::plane(Vec3(0, 0, 1), 0)}, cs);
   return model;
 }
@@ -135,20 +138,27 @@ void time_contact_steps(benchmark::State& st, const Model& model, long warmup) {
   st.counters["over_free"] = wall / steps / free;
   st.counters["rho_updates"] = rho_updates / steps;
   st.counters["sparse"] = sparse / steps;
+  const auto backend = model.contact.ncp.backend;
   st.SetLabel(std::string(model.contact.ncp.solver == contact::NcpSolverKind::admm ? "admm" : "pgs") +
-              (model.contact.ncp.backend == contact::NcpBackend::dense ? " dense" : " auto"));
+              (backend == contact::NcpBackend::dense    ? " dense"
+               : backend == contact::NcpBackend::sparse ? " sparse"
+                                                        : " auto"));
 }
 
-// range(0): contacts; range(1): 0 admm, 1 pgs; range(2): 0 automatic, 1 dense backend.
+// range(0): contacts; range(1): 0 admm, 1 pgs; range(2): 0 automatic, 1 dense backend,
+// 2 sparse with no dense G_W at all (dense_max_contacts 0): the crossover's two sides.
 void BM_Contact(benchmark::State& st) {
   const auto solver = st.range(1) == 0 ? contact::NcpSolverKind::admm : contact::NcpSolverKind::pgs;
-  const auto backend = st.range(2) == 0 ? contact::NcpBackend::automatic : contact::NcpBackend::dense;
+  const auto backend = st.range(2) == 0   ? contact::NcpBackend::automatic
+                       : st.range(2) == 1 ? contact::NcpBackend::dense
+                                          : contact::NcpBackend::sparse;
   time_contact_steps(st, slab(static_cast<int>(st.range(0)), solver, backend), 5);
 }
 
 BENCHMARK(BM_Contact)
     ->ArgsProduct({{10, 100, 1000, 5000, 20000}, {0, 1}, {0}})
     ->ArgsProduct({{100, 1000}, {0, 1}, {1}})
+    ->ArgsProduct({{100, 200, 400, 1000}, {0}, {1, 2}})
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime()
     ->MinTime(0.5);
