@@ -47,14 +47,8 @@ std::string beam_scene() {
          "      - {name: tip, point: [0.2, 0.01, 0.01]}\n";
 }
 
-Eigen::VectorXd final_x(const fs::path& file) {
-  const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-  const auto dims = h5_shape(f, "/bodies/beam/x");
-  const std::vector<double> x = h5_read(f, "/bodies/beam/x");
-  H5Fclose(f);
-  const std::size_t per_frame = static_cast<std::size_t>(dims[1] * dims[2]);
-  return Eigen::Map<const Eigen::VectorXd>(x.data() + x.size() - per_frame, static_cast<Eigen::Index>(per_frame));
-}
+// The final frame's positions (node-major), from /bodies/beam/x (T, n, 3).
+Eigen::VectorXd final_x(const fs::path& file) { return h5_final_frame(file.string(), "/bodies/beam/x"); }
 
 double json_number(const std::string& json, const std::string& key) {
   const auto k = json.find("\"" + key + "\":");

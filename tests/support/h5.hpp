@@ -1,5 +1,6 @@
 #pragma once
 // Reading back the CLI's HDF5 output in tests: dataset shapes and values, attributes.
+#include <Eigen/Core>
 #include <gtest/gtest.h>
 #include <hdf5.h>
 
@@ -64,6 +65,16 @@ inline double h5_number_attribute(hid_t f, const std::string& object, const std:
     H5Oclose(o);
   }
   return v;
+}
+
+// The last frame of a (T, n, 3) dataset such as /bodies/<b>/x, node-major (3n).
+inline Eigen::VectorXd h5_final_frame(const std::string& file, const std::string& path) {
+  const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  const auto dims = h5_shape(f, path);
+  const std::vector<double> x = h5_read(f, path);
+  H5Fclose(f);
+  const std::size_t per_frame = static_cast<std::size_t>(dims[1] * dims[2]);
+  return Eigen::Map<const Eigen::VectorXd>(x.data() + x.size() - per_frame, static_cast<Eigen::Index>(per_frame));
 }
 
 }  // namespace softdiff::test

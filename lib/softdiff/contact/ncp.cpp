@@ -308,7 +308,6 @@ struct DenseOperator {
   const Eigen::Ref<const MatX>& G;
   Eigen::Index n;
   std::optional<Eigen::LLT<Eigen::Ref<MatX>>> llt{};
-  bool ok = true;
   double largest_eigenvalue() { return softdiff::contact::largest_eigenvalue(G, w.power.head(n), w.rhs.head(n)); }
   double initial_rho(double rho) const { return rho; }
   void final_rho(double) {}
@@ -327,8 +326,7 @@ struct DenseOperator {
 
 struct SparseOperator {
   static constexpr bool cheap_apply = false;
-  SparseDelassus& d;
-  bool ok = true;  // false once an iterative solve missed its tolerance
+  SparseDelassus& d;  // records a missed iterative-solver tolerance itself (failed())
   // Power iterations: L only sets rho's scale; warm-started across steps.
   double largest_eigenvalue() { return d.largest_eigenvalue(8); }
   // rho from the previous solve on this operator (the previous step's), if any: the
@@ -336,9 +334,9 @@ struct SparseOperator {
   // factorization of B.
   double initial_rho(double rho) const { return d.last_rho() > 0 ? d.last_rho() : rho; }
   void final_rho(double rho) { d.set_last_rho(rho); }
-  void apply(const VecCRef& y, VecRef out) { ok = d.apply(y, out) && ok; }
+  void apply(const VecCRef& y, VecRef out) { d.apply(y, out); }
   bool factorize(double c) { return d.factorize_shifted(c); }
-  void solve(VecRef r) { ok = d.solve_shifted(r) && ok; }
+  void solve(VecRef r) { d.solve_shifted(r); }
 };
 constexpr int sparse_check_every = 10;
 // The operator's rho schedule: a change of rho refactorizes B (as costly as the step's
