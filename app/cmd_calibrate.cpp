@@ -16,7 +16,7 @@
 #include <softdiff/io/target_files.hpp>
 #include <softdiff/optim/calibration.hpp>
 
-#include <omp.h>
+#include <softdiff/core/threads.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -258,7 +258,7 @@ void add_calibrate(CLI::App& app, CalibrateOptions& o) {
 }
 
 int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
-  if (o.threads > 0) omp_set_num_threads(o.threads);
+  set_threads(o.threads);  // the thread plan, core/threads.hpp
   const auto t_setup = Clock::now();
   if (o.target.empty() && o.markers.empty()) throw InputError("calibrate: give the observations with --target FILE.h5 or --markers FILE.csv");
   if (!o.markers.empty() && o.frames != "all") throw InputError("--frames selects frames of --target; with --markers every observed time is used");

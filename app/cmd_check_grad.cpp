@@ -15,7 +15,7 @@
 #include <softdiff/io/build_model.hpp>
 #include <softdiff/io/scene.hpp>
 
-#include <omp.h>
+#include <softdiff/core/threads.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -112,7 +112,7 @@ void add_check_grad(CLI::App& app, CheckGradOptions& o) {
 }
 
 int run_check_grad(const CheckGradOptions& o) {
-  if (o.threads > 0) omp_set_num_threads(o.threads);
+  set_threads(o.threads);  // the thread plan, core/threads.hpp
   const io::SceneDesc scene = io::load_scene(o.scene, o.set);
   io::BuildReport report;
   Model model = io::build_model(scene, &report);

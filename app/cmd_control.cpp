@@ -13,7 +13,7 @@
 #include <softdiff/io/scene.hpp>
 #include <softdiff/optim/control.hpp>
 
-#include <omp.h>
+#include <softdiff/core/threads.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -123,7 +123,7 @@ void add_control(CLI::App& app, ControlOptions& o) {
 }
 
 int run_control(const ControlOptions& o, const std::string& command_line) {
-  if (o.threads > 0) omp_set_num_threads(o.threads);
+  set_threads(o.threads);  // the thread plan, core/threads.hpp
   const auto t_setup = Clock::now();
   std::vector<std::string> overrides = o.set;
   if (o.steps) overrides.push_back("simulation.steps=" + std::to_string(*o.steps));

@@ -15,7 +15,7 @@
 #include <softdiff/io/hdf5_writer.hpp>
 #include <softdiff/io/scene.hpp>
 
-#include <omp.h>
+#include <softdiff/core/threads.hpp>
 
 #include <softdiff/core/timer.hpp>
 
@@ -118,7 +118,7 @@ void add_simulate(CLI::App& app, SimulateOptions& o) {
 }
 
 int run_simulate(const SimulateOptions& o, const std::string& command_line) {
-  if (o.threads > 0) omp_set_num_threads(o.threads);
+  set_threads(o.threads);  // the thread plan, core/threads.hpp
 
   // 1. Scene and model: every input error is raised here, before any file is created.
   std::vector<std::string> overrides = o.set;

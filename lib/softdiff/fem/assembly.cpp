@@ -155,7 +155,10 @@ bool evaluate(const FemModel& model, const VecX& x, const EvalRequest& request, 
 
 int find_inverted_element(const FemModel& model, const VecX& x, double* det_F) {
   int bad = std::numeric_limits<int>::max();
-#pragma omp parallel for schedule(static) reduction(min : bad)
+  // A determinant per element: serial below 50k elements (0.5 ms), where waking the
+  // OpenMP team after the factorization costs more, and far more on a loaded machine
+  // (docs/performance.md "Threads").
+#pragma omp parallel for schedule(static) reduction(min : bad) if (model.num_tets > 50000)
   for (int e = 0; e < model.num_tets; ++e) {
     if (model.quadratic[e]) {
       if (!(min_det_F10(model, x, e) > 0)) bad = std::min(bad, e);

@@ -4,6 +4,7 @@
 
 #include <softdiff/core/assert.hpp>
 #include <softdiff/core/error.hpp>
+#include <softdiff/core/threads.hpp>
 
 #include <Eigen/IterativeLinearSolvers>
 #include <Eigen/SparseCholesky>
@@ -83,7 +84,13 @@ class CholmodSolver final : public LinearSolver {
   FactorStatus factorize(const SparseMatrix& A) override {
     SOFTDIFF_DEMAND(factor_ != nullptr, "factorize() before analyze()");
     cholmod_sparse view = wrap(A);
-    cholmod_factorize(&view, factor_, &common_);
+    {
+      // CHOLMOD's own OpenMP loops on one thread; its BLAS keeps the plan's threads
+      // (core/threads.hpp).
+      SerialOpenMP serial;
+      use_blas_threads(factorization_threads(common_.fl));
+      cholmod_factorize(&view, factor_, &common_);
+    }
     throw_if_out_of_memory("the factorization", A.rows());
     FactorStatus status;
     if (common_.status == CHOLMOD_NOT_POSDEF) {
@@ -112,6 +119,7 @@ class CholmodSolver final : public LinearSolver {
     B.z = nullptr;
     B.xtype = CHOLMOD_REAL;
     B.dtype = CHOLMOD_DOUBLE;
+    use_blas_threads(factorization_threads(common_.fl));
     const int ok = cholmod_solve2(CHOLMOD_A, factor_, &B, nullptr, &X_, nullptr, &Y_, &E_, &common_);
     throw_if_out_of_memory("a solve", b.size());
     SOFTDIFF_DEMAND(ok, "cholmod_solve2 failed (status " + std::to_string(common_.status) + ")");
@@ -157,6 +165,7 @@ class CholmodSolver final : public LinearSolver {
       D.z = nullptr;
       D.xtype = CHOLMOD_REAL;
       D.dtype = CHOLMOD_DOUBLE;
+      use_blas_threads(factorization_threads(common_.fl));
       const int ok = cholmod_solve2(CHOLMOD_A, factor_, &D, nullptr, &Xb_, nullptr, &Yb_, &Eb_, &common_);
       throw_if_out_of_memory("a solve", n);
       SOFTDIFF_DEMAND(ok, "cholmod_solve2 failed (status " + std::to_string(common_.status) + ")");
