@@ -532,7 +532,7 @@ class Beam:
                     style = dict(ls="-" if "linearized" in cfg or "static" in cfg else "--",
                                  marker="D" if "TET10" in cfg else "o", color=col)
                     if "TET10" in cfg and rs[0]["dt"] is None:
-                        style["color"] = "C5"
+                        style["color"] = "C6" if "linear static" in cfg else "C5"
                 elif "C3D10" in cfg:
                     style = dict(ls=":", marker="s", color="k" if "modal" in cfg or rs[0]["dt"] is None else col)
                 else:
