@@ -2,7 +2,7 @@
 """Accuracy-vs-time benchmark of softdiff: the cantilever beam against CalculiX, and
 frictional contact against analytic answers (docs/accuracy.md).
 
-    /usr/bin/python3 scripts/accuracy/run.py [--out DIR] [--quick] [--only beam|contact]
+    /usr/bin/python3 scripts/accuracy/run.py [--out DIR] [--quick] [--only beam|beam-static|contact|bdf2]
                                              [--threads N] [--resume]
 
   --out DIR     output folder (default: accuracy/ in the current folder): beam.csv,
@@ -10,7 +10,7 @@ frictional contact against analytic answers (docs/accuracy.md).
                 summary.txt; meshes/ and runs/ (one folder per run) are scratch
   --quick       a small sweep (a few minutes): coarse meshes, fewer time steps and
                 tolerances, coarse references (checks the pipeline, not the numbers)
-  --only        run one part
+  --only        run one part (beam-static: the beam's static cases only, every element)
   --threads N   threads of every run, both tools (default 1: the machine is shared)
   --resume      reuse the stored result of a run whose inputs are unchanged
                 (its measured times included) instead of running it again
@@ -59,7 +59,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="accuracy")
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--only", choices=["beam", "contact", "bdf2"])
+    ap.add_argument("--only", choices=["beam", "beam-static", "contact", "bdf2"])
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--resume", action="store_true")
     a = ap.parse_args()
@@ -85,10 +85,10 @@ def main():
               % (a.threads, " ".join("%.2f" % x for x in os.getloadavg())),
               ""]
     parts = []
-    if a.only in (None, "beam"):
+    if a.only in (None, "beam", "beam-static"):
         import beam
         tb = time.time()
-        _, text = beam.run(out, cache, a.threads, a.quick)
+        _, text = beam.run(out, cache, a.threads, a.quick, static_only=a.only == "beam-static")
         parts.append(text + "\n\nbeam part: %.0f s wall" % (time.time() - tb))
     if a.only in (None, "contact"):
         import contact

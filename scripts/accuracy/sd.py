@@ -5,7 +5,7 @@ import os
 import h5py
 import numpy as np
 
-from common import face_mean_linear, softdiff_bin, timed_run
+from common import face_mean_linear, face_mean_quadratic, softdiff_bin, timed_run
 
 
 def yaml_value(v):
@@ -58,6 +58,15 @@ def run(folder, scene_name, out_name, env, threads, extra=(), timeout=None):
     return r
 
 
+def face_mean(X, U, tris):
+    """Area mean over boundary triangles: 3-node (linear field) or 6-node (the quadratic
+    field of 10-node tets; softdiff's (k, 6) surface lists the corners, then the
+    mid-edge nodes, as gmsh's 6-node triangle)."""
+    if tris.shape[1] == 6:
+        return face_mean_quadratic(X, U, tris)
+    return face_mean_linear(X, U, tris)
+
+
 def tip_mean_series(h5_path, body="beam"):
     """[(time, area mean over the x = max face of the displacement)] over all frames."""
     with h5py.File(h5_path, "r") as f:
@@ -68,7 +77,7 @@ def tip_mean_series(h5_path, body="beam"):
     L = X[:, 0].max()
     on = np.abs(X[:, 0] - L) < 1e-9 * max(L, 1.0)
     tris = surf[on[surf].all(axis=1)]
-    return [(float(t), face_mean_linear(X, x - X, tris)) for t, x in zip(ts, xs)]
+    return [(float(t), face_mean(X, x - X, tris)) for t, x in zip(ts, xs)]
 
 
 def tip_mean_displacement(h5_path, body="beam", frame=-1):
@@ -83,4 +92,4 @@ def tip_mean_displacement(h5_path, body="beam", frame=-1):
     L = X[:, 0].max()
     on = np.abs(X[:, 0] - L) < 1e-9 * max(L, 1.0)
     tris = surf[on[surf].all(axis=1)]
-    return t, face_mean_linear(X, x - X, tris), status
+    return t, face_mean(X, x - X, tris), status

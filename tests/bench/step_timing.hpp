@@ -5,7 +5,10 @@
 // step's matrix A (symbolic analysis excluded from both, as in a run) is timed as the
 // floor. Every iteration repeats the same step (from the state after the warm-up). Counters:
 //   step_ms, assembly_ms, factorize_ms, solve_ms, other_ms (the step's own split),
-//   floor_ms, ratio = step_ms / floor_ms, L_nnz (factor non-zeros), floor_GFlops.
+//   floor_ms, ratio = step_ms / floor_ms, L_nnz (factor non-zeros), floor_GFlops;
+//   step_cpu_ms, floor_cpu_ms, ratio_cpu: the same in process CPU time (all threads),
+//   the stable figure on a shared, oversubscribed machine when run with one thread
+//   (OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1: CPU time is then the work done).
 // The step's assembly includes the actuation forces (H_a(x_i)^T lambda_a).
 #include <softdiff/data.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
@@ -14,6 +17,7 @@
 #include <benchmark/benchmark.h>
 #include <algorithm>
 #include <chrono>
+#include <ctime>
 
 namespace softdiff::bench {
 
@@ -31,10 +35,13 @@ inline void time_steps(benchmark::State& st, const Model& model) {
   }
   StepTimings total;
   long steps = 0;
-  double wall = 0;
+  double wall = 0, cpu = 0;
+  auto cpu_now = [] { return static_cast<double>(std::clock()) / CLOCKS_PER_SEC; };
   for (auto _ : st) {
     const auto t0 = Clock::now();
+    const double c0 = cpu_now();
     const auto status = integrator::implicit_euler_step(model, data, s, next, 4 + steps);
+    cpu += cpu_now() - c0;
     wall += std::chrono::duration<double>(Clock::now() - t0).count();
     if (!status.ok()) st.SkipWithError(describe(model, status).c_str());
     benchmark::DoNotOptimize(next.x.data());
@@ -45,16 +52,19 @@ inline void time_steps(benchmark::State& st, const Model& model) {
   auto floor_solver = integrator::make_linear_solver({integrator::SolverKind::cholmod});
   floor_solver->analyze(data.A);
   VecX x;
-  double floor = 0;
+  double floor = 0, floor_cpu = 0;
   const int reps = static_cast<int>(std::max<long>(3, std::min<long>(steps, 20)));
   for (int r = 0; r < reps; ++r) {
     const auto t0 = Clock::now();
+    const double c0 = cpu_now();
     floor_solver->factorize(data.A);
     floor_solver->solve(data.rhs, x);
+    floor_cpu += cpu_now() - c0;
     floor += std::chrono::duration<double>(Clock::now() - t0).count();
     benchmark::DoNotOptimize(x.data());
   }
   floor /= reps;
+  floor_cpu /= reps;
   const double per = 1e3 / static_cast<double>(steps);
   st.counters["tets"] = model.fem.num_tets;
   st.counters["dofs"] = 3.0 * model.fem.num_nodes;
@@ -65,6 +75,9 @@ inline void time_steps(benchmark::State& st, const Model& model) {
   st.counters["other_ms"] = total.other * per;
   st.counters["floor_ms"] = 1e3 * floor;
   st.counters["ratio"] = wall / steps / floor;
+  st.counters["step_cpu_ms"] = cpu * per;
+  st.counters["floor_cpu_ms"] = 1e3 * floor_cpu;
+  st.counters["ratio_cpu"] = cpu / steps / floor_cpu;
   st.counters["L_nnz"] = floor_solver->factor_nonzeros();
   st.counters["floor_GFlops"] = floor_solver->factor_flops() / floor * 1e-9;
 }
