@@ -155,6 +155,22 @@ TEST(CliQuadratic, CablePressureAndEffectorOnTheQuadraticBeam) {
   EXPECT_GT((tip - Eigen::Vector3d(0.2, 0.01, 0.01)).norm(), 1e-4) << "the beam bends";
 }
 
+// A cable point just outside the quadratic body (1 mm above the top face; half the
+// nearest element's longest edge is allowed) is mapped with extrapolated reference
+// coordinates, with a warning that says so.
+TEST(CliQuadratic, CablePointJustOutsideIsAWarning) {
+  const fs::path dir = dir_for("outside");
+  write_text(dir / "scene.yaml",
+             beam_scene((kRoot / "meshes/beam_o2.msh").string(), "",
+                        "    actuators:\n      - {name: c, type: cable, points: [[0.19, 0.01, 0.021], [0.1, 0.01, 0.015]], "
+                        "pull_point: [-0.01, 0.01, 0.015], force: 0.01}\n"));
+  const auto r = run_cli("simulate scene.yaml -o out.h5 --quiet", dir);
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("cable point 0 lies 1 mm outside body 'beam'"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("with extrapolated reference coordinates (quadratic shape functions)"), std::string::npos)
+      << r.err;
+}
+
 // check-grad with the quadratic cable and pressure, 2 steps: every block (x0, v0,
 // young, poisson, density, damping, and the actuation) within check-grad's default
 // tolerance 1e-5 (its central differences; the linear beam's blocks measure 1e-8 to

@@ -115,7 +115,9 @@ actuation::EmbeddedPoint embed(const actuation::PointLocator& locator, const fem
   if (r.status == actuation::LocateStatus::outside && report)
     report->warnings.push_back(where.str() + ": " + what + " lies " + format_mm(r.embedding.outside_distance) +
                                " outside body '" + b.name + "': mapped to its nearest tetrahedron (" +
-                               std::to_string(r.embedding.tet) + ") with extrapolated barycentric weights");
+                               std::to_string(r.embedding.tet) +
+                               (locator.order() == 2 ? ") with extrapolated reference coordinates (quadratic shape functions)"
+                                                     : ") with extrapolated barycentric weights"));
   return actuation::embedded_point(r.embedding, locator, b.node_begin);
 }
 
