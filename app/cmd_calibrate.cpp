@@ -170,7 +170,9 @@ optim::CalibrationTarget marker_target(const CalibrateOptions& o, const Model& m
   optim::CalibrationTarget t;
   std::map<std::string, int> index;
   std::vector<std::unique_ptr<actuation::PointLocator>> locators;
-  for (const auto& b : model.fem.bodies) locators.push_back(std::make_unique<actuation::PointLocator>(b.mesh.X, b.mesh.tets));
+  for (const auto& b : model.fem.bodies)
+    locators.push_back(b.mesh.order == 2 ? std::make_unique<actuation::PointLocator>(b.mesh.X, b.mesh.tets, b.mesh.tets10)
+                                         : std::make_unique<actuation::PointLocator>(b.mesh.X, b.mesh.tets));
   std::map<std::string, const io::MarkerObservation*> at_zero;
   for (const auto& ob : obs)
     if (ob.time == 0 && !at_zero.count(ob.marker)) at_zero[ob.marker] = &ob;
@@ -181,8 +183,7 @@ optim::CalibrationTarget marker_target(const CalibrateOptions& o, const Model& m
     bool found = false;
     for (const auto& e : model.actuation.effectors)
       if (e.name == ob.marker) {
-        m.nodes = e.effector.nodes();
-        m.w = e.effector.weights();
+        m.point = e.effector.point();
         found = true;
       }
     if (!found) {
@@ -197,9 +198,7 @@ optim::CalibrationTarget marker_target(const CalibrateOptions& o, const Model& m
         if (r.status == actuation::LocateStatus::inside || r.status == actuation::LocateStatus::outside) {
           if (r.embedding.outside_distance < best) {
             best = r.embedding.outside_distance;
-            const auto p = actuation::embedded_point(r.embedding, model.fem.bodies[b].mesh.tets, model.fem.bodies[b].node_begin);
-            m.nodes = p.nodes;
-            m.w = p.w;
+            m.point = actuation::embedded_point(r.embedding, *locators[b], model.fem.bodies[b].node_begin);
             found = true;
           }
         }

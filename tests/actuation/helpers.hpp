@@ -33,6 +33,22 @@ inline mesh::TetMesh jittered_box(int nx, int ny, int nz, double lx, double ly, 
   return m;
 }
 
+// box_mesh elevated to 10-node tets (mesh::elevate_to_quadratic) with every mid-edge
+// node moved randomly by up to `amplitude` times the cell size along each axis: curved
+// edges and faces, the boundary's included (the vertices stay on the box). Amplitudes
+// up to ~0.1 keep det J > 0 everywhere (tests check with tet10::min_det_jacobian).
+inline mesh::TetMesh curved_box(int nx, int ny, int nz, double lx, double ly, double lz, double amplitude,
+                                std::mt19937& rng) {
+  mesh::TetMesh m = box_mesh(nx, ny, nz, lx, ly, lz);
+  const int vertices = m.num_nodes();
+  mesh::elevate_to_quadratic(m);
+  std::uniform_real_distribution<double> u(-amplitude, amplitude);
+  const Vec3 cell(lx / nx, ly / ny, lz / nz);
+  for (int i = vertices; i < m.num_nodes(); ++i)
+    for (int c = 0; c < 3; ++c) m.X(c, i) += u(rng) * cell[c];
+  return m;
+}
+
 inline VecX flatten(const Mat3X& X) { return Eigen::Map<const VecX>(X.data(), X.size()); }
 
 // A smooth random deformation (rotation, stretch, bending) plus small noise of size

@@ -122,3 +122,62 @@ TEST(Allocation, ActuatorEvaluationsAreAllocationFree) {
   EXPECT_GT(values.norm(), 0);
   EXPECT_NE(r.status, LocateStatus::no_tets);
 }
+
+// Quadratic bodies: a cable embedded in curved 10-node tets (20-node segment stencils,
+// its stiffness through the pattern's cliques), a closed cavity of 6-node triangles,
+// an effector, and the locator's Newton on curved tets.
+TEST(Allocation, QuadraticActuatorEvaluationsAreAllocationFree) {
+  std::mt19937 rng(41);
+  const mesh::TetMesh m = test::curved_box(3, 2, 2, 0.03, 0.02, 0.02, 0.08, rng);
+  const PointLocator locator(m.X, m.tets, m.tets10);
+  std::vector<EmbeddedPoint> points;
+  for (const Vec3& p : {Vec3(0.001, 0.01, 0.01), Vec3(0.015, 0.017, 0.006), Vec3(0.029, 0.003, 0.009)})
+    points.push_back(embedded_point(locator.locate(p).embedding, locator, 0));
+  const Cable cable(points, Vec3(-0.01, 0.01, 0.01));
+  const Triangles tris = mesh::boundary_triangles(m.tets);
+  const mesh::Triangles6 tris6 = mesh::quadratic_triangles(m, tris);
+  Cavity cavity;
+  ASSERT_TRUE(Cavity::create(m.X, m.tets, tris, 0, cavity, &tris6).ok());
+  const Effector effector(points[1]);
+  const VecX x = test::deform(test::flatten(m.X), 1e-4, rng), dx = VecX::Random(x.size());
+  VecX f = VecX::Zero(x.size()), H(x.size()), out = VecX::Zero(x.size());
+  Mat3X v_cable(3, cable.nodes().size()), v_cavity(3, cavity.nodes().size());
+  ActuationModel act;
+  act.actuators.emplace_back();
+  act.actuators.back().kind = cable;
+  fem::FemModel fem_model;
+  {
+    fem::BodyModel b;
+    b.mesh = m;
+    b.young = 1e5;
+    b.poisson = 0.3;
+    b.density = 1000;
+    fem::build_fem_model({b}, std::vector<unsigned char>(3 * m.num_nodes(), 0), Vec3::Zero(), fem_model,
+                         act.stiffness_cliques());
+  }
+  VecX values = VecX::Zero(fem_model.pattern.nnz());
+  const VecX lambda = VecX::Constant(1, 2.0);
+  double sink = 0;
+  LocateResult r;
+
+  Count count;
+  act.add_stiffness(x, lambda, fem_model.pattern, values.data());
+  sink += cable.length(x);
+  cable.add_force(x, 1.0, 0.01, f);
+  cable.gradient_sparse(x, v_cable);
+  cable.add_force_derivative(x, 1.0, dx, out);
+  sink += cavity.volume(x);
+  cavity.add_force(x, 1.0, 0.01, f);
+  cavity.gradient(x, H);
+  cavity.gradient_sparse(x, v_cavity);
+  cavity.add_force_derivative(x, 1.0, dx, out);
+  cavity.add_force_derivative_transpose(x, 1.0, dx, out);
+  sink += effector.position(x).sum() + effector.jacobian_times(dx).sum();
+  effector.add_jacobian_transpose(Vec3(1, 2, 3), 1.0, out);
+  r = locator.locate(Vec3(0.011, 0.004, 0.013));
+  const long n = count.stop();
+  EXPECT_EQ(n, 0);
+  EXPECT_TRUE(std::isfinite(sink + f.sum() + H.sum() + out.sum()));
+  EXPECT_GT(values.norm(), 0);
+  EXPECT_EQ(r.status, LocateStatus::inside);
+}

@@ -1,6 +1,7 @@
 // Quadratic elements through the CLI: `info` prints the element order; an invalid
 // curved element is exit 2 naming its gmsh tag; `elements: quadratic` on a linear mesh
-// and its bad uses; `simulate` of configs/beam_cantilever_p2.yaml writes (m, 10) tets
+// and its bad uses; a cable, a pressure cavity and an effector on the quadratic beam
+// (simulate, check-grad, --jacobian); `simulate` of configs/beam_cantilever_p2.yaml writes (m, 10) tets
 // and (k, 6) surface triangles, and meshio reads its XDMF (Tetrahedron_10); check-grad
 // passes on it.
 #include <support/cli.hpp>
@@ -9,8 +10,13 @@
 #include <gtest/gtest.h>
 #include <hdf5.h>
 
+#include <Eigen/Core>
+
+#include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <string>
+#include <vector>
 
 namespace cli_quadratic_test {
 
@@ -96,15 +102,128 @@ TEST(CliQuadratic, BadUsesAreExitTwoWithoutOutput) {
   EXPECT_NE(r.err.find("bodies[0].elements"), std::string::npos) << r.err;
   EXPECT_FALSE(fs::exists(dir / "out.h5"));
 
+  // A cable point off the quadratic body is still an input error (exit 2, no output).
   write_text(dir / "cable.yaml",
              beam_scene((kRoot / "meshes/beam_o2.msh").string(), "",
-                        "    actuators:\n      - {name: c, type: cable, points: [[0.19, 0.01, 0.01], [0.1, 0.01, 0.01]], "
+                        "    actuators:\n      - {name: c, type: cable, points: [[0.19, 0.01, 0.01], [0.1, 0.01, 0.05]], "
                         "pull_point: [-0.01, 0.01, 0.01], force: 0.1}\n"));
   r = run_cli("simulate cable.yaml -o out.h5 --quiet", dir);
   EXPECT_EQ(r.code, 2) << r.err;
-  EXPECT_NE(r.err.find("cable and pressure actuators on quadratic elements are not supported yet"), std::string::npos)
+  EXPECT_NE(r.err.find("bodies[0].actuators[0].points[1]: cable point 1 lies 30 mm outside body 'beam'"),
+            std::string::npos)
       << r.err;
   EXPECT_FALSE(fs::exists(dir / "out.h5"));
+}
+
+// The quadratic beam (meshes/beam_o2.msh, 10-node tets, 6-node triangles), 5 implicit
+// Euler steps, with a cable along its top, a pressure on its tip face (an open cavity of
+// 6-node triangles) and an effector at the tip face's centre (a vertex of the mesh: the
+// effector is that node). Dynamic: the static solver does not differentiate pressure
+// actuators (docs/cli.md).
+std::string actuated_scene() {
+  return "softdiff: 1\nsimulation:\n  dt: 0.01\n  steps: 5\n  gravity: [0, 0, -9.81]\n"
+         "bodies:\n  - name: beam\n    mesh: " + (kRoot / "meshes/beam_o2.msh").string() + "\n"
+         "    material: {law: neo_hookean, young: 2.0e5, poisson: 0.45, density: 1000}\n"
+         "    fixed:\n      - group: clamp\n"
+         "    effectors:\n      - {name: tip, point: [0.2, 0.01, 0.01]}\n"
+         "    actuators:\n"
+         "      - {name: cable, type: cable, points: [[0.19, 0.01, 0.017], [0.1, 0.013, 0.016], [0.01, 0.01, 0.017]], "
+         "force: 0.05}\n"
+         "      - {name: push, type: pressure, surface: tip, pressure: 500}\n";
+}
+
+TEST(CliQuadratic, CablePressureAndEffectorOnTheQuadraticBeam) {
+  const fs::path dir = dir_for("actuated");
+  write_text(dir / "scene.yaml", actuated_scene());
+  auto r = run_cli("simulate scene.yaml -o out.h5 --quiet", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const Eigen::VectorXd x = h5_final_frame((dir / "out.h5").string(), "/bodies/beam/x");
+  const hid_t f = H5Fopen((dir / "out.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const std::vector<double> tips = h5_read(f, "/bodies/beam/effectors/tip");  // (T, 3)
+  const std::vector<double> rest = h5_read(f, "/bodies/beam/rest");           // (n, 3)
+  EXPECT_EQ(h5_shape(f, "/actuators/cable/length").size(), 1u);  // the cable's length is written
+  H5Fclose(f);
+  ASSERT_GE(tips.size(), 3u);
+  const Eigen::Vector3d tip(tips[tips.size() - 3], tips[tips.size() - 2], tips[tips.size() - 1]);
+  int node = -1;
+  for (std::size_t i = 0; i < rest.size() / 3; ++i)
+    if ((Eigen::Vector3d(rest[3 * i], rest[3 * i + 1], rest[3 * i + 2]) - Eigen::Vector3d(0.2, 0.01, 0.01)).norm() < 1e-12)
+      node = static_cast<int>(i);
+  ASSERT_GE(node, 0);
+  EXPECT_LT((tip - x.segment<3>(3 * node)).norm(), 1e-15) << "the effector is the node at the tip's centre";
+  EXPECT_GT((tip - Eigen::Vector3d(0.2, 0.01, 0.01)).norm(), 1e-4) << "the beam bends";
+}
+
+// A cable point just outside the quadratic body (1 mm above the top face; half the
+// nearest element's longest edge is allowed) is mapped with extrapolated reference
+// coordinates, with a warning that says so.
+TEST(CliQuadratic, CablePointJustOutsideIsAWarning) {
+  const fs::path dir = dir_for("outside");
+  write_text(dir / "scene.yaml",
+             beam_scene((kRoot / "meshes/beam_o2.msh").string(), "",
+                        "    actuators:\n      - {name: c, type: cable, points: [[0.19, 0.01, 0.021], [0.1, 0.01, 0.015]], "
+                        "pull_point: [-0.01, 0.01, 0.015], force: 0.01}\n"));
+  const auto r = run_cli("simulate scene.yaml -o out.h5 --quiet", dir);
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("cable point 0 lies 1 mm outside body 'beam'"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("with extrapolated reference coordinates (quadratic shape functions)"), std::string::npos)
+      << r.err;
+}
+
+// check-grad with the quadratic cable and pressure, 2 steps: every block (x0, v0,
+// young, poisson, density, damping, and the actuation) within check-grad's default
+// tolerance 1e-5 (its central differences; the linear beam's blocks measure 1e-8 to
+// 4e-7, test_cli_derivatives.cpp).
+TEST(CliQuadratic, CheckGradWithCablePressureAndEffector) {
+  const fs::path dir = dir_for("actuated_check_grad");
+  write_text(dir / "scene.yaml", actuated_scene());
+  const auto r = run_cli("check-grad scene.yaml --steps 2", dir);
+  EXPECT_EQ(r.code, 0) << r.out << r.err;
+  EXPECT_NE(r.out.find("actuation"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
+}
+
+// simulate --jacobian actuation on the quadratic scene: the columns are the central
+// differences of two runs with --set, tolerance 1e-6. Steps 1e-3 of each value (as in
+// tests/diff/validation_trajectory.cpp): the runs' positions carry round-off of ~1e-16
+// of |x| (0.2 m) per step, and the pressure's column is small (|dx/dp| ~ 2e-10 m/Pa:
+// 500 Pa on the 4 cm^2 tip face against the beam's 0.8 N weight), so at 1e-5 of the
+// value the quotient's round-off reached 2.7e-6 relative (measured at 50 Pa); the
+// response is nearly linear in the actuation, and the truncation error at 1e-3 stays
+// far below the tolerance.
+TEST(CliQuadratic, JacobianOfTheActuationMatchesDifferencesOfRuns) {
+  const fs::path dir = dir_for("actuated_jacobian");
+  write_text(dir / "scene.yaml", actuated_scene());
+  auto r = run_cli("simulate scene.yaml -o out.h5 --quiet --jacobian actuation", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const hid_t f = H5Fopen((dir / "out.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const std::vector<double> J = h5_read(f, "/jacobians/actuation");
+  H5Fclose(f);
+  const Eigen::VectorXd x = h5_final_frame((dir / "out.h5").string(), "/bodies/beam/x");
+  const Eigen::Index n = x.size();
+  ASSERT_EQ(static_cast<Eigen::Index>(J.size()), 2 * n);
+  struct Check {
+    std::string key;
+    double value;
+    int column;
+  };
+  for (const Check& c : {Check{"bodies.beam.actuators.cable.force", 0.05, 0},
+                         Check{"bodies.beam.actuators.push.pressure", 500, 1}}) {
+    const double e = 1e-3 * c.value;
+    char plus[128], minus[128];
+    std::snprintf(plus, sizeof plus, "%s=%.17g", c.key.c_str(), c.value + e);
+    std::snprintf(minus, sizeof minus, "%s=%.17g", c.key.c_str(), c.value - e);
+    ASSERT_EQ(run_cli(std::string("simulate scene.yaml -o p.h5 --force --quiet --set ") + plus, dir).code, 0);
+    ASSERT_EQ(run_cli(std::string("simulate scene.yaml -o m.h5 --force --quiet --set ") + minus, dir).code, 0);
+    const Eigen::VectorXd fd = (h5_final_frame((dir / "p.h5").string(), "/bodies/beam/x") -
+                                h5_final_frame((dir / "m.h5").string(), "/bodies/beam/x")) / (2 * e);
+    Eigen::VectorXd analytic(n);
+    for (Eigen::Index i = 0; i < n; ++i) analytic[i] = J[static_cast<std::size_t>(i * 2 + c.column)];
+    ASSERT_GT(fd.norm(), 0) << c.key;
+    EXPECT_LE((analytic - fd).norm(), 1e-6 * fd.norm()) << c.key << ": " << (analytic - fd).norm() / fd.norm();
+  }
 }
 
 TEST(CliQuadratic, OutputHasTenNodeTetsAndMeshioReadsIt) {
@@ -141,6 +260,81 @@ TEST(CliQuadratic, CheckGradPassesOnTheQuadraticBeam) {
   EXPECT_EQ(r.code, 0) << r.out << r.err;
   EXPECT_NE(r.out.find("young"), std::string::npos) << r.out;
   EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
+}
+
+// Calibration on the quadratic beam works unchanged: young recovered from markers at
+// four nodes (vertices or mid-edge nodes of the 10-node tets: their quadratic
+// embedding is that node alone, where the 4-vertex embedding would give the
+// average of the edge's vertices), as the linear test (test_cli_calibrate.cpp):
+// a target simulated with young = 2e5, recovered from 5e4 to 1e-6.
+std::string calibration_scene() {
+  return "softdiff: 1\nsimulation: {dt: 0.01, steps: 5}\nbodies:\n  - name: beam\n    mesh: " +
+         (kRoot / "meshes/beam_o2.msh").string() +
+         "\n    material: {law: corotational, young: 2.0e5, poisson: 0.45, density: 1070}\n"
+         "    fixed:\n      - group: clamp\n";
+}
+
+TEST(CliQuadratic, CalibrationRecoversYoungFromMarkers) {
+  const fs::path dir = dir_for("calibrate");
+  write_text(dir / "scene.yaml", calibration_scene());
+  ASSERT_EQ(run_cli("simulate scene.yaml -o target.h5 --quiet", dir).code, 0);
+  const hid_t f = H5Fopen((dir / "target.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const auto dims = h5_shape(f, "/bodies/beam/x");
+  const std::vector<double> x = h5_read(f, "/bodies/beam/x"), time = h5_read(f, "/time");
+  H5Fclose(f);
+  const std::size_t n = dims[1];
+  ASSERT_GT(n, 1000u);
+  std::string csv = "time,marker,x,y,z\n";
+  const int nodes[4] = {100, 400, 700, 1000};
+  for (std::size_t k = 0; k < time.size(); ++k)
+    for (int m = 0; m < 4; ++m) {
+      const double* p = x.data() + (k * n + static_cast<std::size_t>(nodes[m])) * 3;
+      char line[160];
+      std::snprintf(line, sizeof line, "%.17g,m%d,%.17g,%.17g,%.17g\n", time[k], m, p[0], p[1], p[2]);
+      csv += line;
+    }
+  write_text(dir / "markers.csv", csv);
+  const auto r = run_cli("calibrate scene.yaml --param young --init 5e4 --markers markers.csv -o cal.h5 --json", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const auto k = r.out.find("\"young\":");
+  ASSERT_NE(k, std::string::npos) << r.out;
+  EXPECT_NEAR(std::strtod(r.out.c_str() + k + 8, nullptr) / 2e5, 1.0, 1e-6) << r.out;
+  EXPECT_NE(r.out.find("\"converged\":true"), std::string::npos) << r.out;
+}
+
+// Control on the quadratic beam works unchanged: a translation servo on the tip and
+// an effector there; a goal the servo can reach (where 0.02 N leaves the tip) is
+// reached to 0.1 mm from a start 1 mm or more away, within the limits, as the linear
+// test (test_cli_control.cpp).
+TEST(CliQuadratic, ControlReachesAGoalTheServoCanReach) {
+  const fs::path dir = dir_for("control");
+  write_text(dir / "scene.yaml",
+             "softdiff: 1\nsimulation: {dt: 0.01, steps: 40, gravity: [0, 0, 0]}\nbodies:\n  - name: beam\n"
+             "    mesh: " + (kRoot / "meshes/beam_o2.msh").string() + "\n"
+             "    material: {law: corotational, young: 2.0e5, poisson: 0.4, density: 1000}\n"
+             "    damping: {rayleigh_mass: 5}\n    fixed:\n      - group: clamp\n    actuators:\n"
+             "      - {name: pull, type: servo, nodes: {box: [0.19, -1, -1, 1, 1, 1]}, direction: [0, 1, 0], force: 0, "
+             "limits: [-0.05, 0.05]}\n"
+             "    effectors:\n      - {name: tip, point: [0.2, 0.01, 0.01]}\n");
+  ASSERT_EQ(run_cli("simulate scene.yaml -o goal.h5 --quiet --set bodies.beam.actuators.pull.force=0.02 --steps 100", dir).code, 0);
+  hid_t f = H5Fopen((dir / "goal.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const std::vector<double> g = h5_read(f, "/bodies/beam/effectors/tip");
+  H5Fclose(f);
+  char target[128];
+  std::snprintf(target, sizeof target, "%.17g,%.17g,%.17g", g[g.size() - 3], g[g.size() - 2], g[g.size() - 1]);
+  const auto r = run_cli(std::string("control scene.yaml --target=") + target + " -o c.h5 --json", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("\"within_limits\":true"), std::string::npos) << r.out;
+  f = H5Fopen((dir / "c.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const std::vector<double> d = h5_read(f, "/control/distance"), a = h5_read(f, "/control/actuation");
+  H5Fclose(f);
+  ASSERT_FALSE(d.empty());
+  EXPECT_GT(d.front(), 1e-3);
+  EXPECT_LT(d.back(), 1e-4) << "from " << d.front();
+  for (double v : a) EXPECT_TRUE(v >= -0.05 && v <= 0.05) << v;
 }
 
 }  // namespace cli_quadratic_test

@@ -139,8 +139,10 @@ TEST(Calibration, MarkersWithNoiseScatterAsThePredictedAccuracy) {
   for (int n : nodes) {
     optim::Marker mk;
     mk.name = "m" + std::to_string(n);
-    mk.nodes = {n, n, n, n};
-    mk.w = Eigen::Vector4d(1, 0, 0, 0);
+    mk.point.nodes = {n, n, n, n, -1, -1, -1, -1, -1, -1};
+    mk.point.w.setZero();
+    mk.point.w[0] = 1;
+    mk.point.count = 4;
     clean.markers.push_back(mk);
   }
   const optim::CalibrationTarget states = test::every_frame_target(m, kSteps);

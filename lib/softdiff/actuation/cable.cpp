@@ -12,7 +12,7 @@ Cable::Cable(std::vector<EmbeddedPoint> points, std::optional<Vec3> pull_point)
                   "a cable needs two points, or one point and a pull point");
   int max_node = 0;
   for (const auto& p : points_)
-    for (int a = 0; a < 4; ++a) {
+    for (int a = 0; a < p.count; ++a) {
       SOFTDIFF_DEMAND(p.nodes[a] >= 0, "negative node index");
       nodes_.push_back(p.nodes[a]);
       max_node = std::max(max_node, p.nodes[a]);
@@ -21,7 +21,7 @@ Cable::Cable(std::vector<EmbeddedPoint> points, std::optional<Vec3> pull_point)
   nodes_.erase(std::unique(nodes_.begin(), nodes_.end()), nodes_.end());
   slots_.resize(points_.size());
   for (size_t k = 0; k < points_.size(); ++k)
-    for (int a = 0; a < 4; ++a)
+    for (int a = 0; a < points_[k].count; ++a)
       slots_[k][a] = static_cast<int>(std::lower_bound(nodes_.begin(), nodes_.end(), points_[k].nodes[a]) -
                                       nodes_.begin());
   min_size_ = 3L * (max_node + 1);
@@ -49,17 +49,19 @@ Cable::SegmentStencil Cable::segment_stencil(int s) const {
   SOFTDIFF_DEMAND(s >= 0 && s < num_segments(), "segment index out of range");
   const int k1 = s + (pull_point_ ? 0 : 1), k0 = k1 - 1;
   SegmentStencil st;
-  for (int a = 0; a < 4; ++a) {
-    st.nodes[a] = points_[k1].nodes[a];
-    st.coeffs[a] = points_[k1].w[a];
+  const EmbeddedPoint& p1 = points_[k1];
+  for (int a = 0; a < p1.count; ++a) {
+    st.nodes[a] = p1.nodes[a];
+    st.coeffs[a] = p1.w[a];
   }
-  st.count = 4;
+  st.count = p1.count;
   if (k0 >= 0) {
-    for (int a = 0; a < 4; ++a) {
-      st.nodes[4 + a] = points_[k0].nodes[a];
-      st.coeffs[4 + a] = -points_[k0].w[a];
+    const EmbeddedPoint& p0 = points_[k0];
+    for (int a = 0; a < p0.count; ++a) {
+      st.nodes[st.count + a] = p0.nodes[a];
+      st.coeffs[st.count + a] = -p0.w[a];
     }
-    st.count = 8;
+    st.count += p0.count;
   }
   return st;
 }
@@ -85,7 +87,7 @@ void Cable::gradient_sparse(const VecX& x, Mat3X& values) const {
   SOFTDIFF_DEMAND(values.cols() == static_cast<Eigen::Index>(nodes_.size()), "values must be (3, nodes().size())");
   values.setZero();
   auto add = [&](int k, const Vec3& g) {
-    for (int a = 0; a < 4; ++a) values.col(slots_[k][a]) += points_[k].w[a] * g;
+    for (int a = 0; a < points_[k].count; ++a) values.col(slots_[k][a]) += points_[k].w[a] * g;
   };
   for_each_segment(x, [&](int k0, int k1, const Vec3& u, double) {
     add(k1, -u);

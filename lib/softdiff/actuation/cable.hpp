@@ -8,7 +8,7 @@
 // H_a = -dL/dx (1 x 3n), so the actuation force h H_a^T lambda with a tension
 // lambda >= 0 shortens the cable: each segment pulls its two end points towards each
 // other (and p_0 towards q) with force lambda along the segment, spread to the tet
-// nodes by the barycentric weights.
+// nodes by the embedding's weights (barycentric, or the quadratic shape functions).
 //
 // Zero-length segments. |d| is not differentiable at d = 0 (its subdifferential is
 // the unit ball) and its Hessian (I - u u^T)/|d| grows without bound as |d| -> 0. A
@@ -71,13 +71,15 @@ class Cable {
   int num_segments() const { return num_points() - 1 + (pull_point_ ? 1 : 0); }
 
   // The segment vector d_s = p_k1 - p_k0 (or p_0 - q) as a fixed linear combination
-  // of node positions, d_s = sum_a coeffs[a] x_{nodes[a]} (+ const): nodes[0..3] are
-  // p_k1's nodes with coeffs w, nodes[4..7] p_k0's with -w (absent, count = 4, for the
-  // pull point segment). Nodes may repeat (two points in one tet); the stiffness
+  // of node positions, d_s = sum_a coeffs[a] x_{nodes[a]} (+ const): the first
+  // p_k1.count entries are p_k1's nodes with coeffs w, the next p_k0.count p_k0's with
+  // -w (absent for the pull point segment); count = 8 for two points in linear tets,
+  // 20 in quadratic ones. Nodes may repeat (two points in one tet); the stiffness
   // blocks of repeated nodes simply add up.
   struct SegmentStencil {
-    std::array<int, 8> nodes{};
-    std::array<double, 8> coeffs{};
+    static constexpr int max_count = 2 * EmbeddedPoint::max_nodes;
+    std::array<int, max_count> nodes{};
+    std::array<double, max_count> coeffs{};
     int count = 0;
   };
   SegmentStencil segment_stencil(int s) const;
@@ -130,7 +132,7 @@ class Cable {
   std::vector<EmbeddedPoint> points_;
   std::optional<Vec3> pull_point_;
   std::vector<int> nodes_;                  // sorted distinct global nodes
-  std::vector<std::array<int, 4>> slots_;   // (K) position in nodes_ of each point's nodes
+  std::vector<std::array<int, EmbeddedPoint::max_nodes>> slots_;  // (K) position in nodes_ of each point's nodes
   long min_size_ = 0;                       // 3 (max node + 1)
 };
 

@@ -1,5 +1,6 @@
 #include <softdiff/actuation/embedding.hpp>
 #include <softdiff/core/assert.hpp>
+#include <softdiff/fem/tet10.hpp>
 
 #include <Eigen/LU>
 #include <algorithm>
@@ -69,7 +70,62 @@ Eigen::Vector4d weights_from(const Mat3& Dm_inv, const Vec3& x0, const Vec3& p) 
   return w;
 }
 
+Eigen::Matrix<double, 3, 10> tet10_positions(const Mat3X& X, const mesh::Tets10& tets10, int tet) {
+  Eigen::Matrix<double, 3, 10> x;
+  for (int a = 0; a < 10; ++a) x.col(a) = X.col(tets10(a, tet));
+  return x;
+}
+
 }  // namespace
+
+Eigen::Matrix<double, 10, 1> quadratic_weights(const Eigen::Vector4d& l) {
+  return fem::tet10::shape(l[1], l[2], l[3]);
+}
+
+bool quadratic_reference_coordinates(const Eigen::Matrix<double, 3, 10>& X_e, const Vec3& p, const Eigen::Vector4d& l0,
+                                     Eigen::Vector4d& l) {
+  Vec3 xi = l0.tail<3>();
+  l = l0;
+  for (int it = 0; it < 30; ++it) {
+    const Vec3 r = X_e * fem::tet10::shape(xi[0], xi[1], xi[2]) - p;
+    const Mat3 J = fem::tet10::jacobian(X_e, fem::tet10::shape_gradients_ref(xi[0], xi[1], xi[2]));
+    const double det = J.determinant();
+    if (!(det > 0) || !std::isfinite(det)) return false;
+    const Vec3 step = J.inverse() * r;
+    xi -= step;
+    if (!xi.allFinite()) return false;
+    if (step.norm() <= 1e-14 * std::max(1.0, xi.norm())) {
+      l << 1 - xi.sum(), xi;
+      return true;
+    }
+  }
+  return false;
+}
+
+EmbeddedPoint embedded_point(const Embedding& e, const Tets& tets, int node_offset) {
+  SOFTDIFF_DEMAND(e.order == 1, "embedded_point: a quadratic embedding needs the 10-node tets");
+  EmbeddedPoint p;
+  for (int a = 0; a < 4; ++a) {
+    p.nodes[a] = tets(a, e.tet) + node_offset;
+    p.w[a] = e.w[a];
+  }
+  p.count = 4;
+  return p;
+}
+
+EmbeddedPoint embedded_point(const Embedding& e, const mesh::Tets10& tets10, int node_offset) {
+  SOFTDIFF_DEMAND(e.order == 2, "embedded_point: a linear embedding needs the 4-node tets");
+  EmbeddedPoint p;
+  for (int a = 0; a < 10; ++a) p.nodes[a] = tets10(a, e.tet) + node_offset;
+  p.w = quadratic_weights(e.w);
+  p.count = 10;
+  return p;
+}
+
+EmbeddedPoint embedded_point(const Embedding& e, const PointLocator& locator, int node_offset) {
+  return locator.order() == 2 ? embedded_point(e, locator.tets10(), node_offset)
+                              : embedded_point(e, locator.tets(), node_offset);
+}
 
 Eigen::Vector4d barycentric_weights(const Mat3X& X, const Tets& tets, int tet, const Vec3& p) {
   const Eigen::Matrix<double, 3, 4> x = tet_positions(X, tets, tet);
@@ -83,9 +139,19 @@ double point_tet_distance(const Mat3X& X, const Tets& tets, int tet, const Vec3&
   return distance_to_tet_faces(x, p);
 }
 
-PointLocator::PointLocator(const Mat3X& X, const Tets& tets) : X_(X), tets_(tets) {
+PointLocator::PointLocator(const Mat3X& X, const Tets& tets) : X_(X), tets_(tets) { build(); }
+
+PointLocator::PointLocator(const Mat3X& X, const Tets& tets, const mesh::Tets10& tets10)
+    : X_(X), tets_(tets), tets10_(tets10) {
+  SOFTDIFF_DEMAND(tets10_.cols() == tets_.cols(), "PointLocator: tets10 must have one column per tet");
+  build();
+}
+
+void PointLocator::build() {
   const int m = static_cast<int>(tets_.cols());
   const int n = static_cast<int>(X_.cols());
+  const bool quadratic = tets10_.cols() > 0;
+  curved_.assign(m, 0);
   Dm_inv_.assign(m, Mat3::Zero());
   usable_.assign(m, 0);
   box_min_.resize(3, m);
@@ -99,6 +165,17 @@ PointLocator::PointLocator(const Mat3X& X, const Tets& tets) : X_(X), tets_(tets
     box_max_.col(e) = x.rowwise().maxCoeff();
     const Mat3 D = edge_matrix(x);
     const double det = D.determinant(), l = longest_edge(x);
+    if (quadratic) {
+      for (int a = 0; a < 10; ++a)
+        SOFTDIFF_DEMAND(tets10_(a, e) >= 0 && tets10_(a, e) < n, "tet node index out of range");
+      const Eigen::Matrix<double, 3, 10> x10 = tet10_positions(X_, tets10_, e);
+      box_min_.col(e) = x10.rowwise().minCoeff();
+      box_max_.col(e) = x10.rowwise().maxCoeff();
+      for (int k = 0; k < 6; ++k) {
+        const Vec3 mid = 0.5 * (x.col(mesh::kTet10Edge[k][0]) + x.col(mesh::kTet10Edge[k][1]));
+        if ((x10.col(4 + k) - mid).norm() > 1e-12 * l) curved_[e] = 1;
+      }
+    }
     if (std::abs(det) > 1e-14 * l * l * l && std::isfinite(det)) {
       usable_[e] = 1;
       Dm_inv_[e] = D.inverse();
@@ -155,6 +232,12 @@ double PointLocator::cell_distance(const Vec3& p, int ix, int iy, int iz) const 
 void PointLocator::evaluate(int tet, const Vec3& p, Candidate& c) const {
   c.tet = tet;
   c.w = weights_from(Dm_inv_[tet], X_.col(tets_(0, tet)), p);
+  if (curved_[tet]) {
+    // The reference coordinates of the curved element (the vertex tet's barycentric
+    // coordinates when Newton fails, far outside it).
+    Eigen::Vector4d l;
+    if (quadratic_reference_coordinates(tet10_positions(X_, tets10_, tet), p, c.w, l)) c.w = l;
+  }
   c.min_weight = c.w.minCoeff();
   c.distance = c.min_weight >= -inside_tolerance ? 0.0 : distance_to_tet_faces(tet_positions(X_, tets_, tet), p);
 }
@@ -213,6 +296,7 @@ LocateResult PointLocator::locate(const Vec3& p, const LocateOptions& options) c
   r.embedding.tet = best.tet;
   r.embedding.w = best.w;
   r.embedding.outside_distance = best.distance;
+  r.embedding.order = order();
   if (best.distance == 0) {
     r.status = LocateStatus::inside;
     return r;

@@ -26,6 +26,24 @@
 // oriented inward, into the box, and gives V = -(box volume).) For an open face V is
 // not defined (it would depend on the origin); volume() requires a closed cavity.
 //
+// Quadratic bodies: 6-node triangles (a, b, c, m_ab, m_bc, m_ca), gmsh's order, whose
+// surface x(xi, eta) = sum_i N_i(xi, eta) x_i is the quadratic (possibly curved) face
+// of the 10-node tet. With the area-vector density n(xi, eta) = x_xi x x_eta (the
+// same orientation, into the solid, as for 3-node triangles):
+//
+//     V(x)      = (1/3) sum_t int_T (x - o) . n dxi deta     (divergence theorem)
+//     H_a[i]    = sum_t int_T N_i n dxi deta                 (the consistent pressure load)
+//
+// and for a closed cavity H_a = dV/dx exactly: the variation of the enclosed volume
+// of a closed continuous surface is int dx . n dA (the other two terms of dV
+// integrate by parts to twice this, around a closed surface). Both integrands are
+// polynomials of degree 4 in (xi, eta) (x and N_i of degree 2, x_xi and x_eta of
+// degree 1), so the 6-point degree-4 triangle rule (Strang and Fix; Dunavant's
+// degree-4 rule, positive weights) integrates them exactly, and V, H_a and
+// d(H_a^T p)/dx = p sum_t int N_i (dx_xi x x_eta + x_xi x dx_eta) are exact for the
+// curved quadratic surface, not an approximation of it. On a straight (flat)
+// 6-node triangle the load is n/3 on each mid-edge node and 0 on the vertices.
+//
 // Every evaluation is allocation-free.
 #include <softdiff/core/types.hpp>
 
@@ -57,11 +75,17 @@ class Cavity {
   // triangles (3, k): node indices local to the body whose rest positions X (3, n)
   // and tets (4, m) are given (any tet orientation); node_offset: global index of
   // the body's node 0. On error `out` is left empty and the status names the triangle.
+  // quadratic: for a quadratic body, the 6-node triangles (6, k) of `triangles` (rows
+  // 0-2 equal to them; mesh::quadratic_triangles), whose mid-edge nodes follow the
+  // triangles' orientation; nullptr for 3-node triangles.
   static CavityStatus create(const Mat3X& X, const Tets& tets, const Triangles& triangles, int node_offset,
-                             Cavity& out);
+                             Cavity& out, const Eigen::Matrix<int, 6, Eigen::Dynamic>* quadratic = nullptr);
 
   int num_triangles() const { return static_cast<int>(triangles_.cols()); }
-  const Triangles& triangles() const { return triangles_; }  // global nodes, oriented into the solid
+  const Triangles& triangles() const { return triangles_; }  // global vertex nodes, oriented into the solid
+  int order() const { return triangles6_.cols() > 0 ? 2 : 1; }
+  // (6, k) order 2: global nodes in gmsh's order, oriented into the solid (rows 0-2 == triangles()).
+  const Eigen::Matrix<int, 6, Eigen::Dynamic>& triangles6() const { return triangles6_; }
   bool closed() const { return num_open_edges_ == 0 && triangles_.cols() > 0; }
   int num_open_edges() const { return num_open_edges_; }     // edges not paired by an opposite edge
 
@@ -86,9 +110,15 @@ class Cavity {
  private:
   void check_sizes(const VecX& x, const VecX& out) const;
 
+  double volume6(const VecX& x) const;
+  void add_force6(const VecX& x, double p, double scale, VecX& f) const;
+  void add_force_derivative6(const VecX& x, double p, const VecX& dx, VecX& out) const;
+  void add_force_derivative_transpose6(const VecX& x, double p, const VecX& y, VecX& out) const;
+
   Triangles triangles_;                    // (3, k) global nodes, oriented into the solid
-  std::vector<int> nodes_;                 // sorted distinct global nodes
-  std::vector<std::array<int, 3>> slots_;  // (k) position in nodes_ of each triangle's nodes
+  Eigen::Matrix<int, 6, Eigen::Dynamic> triangles6_;  // (6, k) order 2 only
+  std::vector<int> nodes_;                 // sorted distinct global nodes (mid-edge nodes included)
+  std::vector<std::array<int, 6>> slots_;  // (k) position in nodes_ of each triangle's nodes (3 or 6)
   int num_open_edges_ = 0;
   long min_size_ = 0;
 };

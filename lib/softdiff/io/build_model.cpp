@@ -115,8 +115,10 @@ actuation::EmbeddedPoint embed(const actuation::PointLocator& locator, const fem
   if (r.status == actuation::LocateStatus::outside && report)
     report->warnings.push_back(where.str() + ": " + what + " lies " + format_mm(r.embedding.outside_distance) +
                                " outside body '" + b.name + "': mapped to its nearest tetrahedron (" +
-                               std::to_string(r.embedding.tet) + ") with extrapolated barycentric weights");
-  return actuation::embedded_point(r.embedding, b.mesh.tets, b.node_begin);
+                               std::to_string(r.embedding.tet) +
+                               (locator.order() == 2 ? ") with extrapolated reference coordinates (quadratic shape functions)"
+                                                     : ") with extrapolated barycentric weights"));
+  return actuation::embedded_point(r.embedding, locator, b.node_begin);
 }
 
 // Runs before build_fem_model (the cables' stiffness cliques enter the pattern):
@@ -133,18 +135,10 @@ void build_actuation(const SceneDesc& scene, const std::vector<fem::BodyModel>& 
     const BodyDesc& bd = scene.bodies[bi];
     const fem::BodyModel& b = bodies[bi];
     if (bd.actuators.empty() && bd.effectors.empty()) continue;
-    if (b.mesh.order == 2) {
-      // Embedding with the quadratic shape functions and cavities on 6-node triangles
-      // are not implemented yet (issue 18, stage 3): refuse rather than use the vertices.
-      for (const ActuatorDesc& ad : bd.actuators)
-        if (ad.kind != ActuatorDesc::Kind::servo)
-          fail(ad.where, "cable and pressure actuators on quadratic elements are not supported yet (only servos); "
-                         "use a linear mesh for body '" + bd.name + "'");
-      if (!bd.effectors.empty())
-        fail(bd.effectors.front().where, "effectors on quadratic elements are not supported yet; use a linear mesh "
-                                         "for body '" + bd.name + "'");
-    }
-    const actuation::PointLocator locator(b.mesh.X, b.mesh.tets);
+    // Quadratic bodies embed points with the quadratic shape functions (embedding.hpp).
+    const actuation::PointLocator locator = b.mesh.order == 2
+                                                ? actuation::PointLocator(b.mesh.X, b.mesh.tets, b.mesh.tets10)
+                                                : actuation::PointLocator(b.mesh.X, b.mesh.tets);
     std::unordered_map<long, int> by_file_index;
     for (const ActuatorDesc& ad : bd.actuators) {
       actuation::ActuatorModel a;
@@ -177,7 +171,10 @@ void build_actuation(const SceneDesc& scene, const std::vector<fem::BodyModel>& 
           Triangles tris(3, static_cast<int>(g->triangles.size()));
           for (size_t k = 0; k < g->triangles.size(); ++k) tris.col(static_cast<int>(k)) = b.mesh.triangles.col(g->triangles[k]);
           actuation::Cavity cavity;
-          const auto status = actuation::Cavity::create(b.mesh.X, b.mesh.tets, tris, b.node_begin, cavity);
+          // Quadratic bodies: the 6-node triangles (mid-edge nodes from the tets' edges).
+          const mesh::Triangles6 tris6 = b.mesh.order == 2 ? mesh::quadratic_triangles(b.mesh, tris) : mesh::Triangles6();
+          const auto status = actuation::Cavity::create(b.mesh.X, b.mesh.tets, tris, b.node_begin, cavity,
+                                                        b.mesh.order == 2 ? &tris6 : nullptr);
           if (!status.ok()) fail(w, "cavity '" + ad.surface + "': " + status.message());
           a.kind = std::move(cavity);
           break;

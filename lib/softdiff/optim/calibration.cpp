@@ -65,12 +65,11 @@ void fill_rows(const CalibrationTarget& target, int f, const VecX& x, const MatX
     if (o.frame != f) continue;
     const Marker& m = target.markers[static_cast<std::size_t>(o.marker)];
     const Eigen::Index row = 3 * static_cast<Eigen::Index>(i);
-    Vec3 p = Vec3::Zero();
-    for (int a = 0; a < 4; ++a) p += m.w[a] * x.segment<3>(3 * m.nodes[a]);
-    r.segment<3>(row) = p - o.position;
+    r.segment<3>(row) = m.point.position(x) - o.position;
     J.middleRows<3>(row).setZero();
     if (dx)
-      for (int a = 0; a < 4; ++a) J.middleRows<3>(row) += m.w[a] * dx->middleRows<3>(3 * m.nodes[a]);
+      for (int a = 0; a < m.point.count; ++a)
+        J.middleRows<3>(row) += m.point.w[a] * dx->middleRows<3>(3 * m.point.nodes[a]);
   }
 }
 

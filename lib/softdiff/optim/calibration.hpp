@@ -7,7 +7,7 @@
 // Observations (a CalibrationTarget):
 //   - states: the positions of every node at chosen frames (a softdiff trajectory);
 //     r = x_k(p) - x_k* stacked over the frames;
-//   - markers: positions of embedded points (barycentric in one tet each, as a
+//   - markers: positions of embedded points (in one tet each, as a
 //     motion-capture marker glued to the body) at chosen frames; r = W x_k(p) - y*.
 // Static scenes have one frame, the equilibrium (frame = the last load step).
 //
@@ -23,6 +23,7 @@
 // the damping grows and the iteration goes on (counted in CalibrationIteration::failed).
 #include <softdiff/core/parameters.hpp>
 #include <softdiff/core/types.hpp>
+#include <softdiff/actuation/embedding.hpp>
 #include <softdiff/model.hpp>
 
 #include <array>
@@ -32,11 +33,12 @@
 
 namespace softdiff::optim {
 
-// An embedded point: sum_a w[a] x_{nodes[a]} (global node indices).
+// An embedded point: sum_a w[a] x_{nodes[a]} (global node indices; 4 nodes with
+// barycentric weights in a linear tet, 10 with the quadratic shape functions in a
+// quadratic one).
 struct Marker {
   std::string name;
-  std::array<int, 4> nodes{};
-  Eigen::Vector4d w = Eigen::Vector4d::Zero();
+  actuation::EmbeddedPoint point;
 };
 
 struct CalibrationTarget {
