@@ -25,7 +25,16 @@ struct StepSettings {
   int newton_iterations = 1;        // 1: the paper's linearized step; > 1: at most this many Newton solves
   double newton_tolerance = 1e-10;  // relative residual of the implicit Euler equations (newton_iterations > 1)
   int static_max_iterations = 50;   // Newton iterations per load step
-  double static_tolerance = 1e-10;  // relative residual force norm
+  double static_tolerance = 1e-10;  // relative residual force norm (the residual criterion)
+  // The answer criterion (method.md "Static equilibrium"), on when
+  // static_displacement_tolerance > 0: a load step also ends when the change of the
+  // answer still to come (|dx_k| rho / (1 - rho), rho the observed contraction of the
+  // Newton increments) is below static_displacement_tolerance of the displacement and
+  // the residual below static_residual_tolerance of its reference. io::build_model sets
+  // them from the scene (defaults 1e-4 and 1e-3); a Model built in code keeps 0 (the
+  // residual criterion alone).
+  double static_displacement_tolerance = 0;
+  double static_residual_tolerance = 0;
   int static_load_steps = 1;
   double divergence_factor = 100;   // a node further than this many body diagonals from rest: diverged
 };

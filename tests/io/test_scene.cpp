@@ -269,6 +269,29 @@ TEST_F(Scene, StaticIntegratorNeedsNoTimeStep) {
   EXPECT_EQ(s.simulation.static_load_steps, 3);
 }
 
+// static.convergence (extension, method.md "Static equilibrium"): residual by default;
+// answer with its two tolerances (defaults 1e-4, 1e-3); those keys need `answer`.
+TEST_F(Scene, StaticConvergenceCriterion) {
+  const auto base = [](const std::string& static_section) {
+    return edit("  dt: 0.01\n  steps: 10\n", "  integrator: static\n" + static_section);
+  };
+  const SceneDesc plain = load(base(""));
+  EXPECT_FALSE(plain.simulation.static_answer_criterion);
+  const SceneDesc answer = load(base("  static: {convergence: answer}\n"));
+  EXPECT_TRUE(answer.simulation.static_answer_criterion);
+  EXPECT_DOUBLE_EQ(answer.simulation.static_displacement_tolerance, 1e-4);
+  EXPECT_DOUBLE_EQ(answer.simulation.static_residual_tolerance, 1e-3);
+  const SceneDesc set = load(base("  static: {convergence: answer, displacement_tolerance: 1.0e-6, residual_tolerance: 1.0e-5}\n"));
+  EXPECT_DOUBLE_EQ(set.simulation.static_displacement_tolerance, 1e-6);
+  EXPECT_DOUBLE_EQ(set.simulation.static_residual_tolerance, 1e-5);
+  const std::string message = error(base("  static: {displacement_tolerance: 1.0e-6}\n"));
+  EXPECT_NE(message.find("simulation.static.displacement_tolerance: applies to convergence: answer"), std::string::npos)
+      << message;
+  EXPECT_NE(error(base("  static: {convergence: newton}\n")).find("convergence"), std::string::npos);
+  EXPECT_NE(error(base("  static: {convergence: answer, residual_tolerance: 0.5}\n")).find("residual_tolerance"),
+            std::string::npos);
+}
+
 TEST_F(Scene, LinearSolverAsString) {
   EXPECT_EQ(load(kBase + "linear_solver: ldlt\n").linear_solver.kind, LinearSolverKind::ldlt);
   EXPECT_EQ(load(kBase + "linear_solver: cg\n").linear_solver.kind, LinearSolverKind::cg);

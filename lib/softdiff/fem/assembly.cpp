@@ -1,5 +1,6 @@
 #include <softdiff/fem/assembly.hpp>
 #include <softdiff/fem/element_loop.hpp>
+#include <softdiff/fem/element_psd.hpp>
 
 #include <Eigen/LU>
 #include <algorithm>
@@ -59,10 +60,7 @@ bool element_forces_stiffness(material::Law law, const material::Lame& lame, dou
   if (energy) *energy = volume * material::psi(law, F, lame);
   // f_a = -V P g_a
   Eigen::Map<Eigen::Matrix<double, 3, 4>>(f_e.data()).noalias() = -volume * P * G;
-  if (K_e) {
-    element_stiffness_from_tangent(dP_dF, G, volume, *K_e);
-    if (psd_projection) material::project_psd(*K_e);
-  }
+  if (K_e) tet4_stiffness(dP_dF, G, volume, psd_projection, *K_e);  // element_psd.hpp
   return true;
 }
 
@@ -74,6 +72,7 @@ bool element10_forces_stiffness(material::Law law, const material::Lame& lame,
   f.setZero();
   if (K_e) K_e->setZero();
   if (energy) *energy = 0;
+  bool all_psd = true;  // every point's dP/dF PSD: K_e is too, the projection keeps it (element_psd.hpp)
   for (int q = 0; q < 4; ++q) {
     F[q].noalias() = x_e * G[q].transpose();
     if (!(F[q].determinant() > 0)) return false;
@@ -85,8 +84,9 @@ bool element10_forces_stiffness(material::Law law, const material::Lame& lame,
     if (energy) *energy += weight[q] * material::psi(law, F[q], lame);
     f.noalias() -= weight[q] * P * G[q];
     if (K_e) add_stiffness_from_tangent<10>(dP_dF, G[q], weight[q], *K_e);
+    if (K_e && psd_projection && all_psd) all_psd = tangent_is_psd(dP_dF);
   }
-  if (K_e && psd_projection) material::project_psd(*K_e);
+  if (K_e && psd_projection && !all_psd) material::project_psd(*K_e);
   return true;
 }
 

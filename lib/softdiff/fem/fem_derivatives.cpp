@@ -5,6 +5,7 @@
 #include <softdiff/core/assert.hpp>
 #include <softdiff/fem/assembly.hpp>
 #include <softdiff/fem/element_loop.hpp>
+#include <softdiff/fem/element_psd.hpp>
 #include <softdiff/material/psd.hpp>
 
 namespace softdiff::fem {
@@ -12,7 +13,6 @@ namespace softdiff::fem {
 namespace {
 
 using Mat34 = Eigen::Matrix<double, 3, 4>;
-using Mat9x12 = Eigen::Matrix<double, 9, 12>;
 
 Vec9 vec9(const Mat3& A) { return Eigen::Map<const Vec9>(A.data()); }
 Mat3 mat3(const Vec9& v) { return Eigen::Map<const Mat3>(v.data()); }
@@ -27,7 +27,7 @@ struct ElementPoint {
   material::Law law{};
   material::Lame lame;
   bool projected = false;  // psd_projection and K_e not PSD: dK~ = D(dK)
-  material::PsdProjectionDerivative<12> projection;
+  Tet4PsdDerivative projection;  // D, reduced to 9 x 9 (element_psd.hpp)
 
   bool compute(const FemModel& model, const VecX& x, int e, bool need_projection) {
     const auto& body = model.bodies[model.tet_body[e]];
@@ -44,9 +44,7 @@ struct ElementPoint {
     if (!material::stress(law, F, lame, P, &C)) return false;
     projected = false;
     if (need_projection && body.psd_projection) {
-      Mat12 K;
-      element_stiffness_from_tangent(C, G, V, K);
-      projection.compute(K);
+      projection.compute(C, G, V);
       projected = !projection.identity;
     }
     return true;
@@ -56,14 +54,6 @@ struct ElementPoint {
   Mat3 dF(const Mat34& u_e) const { return u_e * G.transpose(); }
   // Node forces-like values V mat(s) G of a 9-vector s (the action of B^T, times V).
   Mat34 spread(const Vec9& s) const { return V * mat3(s) * G; }
-  // B (9 x 12): vec(dF_u) = B vec(u_e).
-  Mat9x12 B() const {
-    Mat9x12 b = Mat9x12::Zero();
-    for (int a = 0; a < 4; ++a)
-      for (int j = 0; j < 3; ++j)
-        for (int i = 0; i < 3; ++i) b(3 * j + i, 3 * a + i) = G(j, a);
-    return b;
-  }
 };
 
 // The 10-node element (tet10.hpp): the same products summed over the 4 quadrature
@@ -110,10 +100,15 @@ struct QuadraticElement {
     }
     projected = false;
     if (need_projection && body.psd_projection) {
-      Mat30 K = Mat30::Zero();
-      for (int q = 0; q < 4; ++q) add_stiffness_from_tangent<10>(C[q], G[q], V[q], K);
-      projection.compute(K);
-      projected = !projection.identity;
+      // As element10_forces_stiffness: kept when every point's dP/dF is PSD.
+      bool all_psd = true;
+      for (int q = 0; q < 4 && all_psd; ++q) all_psd = tangent_is_psd(C[q]);
+      if (!all_psd) {
+        Mat30 K = Mat30::Zero();
+        for (int q = 0; q < 4; ++q) add_stiffness_from_tangent<10>(C[q], G[q], V[q], K);
+        projection.compute(K);
+        projected = !projection.identity;
+      }
     }
     return true;
   }
@@ -258,9 +253,7 @@ int add_stiffness_jvp(const FemModel& model, const VecX& x, const VecX& u, const
       if (!p.projected) {
         r += cb * p.spread(dC * vec9(p.dF(w_e)));
       } else {
-        Mat12 dK;
-        element_stiffness_from_tangent(dC, p.G, p.V, dK);
-        r += cb * as34(p.projection.apply(dK) * as12(w_e));
+        r += cb * as34(p.projection.apply_tangent(dC, p.V, as12(w_e)));
       }
     }
     scatter_add(model, e, r, out);
@@ -289,11 +282,7 @@ int add_stiffness_vjp(const FemModel& model, const VecX& x, const VecX& y, const
         if (!material::stress_hessian_directional(p.law, p.F, p.lame, dF_y, dC)) return false;
         r += cb * p.spread(dC * vec9(p.dF(w_e)));
       } else {
-        const Vec12 yv = as12(y_e), wv = as12(w_e);
-        const Mat12 Y = 0.5 * (yv * wv.transpose() + wv * yv.transpose());
-        const Mat12 S = p.projection.apply(Y);
-        const Mat9x12 B = p.B();
-        const Mat9 S_hat = B * S * B.transpose();
+        const Mat9 S_hat = p.projection.reverse(as12(y_e), as12(w_e));
         Vec9 g;
         for (int m = 0; m < 9; ++m) {
           Mat3 E = Mat3::Zero();
@@ -347,9 +336,7 @@ int add_elastic_parameter_derivative(const FemModel& model, const VecX& x, int b
     if (!p.projected) {
       scatter_add(model, e, p.spread(C_d * vec9(p.dF(w_e))), dKw);
     } else {
-      Mat12 dK;
-      element_stiffness_from_tangent(C_d, p.G, p.V, dK);
-      scatter_add(model, e, as34(p.projection.apply(dK) * as12(w_e)), dKw);
+      scatter_add(model, e, as34(p.projection.apply_tangent(C_d, p.V, as12(w_e))), dKw);
     }
     return true;
   });

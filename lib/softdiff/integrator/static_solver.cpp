@@ -9,6 +9,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <limits>
 
 namespace softdiff::integrator {
 namespace {
@@ -108,6 +109,7 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
     double rel = 0;
     int it = 0;
     contact_solved = false;
+    double dx_norm_previous = std::numeric_limits<double>::infinity();  // the answer criterion's |dx_{k-1}|
     // Each load step starts with the proximal factor kShiftMin (divided by 10 per
     // iteration down to kProximal): the first free increment carries the whole
     // unbalanced load of a body held by contact, and its rigid part R / tau_p enters g;
@@ -228,6 +230,29 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
                                "its contacts do not hold it (it rests on no support within contact.margin, or the load "
                                "exceeds what friction holds: no equilibrium)");
         dx_previous = dx;
+      }
+      // The answer criterion (static.convergence: answer; method.md "Static
+      // equilibrium"): stop where the answer stops changing. With rho = |dx_k| /
+      // |dx_{k-1}| (max norms, Newton directions) the observed contraction, the change
+      // of the answer still to come after x_k + dx_k is at most |dx_k| rho / (1 - rho)
+      // for linear convergence at rate rho (Newton's quadratic convergence makes it
+      // far smaller). Accept x_k + dx_k (without a line search) when that bound is
+      // below displacement_tolerance of the displacement from the start of the solve
+      // and the residual at x_k below residual_tolerance of its reference. Not with a
+      // shifted tangent (not Newton's step) or an NCP that missed its tolerance.
+      {
+        const double dx_norm = dx.cwiseAbs().maxCoeff();
+        const double rho = dx_norm / dx_norm_previous;
+        dx_norm_previous = shifted ? std::numeric_limits<double>::infinity() : dx_norm;
+        if (settings.static_displacement_tolerance > 0 && !shifted && (!with_contact || cd.result.converged) &&
+            rel <= settings.static_residual_tolerance && rho < 1) {
+          trial = out.x + dx - in.x;
+          if (dx_norm * rho / (1 - rho) <= settings.static_displacement_tolerance * trial.cwiseAbs().maxCoeff()) {
+            out.x += dx;
+            ++total_iterations;
+            break;
+          }
+        }
       }
       // Stagnation at round-off: the residual of f_int + P cannot drop below ~eps
       // times the element forces that cancel in it; once the Newton correction is

@@ -290,6 +290,8 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
   model.step.newton_tolerance = sim.newton_tolerance;
   model.step.static_max_iterations = sim.static_max_iterations;
   model.step.static_tolerance = sim.static_tolerance;
+  model.step.static_displacement_tolerance = sim.static_answer_criterion ? sim.static_displacement_tolerance : 0.0;
+  model.step.static_residual_tolerance = sim.static_answer_criterion ? sim.static_residual_tolerance : 0.0;
   model.step.static_load_steps = sim.static_load_steps;
   switch (scene.linear_solver.kind) {
     case LinearSolverKind::cholmod: model.solver.kind = integrator::SolverKind::cholmod; break;

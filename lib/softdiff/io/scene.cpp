@@ -175,6 +175,19 @@ class Reader {
     sim.static_max_iterations = static_cast<int>(integer(get(st, "max_iterations"), sim.static_max_iterations));
     sim.static_tolerance = number(get(st, "tolerance"), sim.static_tolerance);
     sim.static_load_steps = static_cast<int>(integer(get(st, "load_steps"), sim.static_load_steps));
+    sim.static_displacement_tolerance =
+        number(get(st, "displacement_tolerance"), sim.static_displacement_tolerance);
+    sim.static_residual_tolerance = number(get(st, "residual_tolerance"), sim.static_residual_tolerance);
+    if (st && st->is_map()) {
+      const Entry* convergence = st->find("convergence");
+      const Entry* answer_tolerance = st->find("displacement_tolerance");
+      if (!answer_tolerance) answer_tolerance = st->find("residual_tolerance");
+      sim.static_answer_criterion = convergence && convergence->value.scalar == "answer";
+      if (!sim.static_answer_criterion && answer_tolerance)
+        ctx_.fail(answer_tolerance->key_mark, "simulation.static." + answer_tolerance->key,
+                  "applies to convergence: answer (add 'convergence: answer'; the residual criterion uses "
+                  "tolerance)");
+    }
 
     const Entry* dt = s && s->is_map() ? s->find("dt") : nullptr;
     const Entry* steps = s && s->is_map() ? s->find("steps") : nullptr;

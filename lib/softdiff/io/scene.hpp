@@ -142,6 +142,11 @@ struct SimulationDesc {
   int static_max_iterations = 50;
   double static_tolerance = 1e-10;
   int static_load_steps = 1;
+  // extension (method.md "Static equilibrium"): `static.convergence` residual (the
+  // default: `tolerance`) or answer (`displacement_tolerance`, `residual_tolerance`).
+  bool static_answer_criterion = false;
+  double static_displacement_tolerance = 1e-4;  // `static.displacement_tolerance`
+  double static_residual_tolerance = 1e-3;      // `static.residual_tolerance`
 };
 
 struct LinearSolverDesc {

@@ -142,6 +142,9 @@ SpecPtr simulation() {
                         key("max_iterations", integer(ge(1))),
                         key("tolerance", number(gt(0))),
                         key("load_steps", integer(ge(1))),
+                        key("convergence", choice({"answer", "residual"})),  // extension
+                        key("displacement_tolerance", number(Range{0.0, 0.1, true, false})),  // extension
+                        key("residual_tolerance", number(Range{0.0, 0.1, true, false})),      // extension
                     })),
   });
 }
