@@ -106,6 +106,35 @@ TEST(CliBdf2, CheckGradEveryBlockPasses) {
 // error of 5.7e-5 relative (measured; 5.9e-7 at 1e-5, the h^2 scaling of truncation):
 // the extrapolation x^ = 4/3 x_n - 1/3 x_{n-1} moves the contact points further per
 // unit of x0 than implicit Euler's x_i, so the runs are more curved in x0.
+std::string bdf2_contact_scene(const std::string& simulation_extra) {
+  return "softdiff: 1\n"
+         "simulation: {integrator: bdf2, dt: 0.005, steps: 3" + simulation_extra + "}\n"
+         "bodies:\n"
+         "  - name: beam\n"
+         "    mesh: " + (kRoot / "meshes/beam.msh").string() + "\n"
+         "    translate: [0, 0, -0.0001]\n"
+         "    material: {law: corotational, young: 1.0e5, poisson: 0.3, density: 1000}\n"
+         "obstacles:\n"
+         "  - {name: floor, type: plane, normal: [0, 0, 1], offset: 0}\n"
+         "contact:\n"
+         "  friction: 0.5\n"
+         "  tolerance: 1.0e-13\n"
+         "  max_iterations: 20000\n";
+}
+
+// The same with Newton (docs/method.md "Newton iterations with contact"): the implicit
+// function theorem at each converged BDF2 stage (converged to 1e-12, 30 iterations at
+// most, so that the differences see the converged map).
+TEST(CliBdf2, CheckGradThroughContactWithNewton) {
+  const auto dir = fresh_dir(kWork, "check_grad_contact_newton");
+  write_text(dir / "scene.yaml", bdf2_contact_scene(", newton_iterations: 30, newton_tolerance: 1.0e-12"));
+  const CliRun r = run_cli("check-grad scene.yaml --steps 3 --wrt young,friction,x0 --directions 2 --eps 1e-5", dir);
+  EXPECT_EQ(r.code, 0) << r.out << r.err;
+  EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
+  for (const char* block : {"young", "friction", "x0"})
+    EXPECT_NE(r.out.find(std::string("\n") + block + " "), std::string::npos) << r.out;
+}
+
 TEST(CliBdf2, CheckGradThroughContact) {
   const auto dir = fresh_dir(kWork, "check_grad_contact");
   write_text(dir / "scene.yaml",

@@ -54,11 +54,11 @@ struct Params {
 
 // The Newton variant of the cases: 40 iterations at most, converged to newton_tolerance
 // 1e-13 (quadratic convergence reaches round-off, so that the differences see the
-// converged map), h = 5 ms (2.5 times the elastic wave's crossing time of the 4 cm
-// cube), compressed by 5 % and sliding at 1 m/s (faster than the friction impulse
-// mu N h can stop). The linearized step is then off by a few percent of the velocity
-// change (printed: 1.7 to 3.6 %); at 10 % and h = 10 ms the Newton tangent becomes indefinite within the step
-// (the lateral modes of the compressed cube), the failure psd_projection is for.
+// converged map), h = 5 ms (about the elastic wave's crossing time of the 4 cm cube,
+// 5.7 ms), compressed by 5 % and sliding at 1 m/s (faster than the friction impulse
+// mu N h can stop). The linearized step is then off by 1.7 to 3.6 % of the velocity
+// change (printed). At h = 10 ms the tangent turns indefinite within the step (the
+// compressed cube's lateral modes: "not positive definite", what psd_projection is for).
 Params newton_params() {
   Params p;
   p.newton = 40;

@@ -26,6 +26,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <algorithm>
 #include <cstdio>
 #include <string>
 
@@ -206,6 +207,72 @@ TEST(ValidationNewtonContact, Bdf2WithNewtonAndContact) {
     a = b;
   }
   EXPECT_GT(steps_with_contact, 5);
+}
+
+// The incline of tests/contact/validation_contact.cpp (a 0.1 m cube, 3x3x3 cells, on
+// the plane z = 0 with gravity tilted by a, mu = 0.5, beta = 1e-3 damping the elastic
+// transient) with newton_iterations 5: every step converges, the cube sticks at 25
+// degrees (tan 25 = 0.466 < mu) and slides at 30 with Coulomb's acceleration
+// g (sin a - mu cos a) within 1% (the mean x velocity of the nodes over 0.1-0.5 s, as
+// the linearized step's test).
+double incline_acceleration(double angle_deg, double* slip) {
+  test::BodySpec spec;
+  spec.young = 1e6;
+  spec.poisson = 0.3;
+  spec.density = 1000;
+  spec.rayleigh_stiffness = 1e-3;
+  const double a = angle_deg * 3.14159265358979323846 / 180, g = 9.81;
+  const double dt = 2e-3;
+  Model model = test::make_model(test::box_mesh(3, 3, 3, 0.1, 0.1, 0.1), spec,
+                                 Vec3(g * std::sin(a), 0, -g * std::cos(a)), dt, 250);
+  model.step.newton_iterations = 5;
+  test::ContactSpec cs;
+  cs.mu = 0.5;
+  cs.ncp.tolerance = 1e-10;
+  cs.ncp.max_iterations = 5000;
+  test::enable_contact(model, {test::plane(Vec3(0, 0, 1), 0)}, cs);
+  Data data(model);
+  State s = model.initial, next;
+  const long k0 = 50, k1 = 250;
+  auto mean_vx = [&](const State& st) {
+    double m = 0;
+    for (int i = 0; i < model.fem.num_nodes; ++i) m += st.v[3 * i];
+    return m / model.fem.num_nodes;
+  };
+  double v0 = 0;
+  State at_start;
+  *slip = 0;
+  int max_iterations = 0;
+  for (long k = 1; k <= k1; ++k) {
+    const StepStatus st = integrator::implicit_euler_step(model, data, s, next, k);
+    EXPECT_TRUE(st.ok()) << describe(model, st);  // not_converged included
+    if (!st.ok()) return 0;
+    max_iterations = std::max(max_iterations, data.newton_iterations_used);
+    s = next;
+    if (k == k0) {
+      at_start = s;
+      v0 = mean_vx(s);
+    }
+    if (k > k0) {
+      const auto& cd = data.contact;
+      for (int c = 0; c < cd.contacts.size(); ++c) {
+        if (cd.modes[c] == contact::Mode::breaking) continue;
+        const int i = cd.contacts.contacts[c].nodes[0];
+        *slip = std::max(*slip, std::abs(s.x[3 * i] - at_start.x[3 * i]));
+      }
+    }
+  }
+  std::printf("incline %g degrees, newton_iterations 5: at most %d iterations per step\n", angle_deg, max_iterations);
+  return (mean_vx(s) - v0) / ((k1 - k0) * dt);
+}
+
+TEST(ValidationNewtonContact, InclineWithNewton) {
+  double slip = 0;
+  incline_acceleration(25, &slip);
+  EXPECT_LT(slip, 1e-7);
+  const double a = 30 * 3.14159265358979323846 / 180;
+  const double expected = 9.81 * (std::sin(a) - 0.5 * std::cos(a));
+  EXPECT_NEAR(incline_acceleration(30, &slip), expected, 0.01 * expected);
 }
 
 }  // namespace newton_contact_validation
