@@ -106,6 +106,39 @@ TEST(CliBdf2, CheckGradEveryBlockPasses) {
 // error of 5.7e-5 relative (measured; 5.9e-7 at 1e-5, the h^2 scaling of truncation):
 // the extrapolation x^ = 4/3 x_n - 1/3 x_{n-1} moves the contact points further per
 // unit of x0 than implicit Euler's x_i, so the runs are more curved in x0.
+std::string bdf2_contact_scene(const std::string& simulation_extra) {
+  return "softdiff: 1\n"
+         "simulation: {integrator: bdf2, dt: 0.005, steps: 3" + simulation_extra + "}\n"
+         "bodies:\n"
+         "  - name: beam\n"
+         "    mesh: " + (kRoot / "meshes/beam.msh").string() + "\n"
+         "    translate: [0, 0, -0.0001]\n"
+         "    material: {law: corotational, young: 1.0e5, poisson: 0.3, density: 1000}\n"
+         "obstacles:\n"
+         "  - {name: floor, type: plane, normal: [0, 0, 1], offset: 0}\n"
+         "contact:\n"
+         "  friction: 0.5\n"
+         "  tolerance: 1.0e-13\n"
+         "  max_iterations: 20000\n";
+}
+
+// The same with Newton (docs/method.md "Newton iterations with contact"): the implicit
+// function theorem at each converged BDF2 stage (converged to 1e-12, 30 iterations at
+// most, so that the differences see the converged map). young and x0 at --eps 1e-5 (as
+// above); friction at the default 1e-4: the first step's Newton stops at a relative
+// residual of ~1.6e-11 (it does not reach 1e-14 in 30 iterations), noise that the
+// friction block's differences at 1e-5 divide into 1.2e-5 relative (measured), at 1e-4
+// into 1.2e-6.
+TEST(CliBdf2, CheckGradThroughContactWithNewton) {
+  const auto dir = fresh_dir(kWork, "check_grad_contact_newton");
+  write_text(dir / "scene.yaml", bdf2_contact_scene(", newton_iterations: 30, newton_tolerance: 1.0e-12"));
+  for (const std::string args : {"--wrt young,x0 --directions 2 --eps 1e-5", "--wrt friction"}) {
+    const CliRun r = run_cli("check-grad scene.yaml --steps 3 " + args, dir);
+    EXPECT_EQ(r.code, 0) << r.out << r.err;
+    EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
+  }
+}
+
 TEST(CliBdf2, CheckGradThroughContact) {
   const auto dir = fresh_dir(kWork, "check_grad_contact");
   write_text(dir / "scene.yaml",

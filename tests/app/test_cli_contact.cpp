@@ -169,6 +169,56 @@ TEST(CliContact, StrictMakesAnUnconvergedContactSolveAnError) {
   EXPECT_TRUE(fs::exists(dir / "strict.h5"));
 }
 
+// Newton (newton_iterations > 1) with contact (docs/method.md "Newton iterations with
+// contact"): the falling beam with newton_iterations 4 runs, every step reaches
+// newton_tolerance (--strict), and the /contact datasets are written with the forces
+// carrying the beam; check-grad through contact and Newton (the implicit function
+// theorem at the converged step) against differences of whole runs.
+std::string with_newton(std::string text, const std::string& settings) {
+  const auto at = text.find("}", text.find("steps: "));
+  text.insert(at, settings);
+  return text;
+}
+
+TEST(CliContact, NewtonWithContactWritesContactDatasets) {
+  const auto dir = fresh_dir(kWork, "newton");
+  write_text(dir / "scene.yaml", with_newton(scene(kPlane, "  friction: 0.5\n  margin: 0.001\n"), ", newton_iterations: 4"));
+  const CliRun r = run_cli("simulate scene.yaml -o out.h5 --json --strict", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("\"newton_not_converged_steps\":0"), std::string::npos) << r.out;
+  const hid_t f = H5Fopen((dir / "out.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const auto offsets = read_all<std::int64_t>(f, "/contact/offsets", H5T_NATIVE_INT64);
+  ASSERT_EQ(offsets.size(), 22u);
+  const auto nc = static_cast<hsize_t>(offsets.back());
+  EXPECT_GT(nc, 0u);
+  EXPECT_EQ(dims(f, "/contact/force"), (std::vector<hsize_t>{nc, 3}));
+  EXPECT_EQ(dims(f, "/contact/mode"), (std::vector<hsize_t>{nc}));
+  const auto forces = read_all<double>(f, "/contact/force", H5T_NATIVE_DOUBLE);
+  double last_frame_normal = 0;
+  for (std::size_t k = 0; k < forces.size(); k += 3) {
+    EXPECT_GE(forces[k + 2], 0.0);
+    if (static_cast<std::int64_t>(k / 3) >= offsets[20]) last_frame_normal += forces[k + 2];
+  }
+  EXPECT_GT(last_frame_normal, 0.0);
+  H5Fclose(f);
+}
+
+// Newton converged to 1e-12 (30 iterations at most), so that the differences see the
+// converged map. --eps 1e-5: at check-grad's default 1e-4 the x0 block's differences
+// are off by 7e-2 relative, at 1e-5 by 1.8e-7 and at 1e-6 by 1.8e-6 (measured): not
+// the h^2 of truncation, the runs at +-1e-4 along direction 0 cross a contact event.
+TEST(CliContact, CheckGradThroughContactWithNewton) {
+  const auto dir = fresh_dir(kWork, "check_grad_newton");
+  write_text(dir / "scene.yaml", with_newton(pressed_scene("  friction: 0.5\n  tolerance: 1.0e-13\n  max_iterations: 20000\n"),
+                                             ", newton_iterations: 30, newton_tolerance: 1.0e-12"));
+  const CliRun r = run_cli("check-grad scene.yaml --steps 2 --wrt young,friction,x0 --directions 2 --eps 1e-5", dir);
+  EXPECT_EQ(r.code, 0) << r.out << r.err;
+  EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
+  for (const char* block : {"young", "friction", "x0"})
+    EXPECT_NE(r.out.find(std::string("\n") + block + " "), std::string::npos) << r.out;
+}
+
 struct BadContact {
   std::string name;
   std::string obstacles, contact;

@@ -20,6 +20,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
+#include <cstdio>
 #include <random>
 #include <string>
 
@@ -41,7 +42,31 @@ struct Params {
   double young = 5e4, poisson = 0.3, density = 1000;
   double mu = -1;  // < 0: the case's own
   contact::NcpBackend backend = contact::NcpBackend::automatic;  // sparse: never a dense G (dense_max_contacts 0)
+  // Newton (newton_iterations > 1, docs/method.md "Newton iterations with contact"):
+  // a larger step and a cube compressed by `squeeze` of its height (the Neo-Hookean
+  // law's nonlinear range), sliding faster (`speed`), so that the converged step
+  // differs from the linearized one.
+  int newton = 1;
+  double dt = 2e-3;
+  double squeeze = 0;
+  double speed = 0.05;
 };
+
+// The Newton variant of the cases: 40 iterations at most, converged to newton_tolerance
+// 1e-13 (quadratic convergence reaches round-off, so that the differences see the
+// converged map), h = 5 ms (about the elastic wave's crossing time of the 4 cm cube,
+// 5.7 ms), compressed by 5 % and sliding at 1 m/s (faster than the friction impulse
+// mu N h can stop). The linearized step is then off by 1.7 to 3.6 % of the velocity
+// change (printed). At h = 10 ms the tangent turns indefinite within the step (the
+// compressed cube's lateral modes: "not positive definite", what psd_projection is for).
+Params newton_params() {
+  Params p;
+  p.newton = 40;
+  p.dt = 5e-3;
+  p.squeeze = 0.05;
+  p.speed = 1.0;
+  return p;
+}
 
 Model build(Case c, const Params& p) {
   test::BodySpec spec;
@@ -53,7 +78,9 @@ Model build(Case c, const Params& p) {
   spec.rayleigh_stiffness = 1e-3;
   const double a = c == Case::sliding ? 0.6 : 0.0;  // gravity tilted: tan 0.6 = 0.68 > mu = 0.3
   const Vec3 g(9.81 * std::sin(a), 0, -9.81 * std::cos(a));
-  Model model = test::make_model(test::box_mesh(2, 2, 2, 0.04, 0.04, 0.04), spec, g, 2e-3, 1);
+  Model model = test::make_model(test::box_mesh(2, 2, 2, 0.04, 0.04, 0.04), spec, g, p.dt, 1);
+  model.step.newton_iterations = p.newton;
+  model.step.newton_tolerance = 1e-13;
   test::ContactSpec cs;
   // The sphere: sliding (mu 0.2, moving along x), where the turning frame's h dH^T lambda
   // is not cancelled by the contact constraint (it would be for sticking vertex
@@ -85,8 +112,9 @@ Model build(Case c, const Params& p) {
 }
 
 // The state the derivative is taken at: the cube slightly pressed into the obstacle
-// (gap -1e-4: every bottom contact pushes), moving, deformed a little.
-State start(const Model& model, Case c) {
+// (gap -1e-4: every bottom contact pushes), moving, deformed a little (and compressed
+// by p.squeeze of its height).
+State start(const Model& model, Case c, const Params& params) {
   std::mt19937 rng(3);
   std::uniform_real_distribution<double> u(-1, 1);
   State s = model.initial;
@@ -96,10 +124,11 @@ State start(const Model& model, Case c) {
   for (int i = 0; i < model.fem.num_nodes; ++i) {
     Vec3 p = R * s.x.segment<3>(3 * i);
     for (int k = 0; k < 3; ++k) p[k] += 2e-5 * u(rng);
+    p.z() *= 1 - params.squeeze;
     p.z() -= 1e-4;
     s.x.segment<3>(3 * i) = p;
     const bool moving = c == Case::sliding || c == Case::sphere;
-    const Vec3 v(moving ? 0.05 : 0.002 * u(rng), 0.002 * u(rng), -0.01 + 0.002 * u(rng));
+    const Vec3 v(moving ? params.speed : 0.002 * u(rng), 0.002 * u(rng), -0.01 + 0.002 * u(rng));
     s.v.segment<3>(3 * i) = v;
   }
   return s;
@@ -149,14 +178,33 @@ StateTangent expect_forward_reverse_agree(integrator::StepDerivatives& d, const 
   return Jd;
 }
 
+// Newton: more than the linearized step's one iteration, and a converged step that the
+// linearized step misses by more than the tolerances of the differences (1e-3 of the
+// step's velocity change): the derivative below is that of the nonlinear step.
+void expect_newton_matters(const Model& model, const Data& data, const State& in, const State& out,
+                           const std::string& what) {
+  EXPECT_GE(data.newton_iterations_used, 3) << what;
+  Model linearized = model;
+  linearized.step.newton_iterations = 1;
+  Data d1(linearized);
+  State o1;
+  ASSERT_TRUE(integrator::implicit_euler_step(linearized, d1, in, o1, 1).ok()) << what;
+  const double differ = (o1.v - out.v).norm() / (out.v - in.v).norm();
+  std::printf("%s: Newton %d iterations, linearized step off by %.2e of the velocity change\n", what.c_str(),
+              data.newton_iterations_used, differ);
+  EXPECT_GT(differ, 1e-3) << what;
+}
+
 void check(Case c, const Params& p = Params{}) {
   const Model model = build(c, p);
-  const State in = start(model, c);
+  const State in = start(model, c, p);
   Data data(model);
   State out;
-  ASSERT_TRUE(integrator::implicit_euler_step(model, data, in, out, 1).ok());
+  const StepStatus status = integrator::implicit_euler_step(model, data, in, out, 1);
+  ASSERT_TRUE(status.ok()) << name_of(c) << ": " << describe(model, status);
   const auto& cd = data.contact;
   ASSERT_GT(cd.contacts.size(), 0) << name_of(c);
+  if (p.newton > 1) expect_newton_matters(model, data, in, out, name_of(c));
   ASSERT_EQ(cd.result.sparse, p.backend == contact::NcpBackend::sparse) << name_of(c);
   int counts[3] = {0, 0, 0};
   for (auto m : cd.modes) ++counts[static_cast<int>(m)];
@@ -217,7 +265,7 @@ void check(Case c, const Params& p = Params{}) {
     t.p = VecX::Unit(4, j);
     const VecX col = jvp(t);
     const Model mp = build(c, pp), mm = build(c, pm);
-    const Outcome op = step(mp, start(mp, c)), om = step(mm, start(mm, c));
+    const Outcome op = step(mp, start(mp, c, p)), om = step(mm, start(mm, c, p));
     ASSERT_EQ(op.modes, base.modes) << name_of(c);
     ASSERT_EQ(om.modes, base.modes) << name_of(c);
     const VecX fd = (op.y - om.y) / (2 * e);
@@ -247,6 +295,21 @@ TEST(StepDerivativesContact, Frictionless) { check(Case::frictionless); }
 // The sparse backend (docs/method.md "Contact at scale"): ADMM on the operator, the
 // polish and the mode-fixed system on G_AA of the active contacts; the same
 // differences and tolerances.
+// Newton with contact (docs/method.md "Newton iterations with contact"): the implicit
+// function theorem at the converged step, A_f and G_f = h H_c A_f^{-1} H_c^T in place of
+// the linearized step's; the same differences and tolerances (the Newton step converges
+// to round-off: newton_tolerance 1e-13, see newton_params).
+TEST(StepDerivativesContact, NewtonSticking) { check(Case::sticking, newton_params()); }
+TEST(StepDerivativesContact, NewtonSliding) { check(Case::sliding, newton_params()); }
+TEST(StepDerivativesContact, NewtonTippedMixedModes) { check(Case::tipped, newton_params()); }
+TEST(StepDerivativesContact, NewtonFrictionless) { check(Case::frictionless, newton_params()); }
+TEST(StepDerivativesContact, NewtonSparseBackend) {
+  for (const Case c : {Case::sticking, Case::sliding}) {
+    Params p = newton_params();
+    p.backend = contact::NcpBackend::sparse;
+    check(c, p);
+  }
+}
 TEST(StepDerivativesContact, SparseBackend) {
   Params p;
   p.backend = contact::NcpBackend::sparse;
@@ -275,7 +338,7 @@ TEST(StepDerivativesContact, SmoothedGeometryAtARegionBoundary) {
   model.contact.detection.obstacles = {box};
   model.contact.detection.names.back() = "box";
   model.contact.smoothing = {16, 2e-4, 0};
-  const State in = start(model, Case::sticking);
+  const State in = start(model, Case::sticking, p);
   Data data(model);
   State out;
   ASSERT_TRUE(integrator::implicit_euler_step(model, data, in, out, 1).ok());

@@ -515,9 +515,14 @@ TEST_F(Scene, CgOptionsNeedCg) {
 TEST_F(Scene, FeaturesNotSupportedYet) {
   expect_error(kBase + "output: {jacobians: [young]}\n", ":12:10: output.jacobians: not supported yet (planned: jacobians)");
   expect_error(kBase + "contact: {enabled: no}\n", ":12:11: contact.enabled: expected true or false, got 'no'");
-  expect_error(edit("  steps: 10", "  steps: 10\n  newton_iterations: 3") + "contact: {friction: 0.3}\n",
-               ":5:3: simulation.newton_iterations: contact with newton_iterations > 1 is not supported yet (the contact "
-               "step is the paper's linearized step)");
+}
+
+// Contact with newton_iterations > 1 is accepted (docs/method.md "Newton iterations with
+// contact"); it was an error before the Newton loop solved the contact problem.
+TEST_F(Scene, NewtonWithContactIsAccepted) {
+  const SceneDesc s = load(edit("  steps: 10", "  steps: 10\n  newton_iterations: 3") + "contact: {friction: 0.3}\n");
+  EXPECT_EQ(s.simulation.newton_iterations, 3);
+  EXPECT_TRUE(s.contact.enabled);
 }
 
 // Contact with integrator static is accepted (docs/method.md "Static equilibrium"); it

@@ -83,10 +83,13 @@ StepStatus resolve_contacts(const Model& model, Data& data, const State& in, Vec
 
 StepStatus resolve_contacts(const Model& model, Data& data, const VecX& x, const VecX& v_previous, double h, VecX& v,
                             long step_index, bool free_motion_widens) {
-  auto& cd = data.contact;
-  StepStatus status;
-  status.step = step_index;
+  detect_contacts(model, data, x, v_previous, h, v, free_motion_widens);
+  return solve_contact_problem(model, data, h, v, step_index);
+}
 
+void detect_contacts(const Model& model, Data& data, const VecX& x, const VecX& v_previous, double h, const VecX& v,
+                     bool free_motion_widens) {
+  auto& cd = data.contact;
   auto t0 = Clock::now();
   // Speculative margin: a pair further apart than the margin at x_i may still close
   // within the step. Widening the margin to twice the largest node displacement the
@@ -102,6 +105,17 @@ StepStatus resolve_contacts(const Model& model, Data& data, const VecX& x, const
   cd.stats = cd.detector->detect(x, cd.contacts, margin);
   drop_inert_contacts(model, h, margin, v_previous, free_motion_widens ? v : v_previous, cd.contacts.contacts);
   data.timings.detection += seconds_since(t0);
+  t0 = Clock::now();
+  if (cd.contacts.size() > 0) contact_jacobian_transpose(model, cd.contacts, cd.Ht);
+  cd.mu.resize(cd.contacts.size());
+  for (int i = 0; i < cd.contacts.size(); ++i) cd.mu[i] = cd.contacts.contacts[i].mu;
+  data.timings.delassus += seconds_since(t0);
+}
+
+StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX& v, long step_index) {
+  auto& cd = data.contact;
+  StepStatus status;
+  status.step = step_index;
   const int nc = cd.contacts.size();
   cd.v_free = v;
   if (nc == 0) {
@@ -115,10 +129,9 @@ StepStatus resolve_contacts(const Model& model, Data& data, const VecX& x, const
     return status;
   }
 
-  // H_c^T, G = h H A^{-1} H^T (dense backend) or its operator (sparse backend),
+  // G = h H A^{-1} H^T (dense backend) or its operator (sparse backend),
   // g = H v_free + phi / h on normal rows.
-  t0 = Clock::now();
-  contact_jacobian_transpose(model, cd.contacts, cd.Ht);
+  auto t0 = Clock::now();
   const auto& ncp = model.contact.ncp;
   const bool sparse = ncp.backend == NcpBackend::sparse ||
                       (ncp.backend == NcpBackend::automatic && nc > ncp.dense_max_contacts);
@@ -134,15 +147,11 @@ StepStatus resolve_contacts(const Model& model, Data& data, const VecX& x, const
     cd.G *= h;
   }
   cd.g.noalias() = cd.Ht.transpose() * v;
-  cd.mu.resize(nc);
-  for (int i = 0; i < nc; ++i) {
-    const auto& c = cd.contacts.contacts[i];
-    cd.g[3 * i + 2] += c.gap / h;
-    cd.mu[i] = c.mu;
-  }
+  for (int i = 0; i < nc; ++i) cd.g[3 * i + 2] += cd.contacts.contacts[i].gap / h;
   data.timings.delassus += seconds_since(t0);
 
-  // Warm start from the previous step's forces of the same contacts.
+  // Warm start from the last solve's forces of the same contacts (the previous step's,
+  // or the previous Newton iteration's).
   t0 = Clock::now();
   cd.lambda.setZero(3 * nc);
   for (int i = 0; i < nc; ++i) {

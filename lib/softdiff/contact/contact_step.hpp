@@ -34,6 +34,20 @@ StepStatus resolve_contacts(const Model& model, Data& data, const State& in, Vec
 StepStatus resolve_contacts(const Model& model, Data& data, const VecX& x, const VecX& v_previous, double h, VecX& v,
                             long step_index, bool free_motion_widens);
 
+// The two halves of the stage above (resolve_contacts is detect_contacts then
+// solve_contact_problem), for a Newton loop that detects once and solves the contact
+// problem of every iteration on the same contacts (docs/method.md "Newton iterations
+// with contact"):
+// detect_contacts: detection at x with the widened margin (as above), the contact set,
+// H_c^T and mu into data.contact.
+void detect_contacts(const Model& model, Data& data, const VecX& x, const VecX& v_previous, double h, const VecX& v,
+                     bool free_motion_widens);
+// solve_contact_problem: on data.contact's contacts and H_c^T and the current
+// factorization of data.A: G = h H A^{-1} H^T (or its operator), g = H v + (0, 0,
+// phi_i / h), the NCP warm-started from the last solve's forces of the same contacts,
+// and v <- v + h A^{-1} H^T lambda. v: in, the free velocity; out, corrected.
+StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX& v, long step_index);
+
 // H_c^T (3n x 3nc) of a contact set: column 3i+r is row r of H_i = C_i^T sum_k w_k E_k,
 // with the fixed dofs' rows removed (H_c <- H_c Pi).
 void contact_jacobian_transpose(const Model& model, const collision::ContactSet& contacts, SparseMatrix& Ht);

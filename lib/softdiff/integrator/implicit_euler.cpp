@@ -227,9 +227,9 @@ StepStatus backward_euler_stage(const Model& model, Data& data, const State& in,
   data.newton_iterations_used = 1;
   data.newton_residual = 0;
 
-  // Contact (paper eq. 2): out.v = v_free on entry, v_f on return.
+  // Contact (paper eq. 2): out.v = v_free on entry, v_f on return. With Newton this is
+  // its first iteration; the contacts detected here stay for the whole step.
   if (model.contact.enabled) {
-    SOFTDIFF_DEMAND(model.step.newton_iterations == 1, "contact needs the linearized step (newton_iterations = 1)");
     status = contact::resolve_contacts(model, data, in, out.v, step_index, h);
     if (!status.ok()) return status;
   }
@@ -255,6 +255,24 @@ StepStatus backward_euler_stage(const Model& model, Data& data, const State& in,
     const double load_scale = h * projected_norm(model, fem.gravity_force + data.f_act);
     bool small_update = false;
     newton_converged = false;
+    // Contact (docs/method.md "Newton iterations with contact"): the contacts, H_c and
+    // the gaps of the first iteration stay for the step. Every iteration k solves the
+    // contact problem of its linearization, A_k dv = -R(v_k) + h H_c^T lambda with the
+    // NCP on G_k = h H_c A_k^{-1} H_c^T and g_k = H_c (v_k + A_k^{-1}(-R(v_k))) + phi / h
+    // (contact::solve_contact_problem), lambda the total force (not an increment).
+    // contact_force = h H_c^T lambda of the last NCP (zero on fixed dofs: H_c is
+    // projected). The residual is that of the equations with contact,
+    // -R(v) + h H_c^T lambda, and the line search's merit is the incremental potential
+    // less the work of the frozen contact forces, Phi(v) - (h H_c^T lambda) . v, whose
+    // gradient is that residual: the Newton direction is a descent direction of it
+    // (A_k positive definite), and Phi alone would reject the steps that contact forces
+    // push uphill. The normal constraints H_n v + phi / h >= 0 are linear in v with H_c
+    // fixed, so a halved step between two feasible iterates stays feasible.
+    auto& cd = data.contact;
+    const bool with_contact = model.contact.enabled && cd.contacts.size() > 0;
+    VecX contact_force = VecX::Zero(with_contact ? out.v.size() : 0);
+    if (with_contact) contact_force.noalias() = h * (cd.Ht * cd.lambda);
+    double phi_plain_accepted = 0;  // Phi(v_k) of the accepted iterate (without the contact work)
     // Line search: R is the gradient of the incremental potential Phi (see
     // incremental_potential). An iterate that inverts an element, or raises both Phi
     // and ||R||, is replaced by the one half as far from the previous iterate (at
@@ -270,10 +288,17 @@ StepStatus backward_euler_stage(const Model& model, Data& data, const State& in,
       const bool valid = fem::evaluate(fem, data.x_iter, {true, true, true}, data.fem);
       double phi = std::numeric_limits<double>::infinity();
       r = std::numeric_limits<double>::infinity();
+      double phi_plain = 0;
       if (valid) {
         newton_residual(model, data, h, data.Mvi, out.v, data.rhs);
-        r = data.rhs.norm();
-        phi = incremental_potential(model, data, h, out.v);
+        phi_plain = incremental_potential(model, data, h, out.v);
+        if (with_contact) {
+          r = (data.rhs + contact_force).norm();
+          phi = phi_plain - contact_force.dot(out.v);
+        } else {
+          r = data.rhs.norm();
+          phi = phi_plain;
+        }
       }
       data.timings.assembly += seconds_since(t0);
       const bool worse = !valid || !std::isfinite(r) ||
@@ -288,11 +313,19 @@ StepStatus backward_euler_stage(const Model& model, Data& data, const State& in,
       if (!valid) return inverted(model, data, step_index);
       if (!(std::isfinite(r))) break;
       phi_accepted = phi;
+      phi_plain_accepted = phi_plain;
       r_accepted = r;
+      // With contact, a converged iterate is a full step: its velocity is the one the
+      // last NCP's sigma = H_c v + phi / h belongs to (a halved step is not).
+      const bool full_step = halvings == 0;
       step = 1;
       halvings = 0;
-      const double scale = std::max({r0, load_scale, h * projected_norm(model, data.fem.f_int)});
+      // With contact the contact forces join the scale (as f_int: a resting body's
+      // f_int balances its weight and the contact forces).
+      const double scale = std::max({r0, load_scale, h * projected_norm(model, data.fem.f_int),
+                                     with_contact ? contact_force.norm() : 0.0});
       newton_converged = r <= model.step.newton_tolerance * scale || small_update;
+      if (with_contact) newton_converged = newton_converged && full_step && cd.result.converged;
       if (newton_converged || it >= model.step.newton_iterations) {
         data.newton_iterations_used = it;
         break;
@@ -309,8 +342,21 @@ StepStatus backward_euler_stage(const Model& model, Data& data, const State& in,
       data.v_iter = out.v;
       out.v += data.dv;
       project(model, out.v);
-      small_update = data.dv.norm() <= model.step.newton_tolerance * out.v.norm();
       data.timings.solve += seconds_since(t0);
+      if (with_contact) {
+        // The free velocity v_k + dv_free -> the corrected v_{k+1}; the direction of the
+        // line search is the whole update, and the accepted iterate's merit and
+        // residual are re-evaluated with the new forces (the merit's frozen lambda).
+        status = contact::solve_contact_problem(model, data, h, out.v, step_index);
+        if (!status.ok()) return status;
+        t0 = Clock::now();
+        data.dv = out.v - data.v_iter;
+        contact_force.noalias() = h * (cd.Ht * cd.lambda);
+        phi_accepted = phi_plain_accepted - contact_force.dot(data.v_iter);
+        r_accepted = (data.rhs + contact_force).norm();
+        data.timings.other += seconds_since(t0);
+      }
+      small_update = data.dv.norm() <= model.step.newton_tolerance * out.v.norm();
       ++it;
     }
     data.newton_residual = r0 > 0 ? r / r0 : 0;

@@ -11,6 +11,11 @@
 // linearized step; it stops when ||R|| <= newton_tolerance * ||R(0)|| or after
 // newton_iterations solves. The damping matrix is frozen at x_i (linear Rayleigh
 // damping of the step), so the residual is a function of v alone.
+// Contact: the first iteration's contact stage (contact/contact_step.hpp) detects the
+// contacts at x_i; every further iteration solves the NCP of its linearization on
+// them (G_k = h H_c A_k^{-1} H_c^T), and the residual and the line search's merit
+// include the contact forces h H_c^T lambda (docs/method.md "Newton iterations with
+// contact").
 // Fixed dofs are projected (method.md): A <- Pi A Pi + (I - Pi), b <- Pi b.
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>

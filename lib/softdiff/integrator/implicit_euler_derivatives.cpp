@@ -160,7 +160,8 @@ Eigen::Matrix<double, 12, 1> gather_contact(const collision::Contact& c, const V
 }
 }  // namespace
 
-void StepDerivatives::prepare_contact(const Model& model, const Data& data, const State& in, const State& out) {
+void StepDerivatives::prepare_contact(const Model& model, const Data& data, const State& in, const State& out,
+                                      LinearSolver& solver) {
   const auto& cd = data.contact;
   if (contact_v_.size() == out.v.size() && contact_v_ == out.v) return;
   const auto& det = model.contact.detection;
@@ -184,16 +185,25 @@ void StepDerivatives::prepare_contact(const Model& model, const Data& data, cons
       ++nondifferentiable_contacts_;
     }
   }
-  if (nc > 0 && cd.G.rows() == 3 * nc) {
+  if (nc > 0 && cd.G.rows() == 3 * nc && !is_newton(model)) {
     ncp_.compute(cd.G, cd.mu, cd.lambda, cd.sigma, cd.modes);
+  } else if (nc > 0 && cd.G.rows() == 3 * nc) {
+    // Newton (docs/method.md "Newton iterations with contact"): the step's G is that of
+    // the last Newton factorization, one iterate before the converged v_f; the implicit
+    // function theorem at v_f needs G_f = h H_c A_f^{-1} H_c^T with the converged
+    // tangent A_f (this object's factorization, `solver`).
+    SOFTDIFF_DEMAND(solver.inverse_congruence(cd.Ht, newton_G_),
+                    "iterative linear solver did not reach its tolerance (contact derivative)");
+    newton_G_ *= step_size(model, data);
+    ncp_.compute(newton_G_, cd.mu, cd.lambda, cd.sigma, cd.modes);
   } else if (nc > 0) {
     // Sparse backend (no G): the mode-fixed system needs G_AA of the active contacts
-    // only, one congruence with the step's factorization.
+    // only, one congruence with the step's factorization (Newton: with A_f's).
     active_ids_.clear();
     for (int i = 0; i < nc; ++i)
       if (cd.modes[i] != contact::Mode::breaking) active_ids_.push_back(i);
     contact::select_contact_columns(cd.Ht, active_ids_, Ht_active_);
-    SOFTDIFF_DEMAND(data.solver->inverse_congruence(Ht_active_, G_active_),
+    SOFTDIFF_DEMAND(solver.inverse_congruence(Ht_active_, G_active_),
                     "iterative linear solver did not reach its tolerance (contact derivative)");
     G_active_ *= step_size(model, data);
     ncp_.compute_active(G_active_, cd.mu, cd.lambda, cd.sigma, cd.modes);
@@ -338,7 +348,7 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
   }
   const bool contact = model.contact.enabled && !data.contact.contacts.empty();
   if (contact) {
-    prepare_contact(model, data, in, out);
+    prepare_contact(model, data, in, out, *solver);
     if (d.x.size()) add_contact_force_jvp(model, data, dx, r_);  // h dH^T lambda
   }
   project(model, r_);
@@ -397,7 +407,7 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
     // Contact: lambda's cotangent h H A^{-1} v~, the NCP derivative's transpose gives
     // bar_b; b = H dv0 + ... adds z = H^T bar_b to dv0's cotangent, so the right-hand
     // side's cotangent is y + A^{-1} z.
-    prepare_contact(model, data, in, out);
+    prepare_contact(model, data, in, out, *solver);
     bar_lambda_.noalias() = h * (data.contact.Ht.transpose() * y_);
     ncp_.vjp(bar_lambda_, bar_b_, bar_mu_);
     tmp2_.noalias() = data.contact.Ht * bar_b_;

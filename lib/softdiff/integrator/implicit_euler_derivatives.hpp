@@ -38,13 +38,16 @@
 // reverse mode transposes it (bar_v_i = M y). Exact for the converged solution (to
 // newton_tolerance).
 //
-// Contact (the linearized step; docs/method.md "Derivatives", "Through contact"):
+// Contact (docs/method.md "Derivatives", "Through contact"):
 // with the contact record of the step (data.contact), r gains h sum_i dH_i[dx_i]^T
 // lambda_i (collision/contact_derivatives.hpp); dv0, the step's derivative at fixed
 // lambda, moves sigma by b = dH v_f + H_c dv0 + (0, 0, dphi / h); the NCP derivative
 // (contact/ncp_derivatives.hpp, modes fixed) gives dlambda; dv_f = dv0 + Pi h A^{-1}
 // H_c^T dlambda. The reverse mode transposes this with one more solve. Both are
 // prepared once per step (geometry derivatives and the NCP's factorization).
+// With Newton the same at the converged state (R(v_f) - h H_c^T lambda = 0, the NCP on
+// sigma = H_c v_f + phi / h; H_c and phi at x_i): A_f in place of A, and the mode-fixed
+// system on G_f = h H_c A_f^{-1} H_c^T (docs/method.md "Newton iterations with contact").
 //
 // Not covered yet (SOFTDIFF_DEMAND with a message): the static integrator (see
 // static_solver_derivatives.hpp), newton_iterations > 1 with psd_projection, friction
@@ -121,9 +124,10 @@ class StepDerivatives {
   VecX r_, y_, q_, w_, delta_, tmp_, tmp2_, zero_, q_extra_;  // (3n) workspace
   // Contact (the linearized step with contact): the geometry derivative of every
   // contact and the NCP derivative at the step's solution, computed once per step
-  // (cached by v_f). Returns the number of contacts whose geometry is not
-  // differentiable (their geometry derivative is taken as zero).
-  void prepare_contact(const Model& model, const Data& data, const State& in, const State& out);
+  // (cached by v_f). Counts the contacts whose geometry is not differentiable (their
+  // geometry derivative is taken as zero). solver: the step derivative's system
+  // (system(): A, or A_f with Newton), whose G the mode-fixed NCP derivative takes.
+  void prepare_contact(const Model& model, const Data& data, const State& in, const State& out, LinearSolver& solver);
   // r += h sum_i dH_i[dx]^T lambda_i
   void add_contact_force_jvp(const Model& model, const Data& data, const VecX& dx, VecX& r) const;
   // b = dH[dx] v_f + H dv0 + (0, 0, dgap / h): the change of sigma at fixed lambda.
@@ -138,6 +142,7 @@ class StepDerivatives {
   std::vector<int> active_ids_;     // sparse backend: the active contacts,
   SparseMatrix Ht_active_;          //   their columns of H_c^T
   MatX G_active_;                   //   and G_AA
+  MatX newton_G_;                   // Newton, dense backend: G_f = h H_c A_f^{-1} H_c^T
   VecX contact_v_;                   // the v_f the contact derivatives were prepared for
   int nondifferentiable_contacts_ = 0, smoothed_contacts_ = 0;
   VecX b_, dlambda_, bar_lambda_, bar_b_, bar_mu_, y2_;

@@ -45,8 +45,8 @@
 //     contact) or a itself (self-contact for that body only). Without pairs: every
 //     body vs every obstacle with `friction`. self_collision: true adds every body
 //     against itself with `friction`.
-//   - contact with newton_iterations > 1: not supported yet (an error naming the key).
-//     Contact with integrator static is solved per Newton iteration (docs/method.md
+//   - Contact with newton_iterations > 1 is solved per Newton iteration on the contacts
+//     of the step's start (docs/method.md "Newton iterations with contact"). Contact with integrator static is solved per Newton iteration (docs/method.md
 //     "Static equilibrium"); a body without fixed nodes is then allowed if it is in a
 //     contact pair (build_model).
 //   - Numbers are plain YAML numbers: a quoted "1e5" is a string, not a number.
@@ -548,11 +548,6 @@ class Reader {
             ctx_.fail(item.mark, path, "duplicate pair [" + p.first + ", " + p.second + "] (also " + q.where.path + ")");
         d.pairs.push_back(p);
       }
-    if (scene.simulation.newton_iterations > 1) {
-      const Entry* n = root.get("simulation")->find("newton_iterations");
-      ctx_.fail(n->key_mark, "simulation.newton_iterations",
-                "contact with newton_iterations > 1 is not supported yet (the contact step is the paper's linearized step)");
-    }
   }
 
   void read_output(const Node& root, OutputDesc& out) const {
