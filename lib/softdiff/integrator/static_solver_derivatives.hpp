@@ -8,11 +8,25 @@
 // symmetric, and positive definite at a stable equilibrium. Columns (the theta layout
 // of diff/trajectory.hpp): young (f_int / E), poisson (f_int at the Lame derivative),
 // density (P / rho), an actuator's offset (H_a^T: the offset adds to its final value),
-// and zero for the Rayleigh factors, x0 and v0 (the equilibrium does not depend on them).
-// One factorization of J per call (the solver's last one is an iterate earlier).
+// friction (a pair rule's coefficient: through the contact modes only), and zero for the
+// Rayleigh factors, x0 and v0 (the equilibrium does not depend on them).
+//
+// With contact (docs/method.md "Derivatives", "Static equilibrium with contact"): the
+// derivative of the last load step's converged equilibrium x* with the contacts, forces
+// and modes of the solver's last NCP held fixed: a sticking contact's point stays where
+// it is (its tangential position and its closed gap), a sliding one keeps its normal
+// gap and its force on the cone along the last increment's slip direction, a breaking
+// one carries no force. With H_c the contacts' Jacobian:
+//     (J - dH_c^T lambda) dx - H_c^T dlambda = Pi dR/dtheta,   mode rows on dsigma = H_c dx,
+// the dynamic step's contact derivative with h = 1 (contact/contact_step_derivatives.hpp:
+// the NCP derivative on G_AA = H_A J^{-1} H_A^T, the geometry terms dH^T lambda). A body
+// held by contact alone has J singular on its rigid motions: J + tau E is factorized
+// instead (E its free dofs, tau as the static solver's proximal term) and a refinement
+// removes tau (the system is nonsingular when the active contacts hold the body).
+// One factorization of J (+ tau E) per call (the solver's last one is an iterate earlier).
 // Not covered (SOFTDIFF_DEMAND): pressure cavities and rotation servos (J would not be
 // symmetric, or not the solver's tangent), psd_projection (K(x*) unprojected is not in
-// the record), contact.
+// the record).
 #include <softdiff/core/parameters.hpp>
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
@@ -27,9 +41,27 @@ struct StaticTheta {
 };
 
 // dx*/dtheta (3n x (parameters + actuators)) at the equilibrium `equilibrium` of
-// solve_static (its last load step). Uses data's workspace (evaluates and factorizes
-// at x*). Returns false if an element is inverted at x* or J is not positive definite.
+// solve_static (its last load step; data holds that solve's record, data.contact its
+// last NCP). Uses data's workspace (evaluates and factorizes at x*). Returns false if an
+// element is inverted at x*, J (+ tau E) is not positive definite, or the refinement
+// does not converge (the contacts do not hold a body held by contact alone).
 bool static_sensitivities(const Model& model, Data& data, const State& equilibrium, const StaticTheta& theta,
                           MatX& dx_dtheta);
+
+// The contact modes the derivative holds at the equilibrium, from the last NCP's forces
+// (its sigma is the last increment, ~0 at convergence, so its own classification is
+// decided by round-off where a force is on the cone): breaking where lambda_N <= tol,
+// sliding where mu lambda_N - |lambda_T| <= tol (mu = 0: sliding, frictionless), sticking
+// otherwise; tol = 10 * contact tolerance * max |lambda|. sigma (3 nc) gets, for a
+// sliding contact, the slip direction t = -lambda_T / |lambda_T| (the force opposes the
+// slip) with a length 1e100 times the largest force's scale: the direction is held (the
+// slip over the load path is large against a perturbation's), so the NCP derivative's
+// term mu lambda_N (I - t t^T) / |sigma_T| vanishes.
+void equilibrium_modes(const Model& model, const ContactData& cd, std::vector<contact::Mode>& modes, VecX& sigma);
+
+// The reverse mode: bar_theta = (dx*/dtheta)^T bar_x (parameters + actuators) with one
+// transposed solve, whatever the number of parameters. Same record and failures.
+bool static_vjp(const Model& model, Data& data, const State& equilibrium, const StaticTheta& theta, const VecX& bar_x,
+                VecX& bar_theta);
 
 }  // namespace softdiff::integrator
