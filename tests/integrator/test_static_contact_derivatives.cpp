@@ -83,7 +83,7 @@ Solution solve(const Model& model, Data& data) {
   EXPECT_TRUE(st.ok()) << describe(model, st);
   EXPECT_TRUE(data.contact.result.converged);
   VecX sigma;
-  integrator::equilibrium_modes(model, data.contact, s.modes, sigma);
+  integrator::equilibrium_modes(model, data.contact, s.x.x, data.static_load_step_start, s.modes, sigma);
   s.contacts = data.contact.contacts.size();
   return s;
 }

@@ -80,7 +80,10 @@ class EquilibriumSystem {
         for (int d = 3 * b.node_begin; d < 3 * (b.node_begin + b.num_nodes); ++d) any_fixed = any_fixed || fem.fixed[d];
         if (!any_fixed) held_.push_back({3 * b.node_begin, 3 * b.num_nodes, 0.0});
       }
-    if (contact_) equilibrium_modes(model_, cd, modes_, sigma_);
+    if (contact_) {
+      const VecX& start = data_.static_load_step_start.size() == n ? data_.static_load_step_start : model_.initial.x;
+      equilibrium_modes(model_, cd, *x_, start, modes_, sigma_);
+    }
     // First the augmented tangent (exact, no refinement for tau), then, where it does not
     // factorize or does not apply, the proximal one.
     bool factorized = false;
@@ -348,12 +351,16 @@ void friction_direction(const Model& model, const Data& data, const StaticTheta&
 
 }  // namespace
 
-void equilibrium_modes(const Model& model, const ContactData& cd, std::vector<contact::Mode>& modes, VecX& sigma) {
+void equilibrium_modes(const Model& model, const ContactData& cd, const VecX& x, const VecX& x_start,
+                       std::vector<contact::Mode>& modes, VecX& sigma) {
   const int nc = cd.contacts.size();
   modes.assign(static_cast<std::size_t>(nc), contact::Mode::breaking);
   sigma = VecX::Zero(3L * nc);
   const double scale = nc > 0 ? cd.lambda.cwiseAbs().maxCoeff() : 0.0;
   const double tol = 10 * model.contact.ncp.tolerance * scale;
+  double size = 0;
+  for (const auto& b : model.fem.bodies) size = std::max(size, b.bbox_diagonal);
+  const VecX u = x - x_start;
   for (int i = 0; i < nc; ++i) {
     const Vec3 l = cd.lambda.segment<3>(3 * i);
     const double mu = cd.mu[i], lT = l.head<2>().norm();
@@ -363,7 +370,11 @@ void equilibrium_modes(const Model& model, const ContactData& cd, std::vector<co
       sigma[3 * i + 2] = std::max(cd.sigma[3 * i + 2], 0.0);
     } else if (mu == 0 || mu * l[2] - lT <= tol) {
       m = contact::Mode::sliding;
-      if (mu > 0 && lT > 0) sigma.segment<2>(3 * i) = -l.head<2>() / lT * (1e100 * std::max(scale, 1.0));
+      if (mu == 0 || lT == 0) continue;
+      Eigen::Vector2d s;
+      for (int r = 0; r < 2; ++r) s[r] = cd.Ht.col(3 * i + r).dot(u);
+      if (s.norm() > 1e-9 * size) sigma.segment<2>(3 * i) = s;
+      else sigma.segment<2>(3 * i) = -l.head<2>() / lT * (1e100 * std::max(scale, 1.0));
     } else {
       m = contact::Mode::sticking;
     }

@@ -48,16 +48,17 @@ struct StaticTheta {
 bool static_sensitivities(const Model& model, Data& data, const State& equilibrium, const StaticTheta& theta,
                           MatX& dx_dtheta);
 
-// The contact modes the derivative holds at the equilibrium, from the last NCP's forces
+// The contact modes the derivative holds at the equilibrium x, from the last NCP's forces
 // (its sigma is the last increment, ~0 at convergence, so its own classification is
 // decided by round-off where a force is on the cone): breaking where lambda_N <= tol,
 // sliding where mu lambda_N - |lambda_T| <= tol (mu = 0: sliding, frictionless), sticking
-// otherwise; tol = 10 * contact tolerance * max |lambda|. sigma (3 nc) gets, for a
-// sliding contact, the slip direction t = -lambda_T / |lambda_T| (the force opposes the
-// slip) with a length 1e100 times the largest force's scale: the direction is held (the
-// slip over the load path is large against a perturbation's), so the NCP derivative's
-// term mu lambda_N (I - t t^T) / |sigma_T| vanishes.
-void equilibrium_modes(const Model& model, const ContactData& cd, std::vector<contact::Mode>& modes, VecX& sigma);
+// otherwise; tol = 10 * contact tolerance * max |lambda|. sigma (3 nc): for a sliding
+// contact its tangential slip over the last load step, s_T = H_T (x - x_start) (x_start:
+// Data::static_load_step_start), the slip whose direction the force opposes at the end
+// of a straight slip path; where that slip is below 1e-9 of the scene's size, the
+// direction -lambda_T / |lambda_T| with an unbounded length (the direction held).
+void equilibrium_modes(const Model& model, const ContactData& cd, const VecX& x, const VecX& x_start,
+                       std::vector<contact::Mode>& modes, VecX& sigma);
 
 // The reverse mode: bar_theta = (dx*/dtheta)^T bar_x (parameters + actuators) with one
 // transposed solve, whatever the number of parameters. Same record and failures.
