@@ -71,6 +71,25 @@ Model cube(const Vec3& g, double mu) {
   return model;
 }
 
+// A 0.06 m cube (2 x 2 x 2 boxes, no fixed node) resting on a 0.1 m cube (3 x 3 x 3
+// boxes) whose base is fixed (the reverse-mode test): soft-soft contacts (the top cube's vertices on the lower
+// cube's top faces, 3 or 4 nodes each: the proximal refinement and the geometry term
+// dH^T lambda of the face's weights). The top cube's vertices sit inside the lower
+// faces' triangles, away from their edges (>= 2.8e-4 m), so each feature pair is unique.
+Model stacked_cubes(double mu) {
+  test::BodySpec lower, upper;
+  lower.young = 2e5;
+  upper.young = 1e5;
+  lower.fixed = [](const Vec3& p) { return p.z() < 1e-9; };
+  mesh::TetMesh top = test::box_mesh(2, 2, 2, 0.06, 0.06, 0.06);
+  for (int i = 0; i < top.X.cols(); ++i) top.X.col(i) += Vec3(0.025, 0.012, 0.1);
+  Model model = test::make_model({{test::box_mesh(3, 3, 3, 0.1, 0.1, 0.1), lower}, {top, upper}}, Vec3(0, 0, -kG));
+  set_static(model);
+  test::enable_contact(model, {}, contact_spec(mu));
+  model.contact.detection.pairs.push_back({1, 0, mu});
+  return model;
+}
+
 struct Solution {
   State x;
   std::vector<contact::Mode> modes;
@@ -160,22 +179,28 @@ TEST(StaticContactDerivatives, TiltedBlockSticking) {
 
 // The reverse mode equals the transpose of the forward columns: bar_theta =
 // J^T bar_x for a random bar_x, to 1e-10 relative (the same factorization and
-// mode-fixed system; the refinements stop at 1e-13 of their iterate).
+// mode-fixed system; the refinements stop at 1e-13 of their iterate, or at their
+// round-off floor), on the tilted cube (the augmented tangent, one pass) and on the
+// stacked cubes (soft-soft contacts: the proximal refinement with the geometry term,
+// transposed).
 TEST(StaticContactDerivatives, ReverseModeIsTheTranspose) {
   const double a = 25 * kDeg;
-  const Model model = cube(Vec3(kG * std::sin(a), 0, -kG * std::cos(a)), 1.0);
-  const std::vector<ParameterId> params = {
-      {Parameter::young, 0}, {Parameter::poisson, 0}, {Parameter::density, 0}, {Parameter::friction, 0}};
-  Data data(model);
-  const Solution base = solve(model, data);
-  MatX J;
-  ASSERT_TRUE(integrator::static_sensitivities(model, data, base.x, {params, false}, J));
-  const VecX bar_x = test::random_vector(J.rows(), 1.0, 7);
-  VecX bar_theta;
-  ASSERT_TRUE(integrator::static_vjp(model, data, base.x, {params, false}, bar_x, bar_theta));
-  const VecX expected = J.transpose() * bar_x;
-  for (Eigen::Index j = 0; j < expected.size(); ++j)
-    EXPECT_NEAR(bar_theta[j], expected[j], 1e-10 * expected.cwiseAbs().maxCoeff()) << "parameter " << j;
+  for (int variant = 0; variant < 2; ++variant) {
+    SCOPED_TRACE(variant == 0 ? "tilted cube" : "stacked cubes");
+    const Model model = variant == 0 ? cube(Vec3(kG * std::sin(a), 0, -kG * std::cos(a)), 1.0) : stacked_cubes(2.0);
+    const std::vector<ParameterId> params = {
+        {Parameter::young, 0}, {Parameter::poisson, 0}, {Parameter::density, 0}, {Parameter::friction, 0}};
+    Data data(model);
+    const Solution base = solve(model, data);
+    MatX J;
+    ASSERT_TRUE(integrator::static_sensitivities(model, data, base.x, {params, false}, J));
+    const VecX bar_x = test::random_vector(J.rows(), 1.0, 7);
+    VecX bar_theta;
+    ASSERT_TRUE(integrator::static_vjp(model, data, base.x, {params, false}, bar_x, bar_theta));
+    const VecX expected = J.transpose() * bar_x;
+    for (Eigen::Index j = 0; j < expected.size(); ++j)
+      EXPECT_NEAR(bar_theta[j], expected[j], 1e-10 * expected.cwiseAbs().maxCoeff()) << "parameter " << j;
+  }
 }
 
 }  // namespace static_contact_derivatives
