@@ -12,18 +12,23 @@
 // Rayleigh factors, x0 and v0 (the equilibrium does not depend on them).
 //
 // With contact (docs/method.md "Derivatives", "Static equilibrium with contact"): the
-// derivative of the last load step's converged equilibrium x* with the contacts, forces
-// and modes of the solver's last NCP held fixed: a sticking contact's point stays where
-// it is (its tangential position and its closed gap), a sliding one keeps its normal
-// gap and its force on the cone along the last increment's slip direction, a breaking
-// one carries no force. With H_c the contacts' Jacobian:
+// derivative of the last load step's converged equilibrium x* with the contacts and
+// forces of the solver's last NCP held fixed, and the modes of equilibrium_modes()
+// (below): a sticking contact's point stays where it is (its tangential position and
+// its closed gap), a sliding one keeps its normal gap and its force on the cone against
+// its slip over the last load step, a breaking one carries no force. With H_c the
+// contacts' Jacobian:
 //     (J - dH_c^T lambda) dx - H_c^T dlambda = Pi dR/dtheta,   mode rows on dsigma = H_c dx,
 // the dynamic step's contact derivative with h = 1 (contact/contact_step_derivatives.hpp:
 // the NCP derivative on G_AA = H_A J^{-1} H_A^T, the geometry terms dH^T lambda). A body
-// held by contact alone has J singular on its rigid motions: J + tau E is factorized
-// instead (E its free dofs, tau as the static solver's proximal term) and a refinement
-// removes tau (the system is nonsingular when the active contacts hold the body).
-// One factorization of J (+ tau E) per call (the solver's last one is an iterate earlier).
+// held by contact alone has J singular on its rigid motions: when every active contact
+// is a vertex on an obstacle, J + rho H_E^T H_E (the equality rows H_E; the same system,
+// exact) is factorized; otherwise J + tau E (E its free dofs, tau as the static solver's
+// proximal term) with a refinement that removes tau (the system is nonsingular when the
+// active contacts hold the body). Exact (to the solves' round-off) where every contact
+// sticks against an obstacle; where contacts slide, or stick on another body's faces,
+// it approximates the solver's path-dependent answer (measured in docs/method.md).
+// One factorization per call (the solver's last one is an iterate earlier).
 // Not covered (SOFTDIFF_DEMAND): pressure cavities and rotation servos (J would not be
 // symmetric, or not the solver's tangent), psd_projection (K(x*) unprojected is not in
 // the record).
