@@ -14,10 +14,6 @@ namespace {
 
 void demand_differentiable(const std::string& option, const Model& model) {
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
-    if (model.contact.enabled)
-      throw InputError(option + ": a static scene with contact is not differentiated in this version (the forward "
-                                "solve is; docs/method.md \"Static equilibrium\" says what is missing): use "
-                                "contact: {enabled: false}, or implicit_euler for derivatives through contact");
     for (const auto& b : model.fem.bodies)
       if (b.psd_projection)
         throw InputError(option + ": a static scene with psd_projection (body '" + b.name +

@@ -97,6 +97,8 @@ struct Data {
   State hat;                        // (3n) x, v; t = t_i
   int newton_iterations_used = 0;
   double newton_residual = 0;
+  VecX static_load_step_start;       // (3n) solve_static: x at the start of the last load step (the
+                                    // static contact derivative's slip over that load step)
   int static_shifted_iterations = 0;  // solve_static: Newton iterations of the last solve whose
                                       // tangent was shifted (A + tau I: A not positive definite)
   ContactData contact;              // contact stage (model.contact.enabled)

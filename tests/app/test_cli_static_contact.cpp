@@ -1,13 +1,15 @@
 // `softdiff simulate` of a static scene with contact (configs/beam_supports_static.yaml):
-// the /contact/* datasets of output.md for the equilibrium frame, and bad input:
-// derivatives of a static scene with contact (not differentiated in this version) and a
-// free body outside every contact pair give exit 2, a message, and no output file.
+// the /contact/* datasets of output.md for the equilibrium frame; its derivatives
+// (check-grad against differences of whole static solves, simulate --jacobian); and bad
+// input: a free body outside every contact pair gives exit 2, a message, and no output
+// file.
 #include <support/cli.hpp>
 #include <support/h5.hpp>
 
 #include <gtest/gtest.h>
 #include <hdf5.h>
 
+#include <cmath>
 #include <filesystem>
 #include <string>
 
@@ -48,14 +50,61 @@ TEST(CliStaticContact, SimulateWritesTheContactDatasets) {
   H5Fclose(f);
 }
 
-TEST(CliStaticContact, DerivativesOfStaticContactAreRefused) {
+// The shipped beam (0.2 x 0.02 x 0.02 m) resting on a plane with no fixed node, mu = 2
+// (every contact inside its cone: sticking, the case whose derivative is exact; docs/
+// method.md "Static equilibrium with contact"): check-grad of the equilibrium with
+// respect to young and friction through the contacts (measured: young 1.1e-8). The solve is converged
+// to a residual of 1e-12 and the NCP to 1e-12 (a looser solve would put its error
+// divided by eps into every difference); eps 1e-4 (check-grad's default): truncation
+// ~1e-8, the solves' error ~1e-12 / 1e-4 = 1e-8, far below the default tolerance 1e-5.
+// (friction: no effect where every contact sticks; check-grad compares a zero column.)
+const std::string kRestingBeam =
+    "softdiff: 1\n"
+    "simulation:\n"
+    "  integrator: static\n"
+    "  static: {tolerance: 1.0e-12, max_iterations: 100, load_steps: 1}\n"
+    "bodies:\n"
+    "  - name: beam\n"
+    "    mesh: " + (kRoot / "meshes/beam.msh").string() + "\n"
+    "    material: {law: corotational, young: 1.0e5, poisson: 0.3, density: 1000}\n"
+    "obstacles:\n"
+    "  - {name: floor, type: plane, normal: [0, 0, 1], offset: 0}\n"
+    "contact:\n"
+    "  friction: 2.0\n"
+    "  margin: 0.001\n"
+    "  tolerance: 1.0e-12\n"
+    "  max_iterations: 20000\n";
+
+TEST(CliStaticContact, CheckGradThroughStaticContact) {
+  const fs::path dir = fresh_dir(kWork, "check_grad");
+  write_text(dir / "scene.yaml", kRestingBeam);
+  const CliRun r = run_cli("check-grad scene.yaml --wrt young,friction --quiet", dir);
+  EXPECT_EQ(r.code, 0) << r.out << r.err;
+  EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
+  for (const char* block : {"young", "friction"})
+    EXPECT_NE(r.out.find(std::string("\n") + block + " "), std::string::npos) << r.out;
+}
+
+// The shipped static scene (its contacts on the supports' edges slide: the derivative
+// is the straight-slip-path one there) with --jacobian: exit 0 and the dataset.
+const std::string kTight =
+    " --set simulation.static.tolerance=1e-12 --set contact.tolerance=1e-12 --set contact.max_iterations=20000";
+
+TEST(CliStaticContact, JacobianOfStaticContact) {
   const fs::path dir = fresh_dir(kWork, "jacobian");
-  const CliRun r = run_cli("simulate " + kScene + " -o out.h5 --jacobian young", dir);
-  EXPECT_EQ(r.code, 2) << r.err;
-  EXPECT_NE(r.err.find("--jacobian: a static scene with contact is not differentiated in this version"),
-            std::string::npos)
-      << r.err;
-  EXPECT_FALSE(fs::exists(dir / "out.h5"));
+  const CliRun r = run_cli("simulate " + kScene + " -o out.h5 --quiet --jacobian young" + kTight, dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const hid_t f = H5Fopen((dir / "out.h5").string().c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  EXPECT_EQ(h5_shape(f, "/jacobians/young"), (std::vector<hsize_t>{3 * 1025, 1}));
+  // A stiffer beam sags less: the midspan underside moves up with young (dz/dE > 0
+  // wherever the beam sags; the largest entry of the column is positive).
+  const std::vector<double> J = h5_read(f, "/jacobians/young");
+  double largest = 0;
+  for (std::size_t k = 2; k < J.size(); k += 3)
+    if (std::abs(J[k]) > std::abs(largest)) largest = J[k];
+  EXPECT_GT(largest, 0);
+  H5Fclose(f);
 }
 
 TEST(CliStaticContact, FreeBodyWithoutContactIsRefused) {

@@ -147,132 +147,31 @@ bool StepDerivatives::parameter_column(const Model& model, const Data& data, con
   return false;
 }
 
-namespace {
-// Whether contact c belongs to pair rule r (its sides in either order).
-bool in_rule(const collision::Contact& c, const collision::PairRule& r) {
-  return (c.side_a == r.a && c.side_b == r.b) || (c.side_a == r.b && c.side_b == r.a);
-}
-// The contact's node components of a global vector (12; count nodes used).
-Eigen::Matrix<double, 12, 1> gather_contact(const collision::Contact& c, const VecX& v) {
-  Eigen::Matrix<double, 12, 1> u = Eigen::Matrix<double, 12, 1>::Zero();
-  for (int k = 0; k < c.count; ++k) u.segment<3>(3 * k) = v.segment<3>(3 * c.nodes[k]);
-  return u;
-}
-}  // namespace
-
 void StepDerivatives::prepare_contact(const Model& model, const Data& data, const State& in, const State& out,
                                       LinearSolver& solver) {
-  const auto& cd = data.contact;
   if (contact_v_.size() == out.v.size() && contact_v_ == out.v) return;
-  const auto& det = model.contact.detection;
-  const int nc = cd.contacts.size();
-  geometry_.resize(static_cast<std::size_t>(nc));
-  nondifferentiable_contacts_ = 0;
-  smoothed_contacts_ = 0;
-  for (int i = 0; i < nc; ++i) {
-    const auto& c = cd.contacts.contacts[i];
-    const collision::Obstacle* o = nullptr;
-    if (c.kind == collision::ContactKind::vertex_obstacle)
-      o = &det.obstacles[static_cast<std::size_t>(c.side_b) - det.surfaces.size()];
-    auto& g = geometry_[static_cast<std::size_t>(i)];
-    const auto kind = collision::contact_geometry_derivative(c, in.x, o, model.contact.smoothing, g);
-    if (kind == collision::GeometryDerivativeKind::smoothed) ++smoothed_contacts_;
-    if (kind == collision::GeometryDerivativeKind::none) {
-      g.dn.setZero();
-      g.dgap.setZero();
-      g.dweights.setZero();
-      g.dframe.setZero();
-      ++nondifferentiable_contacts_;
-    }
-  }
-  if (nc > 0 && cd.G.rows() == 3 * nc && !is_newton(model)) {
-    ncp_.compute(cd.G, cd.mu, cd.lambda, cd.sigma, cd.modes);
-  } else if (nc > 0 && cd.G.rows() == 3 * nc) {
-    // Newton (docs/method.md "Newton iterations with contact"): the step's G is that of
-    // the last Newton factorization, one iterate before the converged v_f; the implicit
-    // function theorem at v_f needs G_f = h H_c A_f^{-1} H_c^T with the converged
-    // tangent A_f (this object's factorization, `solver`).
-    SOFTDIFF_DEMAND(solver.inverse_congruence(cd.Ht, newton_G_),
-                    "iterative linear solver did not reach its tolerance (contact derivative)");
-    newton_G_ *= step_size(model, data);
-    ncp_.compute(newton_G_, cd.mu, cd.lambda, cd.sigma, cd.modes);
-  } else if (nc > 0) {
-    // Sparse backend (no G): the mode-fixed system needs G_AA of the active contacts
-    // only, one congruence with the step's factorization (Newton: with A_f's).
-    active_ids_.clear();
-    for (int i = 0; i < nc; ++i)
-      if (cd.modes[i] != contact::Mode::breaking) active_ids_.push_back(i);
-    contact::select_contact_columns(cd.Ht, active_ids_, Ht_active_);
-    SOFTDIFF_DEMAND(solver.inverse_congruence(Ht_active_, G_active_),
-                    "iterative linear solver did not reach its tolerance (contact derivative)");
-    G_active_ *= step_size(model, data);
-    ncp_.compute_active(G_active_, cd.mu, cd.lambda, cd.sigma, cd.modes);
-  }
+  // Newton (docs/method.md "Newton iterations with contact"): the record's G is that of
+  // the last Newton factorization, one iterate before the converged v_f; the implicit
+  // function theorem at v_f needs G with the converged tangent A_f (`solver`, this
+  // object's factorization), so the record's G is not used and G_AA is formed with A_f.
+  SOFTDIFF_DEMAND(contact_.prepare(model, data.contact, in.x, solver, step_size(model, data), !is_newton(model)),
+                  "iterative linear solver did not reach its tolerance (contact derivative)");
   contact_v_ = out.v;
 }
 
 void StepDerivatives::add_contact_force_jvp(const Model& model, const Data& data, const VecX& dx, VecX& r) const {
-  const auto& cd = data.contact;
-  const double h = step_size(model, data);
-  for (int i = 0; i < cd.contacts.size(); ++i) {
-    const auto& c = cd.contacts.contacts[i];
-    const auto& g = geometry_[static_cast<std::size_t>(i)];
-    const Eigen::Matrix<double, 12, 1> u = gather_contact(c, dx);
-    const Vec3 l = cd.lambda.segment<3>(3 * i);
-    const Vec3 Cl = c.frame * l;
-    const Mat3 dC = Eigen::Map<const Mat3>(Eigen::Matrix<double, 9, 1>(g.dframe * u).data());
-    const Vec3 dCl = dC * l;
-    const Eigen::Vector4d dw = g.dweights * u;
-    for (int k = 0; k < c.count; ++k) r.segment<3>(3 * c.nodes[k]) += h * (dw[k] * Cl + c.weights[k] * dCl);
-  }
+  contact_.add_force_jvp(data.contact, step_size(model, data), dx, r);
 }
 
 void StepDerivatives::contact_sigma_jvp(const Model& model, const Data& data, const State& out, const VecX& dx,
                                         const VecX& dv0, VecX& b) const {
-  const auto& cd = data.contact;
-  const double h = step_size(model, data);
-  b.noalias() = cd.Ht.transpose() * dv0;  // H dv0 (projected H)
-  for (int i = 0; i < cd.contacts.size(); ++i) {
-    const auto& c = cd.contacts.contacts[i];
-    const auto& g = geometry_[static_cast<std::size_t>(i)];
-    const Eigen::Matrix<double, 12, 1> u = gather_contact(c, dx);
-    const Mat3 dC = Eigen::Map<const Mat3>(Eigen::Matrix<double, 9, 1>(g.dframe * u).data());
-    const Eigen::Vector4d dw = g.dweights * u;
-    Vec3 V = Vec3::Zero(), dV = Vec3::Zero();
-    for (int k = 0; k < c.count; ++k) {
-      const Vec3 vk = out.v.segment<3>(3 * c.nodes[k]);
-      V += c.weights[k] * vk;
-      dV += dw[k] * vk;
-    }
-    b.segment<3>(3 * i) += dC.transpose() * V + c.frame.transpose() * dV;
-    b[3 * i + 2] += (g.dgap * u)(0) / h;
-  }
+  b.noalias() = data.contact.Ht.transpose() * dv0;  // H dv0 (projected H)
+  contact_.add_sigma_jvp(data.contact, out.v, step_size(model, data), dx, b);
 }
 
 void StepDerivatives::add_contact_geometry_vjp(const Model& model, const Data& data, const State& out, const VecX& y,
                                                const VecX& bar_b, VecX& bar_x) const {
-  const auto& cd = data.contact;
-  const double h = step_size(model, data);
-  for (int i = 0; i < cd.contacts.size(); ++i) {
-    const auto& c = cd.contacts.contacts[i];
-    const auto& g = geometry_[static_cast<std::size_t>(i)];
-    const Vec3 l = cd.lambda.segment<3>(3 * i), Cl = c.frame * l, bb = bar_b.segment<3>(3 * i), Cb = c.frame * bb;
-    // d/du of  h sum_k y_k . (dw_k C l + w_k dC l)  +  bb . (dC^T V + C^T dV) + bb_N dgap / h.
-    Eigen::Matrix<double, 4, 1> gw = Eigen::Matrix<double, 4, 1>::Zero();
-    Mat3 gC = Mat3::Zero();  // the gradient with respect to the entries of C
-    Vec3 V = Vec3::Zero();
-    for (int k = 0; k < c.count; ++k) {
-      const Vec3 yk = y.segment<3>(3 * c.nodes[k]), vk = out.v.segment<3>(3 * c.nodes[k]);
-      gw[k] += h * yk.dot(Cl) + Cb.dot(vk);
-      gC += h * c.weights[k] * yk * l.transpose();
-      V += c.weights[k] * vk;
-    }
-    gC += V * bb.transpose();  // bb . dC^T V = V . dC bb
-    const Eigen::Matrix<double, 12, 1> gu = g.dweights.transpose() * gw +
-                                            g.dframe.transpose() * Eigen::Map<const Eigen::Matrix<double, 9, 1>>(gC.data()) +
-                                            g.dgap.transpose() * (bb[2] / h);
-    for (int k = 0; k < c.count; ++k) bar_x.segment<3>(3 * c.nodes[k]) += gu.segment<3>(3 * k);
-  }
+  contact_.add_geometry_vjp(data.contact, out.v, step_size(model, data), y, bar_b, bar_x);
 }
 
 LinearSolver* StepDerivatives::system(const Model& model, const Data& data, const State& out) {
@@ -362,15 +261,8 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
     contact_sigma_jvp(model, data, out, dx, d_out.v, b_);
     // Friction parameters: dmu_i = dp_j for the contacts of pair rule j.
     VecX dmu;
-    for (int j = 0; j < static_cast<int>(parameters_.size()); ++j) {
-      const ParameterId& id = parameters_[static_cast<std::size_t>(j)];
-      if (id.kind != Parameter::friction || !d.p.size() || d.p[j] == 0) continue;
-      if (!dmu.size()) dmu = VecX::Zero(data.contact.contacts.size());
-      const auto& rule = model.contact.detection.pairs[static_cast<std::size_t>(id.body)];
-      for (int i = 0; i < data.contact.contacts.size(); ++i)
-        if (in_rule(data.contact.contacts.contacts[i], rule)) dmu[i] += d.p[j];
-    }
-    ncp_.jvp(b_, dmu, dlambda_);
+    contact::ContactStageDerivative::friction_tangent(model, data.contact, parameters_, d.p, dmu);
+    contact_.ncp().jvp(b_, dmu, dlambda_);
     tmp_.noalias() = h * (data.contact.Ht * dlambda_);
     project(model, tmp_);
     if (!solver->solve(tmp_, y_)) return false;
@@ -409,7 +301,7 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
     // side's cotangent is y + A^{-1} z.
     prepare_contact(model, data, in, out, *solver);
     bar_lambda_.noalias() = h * (data.contact.Ht.transpose() * y_);
-    ncp_.vjp(bar_lambda_, bar_b_, bar_mu_);
+    contact_.ncp().vjp(bar_lambda_, bar_b_, bar_mu_);
     tmp2_.noalias() = data.contact.Ht * bar_b_;
     project(model, tmp2_);
     if (!solver->solve(tmp2_, y2_)) return false;
@@ -445,15 +337,10 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
     model.actuation.add_jacobian_product(in.x, y_, h, bar_in.lambda_a);
   }
   bar_in.p = VecX::Zero(static_cast<Eigen::Index>(parameters_.size()));
+  if (model.contact.enabled && !data.contact.contacts.empty())
+    contact::ContactStageDerivative::add_friction_cotangent(model, data.contact, parameters_, bar_mu_, bar_in.p);
   for (int j = 0; j < static_cast<int>(parameters_.size()); ++j) {
-    const ParameterId& id = parameters_[static_cast<std::size_t>(j)];
-    if (id.kind == Parameter::friction) {
-      if (!model.contact.enabled || data.contact.contacts.empty()) continue;
-      const auto& rule = model.contact.detection.pairs[static_cast<std::size_t>(id.body)];
-      for (int i = 0; i < data.contact.contacts.size(); ++i)
-        if (in_rule(data.contact.contacts.contacts[i], rule)) bar_in.p[j] += bar_mu_[i];
-      continue;
-    }
+    if (parameters_[static_cast<std::size_t>(j)].kind == Parameter::friction) continue;
     if (!parameter_column(model, data, in, out, j, q_)) return false;
     bar_in.p[j] = y_.dot(q_);
   }

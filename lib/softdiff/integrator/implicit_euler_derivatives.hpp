@@ -53,6 +53,7 @@
 // static_solver_derivatives.hpp), newton_iterations > 1 with psd_projection, friction
 // as a parameter.
 #include <softdiff/collision/contact_derivatives.hpp>
+#include <softdiff/contact/contact_step_derivatives.hpp>
 #include <softdiff/contact/ncp_derivatives.hpp>
 #include <softdiff/core/parameters.hpp>
 #include <softdiff/data.hpp>
@@ -88,9 +89,9 @@ class StepDerivatives {
   // does not exist (taken as zero), contacts whose active feature pair is not unique
   // and whose geometry derivative is the randomized-smoothing estimate
   // (model.contact.smoothing), and the NCP derivative (its rank deficiency).
-  int nondifferentiable_contacts() const { return nondifferentiable_contacts_; }
-  int smoothed_contacts() const { return smoothed_contacts_; }
-  const contact::NcpDerivative& ncp_derivative() const { return ncp_; }
+  int nondifferentiable_contacts() const { return contact_.nondifferentiable_contacts(); }
+  int smoothed_contacts() const { return contact_.smoothed_contacts(); }
+  const contact::NcpDerivative& ncp_derivative() const { return contact_.ncp(); }
   // The contact forces' tangent d lambda_c (3 nc, in the contact frames) of the last
   // jvp() of a step with contact (the control's contact-force objective).
   const VecX& contact_force_tangent() const { return dlambda_; }
@@ -137,14 +138,8 @@ class StepDerivatives {
   void add_contact_geometry_vjp(const Model& model, const Data& data, const State& out, const VecX& y,
                                 const VecX& bar_b, VecX& bar_x) const;
 
-  std::vector<collision::ContactGeometryDerivative> geometry_;
-  contact::NcpDerivative ncp_;
-  std::vector<int> active_ids_;     // sparse backend: the active contacts,
-  SparseMatrix Ht_active_;          //   their columns of H_c^T
-  MatX G_active_;                   //   and G_AA
-  MatX newton_G_;                   // Newton, dense backend: G_f = h H_c A_f^{-1} H_c^T
+  contact::ContactStageDerivative contact_;  // geometry and NCP derivatives (contact/contact_step_derivatives.hpp)
   VecX contact_v_;                   // the v_f the contact derivatives were prepared for
-  int nondifferentiable_contacts_ = 0, smoothed_contacts_ = 0;
   VecX b_, dlambda_, bar_lambda_, bar_b_, bar_mu_, y2_;
   SparseMatrix newton_A_;            // Newton: dR/dv at x_f (the pattern's structure)
   std::unique_ptr<LinearSolver> newton_solver_;

@@ -106,6 +106,7 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
 
   for (long s = 1; s <= L; ++s) {
     const double factor = static_cast<double>(s) / L;
+    data.static_load_step_start = out.x;
     double rel = 0;
     int it = 0;
     contact_solved = false;

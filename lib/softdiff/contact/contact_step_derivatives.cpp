@@ -1,0 +1,147 @@
+// Derivatives of the contact stage: see contact_step_derivatives.hpp.
+#include <softdiff/contact/contact_step_derivatives.hpp>
+
+#include <softdiff/core/assert.hpp>
+
+namespace softdiff::contact {
+
+namespace {
+// Whether contact c belongs to pair rule r (its sides in either order).
+bool in_rule(const collision::Contact& c, const collision::PairRule& r) {
+  return (c.side_a == r.a && c.side_b == r.b) || (c.side_a == r.b && c.side_b == r.a);
+}
+// The contact's node components of a global vector (12; count nodes used).
+Eigen::Matrix<double, 12, 1> gather_contact(const collision::Contact& c, const VecX& v) {
+  Eigen::Matrix<double, 12, 1> u = Eigen::Matrix<double, 12, 1>::Zero();
+  for (int k = 0; k < c.count; ++k) u.segment<3>(3 * k) = v.segment<3>(3 * c.nodes[k]);
+  return u;
+}
+}  // namespace
+
+bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, const VecX& x,
+                                     integrator::LinearSolver& solver, double h, bool use_record_G,
+                                     const std::vector<Mode>* modes_in, const VecX* sigma_in) {
+  const std::vector<Mode>& modes = modes_in ? *modes_in : cd.modes;
+  const VecX& sigma = sigma_in ? *sigma_in : cd.sigma;
+  const auto& det = model.contact.detection;
+  const int nc = cd.contacts.size();
+  geometry_.resize(static_cast<std::size_t>(nc));
+  nondifferentiable_ = 0;
+  smoothed_ = 0;
+  for (int i = 0; i < nc; ++i) {
+    const auto& c = cd.contacts.contacts[i];
+    const collision::Obstacle* o = nullptr;
+    if (c.kind == collision::ContactKind::vertex_obstacle)
+      o = &det.obstacles[static_cast<std::size_t>(c.side_b) - det.surfaces.size()];
+    auto& g = geometry_[static_cast<std::size_t>(i)];
+    const auto kind = collision::contact_geometry_derivative(c, x, o, model.contact.smoothing, g);
+    if (kind == collision::GeometryDerivativeKind::smoothed) ++smoothed_;
+    if (kind == collision::GeometryDerivativeKind::none) {
+      g.dn.setZero();
+      g.dgap.setZero();
+      g.dweights.setZero();
+      g.dframe.setZero();
+      ++nondifferentiable_;
+    }
+  }
+  if (nc == 0) return true;
+  if (use_record_G && cd.G.rows() == 3 * nc) {
+    ncp_.compute(cd.G, cd.mu, cd.lambda, sigma, modes);
+  } else {
+    // The mode-fixed system needs G_AA of the active contacts only: one congruence
+    // with the factorization of A (never the whole G).
+    active_ids_.clear();
+    for (int i = 0; i < nc; ++i)
+      if (modes[static_cast<std::size_t>(i)] != Mode::breaking) active_ids_.push_back(i);
+    select_contact_columns(cd.Ht, active_ids_, Ht_active_);
+    if (!solver.inverse_congruence(Ht_active_, G_active_)) return false;
+    G_active_ *= h;
+    ncp_.compute_active(G_active_, cd.mu, cd.lambda, sigma, modes);
+  }
+  return true;
+}
+
+void ContactStageDerivative::add_force_jvp(const ContactData& cd, double h, const VecX& dx, VecX& r) const {
+  for (int i = 0; i < cd.contacts.size(); ++i) {
+    const auto& c = cd.contacts.contacts[i];
+    const auto& g = geometry_[static_cast<std::size_t>(i)];
+    const Eigen::Matrix<double, 12, 1> u = gather_contact(c, dx);
+    const Vec3 l = cd.lambda.segment<3>(3 * i);
+    const Vec3 Cl = c.frame * l;
+    const Mat3 dC = Eigen::Map<const Mat3>(Eigen::Matrix<double, 9, 1>(g.dframe * u).data());
+    const Vec3 dCl = dC * l;
+    const Eigen::Vector4d dw = g.dweights * u;
+    for (int k = 0; k < c.count; ++k) r.segment<3>(3 * c.nodes[k]) += h * (dw[k] * Cl + c.weights[k] * dCl);
+  }
+}
+
+void ContactStageDerivative::add_sigma_jvp(const ContactData& cd, const VecX& u_sol, double h, const VecX& dx,
+                                           VecX& b) const {
+  for (int i = 0; i < cd.contacts.size(); ++i) {
+    const auto& c = cd.contacts.contacts[i];
+    const auto& g = geometry_[static_cast<std::size_t>(i)];
+    const Eigen::Matrix<double, 12, 1> u = gather_contact(c, dx);
+    const Mat3 dC = Eigen::Map<const Mat3>(Eigen::Matrix<double, 9, 1>(g.dframe * u).data());
+    const Eigen::Vector4d dw = g.dweights * u;
+    Vec3 V = Vec3::Zero(), dV = Vec3::Zero();
+    for (int k = 0; k < c.count; ++k) {
+      const Vec3 vk = u_sol.segment<3>(3 * c.nodes[k]);
+      V += c.weights[k] * vk;
+      dV += dw[k] * vk;
+    }
+    b.segment<3>(3 * i) += dC.transpose() * V + c.frame.transpose() * dV;
+    b[3 * i + 2] += (g.dgap * u)(0) / h;
+  }
+}
+
+void ContactStageDerivative::add_geometry_vjp(const ContactData& cd, const VecX& u_sol, double h, const VecX& y,
+                                              const VecX& bar_b, VecX& bar_x) const {
+  for (int i = 0; i < cd.contacts.size(); ++i) {
+    const auto& c = cd.contacts.contacts[i];
+    const auto& g = geometry_[static_cast<std::size_t>(i)];
+    const Vec3 l = cd.lambda.segment<3>(3 * i), Cl = c.frame * l, bb = bar_b.segment<3>(3 * i), Cb = c.frame * bb;
+    // d/du of  h sum_k y_k . (dw_k C l + w_k dC l)  +  bb . (dC^T V + C^T dV) + bb_N dgap / h.
+    Eigen::Matrix<double, 4, 1> gw = Eigen::Matrix<double, 4, 1>::Zero();
+    Mat3 gC = Mat3::Zero();  // the gradient with respect to the entries of C
+    Vec3 V = Vec3::Zero();
+    for (int k = 0; k < c.count; ++k) {
+      const Vec3 yk = y.segment<3>(3 * c.nodes[k]), vk = u_sol.segment<3>(3 * c.nodes[k]);
+      gw[k] += h * yk.dot(Cl) + Cb.dot(vk);
+      gC += h * c.weights[k] * yk * l.transpose();
+      V += c.weights[k] * vk;
+    }
+    gC += V * bb.transpose();  // bb . dC^T V = V . dC bb
+    const Eigen::Matrix<double, 12, 1> gu = g.dweights.transpose() * gw +
+                                            g.dframe.transpose() * Eigen::Map<const Eigen::Matrix<double, 9, 1>>(gC.data()) +
+                                            g.dgap.transpose() * (bb[2] / h);
+    for (int k = 0; k < c.count; ++k) bar_x.segment<3>(3 * c.nodes[k]) += gu.segment<3>(3 * k);
+  }
+}
+
+void ContactStageDerivative::friction_tangent(const Model& model, const ContactData& cd,
+                                              const std::vector<ParameterId>& parameters, const VecX& dp, VecX& dmu) {
+  dmu.resize(0);
+  for (std::size_t j = 0; j < parameters.size(); ++j) {
+    const ParameterId& id = parameters[j];
+    const auto jj = static_cast<Eigen::Index>(j);
+    if (id.kind != Parameter::friction || !dp.size() || dp[jj] == 0) continue;
+    if (!dmu.size()) dmu = VecX::Zero(cd.contacts.size());
+    const auto& rule = model.contact.detection.pairs[static_cast<std::size_t>(id.body)];
+    for (int i = 0; i < cd.contacts.size(); ++i)
+      if (in_rule(cd.contacts.contacts[i], rule)) dmu[i] += dp[jj];
+  }
+}
+
+void ContactStageDerivative::add_friction_cotangent(const Model& model, const ContactData& cd,
+                                                    const std::vector<ParameterId>& parameters, const VecX& bar_mu,
+                                                    VecX& bar_p) {
+  for (std::size_t j = 0; j < parameters.size(); ++j) {
+    const ParameterId& id = parameters[j];
+    if (id.kind != Parameter::friction) continue;
+    const auto& rule = model.contact.detection.pairs[static_cast<std::size_t>(id.body)];
+    for (int i = 0; i < cd.contacts.size(); ++i)
+      if (in_rule(cd.contacts.contacts[i], rule)) bar_p[static_cast<Eigen::Index>(j)] += bar_mu[i];
+  }
+}
+
+}  // namespace softdiff::contact

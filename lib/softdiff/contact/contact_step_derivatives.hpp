@@ -1,0 +1,66 @@
+#pragma once
+// Derivatives of the contact stage (sibling of contact_step.hpp; docs/method.md
+// "Derivatives", "Through contact"): the pieces that the dynamic step's derivative
+// (integrator/implicit_euler_derivatives.cpp) and the static equilibrium's
+// (integrator/static_solver_derivatives.cpp) share. At a solution of the contact
+// stage (data.contact: contacts, H_c^T, lambda, sigma, modes) of a linearized problem
+// A u = b + h H_c^T lambda with sigma = H_c u + (0, 0, phi / h):
+//  - the geometry derivative of every contact at the detection's positions x
+//    (collision/contact_derivatives.hpp; zero where it does not exist);
+//  - the NCP derivative with the modes fixed (ncp_derivatives.hpp), on the record's
+//    dense G or, where the record has none (sparse backend) or the caller asks for
+//    another A, on G_AA = h H_A A^{-1} H_A^T of the active contacts (one congruence
+//    with the given factorization);
+//  - the products of the geometry terms: h dH[dx]^T lambda (the force), dH[dx] u +
+//    (0, 0, dphi[dx] / h) (sigma at fixed lambda) and their transposes.
+#include <softdiff/collision/contact_derivatives.hpp>
+#include <softdiff/contact/ncp_derivatives.hpp>
+#include <softdiff/core/parameters.hpp>
+#include <softdiff/data.hpp>
+#include <softdiff/model.hpp>
+
+#include <vector>
+
+namespace softdiff::contact {
+
+class ContactStageDerivative {
+ public:
+  // Geometry derivatives of cd's contacts at x, and the NCP derivative at cd's solution.
+  // G: cd.G when use_record_G and the record holds it; otherwise G_AA = h H_A A^{-1}
+  // H_A^T with `solver` (A's factorization). Returns false if that solve failed.
+  // modes, sigma: the modes and sigma the NCP derivative holds (default: cd's).
+  bool prepare(const Model& model, const ContactData& cd, const VecX& x, integrator::LinearSolver& solver, double h,
+               bool use_record_G, const std::vector<Mode>* modes = nullptr, const VecX* sigma = nullptr);
+
+  // r += h sum_i dH_i[dx]^T lambda_i (the contact forces' change with the positions).
+  void add_force_jvp(const ContactData& cd, double h, const VecX& dx, VecX& r) const;
+  // b += dH[dx] u + (0, 0, dgap[dx] / h): sigma's change with the positions at fixed
+  // lambda and fixed u (u: the solution of the linearized problem, v_f of the step).
+  void add_sigma_jvp(const ContactData& cd, const VecX& u, double h, const VecX& dx, VecX& b) const;
+  // bar_x += the transposes of both, for the cotangents y (of r) and bar_b (of b).
+  void add_geometry_vjp(const ContactData& cd, const VecX& u, double h, const VecX& y, const VecX& bar_b,
+                        VecX& bar_x) const;
+  // dmu (nc) of a tangent of the parameters: dmu_i = sum of dp_j over the friction
+  // parameters j whose pair rule contact i belongs to (empty if there is none).
+  static void friction_tangent(const Model& model, const ContactData& cd, const std::vector<ParameterId>& parameters,
+                               const VecX& dp, VecX& dmu);
+  // bar_p_j += sum of bar_mu_i over the contacts of friction parameter j's pair rule.
+  static void add_friction_cotangent(const Model& model, const ContactData& cd,
+                                     const std::vector<ParameterId>& parameters, const VecX& bar_mu, VecX& bar_p);
+
+  const NcpDerivative& ncp() const { return ncp_; }
+  // Contacts whose geometry derivative does not exist (taken as zero), and those whose
+  // derivative is the randomized-smoothing estimate (model.contact.smoothing).
+  int nondifferentiable_contacts() const { return nondifferentiable_; }
+  int smoothed_contacts() const { return smoothed_; }
+
+ private:
+  std::vector<collision::ContactGeometryDerivative> geometry_;
+  NcpDerivative ncp_;
+  std::vector<int> active_ids_;  // G_AA path: the active contacts,
+  SparseMatrix Ht_active_;       //   their columns of H_c^T
+  MatX G_active_;                //   and G_AA
+  int nondifferentiable_ = 0, smoothed_ = 0;
+};
+
+}  // namespace softdiff::contact
