@@ -54,6 +54,12 @@ SparseMatrix node_block_pattern(const SparseMatrix& X) {
   return P;
 }
 
+// The columns the shifted solve and the power iteration use: H_W^T D^-1/2 when a scale
+// is set (scale_sqrt_inv not empty), else H_W^T itself (no copy on the unscaled path).
+const SparseMatrix& scaled_columns(const SparseMatrix& HtW, const SparseMatrix& HtWs, const VecX& scale_sqrt_inv) {
+  return scale_sqrt_inv.size() > 0 ? HtWs : HtW;
+}
+
 }  // namespace
 
 void select_contact_columns(const SparseMatrix& Ht, const std::vector<int>& ids, SparseMatrix& out) {
@@ -89,8 +95,7 @@ void SparseDelassus::restrict_to_all() {
   W_.resize(static_cast<std::size_t>(nc_));
   for (int i = 0; i < nc_; ++i) W_[i] = i;
   HtW_ = *Ht_;
-  HtWs_ = HtW_;
-  scale_sqrt_inv_.resize(0);
+  scale_sqrt_inv_.resize(0);  // unscaled: HtWs_ is not used
   pattern_ready_ = false;
   c_ = 0;
 }
@@ -98,8 +103,7 @@ void SparseDelassus::restrict_to_all() {
 void SparseDelassus::restrict_to(const std::vector<int>& W) {
   W_ = W;
   select_contact_columns(*Ht_, W, HtW_);
-  HtWs_ = HtW_;
-  scale_sqrt_inv_.resize(0);
+  scale_sqrt_inv_.resize(0);  // unscaled: HtWs_ is not used
   pattern_ready_ = false;
   c_ = 0;
 }
@@ -157,7 +161,8 @@ bool SparseDelassus::dense(MatX& G) {
 
 void SparseDelassus::build_pattern() {
   // P = H~_W^T H~_W, upper triangle (H~ = D^-1/2 H: the same pattern as H's).
-  const SparseMatrix full = HtWs_ * HtWs_.transpose();
+  const SparseMatrix& Hs = scaled_columns(HtW_, HtWs_, scale_sqrt_inv_);
+  const SparseMatrix full = Hs * Hs.transpose();
   const SparseMatrix P = full.triangularView<Eigen::Upper>();
   const SparseMatrix blocks = node_block_pattern(P);
   bool contained = analyzed_ && S_.rows() == A_->rows() && scatter_into(blocks, S_, p_values_);  // (a test)
@@ -191,10 +196,11 @@ bool SparseDelassus::solve_shifted(Eigen::Ref<VecX> r) {
   SOFTDIFF_DEMAND(c_ > 0, "SparseDelassus::solve_shifted without factorize_shifted");
   const bool scaled = scale_sqrt_inv_.size() == r.size();
   if (scaled) r.array() *= scale_sqrt_inv_.array();
-  u_.noalias() = HtWs_ * r;
+  const SparseMatrix& Hs = scaled_columns(HtW_, HtWs_, scale_sqrt_inv_);
+  u_.noalias() = Hs * r;
   const bool ok = B_solver_->solve(u_, w_);
   failed_ = failed_ || !ok;
-  r.noalias() -= (h_ / c_) * (HtWs_.transpose() * w_);
+  r.noalias() -= (h_ / c_) * (Hs.transpose() * w_);
   r /= c_;
   if (scaled) r.array() *= scale_sqrt_inv_.array();
   return ok;
@@ -212,11 +218,12 @@ double SparseDelassus::largest_eigenvalue(int iterations) {
   double L = 0;
   for (int it = 0; it < iterations; ++it) {
     // power_next = D^-1/2 G_WW D^-1/2 power_ = h H~ A^{-1} H~^T power_.
-    u_.noalias() = HtWs_ * power_;
+    const SparseMatrix& Hs = scaled_columns(HtW_, HtWs_, scale_sqrt_inv_);
+    u_.noalias() = Hs * power_;
     const bool ok = A_solver_->solve(u_, w_);
     failed_ = failed_ || !ok;
     if (!ok) break;
-    power_next_.noalias() = h_ * (HtWs_.transpose() * w_);
+    power_next_.noalias() = h_ * (Hs.transpose() * w_);
     const double n = power_next_.norm();
     if (!(n > 0) || !std::isfinite(n)) break;
     L = n;

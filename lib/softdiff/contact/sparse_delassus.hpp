@@ -102,7 +102,7 @@ class SparseDelassus {
   integrator::SolverOptions options_;
   std::vector<int> W_;
   SparseMatrix HtW_;                 // (3n x 3|W|) columns of Ht for W
-  SparseMatrix HtWs_;                // (3n x 3|W|) HtW_ D^-1/2 (set_scale; HtW_ when not scaled)
+  SparseMatrix HtWs_;                // (3n x 3|W|) HtW_ D^-1/2 (set_scale; unused when not scaled)
   VecX scale_sqrt_inv_;              // (3|W|) D^-1/2 per column (empty: not scaled)
   const VecX* mass_ = nullptr;       // (3n) set_mass
   bool pattern_ready_ = false;       // S holds B's pattern for the current W
