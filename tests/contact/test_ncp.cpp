@@ -419,6 +419,52 @@ TEST(NcpSolvers, RankDeficientManyBreaking) {
 }
 
 // ---------------------------------------------------------------------------
+// The per-contact penalty (options.admm_scaling) on a mass ratio: 40 decoupled
+// contacts, every other one on a body 1e6 times lighter (its 3x3 block of G 1e6 times
+// larger), random SPD blocks, random g (some pushing, some sliding). One rho cannot
+// suit both scales; rho_i = rho d_i (d_i = tr(G_ii) / 3) makes the scaled problem's
+// blocks O(1). Pure ADMM (no PGS fallback, no polish, no working set), tolerance
+// 1e-10: the scaled iteration converges and gives the NCP's (unique: G has full rank)
+// solution; the unscaled one needs at least 3x its iterations (measured below, printed).
+TEST(NcpSolvers, ScaledAdmmOnAMassRatio) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(-1, 1);
+  const int nc = 40;
+  Problem p{MatX::Zero(3 * nc, 3 * nc), VecX(3 * nc), VecX::Constant(nc, 0.3)};
+  for (int i = 0; i < nc; ++i) {
+    MatX B(3, 3);
+    for (int k = 0; k < 9; ++k) B(k / 3, k % 3) = u(rng);
+    B = B * B.transpose() + 0.5 * MatX::Identity(3, 3);
+    p.G.block<3, 3>(3 * i, 3 * i) = (i % 2 ? 1e6 : 1.0) * B;
+    p.g.segment<3>(3 * i) = Vec3(u(rng), u(rng), u(rng) - 0.5);
+  }
+  Solved s[2];
+  for (const bool scaled : {false, true}) {
+    NcpOptions o;
+    o.working_set = false;
+    o.polish = false;
+    o.admm_fallback = false;
+    o.admm_scaling = scaled;
+    o.tolerance = 1e-10;
+    o.max_iterations = 5000;
+    Solved& r = s[scaled];
+    r.lambda = VecX::Zero(3 * nc);
+    NcpSolver solver;
+    r.result = solver.solve(p.G, p.g, p.mu, o, r.lambda, r.sigma, r.modes);
+    std::cout << (scaled ? "scaled" : "unscaled") << " ADMM, mass ratio 1e6: " << r.result.iterations
+              << " iterations, residual " << r.result.residuals.max() << "\n";
+  }
+  ASSERT_TRUE(s[1].result.converged) << s[1].result.residuals.max();
+  expect_ncp_solution(p, s[1], 1e-10, "scaled ADMM");
+  EXPECT_GE(s[0].result.iterations, 3 * s[1].result.iterations);
+  if (s[0].result.converged) {
+    // Two solutions to 1e-10 of the same full-rank problem: the same forces up to the
+    // conditioning of G (1e6 here) times the tolerance.
+    EXPECT_LE((s[0].lambda - s[1].lambda).norm(), 1e-3 * s[1].lambda.norm());
+  }
+}
+
+// ---------------------------------------------------------------------------
 // Warm start: from the solution, no (or one) iteration.
 TEST(NcpSolvers, WarmStartFromTheSolution) {
   const Problem p = physical_problem(21, 20, 10, -1);

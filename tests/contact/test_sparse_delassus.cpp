@@ -206,6 +206,113 @@ TEST(SparseDelassus, PatternIsTheSystemsForObstacleContactsAndGrowsForSoftSoft) 
 // contact): lambda is unique, and 1e-6 relative is what 1e-10 on the scaled residuals
 // guarantees with its condition number (< 1e4). The stack's soft-soft G is rank
 // deficient: sigma is compared, and the residuals recomputed from the dense G.
+// The per-contact scale (ADMM's rho_i = rho d_i, sparse_delassus.hpp): the lumped-mass
+// estimate d_i = h tr(H_i M^-1 H_i^T) / 3 against its definition (from H_c^T and the
+// masses) and against the bound it is, tr(G_ii) / 3 <= d_i (A >= M); the shifted solve
+// (G_WW + c D)^{-1} r and the largest eigenvalue of D^-1/2 G_WW D^-1/2 against the
+// dense matrices. Tolerances as above: the scaled shift cancels ||G~|| / c digits, with
+// c >= 1e-3 L~ 1e-9; the estimate is a sum of a few products (1e-12); the bound holds
+// exactly in exact arithmetic, 1e-9 relative covers the solves behind the dense G.
+TEST(SparseDelassus, ScaledShiftedSolveMatchesTheDense) {
+  for (const bool soft : {false, true}) {
+    const Model model = soft ? stack_model() : slab_model();
+    const char* what = soft ? "stack" : "slab";
+    Data data(model);
+    step_to_contact(model, data);
+    const auto& cd = data.contact;
+    const int nc = cd.contacts.size();
+    ASSERT_GT(nc, 3) << what;
+    const double h = model.step.dt;
+    contact::SparseDelassus op;
+    op.bind(*data.solver, data.A, cd.Ht, h, model.solver);
+    VecX d(nc);
+    op.contact_compliance(d);
+    EXPECT_EQ(d, VecX::Ones(nc)) << what << ": without masses, no scale";
+    op.set_mass(model.fem.mass_diagonal);
+    op.contact_compliance(d);
+    const VecX& m = model.fem.mass_diagonal;
+    for (int i = 0; i < nc; ++i) {
+      double expected = 0;
+      for (int r = 0; r < 3; ++r)
+        for (Eigen::Index k = 0; k < cd.Ht.rows(); ++k) expected += cd.Ht.coeff(k, 3 * i + r) * cd.Ht.coeff(k, 3 * i + r) / m[k];
+      expected *= h / 3;
+      EXPECT_NEAR(d[i], expected, 1e-12 * expected) << what << " contact " << i;
+      const double tr3 = cd.G.block<3, 3>(3 * i, 3 * i).trace() / 3;
+      EXPECT_LE(tr3, d[i] * (1 + 1e-9)) << what << " contact " << i;
+      EXPECT_GT(d[i], 0) << what << " contact " << i;
+    }
+    // A subset W with a scale spread over 1e6 (a mass ratio's).
+    std::vector<int> W;
+    for (int i = 0; i < nc; i += 2) W.push_back(i);
+    const int nw = static_cast<int>(W.size());
+    const Eigen::Index mw = 3 * static_cast<Eigen::Index>(nw);
+    op.restrict_to(W);
+    VecX dw(nw), d3(mw);
+    for (int b = 0; b < nw; ++b) {
+      dw[b] = b % 2 ? 1.0 : 1e-6;
+      d3.segment<3>(3 * b).setConstant(dw[b]);
+    }
+    op.set_scale(dw);
+    MatX G_WW(mw, mw);
+    for (int b = 0; b < nw; ++b)
+      for (int a = 0; a < nw; ++a) G_WW.block<3, 3>(3 * a, 3 * b) = cd.G.block<3, 3>(3 * W[a], 3 * W[b]);
+    const VecX s = d3.cwiseSqrt().cwiseInverse();
+    const MatX Gs = s.asDiagonal() * G_WW * s.asDiagonal();
+    const double L = op.largest_eigenvalue(50);
+    const double lmax = Eigen::SelfAdjointEigenSolver<MatX>(Gs, Eigen::EigenvaluesOnly).eigenvalues().maxCoeff();
+    EXPECT_LE(L, lmax * (1 + 1e-9)) << what;
+    EXPECT_GE(L, 0.5 * lmax) << what;
+    for (const double c : {1e-3 * L, 1.0 * L}) {
+      ASSERT_TRUE(op.factorize_shifted(c)) << what;
+      MatX shifted = G_WW;
+      shifted.diagonal() += c * d3;
+      const VecX r = random_vector(mw, 5);
+      const VecX expected = shifted.llt().solve(r);
+      VecX x = r;
+      ASSERT_TRUE(op.solve_shifted(x));
+      // Relative to the scaled problem's solution norm (the unscaled one mixes 1e6 scales).
+      EXPECT_LE((s.cwiseInverse().cwiseProduct(x - expected)).norm(),
+                1e-9 * s.cwiseInverse().cwiseProduct(expected).norm())
+          << what << " c = " << c;
+    }
+    EXPECT_EQ(op.analyses(), 1) << what;  // a scale changes values, not the pattern
+  }
+}
+
+// The scaled ADMM (admm_scaling) on the operator and on the dense G: converged, and
+// the same contact velocities as the unscaled dense solve (tolerance as below).
+TEST(SparseNcp, ScaledAdmmAgreesWithTheDenseSolver) {
+  for (const bool soft : {false, true}) {
+    const Model model = soft ? stack_model() : slab_model();
+    Data data(model);
+    step_to_contact(model, data);
+    const auto& cd = data.contact;
+    const int nc = cd.contacts.size();
+    contact::NcpOptions o = model.contact.ncp;
+    o.tolerance = 1e-10;
+    o.max_iterations = 20000;
+    VecX lam_d = VecX::Zero(3 * nc), sig_d;
+    std::vector<contact::Mode> modes;
+    contact::NcpSolver reference;
+    ASSERT_TRUE(reference.solve(cd.G, cd.g, cd.mu, o, lam_d, sig_d, modes).converged);
+    o.admm_scaling = true;
+    o.dense_max_contacts = 0;  // every reduced problem by ADMM on the operator
+    for (const bool sparse : {false, true}) {
+      const std::string what = std::string(soft ? "stack" : "slab") + (sparse ? ", operator" : ", dense");
+      VecX lam = VecX::Zero(3 * nc), sig;
+      contact::NcpSolver solver;
+      contact::SparseDelassus op;
+      op.bind(*data.solver, data.A, cd.Ht, model.step.dt, model.solver);
+      op.set_mass(model.fem.mass_diagonal);
+      const auto r = sparse ? solver.solve(op, cd.g, cd.mu, o, lam, sig, modes)
+                            : solver.solve(cd.G, cd.g, cd.mu, o, lam, sig, modes);
+      EXPECT_TRUE(r.converged) << what << " residual " << r.residuals.max();
+      EXPECT_LE(contact::ncp_residuals(cd.G, cd.g, cd.mu, lam).max(), 1e-10) << what;
+      EXPECT_LE((sig - sig_d).norm(), 1e-6 * std::max(sig_d.norm(), cd.g.norm())) << what;
+    }
+  }
+}
+
 TEST(SparseNcp, AgreesWithTheDenseSolver) {
   for (const bool soft : {false, true}) {
     const Model model = soft ? stack_model() : slab_model();

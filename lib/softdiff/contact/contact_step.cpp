@@ -138,6 +138,12 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   if (sparse) {
     cd.G.resize(0, 0);
     cd.sparse.bind(*data.solver, data.A, cd.Ht, h, model.solver);
+    // ADMM's per-contact scale from the lumped masses (sparse_delassus.hpp) where A
+    // holds them: the dynamic step (A = M + ...), not the static solver's A = K.
+    if (free_motion_widens)
+      cd.sparse.set_mass(model.fem.mass_diagonal);
+    else
+      cd.sparse.clear_mass();
   } else {
     if (!data.solver->inverse_congruence(cd.Ht, cd.G)) {
       status.code = StepStatus::Code::solver_failed;

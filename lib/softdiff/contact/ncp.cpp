@@ -201,6 +201,7 @@ struct Buffers {
   VecX x, y, z, s, rhs;          // (n) ADMM iterates: x linear, y in K, z in K*, s = Gamma(z)
   VecX x_prev, y_prev;           // (n) the previous x, y (dual residual)
   VecX power;                    // (n) power iteration vector (largest eigenvalue of G)
+  VecX d, d3, d3_sqrt_inv;       // (nc) ADMM's per-contact scale d_i; (n) d_i per row, 1/sqrt(d_i) per row
   // PGS and shared
   VecX lambda_best;              // (n) last finite iterate (guard)
   // polish (written by polish())
@@ -229,8 +230,9 @@ struct Buffers {
   void resize(Eigen::Index n) {
     if (x.size() == n) return;
     muw.resize(n / 3);
+    d.resize(n / 3);
     in_set.resize(static_cast<std::size_t>(n / 3));
-    for (VecX* v : {&x, &y, &z, &s, &rhs, &x_prev, &y_prev, &power, &lambda_best, &lambda_p, &sigma_p, &lambda_kept,
+    for (VecX* v : {&x, &y, &z, &s, &rhs, &x_prev, &y_prev, &power, &d3, &d3_sqrt_inv, &lambda_best, &lambda_p, &sigma_p, &lambda_kept,
                      &sigma_kept, &gw, &lw, &sw, &lambda_alt, &sigma_alt})
       v->resize(n);
   }
@@ -252,23 +254,6 @@ using VecRef = Eigen::Ref<VecX>;
 template <typename V>
 bool all_finite(const V& v) {
   return v.allFinite();
-}
-
-// Largest eigenvalue of the PSD G by power iteration (a few steps: only its order of
-// magnitude sets rho's initial value and range).
-double largest_eigenvalue(const Eigen::Ref<const MatX>& G, VecRef v, VecRef w) {
-  const Eigen::Index n = G.rows();
-  for (Eigen::Index k = 0; k < n; ++k) v[k] = 1.0 + 0.01 * static_cast<double>(k % 7);  // not orthogonal to much
-  v /= v.norm();
-  double L = 0;
-  for (int it = 0; it < 20; ++it) {
-    w.noalias() = G * v;
-    const double nw = w.norm();
-    if (!(nw > 0)) break;
-    L = nw;
-    v = w / nw;
-  }
-  return L;
 }
 
 // ADMM with the De Saxce correction (Carpentier, Le Lidec, Montaut 2024, Alg. 1; as in
@@ -296,6 +281,18 @@ double largest_eigenvalue(const Eigen::Ref<const MatX>& G, VecRef v, VecRef w) {
 // tolerance 1e-8: ADMM alone 3248 iterations / 3.5 s, hybrid 100 + 1882 / 0.26 s.
 // With the dense G, the NCP residuals of y are checked every iteration (one product
 // G y, cheaper than the two triangular solves of the x-step).
+// Per-contact penalty (options.admm_scaling; Simple's and ProxSuite's diagonal
+// scaling): ADMM on the scaled problem G~ = D^-1/2 G D^-1/2, g~ = D^-1/2 g,
+// lambda~ = D^1/2 lambda, D = diag(d_i I_3), is the same NCP (K_mu and K_mu* are cones,
+// invariant under a positive scalar per contact) and, written in the unscaled
+// variables, the iteration above with rho_i = rho d_i and eta_i = eta d_i per contact:
+//   x = (G + (rho + eta) D)^{-1} (D (rho y + eta x) + z - g - s),
+//   y = P_K(x - z / (rho d_i)),   z = z - rho D (x - y),
+// L = lambda_max(G~), and ADMM's dual residual ||D (rho dy + eta dx)||. The NCP
+// residuals, the stopping rule and the returned lambda are the unscaled ones. d_i:
+// tr(G_ii) / 3 (dense), the lumped-mass estimate of sparse_delassus.hpp (operator),
+// normalized to max_i d_i = 1 and floored at 1e-12 (Cholesky's backward error is
+// invariant to a diagonal scaling, so a small d_i costs no accuracy).
 // The Delassus operator as ADMM sees it: the dense G with a dense Cholesky factor of
 // G + c I kept in the workspace (DenseOperator), or the sparse operator of
 // sparse_delassus.hpp (SparseOperator). cheap_apply: a product G y costs less than the
@@ -308,16 +305,38 @@ struct DenseOperator {
   const Eigen::Ref<const MatX>& G;
   Eigen::Index n;
   std::optional<Eigen::LLT<Eigen::Ref<MatX>>> llt{};
-  double largest_eigenvalue() { return softdiff::contact::largest_eigenvalue(G, w.power.head(n), w.rhs.head(n)); }
+  // The per-contact scale d_i (admm()): the mean of the contact's 3x3 diagonal block of G.
+  void contact_scale(VecRef d) {
+    for (Eigen::Index i = 0; i < n / 3; ++i) d[i] = G.block<3, 3>(3 * i, 3 * i).trace() / 3;
+  }
+  void set_scale(const VecCRef&) {}  // factorize() and largest_eigenvalue() read w.d3, w.d3_sqrt_inv
+  // Largest eigenvalue of D^-1/2 G D^-1/2.
+  double largest_eigenvalue() {
+    auto v = w.power.head(n), u = w.rhs.head(n);
+    const auto s = w.d3_sqrt_inv.head(n);
+    for (Eigen::Index k = 0; k < n; ++k) v[k] = 1.0 + 0.01 * static_cast<double>(k % 7);  // not orthogonal to much
+    v /= v.norm();
+    double L = 0;
+    for (int it = 0; it < 20; ++it) {
+      u = s.cwiseProduct(v);
+      v.noalias() = G * u;
+      v.array() *= s.array();
+      const double nv = v.norm();
+      if (!(nv > 0)) break;
+      L = nv;
+      v /= nv;
+    }
+    return L;
+  }
   double initial_rho(double rho) const { return rho; }
   void final_rho(double) {}
   void apply(const VecCRef& y, VecRef out) { out.noalias() = G * y; }
-  // G + c I, factorized in place in w.A's storage (grown once to the largest n seen).
+  // G + c D, factorized in place in w.A's storage (grown once to the largest n seen).
   bool factorize(double c) {
     if (w.A.size() < n * n) w.A.resize(n * n);
     Eigen::Map<MatX> A(w.A.data(), n, n);
     A = G;
-    A.diagonal().array() += c;
+    A.diagonal() += c * w.d3.head(n);
     llt.emplace(A);
     return llt->info() == Eigen::Success;
   }
@@ -327,7 +346,10 @@ struct DenseOperator {
 struct SparseOperator {
   static constexpr bool cheap_apply = false;
   SparseDelassus& d;  // records a missed iterative-solver tolerance itself (failed())
-  // Power iterations: L only sets rho's scale; warm-started across steps.
+  // The per-contact scale d_i (admm()): the operator's estimate of G_ii (sparse_delassus.hpp).
+  void contact_scale(VecRef out) { d.contact_compliance(out); }
+  void set_scale(const VecCRef& scale) { d.set_scale(scale); }
+  // Power iterations (on D^-1/2 G D^-1/2): L only sets rho's scale; warm-started across steps.
   double largest_eigenvalue() { return d.largest_eigenvalue(8); }
   // rho from the previous solve on this operator (the previous step's), if any: the
   // balanced value changes little from step to step, and each change costs a
@@ -335,7 +357,7 @@ struct SparseOperator {
   double initial_rho(double rho) const { return d.last_rho() > 0 ? d.last_rho() : rho; }
   void final_rho(double rho) { d.set_last_rho(rho); }
   void apply(const VecCRef& y, VecRef out) { d.apply(y, out); }
-  bool factorize(double c) { return d.factorize_shifted(c); }
+  bool factorize(double c) { return d.factorize_shifted(c); }  // G + c D
   void solve(VecRef r) { d.solve_shifted(r); }
 };
 constexpr int sparse_check_every = 10;
@@ -345,12 +367,31 @@ constexpr int sparse_check_every = 10;
 constexpr int sparse_rho_interval = 25;
 
 template <typename Operator>
-NcpResult admm(Buffers& w, Operator& op, const Problem& p, VecRef lambda, VecRef sigma, int stall_window) {
+NcpResult admm(Buffers& w, Operator& op, const Problem& p, VecRef lambda, VecRef sigma, int stall_window, bool scaled) {
   NcpResult result;
   const Eigen::Index n = 3 * static_cast<Eigen::Index>(p.nc);
   // Views on the leading parts of the workspace (its buffers only grow).
   auto x = w.x.head(n), y = w.y.head(n), z = w.z.head(n), s = w.s.head(n), rhs = w.rhs.head(n);
   auto x_prev = w.x_prev.head(n), y_prev = w.y_prev.head(n), xr = w.power.head(n);
+  // The per-contact scale: D = diag(d_i I_3), d_i ~ G_ii (1 without scaling), normalized
+  // to max_i d_i = 1; floored at 1e-12 (a contact whose row of G is ~0).
+  auto d = w.d.head(p.nc);
+  auto d3 = w.d3.head(n), d3_sqrt_inv = w.d3_sqrt_inv.head(n);
+  // Unscaled (d_i = 1), every product with d3 is exact: the same arithmetic as one rho.
+  d.setOnes();
+  if (scaled) {
+    op.contact_scale(d);
+    const double dmax = p.nc > 0 ? d.maxCoeff() : 0.0;
+    if (dmax > 0 && std::isfinite(dmax))
+      d = (d / dmax).cwiseMax(1e-12);
+    else
+      d.setOnes();
+  }
+  for (int i = 0; i < p.nc; ++i) {
+    d3.segment<3>(3 * i).setConstant(d[i]);
+    d3_sqrt_inv.segment<3>(3 * i).setConstant(1 / std::sqrt(d[i]));
+  }
+  if (scaled) op.set_scale(d);  // (the sparse operator keeps its unscaled B otherwise)
   double L = op.largest_eigenvalue();
   if (!(L > 0) || !std::isfinite(L)) L = 1;  // G = 0: any scale (sigma = g does not depend on lambda)
   const double eta = 1e-6 * L;
@@ -387,21 +428,21 @@ NcpResult admm(Buffers& w, Operator& op, const Problem& p, VecRef lambda, VecRef
       s.segment<3>(3 * i).setZero();
       s[3 * i + 2] = p.mu[i] * z.segment<2>(3 * i).norm();
     }
-    rhs = rho * y + eta * x + z - p.g - s;
+    rhs = d3.cwiseProduct(rho * y + eta * x) + z - p.g - s;
     op.solve(rhs);
     x = rhs;
     // Over-relaxation (Boyd et al. 2011, sec. 3.4.3): the y- and z-steps see
     // alpha x + (1 - alpha) y_prev instead of x.
     xr = admm_relaxation * x + (1 - admm_relaxation) * y_prev;
-    rhs = xr - z / rho;
+    rhs = xr - z.cwiseQuotient(rho * d3);
     for (int i = 0; i < p.nc; ++i) y.segment<3>(3 * i) = project_cone(rhs.segment<3>(3 * i), p.mu[i]);
-    z -= rho * (xr - y);
+    z -= rho * d3.cwiseProduct(xr - y);
     result.iterations = it;
 
     // ADMM's own residuals (scaled, for the balancing below). Reuses rhs as scratch.
     const double lscale = std::max(y.cwiseAbs().maxCoeff(), tiny);
     const double primal = (x - y).cwiseAbs().maxCoeff() / lscale;
-    rhs = rho * (y - y_prev) + eta * (x - x_prev);
+    rhs = d3.cwiseProduct(rho * (y - y_prev) + eta * (x - x_prev));
     const double dual = rhs.cwiseAbs().maxCoeff() / p.vscale;
 
     if (Operator::cheap_apply || it % sparse_check_every == 0 || std::max(primal, dual) <= p.tolerance ||
@@ -451,9 +492,9 @@ NcpResult admm(Buffers& w, Operator& op, const Problem& p, VecRef lambda, VecRef
   return result;
 }
 
-NcpResult admm(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma, int stall_window) {
+NcpResult admm(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma, int stall_window, bool scaled) {
   DenseOperator op{w, p.G, 3 * static_cast<Eigen::Index>(p.nc)};
-  return admm(w, op, p, lambda, sigma, stall_window);
+  return admm(w, op, p, lambda, sigma, stall_window, scaled);
 }
 
 // Projected Gauss-Seidel on the contacts, each contact's block split into its normal
@@ -712,7 +753,7 @@ void polish_if_small(Buffers& w, const Problem& p, const NcpOptions& options, Ve
 NcpResult solve_core(Buffers& w, const Problem& p, const NcpOptions& options, VecRef lambda, VecRef sigma,
                      std::vector<Mode>& modes) {
   NcpResult result = options.solver == NcpSolverKind::admm
-                         ? admm(w, p, lambda, sigma, options.admm_fallback ? admm_stall_window : 0)
+                         ? admm(w, p, lambda, sigma, options.admm_fallback ? admm_stall_window : 0, options.admm_scaling)
                          : pgs(w, p, lambda, sigma);
   bool polish_done = false;
   if (result.fallback_iterations < 0) {
@@ -1013,7 +1054,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
                         budget - sub.iterations};
         SparseOperator op{G};
         const int window = options.admm_fallback && attempt == 0 ? admm_stall_window : 0;
-        const NcpResult part = admm(w, op, r, w.lw.head(m), w.sw.head(m), window);
+        const NcpResult part = admm(w, op, r, w.lw.head(m), w.sw.head(m), window, options.admm_scaling);
         sub.iterations += part.iterations;
         sub.rho_updates += part.rho_updates;
         sub.residuals = part.residuals;

@@ -42,6 +42,13 @@ struct NcpOptions {
   // contacts that the reduced solution violates; the full problem only if that fails.
   bool working_set = true;
   bool admm_fallback = true;    // ADMM: finish with PGS from ADMM's iterate when ADMM stalls (see ncp.cpp)
+  // ADMM with a penalty per contact, rho_i = rho d_i, d_i the contact's compliance
+  // (ADMM on the diagonal-scaled problem D^-1/2 G D^-1/2, see ncp.cpp's admm()). Off
+  // by default: measured on the self-contact and 1e6 mass-ratio scenes it did not
+  // lower the residuals (docs/method.md "Contact", robustness); on, the dense path
+  // takes d_i = tr(G_ii) / 3 and the sparse operator the lumped-mass estimate of
+  // sparse_delassus.hpp.
+  bool admm_scaling = false;
   // The polish factorizes a dense (3 na x 3 na) system over the na non-breaking
   // contacts (a few times): beyond this many it is skipped (O(na^3) would exceed the
   // rest of the step) and the solver's tolerance stands.

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <string>
 
 namespace softdiff::contact {
 
@@ -53,6 +54,12 @@ SparseMatrix node_block_pattern(const SparseMatrix& X) {
   return P;
 }
 
+// The columns the shifted solve and the power iteration use: H_W^T D^-1/2 when a scale
+// is set (scale_sqrt_inv not empty), else H_W^T itself (no copy on the unscaled path).
+const SparseMatrix& scaled_columns(const SparseMatrix& HtW, const SparseMatrix& HtWs, const VecX& scale_sqrt_inv) {
+  return scale_sqrt_inv.size() > 0 ? HtWs : HtW;
+}
+
 }  // namespace
 
 void select_contact_columns(const SparseMatrix& Ht, const std::vector<int>& ids, SparseMatrix& out) {
@@ -88,6 +95,7 @@ void SparseDelassus::restrict_to_all() {
   W_.resize(static_cast<std::size_t>(nc_));
   for (int i = 0; i < nc_; ++i) W_[i] = i;
   HtW_ = *Ht_;
+  scale_sqrt_inv_.resize(0);  // unscaled: HtWs_ is not used
   pattern_ready_ = false;
   c_ = 0;
 }
@@ -95,7 +103,36 @@ void SparseDelassus::restrict_to_all() {
 void SparseDelassus::restrict_to(const std::vector<int>& W) {
   W_ = W;
   select_contact_columns(*Ht_, W, HtW_);
+  scale_sqrt_inv_.resize(0);  // unscaled: HtWs_ is not used
   pattern_ready_ = false;
+  c_ = 0;
+}
+
+void SparseDelassus::contact_compliance(Eigen::Ref<VecX> d) const {
+  const int m = static_cast<int>(W_.size());
+  SOFTDIFF_DEMAND(d.size() == m, "SparseDelassus::contact_compliance: expected " + std::to_string(m) +
+                                     " contacts, got " + std::to_string(d.size()));
+  if (!mass_ || mass_->size() != HtW_.rows()) {
+    d.setOnes();
+    return;
+  }
+  const VecX& mass = *mass_;
+  for (int b = 0; b < m; ++b) {
+    double t = 0;
+    for (int r = 0; r < 3; ++r)
+      for (SparseMatrix::InnerIterator it(HtW_, 3 * b + r); it; ++it) t += it.value() * it.value() / mass[it.row()];
+    d[b] = h_ * t / 3;
+  }
+}
+
+void SparseDelassus::set_scale(const Eigen::Ref<const VecX>& d) {
+  const Eigen::Index m = static_cast<Eigen::Index>(W_.size());
+  SOFTDIFF_DEMAND(d.size() == m && (m == 0 || d.minCoeff() > 0),
+                  "SparseDelassus::set_scale: expected " + std::to_string(m) + " positive values");
+  scale_sqrt_inv_.resize(3 * m);
+  for (Eigen::Index b = 0; b < m; ++b) scale_sqrt_inv_.segment<3>(3 * b).setConstant(1 / std::sqrt(d[b]));
+  HtWs_ = HtW_ * scale_sqrt_inv_.asDiagonal();
+  pattern_ready_ = false;  // H~^T H~ changes (the pattern does not)
   c_ = 0;
 }
 
@@ -123,8 +160,9 @@ bool SparseDelassus::dense(MatX& G) {
 }
 
 void SparseDelassus::build_pattern() {
-  // P = H_W^T H_W, upper triangle.
-  const SparseMatrix full = HtW_ * HtW_.transpose();
+  // P = H~_W^T H~_W, upper triangle (H~ = D^-1/2 H: the same pattern as H's).
+  const SparseMatrix& Hs = scaled_columns(HtW_, HtWs_, scale_sqrt_inv_);
+  const SparseMatrix full = Hs * Hs.transpose();
   const SparseMatrix P = full.triangularView<Eigen::Upper>();
   const SparseMatrix blocks = node_block_pattern(P);
   bool contained = analyzed_ && S_.rows() == A_->rows() && scatter_into(blocks, S_, p_values_);  // (a test)
@@ -156,11 +194,15 @@ bool SparseDelassus::factorize_shifted(double c) {
 
 bool SparseDelassus::solve_shifted(Eigen::Ref<VecX> r) {
   SOFTDIFF_DEMAND(c_ > 0, "SparseDelassus::solve_shifted without factorize_shifted");
-  u_.noalias() = HtW_ * r;
+  const bool scaled = scale_sqrt_inv_.size() == r.size();
+  if (scaled) r.array() *= scale_sqrt_inv_.array();
+  const SparseMatrix& Hs = scaled_columns(HtW_, HtWs_, scale_sqrt_inv_);
+  u_.noalias() = Hs * r;
   const bool ok = B_solver_->solve(u_, w_);
   failed_ = failed_ || !ok;
-  r.noalias() -= (h_ / c_) * (HtW_.transpose() * w_);
+  r.noalias() -= (h_ / c_) * (Hs.transpose() * w_);
   r /= c_;
+  if (scaled) r.array() *= scale_sqrt_inv_.array();
   return ok;
 }
 
@@ -175,7 +217,13 @@ double SparseDelassus::largest_eigenvalue(int iterations) {
   power_next_.resize(m);
   double L = 0;
   for (int it = 0; it < iterations; ++it) {
-    if (!apply(power_, power_next_)) break;
+    // power_next = D^-1/2 G_WW D^-1/2 power_ = h H~ A^{-1} H~^T power_.
+    const SparseMatrix& Hs = scaled_columns(HtW_, HtWs_, scale_sqrt_inv_);
+    u_.noalias() = Hs * power_;
+    const bool ok = A_solver_->solve(u_, w_);
+    failed_ = failed_ || !ok;
+    if (!ok) break;
+    power_next_.noalias() = h_ * (Hs.transpose() * w_);
     const double n = power_next_.norm();
     if (!(n > 0) || !std::isfinite(n)) break;
     L = n;

@@ -12,6 +12,14 @@
 //                sparse, symmetric positive definite (A is, H^T H >= 0): one CHOLMOD
 //                factorization per c, one solve per application.
 //   dense        G_WW as a dense matrix, for small sets W (LinearSolver::inverse_congruence).
+// Per-contact scale (ADMM's rho_i = rho d_i, ncp.cpp): with D = diag(d_i I_3) set by
+// set_scale, the shifted solve is (G_WW + c D)^{-1} = D^-1/2 (G~ + c I)^{-1} D^-1/2 with
+// G~ = D^-1/2 G_WW D^-1/2 = h H~ A^{-1} H~^T, H~ = D^-1/2 H_W: the Woodbury identity
+// above on H~, i.e. B = A + (h/c) H_W^T D^-1 H_W (the same pattern; a new scale costs
+// one scatter of H~^T H~ and no analysis). largest_eigenvalue is that of G~.
+// contact_compliance estimates d_i ~ G_ii without G: with the lumped masses m (set_mass),
+// d_i = h tr(H_i M^-1 H_i^T) / 3, an upper bound of tr(G_ii) / 3 (A >= M); it carries
+// the mass ratio between bodies, which is what the scale is for (docs/method.md).
 // W is a subset of the contacts (restrict_to); after bind() it is all of them.
 //
 // B's sparsity pattern is pattern(A) + pattern(H_W^T H_W). H_i couples the <= 4 nodes
@@ -43,6 +51,11 @@ class SparseDelassus {
   void bind(integrator::LinearSolver& A_solver, const SparseMatrix& A_upper, const SparseMatrix& Ht, double h,
             const integrator::SolverOptions& options);
 
+  // The lumped masses (3n) for contact_compliance (a dynamic step, A >= M); an empty
+  // vector (the default, and the static solver, whose A has no mass): all d_i = 1.
+  void set_mass(const VecX& mass_diagonal) { mass_ = &mass_diagonal; }
+  void clear_mass() { mass_ = nullptr; }
+
   int contacts() const { return nc_; }
   // Restrict to the contacts W (ascending ids). Invalidates the shifted factorization.
   void restrict_to(const std::vector<int>& W);
@@ -55,12 +68,17 @@ class SparseDelassus {
   bool apply_full(const Eigen::Ref<const VecX>& y, Eigen::Ref<VecX> out);
   // G_WW, dense (3|W| x 3|W|).
   bool dense(MatX& G);
+  // d_i ~ G_ii per contact of W (|W|), see above.
+  void contact_compliance(Eigen::Ref<VecX> d) const;
+  // The per-contact scale D (|W|, positive) of the shifted solves and of
+  // largest_eigenvalue; restrict_to resets it to 1. Invalidates the shifted factorization.
+  void set_scale(const Eigen::Ref<const VecX>& d);
   // Factorize B for the shift c > 0; false if B is not positive definite (A is not).
   bool factorize_shifted(double c);
-  // r <- (G_WW + c I)^{-1} r with the last factorize_shifted(c).
+  // r <- (G_WW + c D)^{-1} r with the last factorize_shifted(c).
   bool solve_shifted(Eigen::Ref<VecX> r);
-  // Largest eigenvalue of G_WW by power iteration (iterations applies), warm-started
-  // from the previous call's vector when the size matches (steps change little).
+  // Largest eigenvalue of D^-1/2 G_WW D^-1/2 by power iteration (iterations applies),
+  // warm-started from the previous call's vector when the size matches (steps change little).
   double largest_eigenvalue(int iterations);
 
   double last_eigenvalue() const { return last_eigenvalue_; }
@@ -84,6 +102,9 @@ class SparseDelassus {
   integrator::SolverOptions options_;
   std::vector<int> W_;
   SparseMatrix HtW_;                 // (3n x 3|W|) columns of Ht for W
+  SparseMatrix HtWs_;                // (3n x 3|W|) HtW_ D^-1/2 (set_scale; unused when not scaled)
+  VecX scale_sqrt_inv_;              // (3|W|) D^-1/2 per column (empty: not scaled)
+  const VecX* mass_ = nullptr;       // (3n) set_mass
   bool pattern_ready_ = false;       // S holds B's pattern for the current W
   double c_ = 0;                     // the shift of the current factorization (0: none)
   // The analyzed pattern S (upper, compressed) and B = A_S + (h/c) P_S on it.
