@@ -87,6 +87,18 @@ struct Tri6Table {
 };
 const Tri6Table kTri6;
 
+// The weighted area vector w_q (dx/dxi x dx/deta) of 6-node triangle `tri` (its node
+// indices) at the rule's point q: the point's share of the integral of n dA.
+template <class Nodes>
+Vec3 tri6_area_vector(const VecX& x, const Nodes& tri, int q) {
+  Vec3 a_xi = Vec3::Zero(), a_eta = Vec3::Zero();
+  for (int i = 0; i < 6; ++i) {
+    a_xi += kTri6.dxi[q][i] * x.segment<3>(3 * tri(i));
+    a_eta += kTri6.deta[q][i] * x.segment<3>(3 * tri(i));
+  }
+  return kTri6.w[q] * a_xi.cross(a_eta);
+}
+
 }  // namespace
 
 CavityStatus Cavity::create(const Mat3X& X, const Tets& tets, const Triangles& triangles, int node_offset,
@@ -252,12 +264,7 @@ void Cavity::gradient_sparse(const VecX& x, Mat3X& values) const {
   if (order() == 2) {
     for (int t = 0; t < triangles6_.cols(); ++t)
       for (int q = 0; q < 6; ++q) {
-        Vec3 a_xi = Vec3::Zero(), a_eta = Vec3::Zero();
-        for (int i = 0; i < 6; ++i) {
-          a_xi += kTri6.dxi[q][i] * x.segment<3>(3 * triangles6_(i, t));
-          a_eta += kTri6.deta[q][i] * x.segment<3>(3 * triangles6_(i, t));
-        }
-        const Vec3 n = kTri6.w[q] * a_xi.cross(a_eta);
+        const Vec3 n = tri6_area_vector(x, triangles6_.col(t), q);
         for (int i = 0; i < 6; ++i) values.col(slots_[t][i]) += kTri6.N[q][i] * n;
       }
     return;
@@ -325,12 +332,7 @@ void Cavity::add_force6(const VecX& x, double p, double scale, VecX& f) const {
   const double s = scale * p;
   for (int t = 0; t < triangles6_.cols(); ++t)
     for (int q = 0; q < 6; ++q) {
-      Vec3 a_xi = Vec3::Zero(), a_eta = Vec3::Zero();
-      for (int i = 0; i < 6; ++i) {
-        a_xi += kTri6.dxi[q][i] * x.segment<3>(3 * triangles6_(i, t));
-        a_eta += kTri6.deta[q][i] * x.segment<3>(3 * triangles6_(i, t));
-      }
-      const Vec3 n = (s * kTri6.w[q]) * a_xi.cross(a_eta);
+      const Vec3 n = s * tri6_area_vector(x, triangles6_.col(t), q);
       for (int i = 0; i < 6; ++i) f.segment<3>(3 * triangles6_(i, t)) += kTri6.N[q][i] * n;
     }
 }
