@@ -140,7 +140,7 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
     cd.sparse.bind(*data.solver, data.A, cd.Ht, h, model.solver);
     // ADMM's per-contact scale from the lumped masses (sparse_delassus.hpp) where A
     // holds them: the dynamic step (A = M + ...), not the static solver's A = K.
-    if (free_motion_widens)
+    if (model.step.integrator != IntegratorKind::static_equilibrium)
       cd.sparse.set_mass(model.fem.mass_diagonal);
     else
       cd.sparse.clear_mass();
