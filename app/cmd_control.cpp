@@ -201,6 +201,7 @@ int run_control(const ControlOptions& o, const std::string& command_line) {
   long steps_done = 0, qp_failures = 0;
   bool limits_ok = true;
   RunHooks hooks;
+  hooks.data = &controller.data();  // one factorization per control step (optim/control.hpp)
   hooks.setup = [&](io::Hdf5Writer& wr) {
     std::vector<std::string> actuation_units;
     for (const auto& a : model.actuation.actuators) actuation_units.push_back(actuator_value_unit(a));

@@ -142,7 +142,9 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line) {
 int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const Model& model,
                    std::chrono::steady_clock::time_point t_setup, const std::string& command_line,
                    const RunHooks& hooks) {
-  Data data(model);
+  std::optional<Data> own_data;
+  if (!hooks.data) own_data.emplace(model);
+  Data& data = hooks.data ? *hooks.data : *own_data;
   // A caller's actuation (control): the values each step used, for the series.
   VecX applied = VecX::Zero(static_cast<Eigen::Index>(model.actuation.actuators.size()));
   bool applied_set = false;

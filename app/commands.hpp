@@ -44,12 +44,15 @@ int run_simulate(const SimulateOptions& o, const std::string& command_line);
 //   actuation: the actuation values of step k (1-based) from the state it starts from,
 //     instead of the scene's schedules (control); a failed status stops the run;
 //   frame: after each written frame (first: frame 0), with the step's record;
-//   finish: once the run is complete, before the file is finished (own groups).
+//   finish: once the run is complete, before the file is finished (own groups);
+//   data: the record to step with instead of the run's own (control: the controller's,
+//     whose factorization of the step's matrix the committed step reuses).
 struct RunHooks {
   std::function<void(io::Hdf5Writer&)> setup;
   std::function<StepStatus(long k, const State& s, VecX& lambda)> actuation;
   std::function<void(io::Hdf5Writer&, const State& s, const Data& data, bool first)> frame;
   std::function<void(io::Hdf5Writer&)> finish;
+  Data* data = nullptr;
 };
 
 // simulate's run of a model already built from `scene` (calibrate and control write

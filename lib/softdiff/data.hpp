@@ -88,6 +88,13 @@ struct Data {
   bool analyzed = false;            // symbolic factorization done (once per scene)
   bool factor_is_current = false;   // the factor matches A (constant matrices are factorized once)
   double A_h = 0;                   // the h data.A was assembled with (assemble_system_matrix)
+  // Reuse of one linearization by the next step from the same positions (control: the
+  // prediction and the committed step differ only in the actuation, which enters the
+  // right-hand side). When keep_linearization is set, a linearized step (one Newton
+  // iteration) records the x it evaluated K, f_int and A's factor at; the next step from
+  // the same x and h keeps all three.
+  bool keep_linearization = false;
+  VecX linearized_x;                // (3n) the x of the record, when keep_linearization
   // The step's effective input (integrator/bdf2.hpp): the last step is the implicit
   // Euler step of size h from hat = (1 + c) in - c previous, c = history_weight:
   // implicit Euler h = dt, c = 0 (hat = in); BDF2 after its first step h = 2 dt / 3,

@@ -173,11 +173,16 @@ StepStatus backward_euler_stage(const Model& model, Data& data, const State& in,
   // constant system matrix (all bodies `linear`), K and the factor of A are kept
   // from the first step and f_int = -K (x_i - X).
   const bool reuse = model.constant_system_matrix() && data.factor_is_current && data.A_h == h;
+  // Control's committed step after its prediction from the same x (data.hpp,
+  // keep_linearization): K, f_int and the factor are already those of in.x.
+  const bool same_linearization = !reuse && data.keep_linearization && model.step.newton_iterations == 1 &&
+                                  data.factor_is_current && data.A_h == h && data.linearized_x.size() == in.x.size() &&
+                                  data.linearized_x == in.x;
   if (reuse) {
     data.x_iter = in.x - Eigen::Map<const VecX>(fem.X.data(), 3 * fem.num_nodes);
     fem::symmetric_multiply(fem, data.fem.K_values, data.x_iter, data.fem.f_int);
     data.fem.f_int = -data.fem.f_int;
-  } else {
+  } else if (!same_linearization) {
     if (!fem::evaluate(fem, in.x, {false, true, true}, data.fem)) return inverted(model, data, step_index);
     // 2. A = M + h D + h^2 K and b = h (P + f - D v_i) - h^2 K v_i, per body.
     assemble_system_matrix(model, h, data.fem.K_values, data.fem.K_values, data);
@@ -210,7 +215,10 @@ StepStatus backward_euler_stage(const Model& model, Data& data, const State& in,
 
   t0 = Clock::now();
   StepStatus status;
-  if (!reuse) status = factorize(model, data, step_index);
+  if (!reuse && !same_linearization) {
+    status = factorize(model, data, step_index);
+    if (status.ok() && data.keep_linearization) data.linearized_x = in.x;
+  }
   data.timings.factorization += seconds_since(t0);
   if (!status.ok()) return status;
 

@@ -12,6 +12,7 @@ namespace softdiff::optim {
 
 InverseDynamics::InverseDynamics(const Model& model, const ControlOptions& options)
     : options_(options), data_(model) {
+  data_.keep_linearization = true;
   const auto& eff = model.actuation.effectors;
   SOFTDIFF_DEMAND(options.effector >= 0 && options.effector < static_cast<int>(eff.size()), "control: no such effector");
   SOFTDIFF_DEMAND(!model.actuation.actuators.empty(), "control: the scene has no actuators");

@@ -61,6 +61,11 @@ class InverseDynamics {
                      ControlStep& info, const State* history = nullptr);
   // The nodal contact force norm of the effector's body for a step's record (N).
   double contact_force_norm(const Model& model, const Data& data) const;
+  // The record the prediction steps with. Committing the step through it (time_step
+  // with lambda_out from the same state) reuses the prediction's linearization and
+  // factorization: one factorization per control step (linearized steps; Newton
+  // iterates refactorize).
+  Data& data() { return data_; }
 
  private:
   // P_body H_c^T lambda over the contacts with other sides (obstacles, other bodies):
