@@ -42,6 +42,19 @@ struct Count {
   }
 };
 
+// The mesh's FEM model with a pattern that holds the cable's stiffness cliques.
+fem::FemModel cable_fem_model(const mesh::TetMesh& m, const ActuationModel& act) {
+  fem::FemModel fem_model;
+  fem::BodyModel b;
+  b.mesh = m;
+  b.young = 1e5;
+  b.poisson = 0.3;
+  b.density = 1000;
+  fem::build_fem_model({b}, std::vector<unsigned char>(3 * m.num_nodes(), 0), Vec3::Zero(), fem_model,
+                       act.stiffness_cliques());
+  return fem_model;
+}
+
 }  // namespace
 
 TEST(Allocation, CounterSeesAllocations) {
@@ -78,16 +91,7 @@ TEST(Allocation, ActuatorEvaluationsAreAllocationFree) {
   ActuationModel act;
   act.actuators.emplace_back();
   act.actuators.back().kind = cable;
-  fem::FemModel fem_model;
-  {
-    fem::BodyModel b;
-    b.mesh = m;
-    b.young = 1e5;
-    b.poisson = 0.3;
-    b.density = 1000;
-    fem::build_fem_model({b}, std::vector<unsigned char>(3 * m.num_nodes(), 0), Vec3::Zero(), fem_model,
-                         act.stiffness_cliques());
-  }
+  const fem::FemModel fem_model = cable_fem_model(m, act);
   VecX values = VecX::Zero(fem_model.pattern.nnz());
   const VecX lambda = VecX::Constant(1, 2.0);
 
@@ -145,16 +149,7 @@ TEST(Allocation, QuadraticActuatorEvaluationsAreAllocationFree) {
   ActuationModel act;
   act.actuators.emplace_back();
   act.actuators.back().kind = cable;
-  fem::FemModel fem_model;
-  {
-    fem::BodyModel b;
-    b.mesh = m;
-    b.young = 1e5;
-    b.poisson = 0.3;
-    b.density = 1000;
-    fem::build_fem_model({b}, std::vector<unsigned char>(3 * m.num_nodes(), 0), Vec3::Zero(), fem_model,
-                         act.stiffness_cliques());
-  }
+  const fem::FemModel fem_model = cable_fem_model(m, act);
   VecX values = VecX::Zero(fem_model.pattern.nnz());
   const VecX lambda = VecX::Constant(1, 2.0);
   double sink = 0;

@@ -35,7 +35,6 @@ TEST(ThreadPlan, SetThreadsReachesOpenMpAndOpenBlas) {
 TEST(ThreadPlan, DefaultIsOpenMpsDefault) {
   const int before = omp_get_max_threads();
   EXPECT_EQ(softdiff::set_threads(0).threads, before);
-  EXPECT_GE(softdiff::available_cores(), 1);
 }
 
 // CHOLMOD 5.12 asks for num_threads(4) whatever omp_set_num_threads says; inside the

@@ -3,7 +3,6 @@
 
 #include <dlfcn.h>
 #include <omp.h>
-#include <sched.h>
 
 #include <algorithm>
 
@@ -33,13 +32,6 @@ const OpenBlasApi& openblas() {
 }
 
 }  // namespace
-
-int available_cores() {
-  cpu_set_t set;
-  CPU_ZERO(&set);
-  if (sched_getaffinity(0, sizeof(set), &set) == 0) return std::max(1, CPU_COUNT(&set));
-  return std::max(1, omp_get_num_procs());
-}
 
 ThreadPlan thread_plan() {
   ThreadPlan plan;

@@ -27,9 +27,6 @@ struct ThreadPlan {
   std::string blas;      // the BLAS's own description (openblas_get_config), or "reference"
 };
 
-// The cores this process may run on (sched_getaffinity), at least 1.
-int available_cores();
-
 // Applies the plan for n threads (n <= 0: omp_get_max_threads()) and returns it.
 ThreadPlan set_threads(int n);
 

@@ -88,7 +88,7 @@ class CholmodSolver final : public LinearSolver {
       // CHOLMOD's own OpenMP loops on one thread; its BLAS keeps the plan's threads
       // (core/threads.hpp).
       SerialOpenMP serial;
-      use_blas_threads(factorization_threads(common_.fl));
+      use_planned_blas_threads();
       cholmod_factorize(&view, factor_, &common_);
     }
     throw_if_out_of_memory("the factorization", A.rows());
@@ -119,7 +119,7 @@ class CholmodSolver final : public LinearSolver {
     B.z = nullptr;
     B.xtype = CHOLMOD_REAL;
     B.dtype = CHOLMOD_DOUBLE;
-    use_blas_threads(factorization_threads(common_.fl));
+    use_planned_blas_threads();
     const int ok = cholmod_solve2(CHOLMOD_A, factor_, &B, nullptr, &X_, nullptr, &Y_, &E_, &common_);
     throw_if_out_of_memory("a solve", b.size());
     SOFTDIFF_DEMAND(ok, "cholmod_solve2 failed (status " + std::to_string(common_.status) + ")");
@@ -165,7 +165,7 @@ class CholmodSolver final : public LinearSolver {
       D.z = nullptr;
       D.xtype = CHOLMOD_REAL;
       D.dtype = CHOLMOD_DOUBLE;
-      use_blas_threads(factorization_threads(common_.fl));
+      use_planned_blas_threads();
       const int ok = cholmod_solve2(CHOLMOD_A, factor_, &D, nullptr, &Xb_, nullptr, &Yb_, &Eb_, &common_);
       throw_if_out_of_memory("a solve", n);
       SOFTDIFF_DEMAND(ok, "cholmod_solve2 failed (status " + std::to_string(common_.status) + ")");
@@ -205,6 +205,10 @@ class CholmodSolver final : public LinearSolver {
                     " (more memory, a coarser mesh, or linear_solver: cg, which needs no factor)");
     throw ComputationError(text);
   }
+
+  // OpenBLAS's threads for this factor's size (core/threads.hpp), before every CHOLMOD
+  // call that runs BLAS.
+  void use_planned_blas_threads() const { use_blas_threads(factorization_threads(common_.fl)); }
 
   static cholmod_sparse wrap(const SparseMatrix& A) {
     SOFTDIFF_DEMAND(A.isCompressed(), "matrix must be compressed");
