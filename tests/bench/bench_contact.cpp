@@ -12,6 +12,10 @@
 // rho_updates: ADMM's factorizations of G + rho I (dense) or A + (h/c) H^T H (sparse);
 // sparse: 1 if the step used the sparse backend. BM_Gripper: the same counters on the
 // shipped gripper scene (soft fingers, self-contact, a fixed object).
+// BM_ContactMemory/<contacts>/<contact>: the peak resident memory (getrusage's
+// ru_maxrss, the whole process) of the slab after 6 steps with contact (1) or with
+// contact disabled (0). It is only meaningful when it is the process's one benchmark:
+// `scripts/bench contact-memory` runs each case in its own process and prints the ratio.
 #include <softdiff/collision/obstacle.hpp>
 #include <softdiff/data.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
@@ -23,6 +27,7 @@
 #include <support/model_builder.hpp>
 
 #include <benchmark/benchmark.h>
+#include <sys/resource.h>
 
 #include <algorithm>
 #include <chrono>
@@ -173,5 +178,31 @@ void BM_Gripper(benchmark::State& st) {
 }
 
 BENCHMARK(BM_Gripper)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
+
+void BM_ContactMemory(benchmark::State& st) {
+  Model model = slab(static_cast<int>(st.range(0)), contact::NcpSolverKind::admm, contact::NcpBackend::automatic);
+  model.contact.enabled = st.range(1) != 0;
+  for (auto _ : st) {
+    Data data(model);
+    State s = model.initial, next;
+    for (long k = 1; k <= 6; ++k) {
+      const auto status = integrator::implicit_euler_step(model, data, s, next, k);
+      if (!status.ok()) {
+        st.SkipWithError(describe(model, status).c_str());
+        return;
+      }
+      std::swap(s, next);
+    }
+    st.counters["contacts"] = data.contact.contacts.size();
+  }
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  st.counters["peak_rss_mb"] = static_cast<double>(usage.ru_maxrss) / 1024.0;  // ru_maxrss is in KiB on Linux
+}
+
+BENCHMARK(BM_ContactMemory)
+    ->ArgsProduct({{10, 100, 1000, 5000, 20000}, {0, 1}})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(1);
 
 }  // namespace
