@@ -118,6 +118,19 @@ TEST(CalibrationWorkspace, EveryBodyParameterSameAsAFreshRun) {
   same_as_fresh(m, kBodyParameters, kBodyPoints, rest_target(m, kSteps), "corotational, linearized step");
 }
 
+// The sensitivities advance in the run's own pass: one factorization per step, the
+// JVP columns (five here) solve with the step's factor.
+TEST(CalibrationWorkspace, OneFactorizationPerStepWithTheSensitivities) {
+  const Model m = beam(material::Law::corotational, 0.1, 0.001);
+  optim::CalibrationWorkspace workspace(m, kBodyParameters);
+  VecX r;
+  MatX J;
+  for (const auto& point : kBodyPoints) {
+    workspace.residual(point, rest_target(m, kSteps), false, r, J);
+    EXPECT_EQ(workspace.data().factorizations, kSteps);
+  }
+}
+
 // The linear law's system matrix is constant: a run keeps its factor from step 1 on,
 // which a restarted Data must not carry into the next run's values.
 TEST(CalibrationWorkspace, ConstantSystemMatrixIsRefactorizedForNewValues) {

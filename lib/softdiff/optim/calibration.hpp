@@ -132,6 +132,9 @@ class CalibrationWorkspace {
   const Model& model() const { return model_; }
   // The runs so far.
   int runs() const { return runs_; }
+  // The record of the last run (e.g. its factorizations: one per step of a linearized
+  // scene, the sensitivities using the step's own).
+  const Data& data() const { return data_; }
 
  private:
   const Model& base_;
