@@ -1,5 +1,8 @@
 #include <softdiff/data.hpp>
 
+#include <softdiff/core/assert.hpp>
+
+#include <algorithm>
 #include <sstream>
 
 namespace softdiff {
@@ -24,6 +27,44 @@ Data::Data(const Model& model) {
     contact.v_free = VecX::Zero(ndof);
     contact.correction = VecX::Zero(ndof);
     contact.rhs = VecX::Zero(ndof);
+  }
+}
+
+void Data::restart(const Model& model, bool detection_changed) {
+  const Eigen::Index ndof = 3L * model.fem.num_nodes;
+  SOFTDIFF_DEMAND(rhs.size() == ndof && K_i_values.size() == model.fem.pattern.nnz() &&
+                      lambda_a.size() == static_cast<Eigen::Index>(model.actuation.actuators.size()) &&
+                      static_cast<bool>(contact.detector) == model.contact.enabled,
+                  "Data::restart: not the scene this Data was built for");
+  fem.resize(model.fem);
+  fem.energy = 0;
+  fem.bad_element = -1;
+  fem.bad_det = 0;
+  K_i_values.setZero();
+  const SparseMatrix& S = model.fem.pattern.structure;
+  std::copy(S.valuePtr(), S.valuePtr() + S.nonZeros(), A.valuePtr());
+  for (VecX* v : {&rhs, &dv, &Mv, &Kv, &Mvi, &lambda_a, &f_act, &x_iter, &v_iter}) v->setZero();
+  factor_is_current = false;
+  A_h = 0;
+  linearized_x.resize(0);
+  h = 0;
+  history_weight = 0;
+  hat = State{};
+  newton_iterations_used = 0;
+  newton_residual = 0;
+  static_load_step_start.resize(0);
+  static_shifted_iterations = 0;
+  timings = {};
+  factorizations = 0;
+  if (model.contact.enabled) {
+    ContactData fresh;
+    fresh.detector = detection_changed ? std::make_unique<collision::CollisionDetector>(model.contact.detection)
+                                       : std::move(contact.detector);
+    fresh.v_free = std::move(contact.v_free);
+    fresh.correction = std::move(contact.correction);
+    fresh.rhs = std::move(contact.rhs);
+    for (VecX* v : {&fresh.v_free, &fresh.correction, &fresh.rhs}) v->setZero();
+    contact = std::move(fresh);
   }
 }
 

@@ -74,6 +74,17 @@ struct ContactData {
 struct Data {
   explicit Data(const Model& model);
 
+  // Back to the state of a fresh Data(model) for a new run of the same scene (the same
+  // mesh, pattern, solver and contact settings) whose parameter values may have
+  // changed (calibration's workspace, optim/calibration.hpp): keeps the buffers, the
+  // linear solver with its symbolic analysis (the pattern does not depend on the
+  // values) and the contact detector; forgets what a run leaves behind (the factor,
+  // which a constant system matrix would otherwise keep, the linearization record, the
+  // contact records, warm start, NCP workspace and sparse Delassus pattern).
+  // detection_changed: the pair rules' friction changed (the detector holds a copy of
+  // the rules; it is rebuilt). keep_linearization, a setting of the owner, is kept.
+  void restart(const Model& model, bool detection_changed);
+
   fem::FemData fem;                 // record of the FEM stage at the last evaluation: x_i for the
                                     // linearized step, the last Newton iterate otherwise
   VecX K_i_values;                  // (nnz) K(x_i), kept for damping when newton_iterations > 1

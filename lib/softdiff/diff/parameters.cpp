@@ -84,6 +84,44 @@ void set_parameter(Model& model, const ParameterId& id, double value) {
   }
 }
 
+void restore_parameter(Model& model, const Model& base, const ParameterId& id) {
+  if (id.kind == Parameter::friction) {
+    SOFTDIFF_DEMAND(id.body >= 0 && id.body < static_cast<int>(model.contact.detection.pairs.size()) &&
+                        model.contact.detection.pairs.size() == base.contact.detection.pairs.size(),
+                    "parameter friction: no such pair rule");
+    const auto i = static_cast<std::size_t>(id.body);
+    model.contact.detection.pairs[i].mu = base.contact.detection.pairs[i].mu;
+    return;
+  }
+  auto& b = body_of(model, id);
+  SOFTDIFF_DEMAND(model.fem.bodies.size() == base.fem.bodies.size(), "restore_parameter: not the same scene");
+  const auto& o = base.fem.bodies[static_cast<std::size_t>(id.body)];
+  switch (id.kind) {
+    case Parameter::young:
+    case Parameter::poisson:
+      b.young = o.young;
+      b.poisson = o.poisson;
+      b.lame = o.lame;
+      return;
+    case Parameter::density: {
+      auto& fem = model.fem;
+      const auto& bf = base.fem;
+      SOFTDIFF_DEMAND(fem.mass_values.size() == bf.mass_values.size() && fem.mass_diagonal.size() == bf.mass_diagonal.size(),
+                      "restore_parameter: not the same scene");
+      for (int k = b.value_begin; k < b.value_end; ++k) fem.mass_values[k] = bf.mass_values[k];
+      const Eigen::Index begin = 3L * b.node_begin, len = 3L * b.num_nodes;
+      fem.mass_diagonal.segment(begin, len) = bf.mass_diagonal.segment(begin, len);
+      fem.gravity_force.segment(begin, len) = bf.gravity_force.segment(begin, len);
+      fem.total_mass = bf.total_mass;
+      b.density = o.density;
+      return;
+    }
+    case Parameter::rayleigh_mass: b.rayleigh_mass = o.rayleigh_mass; return;
+    case Parameter::rayleigh_stiffness: b.rayleigh_stiffness = o.rayleigh_stiffness; return;
+    case Parameter::friction: break;
+  }
+}
+
 void offset_actuator(Model& model, int actuator, double offset) {
   SOFTDIFF_DEMAND(actuator >= 0 && actuator < static_cast<int>(model.actuation.actuators.size()),
                   "offset_actuator: no such actuator");

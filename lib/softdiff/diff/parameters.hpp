@@ -16,6 +16,14 @@ double get_parameter(const Model& model, const ParameterId& id);
 // contacts when a Data is built from the model).
 void set_parameter(Model& model, const ParameterId& id, double value);
 
+// Restores in `model` everything set_parameter(model, id, .) writes to its value in
+// `base` (a model of the same scene: the same bodies, pattern and pair rules), e.g. for
+// density the body's mass values, lumped masses and gravity forces and the total mass.
+// Restoring every parameter of a list and then setting them in order gives the same
+// model, bit for bit, as setting them in a copy of `base` (calibration's workspace:
+// optim/calibration.hpp). No allocation.
+void restore_parameter(Model& model, const Model& base, const ParameterId& id);
+
 // Adds `offset` to actuator a's value at every time (its constant, or every point of
 // its schedule): the "actuation" theta of a trajectory.
 void offset_actuator(Model& model, int actuator, double offset);

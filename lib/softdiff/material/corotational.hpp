@@ -185,13 +185,17 @@ inline void stress_hessian_directional(const Polar& p, double mu, double lambda,
   const Mat3 dB = -B * X * B;
 
   const Eigen::Matrix<double, 9, 3> G = N * B;  // D = G N^T
+  // The (9x3)(3x9) products are evaluated coefficient by coefficient (lazyProduct):
+  // 9 + 9 + 3 is above Eigen's threshold for small products, and its general GEMM path
+  // (blocking, packing, an OpenMP query per product) cost 12% of a calibration's time
+  // (perf, tests/bench BM_CalibrationIteration/3; docs/performance.md "Calibration").
   out.noalias() = lambda * r_E * r.transpose();
   out.noalias() += lambda * r * r_E.transpose();
-  out.noalias() += (lambda * R_dot_E) * G * N.transpose();
-  out.noalias() += c * dN * G.transpose();
-  out.noalias() += c * G * dN.transpose();
+  out.noalias() += (lambda * R_dot_E) * G.lazyProduct(N.transpose());
+  out.noalias() += c * dN.lazyProduct(G.transpose());
+  out.noalias() += c * G.lazyProduct(dN.transpose());
   const Eigen::Matrix<double, 9, 3> NdB = N * dB;
-  out.noalias() += c * NdB * N.transpose();
+  out.noalias() += c * NdB.lazyProduct(N.transpose());
 }
 
 inline void stress_hessian_directional(const Mat3& F, double mu, double lambda, const Mat3& dF, Mat9& out) {

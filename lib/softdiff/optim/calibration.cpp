@@ -90,17 +90,16 @@ std::string describe_values(const Model& model, const std::vector<ParameterId>& 
 
 }  // namespace
 
-void residual(const Model& model, const std::vector<ParameterId>& parameters, const std::vector<double>& values,
-              const CalibrationTarget& target, bool strict, VecX& r, MatX& J,
-              const std::function<void(long step, long steps)>& on_step) {
-  SOFTDIFF_DEMAND(parameters.size() == values.size(), "calibration: one value per parameter");
-  SOFTDIFF_DEMAND(!target.frames.empty(), "calibration: the target has no frame");
-  Model m = model;
-  for (std::size_t j = 0; j < parameters.size(); ++j) diff::set_parameter(m, parameters[j], values[j]);
+namespace {
+
+// One run of m (the parameters already set to `values`) on data (fresh, or restarted
+// for m): the residual and its Jacobian.
+void run(const Model& m, Data& data, const std::vector<ParameterId>& parameters, const std::vector<double>& values,
+         const CalibrationTarget& target, bool strict, VecX& r, MatX& J,
+         const std::function<void(long step, long steps)>& on_step) {
   const Eigen::Index rows = target.residual_size();
   r.setZero(rows);
   J.setZero(rows, static_cast<Eigen::Index>(parameters.size()));
-  Data data(m);
   const auto failed = [&](const StepStatus& st) {
     throw ComputationError("calibration: the run with " + describe_values(m, parameters, values) +
                            " failed: " + describe(m, st));
@@ -158,6 +157,38 @@ void residual(const Model& model, const std::vector<ParameterId>& parameters, co
     throw ComputationError("calibration: non-finite residual or Jacobian with " + describe_values(m, parameters, values));
 }
 
+}  // namespace
+
+void residual(const Model& model, const std::vector<ParameterId>& parameters, const std::vector<double>& values,
+              const CalibrationTarget& target, bool strict, VecX& r, MatX& J,
+              const std::function<void(long step, long steps)>& on_step) {
+  SOFTDIFF_DEMAND(parameters.size() == values.size(), "calibration: one value per parameter");
+  SOFTDIFF_DEMAND(!target.frames.empty(), "calibration: the target has no frame");
+  Model m = model;
+  for (std::size_t j = 0; j < parameters.size(); ++j) diff::set_parameter(m, parameters[j], values[j]);
+  Data data(m);
+  run(m, data, parameters, values, target, strict, r, J, on_step);
+}
+
+CalibrationWorkspace::CalibrationWorkspace(const Model& model, std::vector<ParameterId> parameters)
+    : base_(model), parameters_(std::move(parameters)), model_(model), data_(model_) {
+  for (const auto& p : parameters_) friction_ = friction_ || p.kind == Parameter::friction;
+}
+
+void CalibrationWorkspace::residual(const std::vector<double>& values, const CalibrationTarget& target, bool strict,
+                                    VecX& r, MatX& J, const std::function<void(long step, long steps)>& on_step) {
+  SOFTDIFF_DEMAND(parameters_.size() == values.size(), "calibration: one value per parameter");
+  SOFTDIFF_DEMAND(!target.frames.empty(), "calibration: the target has no frame");
+  // Every parameter back to the base model's value, then set in order: the same model
+  // as set_parameter on a fresh copy (a density set on top of the last run's would
+  // compound the rounding of the mass ratios).
+  for (const auto& p : parameters_) diff::restore_parameter(model_, base_, p);
+  for (std::size_t j = 0; j < parameters_.size(); ++j) diff::set_parameter(model_, parameters_[j], values[j]);
+  data_.restart(model_, friction_);
+  ++runs_;
+  run(model_, data_, parameters_, values, target, strict, r, J, on_step);
+}
+
 namespace {
 
 // |r| reported for a failed trial: ten times the current residual norm, i.e. a cost
@@ -165,13 +196,13 @@ namespace {
 constexpr double kFailedCostFactor = 10;
 
 // Eigen's Levenberg-Marquardt functor over the internal coordinates z. Each evaluation
-// runs the simulation with its sensitivities; the Jacobian of the last two evaluated
+// runs the simulation with its sensitivities on the one workspace; the Jacobian of the last two evaluated
 // points is kept, so that df() at an accepted point costs nothing.
 struct Functor : Eigen::DenseFunctor<double> {
   Functor(const Model& model, const std::vector<ParameterId>& parameters, const CalibrationTarget& target, bool strict,
           const std::function<void(int, long, long)>& on_step)
       : Eigen::DenseFunctor<double>(static_cast<int>(parameters.size()), static_cast<int>(target.residual_size())),
-        model(model), parameters(parameters), target(target), strict(strict), on_step(on_step) {}
+        parameters(parameters), target(target), strict(strict), on_step(on_step), workspace(model, parameters) {}
 
   struct Evaluation {
     VecX z, r;
@@ -189,7 +220,7 @@ struct Functor : Eigen::DenseFunctor<double> {
     Evaluation e;
     e.z = z;
     const int run = evaluations + 1;
-    residual(model, parameters, physical(z), target, strict, e.r, e.J, [&](long k, long n) {
+    workspace.residual(physical(z), target, strict, e.r, e.J, [&](long k, long n) {
       if (on_step) on_step(run, k, n);
     });
     ++evaluations;
@@ -231,11 +262,11 @@ struct Functor : Eigen::DenseFunctor<double> {
     return 0;
   }
 
-  const Model& model;
   const std::vector<ParameterId>& parameters;
   const CalibrationTarget& target;
   bool strict;
   const std::function<void(int, long, long)>& on_step;
+  CalibrationWorkspace workspace;  // every run's model and Data
   Evaluation cache[2];
   int next = 0;
   int evaluations = 0;

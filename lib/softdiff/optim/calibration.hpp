@@ -24,6 +24,7 @@
 #include <softdiff/core/parameters.hpp>
 #include <softdiff/core/types.hpp>
 #include <softdiff/actuation/embedding.hpp>
+#include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
 
 #include <array>
@@ -106,9 +107,43 @@ struct CalibrationResult {
 // with the parameters set to `values`. Throws ComputationError if the run fails (with
 // the step and the reason) or, with strict, if a contact solve misses its tolerance.
 // on_step: called with (0, steps) first, then after each step (load step) with (step, steps).
+// One run on a fresh copy of the model and a fresh Data; calibrate() runs on one
+// CalibrationWorkspace.
 void residual(const Model& model, const std::vector<ParameterId>& parameters, const std::vector<double>& values,
               const CalibrationTarget& target, bool strict, VecX& r, MatX& J,
               const std::function<void(long step, long steps)>& on_step = {});
+
+// The runs of a calibration on one workspace: a copy of the model whose parameter
+// values are changed in place before each run (diff::restore_parameter then
+// diff::set_parameter: only what a parameter change invalidates - the Lame constants,
+// the masses and gravity forces for density, ...), and one Data kept across the runs
+// (Data::restart: its buffers and the linear solver's symbolic analysis stay; the
+// pattern does not depend on the values). residual() gives the same r and J, bit for
+// bit, as the free residual() below on a fresh copy of the model and a fresh Data
+// (tests/optim/test_calibration_workspace.cpp). The workspace refers to `model`, which
+// must outlive it.
+class CalibrationWorkspace {
+ public:
+  CalibrationWorkspace(const Model& model, std::vector<ParameterId> parameters);
+  // As the free residual() (the same arguments, the same exceptions).
+  void residual(const std::vector<double>& values, const CalibrationTarget& target, bool strict, VecX& r, MatX& J,
+                const std::function<void(long step, long steps)>& on_step = {});
+  // The model with the values of the last residual().
+  const Model& model() const { return model_; }
+  // The runs so far.
+  int runs() const { return runs_; }
+  // The record of the last run (e.g. its factorizations: one per step of a linearized
+  // scene, the sensitivities using the step's own).
+  const Data& data() const { return data_; }
+
+ private:
+  const Model& base_;
+  std::vector<ParameterId> parameters_;
+  bool friction_ = false;  // a parameter is a friction coefficient (the detector is rebuilt)
+  Model model_;
+  Data data_;
+  int runs_ = 0;
+};
 
 using IterationCallback = std::function<void(const CalibrationIteration&)>;
 
