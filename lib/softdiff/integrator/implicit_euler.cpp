@@ -224,9 +224,19 @@ StepStatus backward_euler_stage(const Model& model, Data& data, const State& in,
 
   t0 = Clock::now();
   if (!data.solver->solve(data.rhs, data.dv)) {
-    status.code = StepStatus::Code::solver_failed;
     status.step = step_index;
-    status.detail = "iterative linear solver did not reach its tolerance";
+    const FactorStatus& f = data.solver->solve_factor_status();
+    if (!f.ok) {
+      // Factor reuse: PCG with the stale factor gave up and the factorization of this
+      // step's A failed (linear_solver.hpp).
+      status.code = StepStatus::Code::not_positive_definite;
+      status.dof = f.column;
+      status.detail = f.message;
+      data.factor_is_current = false;
+    } else {
+      status.code = StepStatus::Code::solver_failed;
+      status.detail = "iterative linear solver did not reach its tolerance";
+    }
     return status;
   }
   out.v = in.v + data.dv;
