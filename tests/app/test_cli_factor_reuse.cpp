@@ -19,14 +19,14 @@ namespace cli_factor_reuse {
 const fs::path kRoot = SOFTDIFF_SOURCE_DIR;
 const fs::path kWork = fs::path(SOFTDIFF_TEST_DATA_DIR) / "cli_factor_reuse";
 
-// The shipped beam, clamped, falling under gravity for `steps` steps.
+// The shipped beam, clamped, falling under gravity for `steps` steps (steps = 0: no dt
+// and steps, as integrator: static wants).
 std::string scene(const std::string& solver, const std::string& simulation_extra = "", const std::string& tail = "",
                   int steps = 20) {
+  const std::string timing = steps > 0 ? "  dt: 0.01\n  steps: " + std::to_string(steps) + "\n" : "";
   return "softdiff: 1\n"
-         "simulation:\n"
-         "  dt: 0.01\n"
-         "  steps: " +
-         std::to_string(steps) + "\n" + simulation_extra + "linear_solver: " + solver +
+         "simulation:\n" +
+         timing + simulation_extra + "linear_solver: " + solver +
          "\n"
          "bodies:\n"
          "  - name: beam\n"
@@ -71,6 +71,7 @@ TEST(CliFactorReuse, JsonCountsFactorizationsAndPcgIterations) {
 
 struct Refused {
   std::string name, solver, simulation_extra, tail, message;
+  int steps = 20;
 };
 
 class CliFactorReuseRefused : public ::testing::TestWithParam<Refused> {};
@@ -78,7 +79,7 @@ class CliFactorReuseRefused : public ::testing::TestWithParam<Refused> {};
 TEST_P(CliFactorReuseRefused, ExitsWithCode2AndNoOutput) {
   const Refused& p = GetParam();
   const fs::path dir = fresh_dir(kWork, p.name);
-  write_text(dir / "scene.yaml", scene(p.solver, p.simulation_extra, p.tail));
+  write_text(dir / "scene.yaml", scene(p.solver, p.simulation_extra, p.tail, p.steps));
   const auto r = run_cli("simulate scene.yaml -o out.h5", dir);
   EXPECT_EQ(r.code, 2) << r.err;
   EXPECT_NE(r.err.find(p.message), std::string::npos) << r.err;
@@ -95,7 +96,7 @@ INSTANTIATE_TEST_SUITE_P(
         Refused{"newton", "{factor_reuse: pcg}", "  newton_iterations: 4\n", "",
                 "linear_solver.factor_reuse: pcg is not available with simulation.newton_iterations > 1"},
         Refused{"static", "{factor_reuse: pcg}", "  integrator: static\n", "",
-                "linear_solver.factor_reuse: pcg is not available with simulation.integrator: static"},
+                "linear_solver.factor_reuse: pcg is not available with simulation.integrator: static", 0},
         Refused{"cg", "{type: cg, factor_reuse: pcg}", "", "", "linear_solver.factor_reuse: only used by type 'cholmod'"},
         Refused{"refactor_without_reuse", "{type: cholmod, refactor_iterations: 4}", "", "",
                 "linear_solver.refactor_iterations: only used with factor_reuse: pcg"},
