@@ -223,7 +223,9 @@ StepStatus backward_euler_stage(const Model& model, Data& data, const State& in,
   if (!status.ok()) return status;
 
   t0 = Clock::now();
-  if (!data.solver->solve(data.rhs, data.dv)) {
+  // data.dv holds the previous step's dv: with a kept factor (factor reuse) PCG starts
+  // from it, the answer of a smooth trajectory's neighbour step.
+  if (!data.solver->solve_from(data.rhs, data.dv)) {
     status.step = step_index;
     const FactorStatus& f = data.solver->solve_factor_status();
     if (!f.ok) {

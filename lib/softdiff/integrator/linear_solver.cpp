@@ -141,7 +141,15 @@ class CholmodSolver final : public LinearSolver {
     SOFTDIFF_DEMAND(factored_, "solve() without a valid factorization");
     solve_factor_status_ = {};
     counters_.last_pcg_iterations = 0;
-    if (stale_) return pcg_solve(b, x);
+    if (stale_) return pcg_solve(b, x, false);
+    return direct_solve(b, x);
+  }
+
+  bool solve_from(const VecX& b, VecX& x) override {
+    SOFTDIFF_DEMAND(factored_, "solve() without a valid factorization");
+    solve_factor_status_ = {};
+    counters_.last_pcg_iterations = 0;
+    if (stale_) return pcg_solve(b, x, x.size() == b.size() && x.allFinite());
     return direct_solve(b, x);
   }
 
@@ -247,22 +255,28 @@ class CholmodSolver final : public LinearSolver {
   }
 
   // Conjugate gradients on A_ (the matrix of the last factorize()) preconditioned by
-  // the stale factor, from x = 0, until ||b - A x|| <= pcg_tolerance ||b|| (the true
+  // the stale factor, from x = 0 or the caller's guess, until ||b - A x|| <= pcg_tolerance ||b|| (the true
   // residual, recomputed when the recurrence says so: the recurrence drifts from it).
   // More than refactor_iterations iterations: the next factorize() factorizes. No
   // convergence after pcg_max_iterations, or p^T A p <= 0 (A not positive definite, or
   // round-off): factorize A now and solve directly (a failed factorization is
   // solve_factor_status(), and solve() returns false).
-  bool pcg_solve(const VecX& b, VecX& x) {
+  bool pcg_solve(const VecX& b, VecX& x, bool from_guess) {
     ++counters_.pcg_solves;
     const auto A = A_.selfadjointView<Eigen::Upper>();
     const double target = options_.pcg_tolerance * b.norm();
-    x.resize(b.size());
-    x.setZero();
-    if (target == 0) return true;  // b = 0
+    if (target == 0) {  // b = 0
+      x.setZero(b.size());
+      return true;
+    }
     pcg_r_ = b;
+    if (from_guess) {
+      pcg_r_.noalias() -= A * x;
+    } else {
+      x.setZero(b.size());
+    }
     int it = 0;
-    bool converged = false;
+    bool converged = pcg_r_.norm() <= target;
     while (!converged && it < options_.pcg_max_iterations) {
       // (Re)start from the true residual pcg_r_.
       apply_factor(pcg_r_, pcg_z_);

@@ -55,6 +55,10 @@ class LinearSolver {
   // x = A^{-1} b with the last factorization. Returns false if the (iterative)
   // solver did not reach its tolerance; x and b may not alias.
   virtual bool solve(const VecX& b, VecX& x) = 0;
+  // The same with x on entry an initial guess (of b's size, else ignored): a PCG solve
+  // with a kept factor starts from it (its stopping test stays ||b - A x|| <=
+  // pcg_tolerance ||b||); a direct solve ignores it.
+  virtual bool solve_from(const VecX& b, VecX& x) { return solve(b, x); }
   // Several right-hand sides (columns of B).
   virtual bool solve(const MatX& B, MatX& X);
   // The congruence G = B^T A^{-1} B (m x m, dense, symmetric) for a sparse B (n x m)
