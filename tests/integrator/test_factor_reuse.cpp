@@ -267,4 +267,23 @@ TEST(FactorReuse, KeepLinearizationSolvesWithTheKeptFactor) {
   EXPECT_GE(data.solver->counters().kept_factors, 1);
 }
 
+// The step after a failed step factorizes, whatever the last PCG solve needed.
+TEST(FactorReuse, StepAfterAFailureFactorizes) {
+  const Model model = with_reuse(beam(), 1000, 1000);  // the iteration rule never fires
+  Data data(model);
+  State s = model.initial, next;
+  ASSERT_TRUE(integrator::implicit_euler_step(model, data, s, next, 1).ok());
+  std::swap(s, next);
+  ASSERT_TRUE(integrator::implicit_euler_step(model, data, s, next, 2).ok());
+  const auto& c = data.solver->counters();
+  ASSERT_EQ(c.numeric_factorizations, 1);
+  ASSERT_EQ(c.kept_factors, 1);
+  State mirrored = next;  // every element inverted (z -> -z)
+  for (Eigen::Index i = 2; i < mirrored.x.size(); i += 3) mirrored.x[i] = -mirrored.x[i];
+  EXPECT_EQ(integrator::implicit_euler_step(model, data, mirrored, s, 3).code, StepStatus::Code::inverted_element);
+  ASSERT_TRUE(integrator::implicit_euler_step(model, data, next, s, 3).ok());
+  EXPECT_EQ(c.numeric_factorizations, 2);
+  EXPECT_EQ(c.kept_factors, 1);
+}
+
 }  // namespace factor_reuse_test

@@ -163,8 +163,22 @@ StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, 
   return backward_euler_stage(model, data, in, out, step_index, lambda_a, model.step.dt, in.t + model.step.dt);
 }
 
+namespace {
+StepStatus stage(const Model& model, Data& data, const State& in, State& out, long step_index, const VecX* lambda_a,
+                 double h, double t_next);
+}  // namespace
+
 StepStatus backward_euler_stage(const Model& model, Data& data, const State& in, State& out, long step_index,
                                 const VecX* lambda_a, double h, double t_next) {
+  const StepStatus status = stage(model, data, in, out, step_index, lambda_a, h, t_next);
+  // Factor reuse: the step after a failed one factorizes (linear_solver.hpp).
+  if (!status.ok() && status.code != StepStatus::Code::not_converged) data.solver->refactorize_next();
+  return status;
+}
+
+namespace {
+StepStatus stage(const Model& model, Data& data, const State& in, State& out, long step_index, const VecX* lambda_a,
+                 double h, double t_next) {
   const auto& fem = model.fem;
   data.timings = {};
   auto t0 = Clock::now();
@@ -395,6 +409,7 @@ StepStatus backward_euler_stage(const Model& model, Data& data, const State& in,
   }
   return status;
 }
+}  // namespace
 
 }  // namespace integrator
 }  // namespace softdiff

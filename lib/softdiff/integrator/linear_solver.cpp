@@ -145,6 +145,8 @@ class CholmodSolver final : public LinearSolver {
     return direct_solve(b, x);
   }
 
+  void refactorize_next() override { refactor_next_ = true; }
+
   bool solve_from(const VecX& b, VecX& x) override {
     SOFTDIFF_DEMAND(factored_, "solve() without a valid factorization");
     solve_factor_status_ = {};

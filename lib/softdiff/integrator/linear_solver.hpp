@@ -79,6 +79,9 @@ class LinearSolver {
   // that fell back to factorizing): ok unless that factorization failed, in which case
   // solve() returned false.
   const FactorStatus& solve_factor_status() const { return solve_factor_status_; }
+  // Factor reuse: the next factorize() factorizes (called after a failed step, so that
+  // the step after a failure never solves with a kept factor). No-op otherwise.
+  virtual void refactorize_next() {}
 
  protected:
   SolverCounters counters_;
