@@ -254,7 +254,9 @@ class Reader {
       ctx_.fail(e.key_mark, "linear_solver." + e.key,
                 e.key == "refactor_iterations"
                     ? std::string("only used with factor_reuse: pcg")
-                    : "only used by type 'cg' or with factor_reuse: pcg (type is '" + kind + "')");
+                    : std::string("only used by type 'cg'") +
+                          (ls.kind == LinearSolverKind::cholmod ? " or with factor_reuse: pcg" : "") + " (type is '" +
+                          kind + "')");
     }
     if (ls.factor_reuse) {
       ls.pcg_tolerance = number(get(n, "tolerance"), ls.pcg_tolerance);
