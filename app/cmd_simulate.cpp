@@ -591,6 +591,18 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
         .value("output", 1e3 * output_seconds / n)
         .end_object();
     j.value("factorizations", data.factorizations);
+    {
+      // The step's solver (docs/cli.md): with linear_solver.factor_reuse: pcg, the
+      // factorizations above are the matrices formed, these the work done on them.
+      const auto& c = data.solver->counters();
+      j.begin_object("linear_solver")
+          .value("numeric_factorizations", c.numeric_factorizations)
+          .value("kept_factors", c.kept_factors)
+          .value("pcg_solves", c.pcg_solves)
+          .value("pcg_iterations", c.pcg_iterations)
+          .value("pcg_fallbacks", c.pcg_fallbacks)
+          .end_object();
+    }
     if (theta) {
       j.begin_object("derivatives")
           .value("ncp_rank_deficient_steps", rank_deficient_steps)

@@ -18,6 +18,7 @@
 
 #include "actuation/helpers.hpp"
 
+#include <Eigen/Eigenvalues>
 #include <gtest/gtest.h>
 
 #include <random>
@@ -39,6 +40,10 @@ struct Scenario {
   bool fixed = true;
   Act actuator = Act::none;
   int newton = 1;  // newton_iterations (> 1: the implicit function theorem on the converged residual)
+  // linear_solver.factor_reuse: pcg: the step and its JVP/VJP solve by PCG preconditioned
+  // by the factor of an earlier matrix (that of the step one dt before), to the default
+  // pcg_tolerance; the finite differences use the direct solve (the exact map).
+  bool reuse = false;
 };
 
 struct Params {
@@ -168,16 +173,46 @@ double value(const Params& p, int j) {
   return v[j];
 }
 
+Model with_reuse(Model model, bool reuse) {
+  model.solver.factor_reuse = reuse;
+  return model;
+}
+
 struct Analytic {
   Model model;
   Data data;
   State in, out;
   integrator::StepDerivatives d;
   Analytic(const Scenario& s, const Params& p)
-      : model(build(s, p)), data(model), in(initial_state(model)), d(model, kParams) {
+      : model(with_reuse(build(s, p), s.reuse)), data(model), in(initial_state(model)), d(model, kParams) {
+    if (s.reuse) {
+      // The step one dt earlier (x - h v) factorizes; the step from `in` keeps that
+      // factor and solves by PCG.
+      State previous = in, ignored;
+      previous.x -= model.step.dt * in.v;
+      const StepStatus st = integrator::implicit_euler_step(model, data, previous, ignored, 1);
+      EXPECT_TRUE(st.ok()) << describe(model, st);
+    }
     const StepStatus st = integrator::implicit_euler_step(model, data, in, out, 1);
     EXPECT_TRUE(st.ok()) << describe(model, st);
+    if (s.reuse) {
+      const auto& c = data.solver->counters();
+      EXPECT_EQ(c.numeric_factorizations, 1);
+      EXPECT_EQ(c.kept_factors, 1);
+      EXPECT_GE(c.last_pcg_iterations, 1);
+      EXPECT_EQ(c.pcg_fallbacks, 0);
+    }
   }
+  // cond_2(A) of the step (dense: these models have ~100 dofs), for the error bound of
+  // a PCG solve: ||x - A^{-1} b|| / ||A^{-1} b|| <= cond(A) ||b - A x|| / ||b||.
+  double condition() const {
+    const SparseMatrix full = data.A.selfadjointView<Eigen::Upper>();
+    const MatX dense(full);
+    const Eigen::SelfAdjointEigenSolver<MatX> eig(dense);
+    return eig.eigenvalues().maxCoeff() / eig.eigenvalues().minCoeff();
+  }
+  // The relative error a PCG solve may add to a derivative (0 without reuse).
+  double pcg_error(const Scenario& s) const { return s.reuse ? condition() * model.solver.pcg_tolerance : 0.0; }
   VecX jvp(const StepTangent& t) {
     StateTangent r;
     EXPECT_TRUE(d.jvp(model, data, in, out, t, r));
@@ -191,7 +226,7 @@ std::string describe_scenario(const Scenario& s) {
   const char* acts[] = {"none", "cable", "cavity", "open_face", "translation", "rotation"};
   return std::string(material::law_name(s.law)) + (s.psd ? " psd" : "") + (s.damping ? " damped" : "") +
          (s.fixed ? " fixed" : "") + " actuator " + acts[static_cast<int>(s.actuator)] +
-         (s.newton > 1 ? " newton" : "");
+         (s.newton > 1 ? " newton" : "") + (s.reuse ? " factor_reuse" : "");
 }
 
 void check_blocks(const Scenario& s) {
@@ -199,6 +234,10 @@ void check_blocks(const Scenario& s) {
   Analytic a(s, p);
   const Eigen::Index n = a.in.x.size();
   const std::string where = describe_scenario(s);
+  // The finite differences step with the direct solve; the analytic columns may carry
+  // the PCG solves' error (at most cond(A) pcg_tolerance relative, added to 1e-6).
+  const Model direct = with_reuse(a.model, false);
+  const double tolerance = 1e-6 + a.pcg_error(s);
   if (s.newton > 1) {
     EXPECT_GE(a.data.newton_iterations_used, 3) << where;  // not the linearized step
   }
@@ -214,10 +253,13 @@ void check_blocks(const Scenario& s) {
       State sp = a.in, sm = a.in;
       (which == 0 ? sp.x : sp.v)[k] += e;
       (which == 0 ? sm.x : sm.v)[k] -= e;
-      J_fd.col(k) = (step_output(a.model, sp) - step_output(a.model, sm)) / (2 * e);
+      J_fd.col(k) = (step_output(direct, sp) - step_output(direct, sm)) / (2 * e);
+    }
+    if (s.reuse) {
+      EXPECT_GE(a.data.solver->counters().last_pcg_iterations, 1) << where;  // the JVPs ran PCG
     }
     const auto c = test::compare(J, J_fd);
-    EXPECT_LT(c.rel_error, 1e-6) << where << (which == 0 ? " d/dx_i: " : " d/dv_i: ") << c.str();
+    EXPECT_LT(c.rel_error, tolerance) << where << (which == 0 ? " d/dx_i: " : " d/dv_i: ") << c.str();
   }
   // Parameters (and lambda_a): rebuild the model at p +- e.
   const int np = s.actuator == Act::none ? 5 : 6;
@@ -235,7 +277,7 @@ void check_blocks(const Scenario& s) {
     const auto c = test::compare(col, fd);
     const char* names[] = {"young", "poisson", "density", "rayleigh_mass", "rayleigh_stiffness", "lambda_a"};
     EXPECT_GT(col.norm(), 0) << where << " " << names[j];
-    EXPECT_LT(c.rel_error, 1e-6) << where << " d/d" << names[j] << ": " << c.str();
+    EXPECT_LT(c.rel_error, tolerance) << where << " d/d" << names[j] << ": " << c.str();
   }
 }
 
@@ -265,9 +307,11 @@ void check_dot_product(const Scenario& s) {
   const double lhs = w.x.dot(Jd.x) + w.v.dot(Jd.v);
   double rhs = JTw.x.dot(t.x) + JTw.v.dot(t.v) + JTw.p.dot(t.p);
   if (t.lambda_a.size()) rhs += JTw.lambda_a.dot(t.lambda_a);
-  // Term by term the sums have magnitudes up to |w| |J d|: 1e-10 of that.
+  // Term by term the sums have magnitudes up to |w| |J d|: 1e-10 of that; with factor
+  // reuse each of the JVP's and the VJP's PCG solves adds at most cond(A) pcg_tolerance
+  // of it.
   const double scale = w.x.norm() * Jd.x.norm() + w.v.norm() * Jd.v.norm();
-  EXPECT_NEAR(lhs, rhs, 1e-10 * scale) << describe_scenario(s);
+  EXPECT_NEAR(lhs, rhs, (1e-10 + 2 * a.pcg_error(s)) * scale) << describe_scenario(s);
 }
 
 class StepDerivatives : public ::testing::TestWithParam<Scenario> {};
@@ -287,6 +331,9 @@ INSTANTIATE_TEST_SUITE_P(
                       Scenario{Law::neo_hookean, false, true, true, Act::rotation},
                       Scenario{Law::corotational, false, true, true, Act::none, 30},
                       Scenario{Law::neo_hookean, false, true, true, Act::cavity, 30},
-                      Scenario{Law::stvk, false, false, false, Act::rotation, 30}));
+                      Scenario{Law::stvk, false, false, false, Act::rotation, 30},
+                      Scenario{Law::corotational, false, true, true, Act::none, 1, true},
+                      Scenario{Law::neo_hookean, true, true, true, Act::none, 1, true},
+                      Scenario{Law::corotational, false, true, true, Act::cable, 1, true}));
 
 }  // namespace

@@ -163,8 +163,22 @@ StepStatus implicit_euler_step(const Model& model, Data& data, const State& in, 
   return backward_euler_stage(model, data, in, out, step_index, lambda_a, model.step.dt, in.t + model.step.dt);
 }
 
+namespace {
+StepStatus stage(const Model& model, Data& data, const State& in, State& out, long step_index, const VecX* lambda_a,
+                 double h, double t_next);
+}  // namespace
+
 StepStatus backward_euler_stage(const Model& model, Data& data, const State& in, State& out, long step_index,
                                 const VecX* lambda_a, double h, double t_next) {
+  const StepStatus status = stage(model, data, in, out, step_index, lambda_a, h, t_next);
+  // Factor reuse: the step after a failed one factorizes (linear_solver.hpp).
+  if (!status.ok() && status.code != StepStatus::Code::not_converged) data.solver->refactorize_next();
+  return status;
+}
+
+namespace {
+StepStatus stage(const Model& model, Data& data, const State& in, State& out, long step_index, const VecX* lambda_a,
+                 double h, double t_next) {
   const auto& fem = model.fem;
   data.timings = {};
   auto t0 = Clock::now();
@@ -223,10 +237,22 @@ StepStatus backward_euler_stage(const Model& model, Data& data, const State& in,
   if (!status.ok()) return status;
 
   t0 = Clock::now();
-  if (!data.solver->solve(data.rhs, data.dv)) {
-    status.code = StepStatus::Code::solver_failed;
+  // data.dv holds the previous step's dv: with a kept factor (factor reuse) PCG starts
+  // from it, the answer of a smooth trajectory's neighbour step.
+  if (!data.solver->solve_from(data.rhs, data.dv)) {
     status.step = step_index;
-    status.detail = "iterative linear solver did not reach its tolerance";
+    const FactorStatus& f = data.solver->solve_factor_status();
+    if (!f.ok) {
+      // Factor reuse: PCG with the stale factor gave up and the factorization of this
+      // step's A failed (linear_solver.hpp).
+      status.code = StepStatus::Code::not_positive_definite;
+      status.dof = f.column;
+      status.detail = f.message;
+      data.factor_is_current = false;
+    } else {
+      status.code = StepStatus::Code::solver_failed;
+      status.detail = "iterative linear solver did not reach its tolerance";
+    }
     return status;
   }
   out.v = in.v + data.dv;
@@ -383,6 +409,7 @@ StepStatus backward_euler_stage(const Model& model, Data& data, const State& in,
   }
   return status;
 }
+}  // namespace
 
 }  // namespace integrator
 }  // namespace softdiff

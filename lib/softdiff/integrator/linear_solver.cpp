@@ -52,7 +52,7 @@ namespace {
 // repeated solves do not allocate.
 class CholmodSolver final : public LinearSolver {
  public:
-  CholmodSolver() {
+  explicit CholmodSolver(const SolverOptions& options) : options_(options) {
     cholmod_start(&common_);
     common_.supernodal = CHOLMOD_SUPERNODAL;
     common_.final_ll = 1;      // keep L L^T (no conversion to LDL^T)
@@ -68,6 +68,7 @@ class CholmodSolver final : public LinearSolver {
     if (Xb_) cholmod_free_dense(&Xb_, &common_);
     if (Yb_) cholmod_free_dense(&Yb_, &common_);
     if (Eb_) cholmod_free_dense(&Eb_, &common_);
+    if (Z_) cholmod_free_dense(&Z_, &common_);
     cholmod_finish(&common_);
   }
   std::string name() const override { return "cholmod"; }
@@ -79,10 +80,35 @@ class CholmodSolver final : public LinearSolver {
     throw_if_out_of_memory("the analysis (ordering)", A.rows());
     SOFTDIFF_DEMAND(factor_ != nullptr, "cholmod_analyze failed (status " + std::to_string(common_.status) + ")");
     congruence_.reset();  // a new symbolic structure
+    factored_ = false;
+    stale_ = false;
+    if (options_.factor_reuse) {
+      // Factor reuse: the matrix of the last factorize() (PCG's operator) and the PCG
+      // vectors, sized once per analysis.
+      A_ = A;
+      const Eigen::Index n = A.rows();
+      for (VecX* v : {&pcg_r_, &pcg_z_, &pcg_p_, &pcg_q_}) v->resize(n);
+    }
   }
 
+  // Factor reuse: record A (its values: the pattern is the analyzed one) and keep the
+  // last factor unless there is none, the last solve asked for a new one, or a solve
+  // failed; otherwise (and without reuse) factorize A.
   FactorStatus factorize(const SparseMatrix& A) override {
     SOFTDIFF_DEMAND(factor_ != nullptr, "factorize() before analyze()");
+    if (!options_.factor_reuse) return factorize_numeric(A);
+    SOFTDIFF_DEMAND(A.nonZeros() == A_.nonZeros() && A.rows() == A_.rows(),
+                    "factorize(): the matrix's pattern is not the analyzed one");
+    std::copy(A.valuePtr(), A.valuePtr() + A.nonZeros(), A_.valuePtr());
+    if (factored_ && !refactor_next_) {
+      stale_ = true;
+      ++counters_.kept_factors;
+      return {};
+    }
+    return factorize_numeric(A_);
+  }
+
+  FactorStatus factorize_numeric(const SparseMatrix& A) {
     cholmod_sparse view = wrap(A);
     {
       // CHOLMOD's own OpenMP loops on one thread; its BLAS keeps the plan's threads
@@ -104,12 +130,32 @@ class CholmodSolver final : public LinearSolver {
       status.ok = false;
       status.message = "CHOLMOD factorization failed (status " + std::to_string(common_.status) + ")";
     }
+    ++counters_.numeric_factorizations;
     factored_ = status.ok;
+    stale_ = false;
+    refactor_next_ = false;
     return status;
   }
 
   bool solve(const VecX& b, VecX& x) override {
     SOFTDIFF_DEMAND(factored_, "solve() without a valid factorization");
+    solve_factor_status_ = {};
+    counters_.last_pcg_iterations = 0;
+    if (stale_) return pcg_solve(b, x, false);
+    return direct_solve(b, x);
+  }
+
+  void refactorize_next() override { refactor_next_ = true; }
+
+  bool solve_from(const VecX& b, VecX& x) override {
+    SOFTDIFF_DEMAND(factored_, "solve() without a valid factorization");
+    solve_factor_status_ = {};
+    counters_.last_pcg_iterations = 0;
+    if (stale_) return pcg_solve(b, x, x.size() == b.size() && x.allFinite());
+    return direct_solve(b, x);
+  }
+
+  bool direct_solve(const VecX& b, VecX& x) {
     cholmod_dense B;
     B.nrow = b.size();
     B.ncol = 1;
@@ -137,6 +183,9 @@ class CholmodSolver final : public LinearSolver {
   // (SupernodalCongruence), or, where that declines, dense blocks of right-hand sides.
   bool inverse_congruence(const SparseMatrix& B, MatX& G) override {
     SOFTDIFF_DEMAND(factored_, "inverse_congruence() without a valid factorization");
+    // The congruence needs A's own factor (its reach solves are triangular solves with
+    // L): a stale factor is replaced first.
+    if (stale_ && !refresh_factor()) return false;
     if (congruence_.compute(factor_, B, G)) return true;
     return dense_block_congruence(B, G);
   }
@@ -183,6 +232,92 @@ class CholmodSolver final : public LinearSolver {
   double factor_flops() const override { return common_.fl; }
 
  private:
+  // Factor reuse: factorize the recorded A now (a stale factor that cannot serve).
+  bool refresh_factor() {
+    solve_factor_status_ = factorize_numeric(A_);
+    return solve_factor_status_.ok;
+  }
+
+  // z = (L L^T)^{-1} r with the (stale) factor: the preconditioner.
+  void apply_factor(const VecX& r, VecX& z) {
+    cholmod_dense B;
+    B.nrow = r.size();
+    B.ncol = 1;
+    B.nzmax = r.size();
+    B.d = r.size();
+    B.x = const_cast<double*>(r.data());
+    B.z = nullptr;
+    B.xtype = CHOLMOD_REAL;
+    B.dtype = CHOLMOD_DOUBLE;
+    use_planned_blas_threads();
+    const int ok = cholmod_solve2(CHOLMOD_A, factor_, &B, nullptr, &Z_, nullptr, &Y_, &E_, &common_);
+    throw_if_out_of_memory("a preconditioner solve", r.size());
+    SOFTDIFF_DEMAND(ok, "cholmod_solve2 failed (status " + std::to_string(common_.status) + ")");
+    z = Eigen::Map<const VecX>(static_cast<const double*>(Z_->x), r.size());
+  }
+
+  // Conjugate gradients on A_ (the matrix of the last factorize()) preconditioned by
+  // the stale factor, from x = 0 or the caller's guess, until ||b - A x|| <= pcg_tolerance ||b|| (the true
+  // residual, recomputed when the recurrence says so: the recurrence drifts from it).
+  // More than refactor_iterations iterations: the next factorize() factorizes. No
+  // convergence after pcg_max_iterations, or p^T A p <= 0 (A not positive definite, or
+  // round-off): factorize A now and solve directly (a failed factorization is
+  // solve_factor_status(), and solve() returns false).
+  bool pcg_solve(const VecX& b, VecX& x, bool from_guess) {
+    ++counters_.pcg_solves;
+    const auto A = A_.selfadjointView<Eigen::Upper>();
+    const double target = options_.pcg_tolerance * b.norm();
+    if (target == 0) {  // b = 0
+      x.setZero(b.size());
+      return true;
+    }
+    pcg_r_ = b;
+    if (from_guess) {
+      pcg_r_.noalias() -= A * x;
+    } else {
+      x.setZero(b.size());
+    }
+    int it = 0;
+    bool converged = pcg_r_.norm() <= target;
+    while (!converged && it < options_.pcg_max_iterations) {
+      // (Re)start from the true residual pcg_r_.
+      apply_factor(pcg_r_, pcg_z_);
+      pcg_p_ = pcg_z_;
+      double rz = pcg_r_.dot(pcg_z_);
+      bool breakdown = false;
+      while (it < options_.pcg_max_iterations) {
+        pcg_q_.noalias() = A * pcg_p_;
+        const double pq = pcg_p_.dot(pcg_q_);
+        if (!(pq > 0)) {
+          breakdown = true;
+          break;
+        }
+        const double alpha = rz / pq;
+        x.noalias() += alpha * pcg_p_;
+        pcg_r_.noalias() -= alpha * pcg_q_;
+        ++it;
+        if (pcg_r_.norm() <= target) break;
+        apply_factor(pcg_r_, pcg_z_);
+        const double rz_next = pcg_r_.dot(pcg_z_);
+        pcg_p_ = pcg_z_ + (rz_next / rz) * pcg_p_;
+        rz = rz_next;
+      }
+      if (breakdown) break;
+      // The recurrence's residual says converged (or the budget is spent): check the
+      // true one.
+      pcg_r_ = b;
+      pcg_r_.noalias() -= A * x;
+      converged = pcg_r_.norm() <= target;
+    }
+    counters_.pcg_iterations += it;
+    counters_.last_pcg_iterations = it;
+    if (it > options_.refactor_iterations) refactor_next_ = true;
+    if (converged) return true;
+    ++counters_.pcg_fallbacks;
+    if (!refresh_factor()) return false;
+    return direct_solve(b, x);
+  }
+
   // CHOLMOD could not allocate (CHOLMOD_OUT_OF_MEMORY) or the sizes overflow its
   // integers (CHOLMOD_TOO_LARGE): not a property of the matrix, so not a
   // FactorStatus: a ComputationError naming the cause and, once the analysis has
@@ -240,6 +375,13 @@ class CholmodSolver final : public LinearSolver {
   SupernodalCongruence congruence_;  // inverse_congruence's reach solves (buffers grow only)
   Eigen::SparseMatrix<double, Eigen::RowMajor, int> Bt_;  // B^T, rows = columns of B
   bool factored_ = false;
+  // Factor reuse (SolverOptions::factor_reuse).
+  SolverOptions options_;
+  SparseMatrix A_;        // (n x n, upper) the matrix of the last factorize(); analyze() sizes it
+  bool stale_ = false;    // factor_ is that of an earlier matrix than A_
+  bool refactor_next_ = false;  // the last PCG solve needed more than refactor_iterations
+  VecX pcg_r_, pcg_z_, pcg_p_, pcg_q_;  // (n) PCG's residual, preconditioned residual, direction, A p
+  cholmod_dense* Z_ = nullptr;          // the preconditioner's output
 };
 
 // Eigen's simplicial LDL^T (no BLAS): a dependable reference, slower on large meshes.
@@ -249,6 +391,7 @@ class LdltSolver final : public LinearSolver {
   void analyze(const SparseMatrix& A) override { ldlt_.analyzePattern(A); }
   FactorStatus factorize(const SparseMatrix& A) override {
     ldlt_.factorize(A);
+    ++counters_.numeric_factorizations;
     FactorStatus status;
     if (ldlt_.info() != Eigen::Success) {
       status.ok = false;
@@ -285,6 +428,7 @@ class CgSolver final : public LinearSolver {
   void analyze(const SparseMatrix& A) override { cg_.analyzePattern(A); }
   FactorStatus factorize(const SparseMatrix& A) override {
     cg_.factorize(A);
+    ++counters_.numeric_factorizations;
     FactorStatus status;
     for (int k = 0; k < A.cols(); ++k)
       if (!(A.coeff(k, k) > 0)) {
@@ -308,7 +452,7 @@ class CgSolver final : public LinearSolver {
 
 std::unique_ptr<LinearSolver> make_linear_solver(const SolverOptions& options) {
   switch (options.kind) {
-    case SolverKind::cholmod: return std::make_unique<CholmodSolver>();
+    case SolverKind::cholmod: return std::make_unique<CholmodSolver>(options);
     case SolverKind::ldlt: return std::make_unique<LdltSolver>();
     case SolverKind::cg: return std::make_unique<CgSolver>(options);
   }

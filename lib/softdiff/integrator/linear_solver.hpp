@@ -17,6 +17,27 @@ struct SolverOptions {
   SolverKind kind = SolverKind::cholmod;
   double cg_tolerance = 1e-10;   // relative residual
   int cg_max_iterations = 10000;
+  // Factor reuse (cholmod only; scene.md `linear_solver.factor_reuse: pcg`,
+  // docs/method.md "Reusing the factor"): factorize() keeps the last numeric factor
+  // while it preconditions well, and solve() runs conjugate gradients on the new
+  // matrix preconditioned by it, to ||b - A x|| <= pcg_tolerance ||b||. A solve that
+  // needed more than refactor_iterations iterations makes the next factorize()
+  // factorize; one that has not converged after pcg_max_iterations (or meets
+  // p^T A p <= 0) factorizes at once and solves directly.
+  bool factor_reuse = false;
+  double pcg_tolerance = 1e-10;
+  int refactor_iterations = 8;
+  int pcg_max_iterations = 40;
+};
+
+// Counts of a solver over its life (factor reuse: how often the factor was kept).
+struct SolverCounters {
+  long numeric_factorizations = 0;  // numeric factorizations actually run
+  long kept_factors = 0;            // factorize() calls that kept a stale factor (factor reuse)
+  long pcg_solves = 0;              // solves run as PCG with a stale factor
+  long pcg_iterations = 0;          // their iterations (each one factor solve + one product with A)
+  long pcg_fallbacks = 0;           // PCG solves abandoned for a factorization and a direct solve
+  int last_pcg_iterations = 0;      // of the last PCG solve (0: the last solve was direct)
 };
 
 struct FactorStatus {
@@ -34,6 +55,10 @@ class LinearSolver {
   // x = A^{-1} b with the last factorization. Returns false if the (iterative)
   // solver did not reach its tolerance; x and b may not alias.
   virtual bool solve(const VecX& b, VecX& x) = 0;
+  // The same with x on entry an initial guess (of b's size, else ignored): a PCG solve
+  // with a kept factor starts from it (its stopping test stays ||b - A x|| <=
+  // pcg_tolerance ||b||); a direct solve ignores it.
+  virtual bool solve_from(const VecX& b, VecX& x) { return solve(b, x); }
   // Several right-hand sides (columns of B).
   virtual bool solve(const MatX& B, MatX& X);
   // The congruence G = B^T A^{-1} B (m x m, dense, symmetric) for a sparse B (n x m)
@@ -47,6 +72,20 @@ class LinearSolver {
   // Figures of the last factorization, for reports: nonzeros in L, flops.
   virtual double factor_nonzeros() const { return 0; }
   virtual double factor_flops() const { return 0; }
+  // Counters (numeric_factorizations counts every successful or failed numeric
+  // factorization of every solver; the PCG fields are zero without factor reuse).
+  const SolverCounters& counters() const { return counters_; }
+  // The status of the factorization a solve() ran itself (factor reuse: a PCG solve
+  // that fell back to factorizing): ok unless that factorization failed, in which case
+  // solve() returned false.
+  const FactorStatus& solve_factor_status() const { return solve_factor_status_; }
+  // Factor reuse: the next factorize() factorizes (called after a failed step, so that
+  // the step after a failure never solves with a kept factor). No-op otherwise.
+  virtual void refactorize_next() {}
+
+ protected:
+  SolverCounters counters_;
+  FactorStatus solve_factor_status_;
 };
 
 std::unique_ptr<LinearSolver> make_linear_solver(const SolverOptions& options);

@@ -300,6 +300,10 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
   }
   model.solver.cg_tolerance = scene.linear_solver.cg_tolerance;
   model.solver.cg_max_iterations = scene.linear_solver.cg_max_iterations;
+  model.solver.factor_reuse = scene.linear_solver.factor_reuse;
+  model.solver.pcg_tolerance = scene.linear_solver.pcg_tolerance;
+  model.solver.pcg_max_iterations = scene.linear_solver.pcg_max_iterations;
+  model.solver.refactor_iterations = scene.linear_solver.refactor_iterations;
 
   std::vector<fem::BodyModel> bodies;
   std::vector<unsigned char> fixed;

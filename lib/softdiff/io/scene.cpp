@@ -25,6 +25,13 @@
 //                                         tolerance (> 0, relative residual) and
 //                                         max_iterations (>= 1) are CG options, an
 //                                         error with another type
+//   linear_solver: {type: cholmod, factor_reuse: pcg, tolerance: 1e-10,
+//                   refactor_iterations: 8, max_iterations: 40}
+//                                         reuse the previous step's factor as PCG's
+//                                         preconditioner (docs/method.md "Reusing the
+//                                         factor"); tolerance, max_iterations are then
+//                                         PCG's; not with contact, newton_iterations > 1
+//                                         or integrator: static
 //   --set KEY=null (or ~, or empty)       removes KEY (back to its default); giving
 //                                         simulation.steps removes duration and vice versa
 // Interpretation of scene.md where it is silent:
@@ -145,6 +152,7 @@ class Reader {
     read_obstacles(root, scene);
     read_contact(root, scene);
     read_output(root, scene.output);
+    check_factor_reuse(root, scene);
   }
 
  private:
@@ -230,11 +238,51 @@ class Reader {
     const std::string kind = type ? type->scalar : "cholmod";
     ls.kind = kind == "cg" ? LinearSolverKind::cg : kind == "ldlt" ? LinearSolverKind::ldlt : LinearSolverKind::cholmod;
     if (!n->is_map()) return;
-    for (const Entry& e : n->entries)
-      if (e.key != "type" && ls.kind != LinearSolverKind::cg)
-        ctx_.fail(e.key_mark, "linear_solver." + e.key, "only used by type 'cg' (type is '" + kind + "')");
+    if (const Node* reuse = get(n, "factor_reuse")) {
+      if (ls.kind != LinearSolverKind::cholmod)
+        ctx_.fail(n->find("factor_reuse")->key_mark, "linear_solver.factor_reuse",
+                  "only used by type 'cholmod' (type is '" + kind + "')");
+      ls.factor_reuse = reuse->scalar == "pcg";
+    }
+    for (const Entry& e : n->entries) {
+      if (e.key == "type" || e.key == "factor_reuse") continue;
+      if (ls.factor_reuse) {
+        if (e.key == "tolerance" || e.key == "max_iterations" || e.key == "refactor_iterations") continue;
+      } else if (ls.kind == LinearSolverKind::cg && e.key != "refactor_iterations") {
+        continue;
+      }
+      ctx_.fail(e.key_mark, "linear_solver." + e.key,
+                e.key == "refactor_iterations"
+                    ? std::string("only used with factor_reuse: pcg")
+                    : std::string("only used by type 'cg'") +
+                          (ls.kind == LinearSolverKind::cholmod ? " or with factor_reuse: pcg" : "") + " (type is '" +
+                          kind + "')");
+    }
+    if (ls.factor_reuse) {
+      ls.pcg_tolerance = number(get(n, "tolerance"), ls.pcg_tolerance);
+      ls.pcg_max_iterations = static_cast<int>(integer(get(n, "max_iterations"), ls.pcg_max_iterations));
+      ls.refactor_iterations = static_cast<int>(integer(get(n, "refactor_iterations"), ls.refactor_iterations));
+      return;
+    }
     ls.cg_tolerance = number(get(n, "tolerance"), ls.cg_tolerance);
     ls.cg_max_iterations = static_cast<int>(integer(get(n, "max_iterations"), ls.cg_max_iterations));
+  }
+
+  // factor_reuse: pcg serves the linearized dynamic step and its derivatives; the
+  // solves that need A's own factor or another matrix per solve are refused
+  // (docs/method.md "Reusing the factor").
+  void check_factor_reuse(const Node& root, const SceneDesc& scene) const {
+    if (!scene.linear_solver.factor_reuse) return;
+    const Entry* key = root.get("linear_solver")->find("factor_reuse");
+    const std::string path = "linear_solver.factor_reuse";
+    if (scene.simulation.integrator == Integrator::static_equilibrium)
+      ctx_.fail(key->key_mark, path, "pcg is not available with simulation.integrator: static (use factor_reuse: off)");
+    if (scene.simulation.newton_iterations > 1)
+      ctx_.fail(key->key_mark, path,
+                "pcg is not available with simulation.newton_iterations > 1 (got " +
+                    std::to_string(scene.simulation.newton_iterations) + "; use factor_reuse: off or newton_iterations: 1)");
+    if (scene.contact.enabled)
+      ctx_.fail(key->key_mark, path, "pcg is not available with contact (use factor_reuse: off or contact.enabled: false)");
   }
 
   BodyDesc read_body(const Node& body, const std::string& path) const {

@@ -153,6 +153,11 @@ struct LinearSolverDesc {
   LinearSolverKind kind = LinearSolverKind::cholmod;
   double cg_tolerance = 1e-10;     // extension (cg only): relative residual
   int cg_max_iterations = 10000;   // extension (cg only)
+  // extension (cholmod only, docs/method.md "Reusing the factor"): factor_reuse: pcg
+  bool factor_reuse = false;
+  double pcg_tolerance = 1e-10;    // `tolerance` with factor_reuse: relative residual of PCG
+  int pcg_max_iterations = 40;     // `max_iterations` with factor_reuse: then factorize and solve directly
+  int refactor_iterations = 8;     // a solve needing more iterations: the next step factorizes
 };
 
 struct OutputDesc {

@@ -150,12 +150,15 @@ SpecPtr simulation() {
 }
 
 SpecPtr linear_solver() {
-  // `linear_solver: cg`, or (extension) {type: cg, tolerance: 1e-10, max_iterations: N}
+  // `linear_solver: cg`, or (extension) {type: cg, tolerance: 1e-10, max_iterations: N},
+  // or {type: cholmod, factor_reuse: pcg, tolerance, max_iterations, refactor_iterations}
   return map(
       {
           key("type", choice({"cholmod", "ldlt", "cg"})),
           key("tolerance", number(gt(0))),
           key("max_iterations", integer(ge(1))),
+          key("factor_reuse", choice({"off", "pcg"})),        // extension (cholmod)
+          key("refactor_iterations", integer(ge(1))),         // extension (factor_reuse: pcg)
       },
       "type");
 }
