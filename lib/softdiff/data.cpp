@@ -45,6 +45,7 @@ void Data::restart(const Model& model, bool detection_changed) {
   std::copy(S.valuePtr(), S.valuePtr() + S.nonZeros(), A.valuePtr());
   for (VecX* v : {&rhs, &dv, &Mv, &Kv, &Mvi, &lambda_a, &f_act, &x_iter, &v_iter}) v->setZero();
   factor_is_current = false;
+  if (solver) solver->refactorize_next();  // factor reuse: no factor kept from the previous run
   A_h = 0;
   linearized_x.resize(0);
   h = 0;

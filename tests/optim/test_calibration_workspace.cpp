@@ -138,6 +138,14 @@ TEST(CalibrationWorkspace, ConstantSystemMatrixIsRefactorizedForNewValues) {
   same_as_fresh(m, kBodyParameters, kBodyPoints, rest_target(m, kSteps), "linear law");
 }
 
+// Factor reuse (linear_solver.factor_reuse: pcg) keeps the last factor inside the
+// solver: a new run must start from a factorization, as a fresh Data does.
+TEST(CalibrationWorkspace, FactorReuseStartsEachRunFromAFactorization) {
+  Model m = beam(material::Law::corotational, 0.1, 0.001);
+  m.solver.factor_reuse = true;
+  same_as_fresh(m, kBodyParameters, kBodyPoints, rest_target(m, kSteps), "factor reuse");
+}
+
 TEST(CalibrationWorkspace, NewtonAndBdf2SameAsAFreshRun) {
   Model newton = beam(material::Law::neo_hookean, 0.1, 0.001);
   newton.step.newton_iterations = 4;
