@@ -226,12 +226,15 @@ struct Buffers {
   VecX lambda_alt, sigma_alt;    // (n) the polished candidate of a sparse round
   std::vector<Mode> modes_a;
   std::vector<double> gnn;       // (nc) G_NN,i where known (dense G_W), else the power-iteration scale
+  std::vector<int> ids_c;        // the candidate set of the operator's stall fallback, ascending
+  std::vector<char> in_c;        // (nc) its membership
 
   void resize(Eigen::Index n) {
     if (x.size() == n) return;
     muw.resize(n / 3);
     d.resize(n / 3);
     in_set.resize(static_cast<std::size_t>(n / 3));
+    in_c.resize(static_cast<std::size_t>(n / 3));
     for (VecX* v : {&x, &y, &z, &s, &rhs, &x_prev, &y_prev, &power, &d3, &d3_sqrt_inv, &lambda_best, &lambda_p, &sigma_p, &lambda_kept,
                      &sigma_kept, &gw, &lw, &sw, &lambda_alt, &sigma_alt})
       v->resize(n);
@@ -1011,6 +1014,97 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
   };
 
   int spent = 0;  // iterations before the retry on every contact (which gets a budget of its own)
+  // The stall fallback of a round solved on the operator (the dense path's, on a dense
+  // G_CC): when ADMM stalls and the polish does not reach the tolerance, the contacts C
+  // that may carry force (not breaking at ADMM's iterate, or violating at it; at most
+  // polish_max_active) are solved on their dense G_CC by the dense path's solve_core
+  // (ADMM, the polish, PGS from there, the polish), lambda = 0 outside C, from the
+  // best candidate so far. Contacts outside C that then violate join C and the reduced
+  // problem is solved again (a working set inside W; at most fallback_max_rounds). The
+  // result replaces the candidate in lambda_alt / sigma_alt if its full residuals are
+  // lower. With one rho, ADMM converges on the contacts whose compliance G_ii is near
+  // rho only (a 1e6 mass ratio spreads G_NN over 5e5); PGS's per-contact steps 1 / G_NN
+  // and the polish are invariant to that spread (docs/method.md "Contact at scale").
+  // Returns whether it ran (its iterations go to sub).
+  constexpr int fallback_max_rounds = 4;
+  auto dense_fallback = [&](int nw, Eigen::Index m, bool candidate, NcpResult& sub) {
+    const int budget_left = options.max_iterations - (result.iterations - spent) - sub.iterations;
+    if (budget_left <= 0) return false;
+    std::fill(w.in_c.begin(), w.in_c.end(), 0);
+    // C from the round's state (lw, sw: sw = G_WW lw + g_W, the full sigma on W).
+    const auto gnn = [&](int b) { return w.gnn[w.set[b]] > 0 ? w.gnn[w.set[b]] : Gscale; };
+    classify_by(nw, w.muw.head(nw), w.lw.head(m), w.sw.head(m), gnn, std::max(Gscale, tiny), w.modes_set);
+    int size = 0;
+    for (int b = 0; b < nw; ++b) {
+      const int i = w.set[b];
+      const bool violating =
+          project_cone(-de_saxce(w.sw.segment<3>(3 * b), w.muw[b]), w.muw[b]).norm() > tol * vscale;
+      if (w.modes_set[b] != Mode::breaking || violating || (candidate && w.lambda_alt.segment<3>(3 * i).squaredNorm() > 0)) {
+        w.in_c[i] = 1;
+        ++size;
+      }
+    }
+    if (size == 0 || size > options.polish_max_active) return false;
+    // The start: the candidate if there is one (its residuals are the lower), else the
+    // round's iterate; lambda_p holds it (n).
+    if (candidate) {
+      w.lambda_p = w.lambda_alt;
+    } else {
+      w.lambda_p.setZero(n);
+      for (int b = 0; b < nw; ++b) w.lambda_p.segment<3>(3 * w.set[b]) = w.lw.segment<3>(3 * b);
+    }
+    double best = candidate ? residuals_of(w.lambda_alt, w.sigma_alt, mu, vscale).max() : infinity;
+    NcpOptions inner = options;
+    inner.working_set = false;
+    for (int round = 0; round < fallback_max_rounds; ++round) {
+      w.ids_c.clear();
+      for (int i = 0; i < nc; ++i)
+        if (w.in_c[i]) w.ids_c.push_back(i);
+      const int nc_c = static_cast<int>(w.ids_c.size());
+      if (nc_c > options.polish_max_active) break;
+      const Eigen::Index mc = 3 * static_cast<Eigen::Index>(nc_c);
+      G.restrict_to(w.ids_c);
+      G.dense(w.Gs);
+      w.ga.resize(mc);
+      w.la.resize(mc);
+      w.sa.resize(mc);
+      w.mua.resize(nc_c);
+      for (int a = 0; a < nc_c; ++a) {
+        const int i = w.ids_c[a];
+        w.ga.segment<3>(3 * a) = g.segment<3>(3 * i);
+        w.la.segment<3>(3 * a) = project_cone(w.lambda_p.segment<3>(3 * i), mu[i]);
+        w.mua[a] = mu[i];
+        w.gnn[i] = w.Gs(3 * a + 2, 3 * a + 2);
+        Gscale = std::max(Gscale, w.gnn[i]);
+      }
+      const int left = options.max_iterations - (result.iterations - spent) - sub.iterations;
+      if (left <= 0) break;
+      const Problem pc{w.Gs, w.ga, w.mua, nc_c, vscale, tol, left};
+      const NcpResult q = solve_core(w, pc, inner, w.la, w.sa, w.modes_a);
+      sub.iterations += q.iterations;
+      sub.rho_updates += q.rho_updates;
+      sub.fallback_iterations += q.fallback_iterations;
+      // The full candidate (0 outside C) and its full sigma (sigma_p: scratch, n).
+      w.lambda_p.setZero(n);
+      for (int a = 0; a < nc_c; ++a) w.lambda_p.segment<3>(3 * w.ids_c[a]) = w.la.segment<3>(3 * a);
+      full_sigma(w.ids_c, w.lambda_p, w.sigma_p);
+      const double r = residuals_of(w.lambda_p, w.sigma_p, mu, vscale).max();
+      if (r < best) {
+        best = r;
+        w.lambda_alt = w.lambda_p;
+        w.sigma_alt = w.sigma_p;
+      }
+      if (r <= tol || q.residuals.max() > tol) break;  // solved, or the reduced solve failed
+      bool grown = false;
+      for (int i = 0; i < nc; ++i)
+        if (!w.in_c[i] && project_cone(-de_saxce(w.sigma_p.segment<3>(3 * i), mu[i]), mu[i]).norm() > tol * vscale)
+          w.in_c[i] = grown = true;
+      if (!grown) break;
+    }
+    G.restrict_to(w.set);
+    return std::isfinite(best);
+  };
+
   for (;;) {
     w.set.clear();
     for (int i = 0; i < nc; ++i)
@@ -1063,6 +1157,10 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
         polish_candidate = polish_sparse(nw, m);
         if (!stalled || sub.iterations >= budget || part.iterations == 0) break;
         if (polish_candidate && residuals_of(w.lambda_alt, w.sigma_alt, mu, vscale).max() <= tol) break;
+        if (options.admm_fallback && attempt == 0 && dense_fallback(nw, m, polish_candidate, sub)) {
+          polish_candidate = true;
+          break;
+        }
       }
     }
     result.iterations += sub.iterations;
