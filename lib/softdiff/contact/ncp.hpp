@@ -82,6 +82,7 @@ struct NcpResult {
   int fallback_iterations = 0;  // ADMM: PGS sweeps after ADMM stalled (included in iterations)
   bool sparse = false;          // solved on the sparse operator (NcpSolver::solve(SparseDelassus&, ...))
   int sparse_rounds = 0;        // sparse: reduced problems solved by ADMM on the operator (the others on a dense G_W)
+  int polish_factorizations = 0;  // O(na^3) factorizations of the polish's Newton matrix (LU or COD)
 };
 
 NcpResiduals ncp_residuals(const MatX& G, const VecX& g, const VecX& mu, const VecX& lambda);
