@@ -54,7 +54,8 @@
 // the problem size changes (Eigen resizes are no-ops at equal size); the iterations
 // allocate nothing. The polish sizes its dense system by the number of active
 // contacts, so it may allocate when that number changes (once per solve, not per
-// iteration); so may the working set when it grows (its reduced G_W, once per round).
+// iteration); so may the working set when it grows (its reduced G_W, once per round),
+// and the operator path's stall fallback (its dense G_CC, once per round).
 
 namespace softdiff::contact {
 
