@@ -464,6 +464,36 @@ TEST(NcpSolvers, ScaledAdmmOnAMassRatio) {
   }
 }
 
+// The polish's cost where its Newton matrix is well conditioned and the mode equations
+// are linear: 60 decoupled contacts (G block diagonal, each block B B^T + 0.5 I), g
+// chosen so that lambda_i = (0.1 a, 0.1 b, 1) (|a|, |b| <= 1, inside the cone mu = 1)
+// with sigma_i = 0: every contact sticks. The Newton matrix is G (LU's condition
+// estimate ~0.1), so one step solves the equations to rounding, and a further step
+// (if any: here the first step already lands below the rounding test) reuses that
+// factorization (a chord step, O(m^2)): exactly one O(m^3) factorization. A guard on
+// the count that docs/performance.md's 400-contact slab depends on (there, without
+// the chord steps, the step at the rounding floor factorized again); the solution is
+// checked independently.
+TEST(NcpSolvers, PolishFactorizesOnceWhenTheModeEquationsAreLinear) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-1, 1);
+  const int nc = 60;
+  Problem p{MatX::Zero(3 * nc, 3 * nc), VecX(3 * nc), VecX::Constant(nc, 1.0)};
+  for (int i = 0; i < nc; ++i) {
+    MatX B(3, 3);
+    for (int k = 0; k < 9; ++k) B(k / 3, k % 3) = u(rng);
+    const MatX Gi = B * B.transpose() + 0.5 * MatX::Identity(3, 3);
+    p.G.block<3, 3>(3 * i, 3 * i) = Gi;
+    p.g.segment<3>(3 * i) = -Gi * Vec3(0.1 * u(rng), 0.1 * u(rng), 1.0);
+  }
+  const Solved s = solve(p, NcpSolverKind::admm, 1e-8, true);
+  ASSERT_TRUE(s.result.converged) << s.result.residuals.max();
+  ASSERT_EQ(s.result.sticking, nc);  // the premise: linear mode equations
+  EXPECT_TRUE(s.result.polished);
+  EXPECT_EQ(s.result.polish_factorizations, 1);
+  expect_ncp_solution(p, s, 1e-12, "polished");
+}
+
 // ---------------------------------------------------------------------------
 // Warm start: from the solution, no (or one) iteration.
 TEST(NcpSolvers, WarmStartFromTheSolution) {

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
+#include <Eigen/LU>
 #include <Eigen/QR>
 #include <cmath>
 #include <limits>
@@ -53,7 +54,8 @@
 // the problem size changes (Eigen resizes are no-ops at equal size); the iterations
 // allocate nothing. The polish sizes its dense system by the number of active
 // contacts, so it may allocate when that number changes (once per solve, not per
-// iteration); so may the working set when it grows (its reduced G_W, once per round).
+// iteration); so may the working set when it grows (its reduced G_W, once per round),
+// and the operator path's stall fallback (its dense G_CC, once per round).
 
 namespace softdiff::contact {
 
@@ -211,6 +213,7 @@ struct Buffers {
   VecX lambda_kept, sigma_kept;                       // (n) polish rounds
   std::vector<Mode> modes_try, modes_next, modes_kept;  // (nc) polish rounds
   int newton_budget = 0;                              // Newton steps left to the polish rounds
+  int polish_factorizations = 0;                      // of the current solve (NcpResult)
   // working set (working_set_solve()): the reduced problem, (3 nw x 3 nw) and (3 nw)
   std::vector<int> set;          // the working set's contact ids, ascending
   std::vector<char> in_set;      // (nc) membership
@@ -218,6 +221,7 @@ struct Buffers {
   VecX Gw;                       // storage of G_W (column-major, 9 nw^2; grown when a set needs it)
   VecX gw, muw, lw, sw;          // (n), (nc), (n), (n)
   Eigen::CompleteOrthogonalDecomposition<MatX> cod;
+  Eigen::PartialPivLU<MatX> lu;  // the polish's Newton step where J is well conditioned
   // sparse operator (NcpSolver::solve(SparseDelassus&, ...))
   MatX Gs;                       // a dense G_W or G_AA of a small set
   VecX ga, la, sa, mua;          // the active set's problem, (3 na), (na)
@@ -226,12 +230,15 @@ struct Buffers {
   VecX lambda_alt, sigma_alt;    // (n) the polished candidate of a sparse round
   std::vector<Mode> modes_a;
   std::vector<double> gnn;       // (nc) G_NN,i where known (dense G_W), else the power-iteration scale
+  std::vector<int> ids_c;        // the candidate set of the operator's stall fallback, ascending
+  std::vector<char> in_c;        // (nc) its membership
 
   void resize(Eigen::Index n) {
     if (x.size() == n) return;
     muw.resize(n / 3);
     d.resize(n / 3);
     in_set.resize(static_cast<std::size_t>(n / 3));
+    in_c.resize(static_cast<std::size_t>(n / 3));
     for (VecX* v : {&x, &y, &z, &s, &rhs, &x_prev, &y_prev, &power, &d3, &d3_sqrt_inv, &lambda_best, &lambda_p, &sigma_p, &lambda_kept,
                      &sigma_kept, &gw, &lw, &sw, &lambda_alt, &sigma_alt})
       v->resize(n);
@@ -598,6 +605,14 @@ void classify(const Problem& p, const VecCRef& lambda, const VecCRef& sigma, std
   classify_by(p.nc, p.mu, lambda, sigma, [&](int i) { return p.G(3 * i + 2, 3 * i + 2); }, Gmax, modes);
 }
 
+// The polish's Newton step (polish()): LU where J is well conditioned, see there.
+constexpr double polish_lu_rcond = 1e-10;
+// The chord steps of the polish (polish()): reuse J's factorization after a step that
+// cut max |F| by at least this factor; a chord step that fails below polish_chord_floor
+// (relative to the equations' scale) ends the iteration at the rounding floor.
+constexpr double polish_chord_reduction = 100;
+constexpr double polish_chord_floor = 1e-12;
+
 // Polish: Newton on the mode equations F(u) = 0 over the forces u of the active
 // (non-breaking) contacts, breaking forces fixed at 0:
 //   sticking  sigma_i = 0                                              (3 rows of G)
@@ -607,8 +622,10 @@ void classify(const Problem& p, const VecCRef& lambda, const VecCRef& sigma, std
 // decision of the QR is relative). The system is square but may be singular (G
 // rank-deficient: more sticking rows than dofs); the complete orthogonal decomposition
 // gives the least-squares step of minimum norm, i.e. the smallest change of the
-// solver's forces. Sticking and breaking equations are linear: one step is exact;
-// sliding ones converge quadratically from the solver's solution (a few steps).
+// solver's forces; where J is well conditioned (LU's condition estimate) the step is
+// unique and LU computes it at a fraction of the cost. Sticking and breaking equations
+// are linear: one step is exact; sliding ones converge quadratically from the solver's
+// solution (a few steps; near it, chord steps reuse the factorization).
 // The result goes to w.lambda_p / w.sigma_p; returns false if it is not usable.
 bool polish(Buffers& w, const Problem& p, const VecCRef& lambda, const std::vector<Mode>& modes) {
   w.active.clear();
@@ -663,13 +680,39 @@ bool polish(Buffers& w, const Problem& p, const VecCRef& lambda, const std::vect
     return w.F.cwiseAbs().maxCoeff();
   };
   double norm = evaluate(true);
-  for (int newton = 0; newton < 8 && w.newton_budget > 0; ++newton) {
+  // The factorization of J held by w.lu or w.cod (at an earlier iterate), and the factor
+  // by which the last step cut max |F|.
+  bool factored = false, factored_lu = false;
+  double reduction = 0;
+  for (int newton = 0; newton < 8; ++newton) {
     if (!std::isfinite(norm)) return false;
     // Converged to rounding: the equations' own size is ~eps L |lambda|.
-    if (norm <= 1e-15 * std::max(p.vscale, L * w.lambda_p.cwiseAbs().maxCoeff())) break;
-    --w.newton_budget;
-    w.cod.compute(w.J);
-    w.du = w.cod.solve(-w.F);
+    const double rounding = std::max(p.vscale, L * w.lambda_p.cwiseAbs().maxCoeff());
+    if (norm <= 1e-15 * rounding) break;
+    // Near the solution (the last step cut max |F| by polish_chord_reduction or more) J
+    // changes little between steps: the step reuses the last factorization (a chord
+    // step, O(m^2) instead of O(m^3); it converges at the rate |J^-1 (J_old - J)|, ~the
+    // last step's size, which is what the Newton step gains there too).
+    const bool chord = factored && reduction >= polish_chord_reduction;
+    if (!chord) {
+      if (w.newton_budget <= 0) break;
+      --w.newton_budget;
+      // The step: by LU with partial pivoting where J is well conditioned (the solution
+      // is then unique, i.e. the minimum-norm step, at a fraction of the cost: ~2/3 m^3
+      // flops, blocked, against the column-pivoting QR's Householder passes), else by
+      // the complete orthogonal decomposition (the minimum-norm least-squares step).
+      // polish_lu_rcond (1e-10, LU's reciprocal condition estimate) is above the COD's
+      // rank threshold (1e-13): where LU is used the COD would see full rank as well.
+      w.lu.compute(w.J);
+      factored_lu = w.lu.rcond() > polish_lu_rcond;
+      if (!factored_lu) w.cod.compute(w.J);
+      factored = true;
+      ++w.polish_factorizations;
+    }
+    if (factored_lu)
+      w.du = w.lu.solve(-w.F);
+    else
+      w.du = w.cod.solve(-w.F);
     if (!w.du.allFinite()) return false;
     // Backtracking on max |F| (the sliding equations are nonlinear; their Jacobian
     // grows like 1 / ||sigma_T|| at a slowly sliding contact): halve the step until
@@ -685,10 +728,21 @@ bool polish(Buffers& w, const Problem& p, const VecCRef& lambda, const std::vect
       for (int a = 0; a < na; ++a) w.lambda_p.segment<3>(3 * w.active[a]) -= step * w.du.segment<3>(3 * a);
     }
     if (!(next < norm)) {
+      // A chord step that does not decrease |F|: at the rounding floor (within
+      // polish_chord_floor of the equations' scale) the iterate is kept and the
+      // iteration ends; above it, J is factorized at the current iterate and the step
+      // retried (reduction 0 forces the factorization).
+      if (chord) {
+        if (norm <= polish_chord_floor * rounding) break;
+        reduction = 0;
+        continue;
+      }
       for (int a = 0; a < na; ++a) w.lambda_p.segment<3>(3 * w.active[a]) += w.du.segment<3>(3 * a);
       break;
     }
+    const double previous = norm;
     norm = evaluate(true);
+    reduction = norm > 0 ? previous / norm : infinity;
   }
   w.sigma_p.noalias() = p.G * w.lambda_p;
   w.sigma_p += p.g;
@@ -877,6 +931,7 @@ NcpResult NcpSolver::solve(const MatX& G, const VecX& g, const VecX& mu, const N
   if (!work_) work_ = std::make_shared<Workspace>();
   Workspace& w = *work_;
   w.resize(n);
+  w.polish_factorizations = 0;
   const int nc = static_cast<int>(mu.size());
   if (lambda.size() != n || !lambda.allFinite()) lambda.setZero(n);
   sigma.resize(n);
@@ -905,6 +960,7 @@ NcpResult NcpSolver::solve(const MatX& G, const VecX& g, const VecX& mu, const N
     result.working_set_fallback = options.working_set;
   }
   result.converged = result.residuals.max() <= options.tolerance;
+  result.polish_factorizations = w.polish_factorizations;
   count_modes(modes, result);
   return result;
 }
@@ -932,6 +988,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
   if (!work_) work_ = std::make_shared<Workspace>();
   Workspace& w = *work_;
   w.resize(n);
+  w.polish_factorizations = 0;
   const int nc = static_cast<int>(mu.size());
   if (lambda.size() != n || !lambda.allFinite()) lambda.setZero(n);
   sigma.resize(n);
@@ -1011,6 +1068,97 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
   };
 
   int spent = 0;  // iterations before the retry on every contact (which gets a budget of its own)
+  // The stall fallback of a round solved on the operator (the dense path's, on a dense
+  // G_CC): when ADMM stalls and the polish does not reach the tolerance, the contacts C
+  // that may carry force (not breaking at ADMM's iterate, or violating at it; at most
+  // polish_max_active) are solved on their dense G_CC by the dense path's solve_core
+  // (ADMM, the polish, PGS from there, the polish), lambda = 0 outside C, from the
+  // best candidate so far. Contacts outside C that then violate join C and the reduced
+  // problem is solved again (a working set inside W; at most fallback_max_rounds). The
+  // result replaces the candidate in lambda_alt / sigma_alt if its full residuals are
+  // lower. With one rho, ADMM converges on the contacts whose compliance G_ii is near
+  // rho only (a 1e6 mass ratio spreads G_NN over 5e5); PGS's per-contact steps 1 / G_NN
+  // and the polish are invariant to that spread (docs/method.md "Contact at scale").
+  // Returns whether it ran (its iterations go to sub).
+  constexpr int fallback_max_rounds = 4;
+  auto dense_fallback = [&](int nw, Eigen::Index m, bool candidate, NcpResult& sub) {
+    const int budget_left = options.max_iterations - (result.iterations - spent) - sub.iterations;
+    if (budget_left <= 0) return false;
+    std::fill(w.in_c.begin(), w.in_c.end(), 0);
+    // C from the round's state (lw, sw: sw = G_WW lw + g_W, the full sigma on W).
+    const auto gnn = [&](int b) { return w.gnn[w.set[b]] > 0 ? w.gnn[w.set[b]] : Gscale; };
+    classify_by(nw, w.muw.head(nw), w.lw.head(m), w.sw.head(m), gnn, std::max(Gscale, tiny), w.modes_set);
+    int size = 0;
+    for (int b = 0; b < nw; ++b) {
+      const int i = w.set[b];
+      const bool violating =
+          project_cone(-de_saxce(w.sw.segment<3>(3 * b), w.muw[b]), w.muw[b]).norm() > tol * vscale;
+      if (w.modes_set[b] != Mode::breaking || violating || (candidate && w.lambda_alt.segment<3>(3 * i).squaredNorm() > 0)) {
+        w.in_c[i] = 1;
+        ++size;
+      }
+    }
+    if (size == 0 || size > options.polish_max_active) return false;
+    // The start: the candidate if there is one (its residuals are the lower), else the
+    // round's iterate; lambda_p holds it (n).
+    if (candidate) {
+      w.lambda_p = w.lambda_alt;
+    } else {
+      w.lambda_p.setZero(n);
+      for (int b = 0; b < nw; ++b) w.lambda_p.segment<3>(3 * w.set[b]) = w.lw.segment<3>(3 * b);
+    }
+    double best = candidate ? residuals_of(w.lambda_alt, w.sigma_alt, mu, vscale).max() : infinity;
+    NcpOptions inner = options;
+    inner.working_set = false;
+    for (int round = 0; round < fallback_max_rounds; ++round) {
+      w.ids_c.clear();
+      for (int i = 0; i < nc; ++i)
+        if (w.in_c[i]) w.ids_c.push_back(i);
+      const int nc_c = static_cast<int>(w.ids_c.size());
+      if (nc_c > options.polish_max_active) break;
+      const Eigen::Index mc = 3 * static_cast<Eigen::Index>(nc_c);
+      G.restrict_to(w.ids_c);
+      G.dense(w.Gs);
+      w.ga.resize(mc);
+      w.la.resize(mc);
+      w.sa.resize(mc);
+      w.mua.resize(nc_c);
+      for (int a = 0; a < nc_c; ++a) {
+        const int i = w.ids_c[a];
+        w.ga.segment<3>(3 * a) = g.segment<3>(3 * i);
+        w.la.segment<3>(3 * a) = project_cone(w.lambda_p.segment<3>(3 * i), mu[i]);
+        w.mua[a] = mu[i];
+        w.gnn[i] = w.Gs(3 * a + 2, 3 * a + 2);
+        Gscale = std::max(Gscale, w.gnn[i]);
+      }
+      const int left = options.max_iterations - (result.iterations - spent) - sub.iterations;
+      if (left <= 0) break;
+      const Problem pc{w.Gs, w.ga, w.mua, nc_c, vscale, tol, left};
+      const NcpResult q = solve_core(w, pc, inner, w.la, w.sa, w.modes_a);
+      sub.iterations += q.iterations;
+      sub.rho_updates += q.rho_updates;
+      sub.fallback_iterations += q.fallback_iterations;
+      // The full candidate (0 outside C) and its full sigma (sigma_p: scratch, n).
+      w.lambda_p.setZero(n);
+      for (int a = 0; a < nc_c; ++a) w.lambda_p.segment<3>(3 * w.ids_c[a]) = w.la.segment<3>(3 * a);
+      full_sigma(w.ids_c, w.lambda_p, w.sigma_p);
+      const double r = residuals_of(w.lambda_p, w.sigma_p, mu, vscale).max();
+      if (r < best) {
+        best = r;
+        w.lambda_alt = w.lambda_p;
+        w.sigma_alt = w.sigma_p;
+      }
+      if (r <= tol || q.residuals.max() > tol) break;  // solved, or the reduced solve failed
+      bool grown = false;
+      for (int i = 0; i < nc; ++i)
+        if (!w.in_c[i] && project_cone(-de_saxce(w.sigma_p.segment<3>(3 * i), mu[i]), mu[i]).norm() > tol * vscale)
+          w.in_c[i] = grown = true;
+      if (!grown) break;
+    }
+    G.restrict_to(w.set);
+    return std::isfinite(best);
+  };
+
   for (;;) {
     w.set.clear();
     for (int i = 0; i < nc; ++i)
@@ -1063,6 +1211,10 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
         polish_candidate = polish_sparse(nw, m);
         if (!stalled || sub.iterations >= budget || part.iterations == 0) break;
         if (polish_candidate && residuals_of(w.lambda_alt, w.sigma_alt, mu, vscale).max() <= tol) break;
+        if (options.admm_fallback && attempt == 0 && dense_fallback(nw, m, polish_candidate, sub)) {
+          polish_candidate = true;
+          break;
+        }
       }
     }
     result.iterations += sub.iterations;
@@ -1102,6 +1254,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
   const auto gnn = [&](int i) { return w.gnn[i] > 0 ? w.gnn[i] : Gscale; };
   classify_by(nc, mu, lambda, sigma, gnn, std::max(Gscale, tiny), modes);
   result.converged = result.residuals.max() <= tol && !G.failed();
+  result.polish_factorizations = w.polish_factorizations;
   count_modes(modes, result);
   return result;
 }

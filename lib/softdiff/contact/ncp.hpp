@@ -82,6 +82,7 @@ struct NcpResult {
   int fallback_iterations = 0;  // ADMM: PGS sweeps after ADMM stalled (included in iterations)
   bool sparse = false;          // solved on the sparse operator (NcpSolver::solve(SparseDelassus&, ...))
   int sparse_rounds = 0;        // sparse: reduced problems solved by ADMM on the operator (the others on a dense G_W)
+  int polish_factorizations = 0;  // O(na^3) factorizations of the polish's Newton matrix (LU or COD)
 };
 
 NcpResiduals ncp_residuals(const MatX& G, const VecX& g, const VecX& mu, const VecX& lambda);
@@ -101,8 +102,10 @@ class NcpSolver {
   // working set as above, each reduced problem on its dense G_W when it has at most
   // options.dense_max_contacts contacts, else ADMM on the operator (PGS needs G's
   // columns: solver pgs runs ADMM there), polished on the dense G_AA of its active
-  // contacts when they are at most polish_max_active. G is left restricted to some
-  // subset (callers restrict it again).
+  // contacts when they are at most polish_max_active; when that ADMM stalls and the
+  // polish misses the tolerance, the dense path's solve (PGS included) on the dense
+  // G_CC of the contacts that may carry force, if at most polish_max_active (ncp.cpp).
+  // G is left restricted to some subset (callers restrict it again).
   NcpResult solve(SparseDelassus& G, const VecX& g, const VecX& mu, const NcpOptions& options, VecX& lambda,
                   VecX& sigma, std::vector<Mode>& modes);
 
