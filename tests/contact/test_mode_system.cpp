@@ -12,7 +12,8 @@
 // range(J^T), so ||x - x*|| <= ||J^T s|| / s_min^2 <= 1e-13 kappa^2 ||x*|| (as
 // ||J^T r|| = ||J^T J x*|| <= s_max^2 ||x*||) or <= 1e-14 kappa^2 ||r|| / s_max; plus
 // rounding: eps kappa for the dense decomposition and eps kappa^2 for the normal
-// equations that CGLS works on. kappa = s_max / s_min over the singular values of the
+// equations that CGLS works on. All sticking (J = G_AA), CG first: it stops at
+// ||r - J x|| <= 1e-12 ||r||, so ||x - x*|| <= 1e-12 kappa ||x*||. kappa = s_max / s_min over the singular values of the
 // dense J above 1e-12 s_max (the decomposition's rank decision); a factor 10 of margin.
 #include <softdiff/contact/mode_system.hpp>
 #include <softdiff/contact/ncp_derivatives.hpp>
@@ -82,7 +83,8 @@ double bound(const MatX& J, const VecX& x, const VecX& r) {
   for (Eigen::Index k = 0; k < s.size(); ++k)
     if (s[k] > 1e-12 * s[0]) s_min = s[k];
   const double kappa = s[0] / s_min, eps = std::numeric_limits<double>::epsilon();
-  return 10 * ((1e-13 + eps) * kappa * kappa * x.norm() + 1e-14 * kappa * kappa * r.norm() / s[0] + eps * kappa * x.norm());
+  return 10 * ((1e-13 + eps) * kappa * kappa * x.norm() + 1e-14 * kappa * kappa * r.norm() / s[0] +
+                (1e-12 + eps) * kappa * x.norm());
 }
 
 void check(const std::vector<Mode>& modes, bool duplicate, double mu, const char* name) {

@@ -36,12 +36,53 @@ bool OperatorModeSystem::apply(const VecX& x, VecX& out, bool transposed) const 
   return true;
 }
 
+bool OperatorModeSystem::symmetric() const {
+  for (std::size_t a = 0; a < S_.size(); ++a)
+    if (!S_[a].isIdentity(0) || !T_[a].isZero(0)) return false;
+  return true;
+}
+
+bool OperatorModeSystem::solve_cg(const VecX& r, VecX& x) const {
+  // Conjugate gradients on G_AA x = r from x = 0 (G_AA symmetric positive semi-definite):
+  // the iterates lie in span{r, G r, ...}, so for r in range(G_AA) the limit is G_AA^+ r.
+  // Converged when ||r - G x|| <= cg_tolerance ||r||; otherwise (r has a component
+  // outside the range larger than that: redundant contacts) false, and x is dropped.
+  const Eigen::Index m = r.size();
+  s_ = r;
+  p_ = r;
+  double rr = r.squaredNorm();
+  const double stop = cg_tolerance * cg_tolerance * rr;
+  const int max_it = static_cast<int>(std::min<Eigen::Index>(2 * m + 50, 2000));
+  for (int it = 1; it <= max_it; ++it) {
+    ++solves_;
+    if (!G_(p_, t_)) return false;
+    const double pt = p_.dot(t_);
+    if (!(pt > 0)) return false;  // a direction in the null space: not consistent, or rounding
+    const double alpha = rr / pt;
+    x += alpha * p_;
+    s_ -= alpha * t_;
+    const double rr_new = s_.squaredNorm();
+    last_iterations_ = it;
+    ++total_iterations_;
+    if (!std::isfinite(rr_new)) return false;
+    if (rr_new <= stop) return true;
+    p_ = s_ + (rr_new / rr) * p_;
+    rr = rr_new;
+  }
+  (void)m;
+  return false;
+}
+
 bool OperatorModeSystem::solve(const VecX& r, VecX& x, bool transposed) const {
   const Eigen::Index m = size();
   SOFTDIFF_DEMAND(r.size() == m, "OperatorModeSystem::solve: expected " + std::to_string(m) + " rows");
   x.setZero(m);
   last_iterations_ = 0;
   if (m == 0) return true;
+  if (symmetric()) {
+    if (solve_cg(r, x)) return true;
+    x.setZero(m);  // not consistent: the least-squares iteration below
+  }
   // CGLS for min ||A x - r||, A = J (or J^T), from x = 0.
   const bool tr = transposed;
   s_ = r;

@@ -15,6 +15,11 @@
 // decomposition's answer, also for redundant contacts (J singular) and inconsistent
 // right-hand sides, with no rank decision. The transposed system (the adjoint) is the
 // same iteration with J and J^T exchanged: (J^T)^+ = (J^+)^T.
+// Every active contact sticking (S = I, T = 0: J = G_AA, symmetric positive
+// semi-definite): conjugate gradients first (one product per iteration and about
+// sqrt(kappa) iterations where CGLS needs two and about kappa), whose iterates stay in
+// range(G_AA) and so converge to G_AA^+ r when the system is consistent; when it is not
+// (redundant contacts and r outside the range: CG does not reach its tolerance), CGLS.
 // Memory: a few vectors of 3 na and those of the solves (3n); never (3 na)^2.
 #include <softdiff/core/types.hpp>
 
@@ -41,6 +46,9 @@ class OperatorModeSystem {
   // inconsistent system, ||J||_est the largest ||J p|| / ||p|| seen).
   double tolerance = 1e-13;
   int max_iterations = 0;  // 0: 20 (3 na) + 200
+  // The symmetric case's CG: ||r - G_AA x|| <= cg_tolerance ||r|| (so ||x - x*|| <=
+  // cg_tolerance kappa ||x*||); at most min(2 (3 na) + 50, 2000) iterations.
+  double cg_tolerance = 1e-12;
 
   int last_iterations() const { return last_iterations_; }
   int total_iterations() const { return total_iterations_; }
@@ -48,6 +56,8 @@ class OperatorModeSystem {
 
  private:
   bool apply(const VecX& x, VecX& out, bool transposed) const;  // J x or J^T x
+  bool symmetric() const;                                       // S = I, T = 0: J = G_AA
+  bool solve_cg(const VecX& r, VecX& x) const;
 
   Apply G_;
   std::vector<Mat3> S_, T_;
