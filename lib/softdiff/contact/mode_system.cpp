@@ -91,7 +91,7 @@ bool OperatorModeSystem::solve(const VecX& r, VecX& x, bool transposed) const {
   double gamma = q_.squaredNorm();
   const double gamma0 = gamma;
   if (!(gamma > 0)) return std::isfinite(gamma);  // A^T r = 0: x = 0 is the answer
-  const int max_it = max_iterations > 0 ? max_iterations : static_cast<int>(20 * m + 200);
+  const int max_it = max_iterations > 0 ? max_iterations : static_cast<int>(std::min<Eigen::Index>(20 * m + 200, 3000));
   double norm_est = 0;
   for (int it = 1; it <= max_it; ++it) {
     if (!apply(p_, t_, tr)) return false;  // t = A p

@@ -925,6 +925,13 @@ namespace {
 // and polish_rounds(); L (the force rows' scale) is the largest known G_NN or the power
 // iteration's eigenvalue instead of max diag G (a row scale: the same Newton step for a
 // consistent system). Scratch is allocated per call (once per round, not per iteration).
+// Unpreconditioned, its CG / CGLS need about kappa(J) products per Newton step: on the
+// slab's 4337 contacts each step ran into CGLS's cap (docs/method.md "The mode-fixed
+// system at scale"). Until it is preconditioned it runs only on sets of at most this
+// many active contacts (i.e. where polish_max_active is set lower: the tests); larger
+// ones keep the solver's tolerance, as before.
+constexpr int polish_operator_max_active = 64;
+
 struct OperatorPolish {
   std::vector<int> act;                           // positions in A of the non-breaking contacts
   VecX F, du, full, Gfull, lam, sig, lam_kept, sig_kept;
@@ -1130,7 +1137,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
         w.ids_a.push_back(w.set[b]);
       }
     const int na = static_cast<int>(w.set_a.size());
-    if (na == 0) return false;
+    if (na == 0 || (na > options.polish_max_active && na > polish_operator_max_active)) return false;
     const Eigen::Index ma = 3 * static_cast<Eigen::Index>(na);
     G.restrict_to(w.ids_a);
     w.ga.resize(ma);
