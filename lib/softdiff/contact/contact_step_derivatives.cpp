@@ -21,6 +21,14 @@ Eigen::Matrix<double, 12, 1> gather_contact(const collision::Contact& c, const V
 }
 }  // namespace
 
+// Unpreconditioned, the operator's CG / CGLS need about kappa(J) products: on the
+// slab's 4337 active contacts (configs/slab_on_plane.yaml) CGLS did not converge in
+// its 3000 iterations (docs/method.md "The mode-fixed system at scale"). Until it is
+// preconditioned the operator path is taken only for sets of at most this many active
+// contacts (i.e. where derivative_dense_max_active is set lower: the tests), and
+// larger ones keep the dense G_AA, as before.
+constexpr int operator_derivative_max_active = 64;
+
 bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, const VecX& x,
                                      integrator::LinearSolver& solver, double h, bool use_record_G,
                                      const std::vector<Mode>* modes_in, const VecX* sigma_in) {
@@ -58,7 +66,7 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
       if (modes[static_cast<std::size_t>(i)] != Mode::breaking) active_ids_.push_back(i);
     select_contact_columns(cd.Ht, active_ids_, Ht_active_);
     const int na = static_cast<int>(active_ids_.size());
-    if (na > model.contact.ncp.derivative_dense_max_active) {
+    if (na > model.contact.ncp.derivative_dense_max_active && na <= operator_derivative_max_active) {
       // Beyond the crossover: the mode-fixed system on the operator (mode_system.hpp),
       // G_AA y = h H_A A^{-1} H_A^T y, one solve with `solver` per product (the caller
       // keeps its factorization until the last jvp / vjp). L = max diag G_AA as on the

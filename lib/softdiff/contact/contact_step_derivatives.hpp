@@ -11,8 +11,9 @@
 //    dense G or, where the record has none (sparse backend) or the caller asks for
 //    another A, on G_AA = h H_A A^{-1} H_A^T of the active contacts (one congruence
 //    with the given factorization), or, beyond ncp.derivative_dense_max_active active
-//    contacts, on the operator y -> G_AA y (mode_system.hpp: never a dense G_AA; the
-//    jvp / vjp then solve with `solver`, which must keep its factorization);
+//    contacts (and at most 64, for now: contact_step_derivatives.cpp), on the operator
+//    y -> G_AA y (mode_system.hpp: never a dense G_AA; the jvp / vjp then solve with
+//    `solver`, which must keep its factorization);
 //  - the products of the geometry terms: h dH[dx]^T lambda (the force), dH[dx] u +
 //    (0, 0, dphi[dx] / h) (sigma at fixed lambda) and their transposes.
 #include <softdiff/collision/contact_derivatives.hpp>
