@@ -42,6 +42,9 @@ struct Params {
   double young = 5e4, poisson = 0.3, density = 1000;
   double mu = -1;  // < 0: the case's own
   contact::NcpBackend backend = contact::NcpBackend::automatic;  // sparse: never a dense G (dense_max_contacts 0)
+  // The mode-fixed system on the operator (mode_system.hpp): the polish and the
+  // derivative never form G_AA (polish_max_active and derivative_dense_max_active 0).
+  bool operator_mode = false;
   // Newton (newton_iterations > 1, docs/method.md "Newton iterations with contact"):
   // a larger step and a cube compressed by `squeeze` of its height (the Neo-Hookean
   // law's nonlinear range), sliding faster (`speed`), so that the converged step
@@ -93,6 +96,10 @@ Model build(Case c, const Params& p) {
   cs.ncp.working_set = false;
   cs.ncp.backend = p.backend;
   if (p.backend == contact::NcpBackend::sparse) cs.ncp.dense_max_contacts = 0;
+  if (p.operator_mode) {
+    cs.ncp.polish_max_active = 0;
+    cs.ncp.derivative_dense_max_active = 0;
+  }
   std::vector<collision::Obstacle> obstacles;
   if (c == Case::sphere) {
     collision::Obstacle s;
@@ -206,6 +213,8 @@ void check(Case c, const Params& p = Params{}) {
   ASSERT_GT(cd.contacts.size(), 0) << name_of(c);
   if (p.newton > 1) expect_newton_matters(model, data, in, out, name_of(c));
   ASSERT_EQ(cd.result.sparse, p.backend == contact::NcpBackend::sparse) << name_of(c);
+  // The operator's polish ran (and reached the tolerance: converged is checked by step()).
+  if (p.operator_mode) EXPECT_GT(cd.result.operator_polishes, 0) << name_of(c);
   int counts[3] = {0, 0, 0};
   for (auto m : cd.modes) ++counts[static_cast<int>(m)];
   // The case holds what it says.
@@ -272,6 +281,8 @@ void check(Case c, const Params& p = Params{}) {
     const auto cmp = test::compare(col, fd);
     EXPECT_LT(cmp.rel_error, 1e-6) << name_of(c) << " parameter " << j << ": " << cmp.str();
   }
+  // The path that the derivative took.
+  EXPECT_EQ(d.ncp_derivative().on_operator(), p.operator_mode) << name_of(c);
   // Reverse mode.
   std::mt19937 rng(5);
   std::uniform_real_distribution<double> u(-1, 1);
@@ -314,6 +325,24 @@ TEST(StepDerivativesContact, SparseBackend) {
   Params p;
   p.backend = contact::NcpBackend::sparse;
   for (const Case c : {Case::sticking, Case::sliding, Case::tipped, Case::frictionless}) check(c, p);
+}
+// The mode-fixed system on the operator (docs/method.md "The mode-fixed system at
+// scale"): the polish's Newton steps and the derivative's jvp / vjp by CGLS on
+// J = S G_AA + T applied with the step's factorization, forced on these small problems
+// by crossovers of 0; the same differences and tolerances as the dense path.
+TEST(StepDerivativesContact, OperatorModeSystem) {
+  Params p;
+  p.backend = contact::NcpBackend::sparse;
+  p.operator_mode = true;
+  for (const Case c : {Case::sticking, Case::sliding, Case::tipped, Case::sphere, Case::frictionless}) check(c, p);
+}
+TEST(StepDerivativesContact, NewtonOperatorModeSystem) {
+  for (const Case c : {Case::sticking, Case::sliding}) {
+    Params p = newton_params();
+    p.backend = contact::NcpBackend::sparse;
+    p.operator_mode = true;
+    check(c, p);
+  }
 }
 
 }  // namespace

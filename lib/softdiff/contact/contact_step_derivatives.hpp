@@ -10,7 +10,10 @@
 //  - the NCP derivative with the modes fixed (ncp_derivatives.hpp), on the record's
 //    dense G or, where the record has none (sparse backend) or the caller asks for
 //    another A, on G_AA = h H_A A^{-1} H_A^T of the active contacts (one congruence
-//    with the given factorization);
+//    with the given factorization), or, beyond ncp.derivative_dense_max_active active
+//    contacts (and at most 64, for now: contact_step_derivatives.cpp), on the operator
+//    y -> G_AA y (mode_system.hpp: never a dense G_AA; the jvp / vjp then solve with
+//    `solver`, which must keep its factorization);
 //  - the products of the geometry terms: h dH[dx]^T lambda (the force), dH[dx] u +
 //    (0, 0, dphi[dx] / h) (sigma at fixed lambda) and their transposes.
 #include <softdiff/collision/contact_derivatives.hpp>
@@ -59,7 +62,9 @@ class ContactStageDerivative {
   NcpDerivative ncp_;
   std::vector<int> active_ids_;  // G_AA path: the active contacts,
   SparseMatrix Ht_active_;       //   their columns of H_c^T
-  MatX G_active_;                //   and G_AA
+  MatX G_active_;                //   and G_AA (dense path; a batch's block on the operator path)
+  SparseMatrix Ht_batch_;        // operator path: a batch of Ht_active_'s columns (the scale L)
+  VecX op_u_, op_w_;             // operator path: (3n) scratch of the products with G_AA
   int nondifferentiable_ = 0, smoothed_ = 0;
 };
 

@@ -1,4 +1,5 @@
 #include <softdiff/core/avx512_gcc12.hpp>  // first: see there
+#include <softdiff/contact/mode_system.hpp>
 #include <softdiff/contact/ncp.hpp>
 #include <softdiff/contact/sparse_delassus.hpp>
 
@@ -969,12 +970,167 @@ NcpResult NcpSolver::solve(const MatX& G, const VecX& g, const VecX& mu, const N
 
 namespace softdiff::contact {
 
+namespace {
+
+// The polish on the operator (docs/method.md "The mode-fixed system at scale"): the
+// Newton steps of polish() with J = S G_BB + T applied, never formed (B: the
+// non-breaking contacts of the modes tried, within the set A that G is restricted
+// to), each step the minimum-norm least-squares solution of J du = -F by CGLS
+// (mode_system.hpp: the complete orthogonal decomposition's answer without a rank
+// decision). F, the backtracking on max |F| and the mode rounds are those of polish()
+// and polish_rounds(); L (the force rows' scale) is the largest known G_NN or the power
+// iteration's eigenvalue instead of max diag G (a row scale: the same Newton step for a
+// consistent system). Scratch is allocated per call (once per round, not per iteration).
+// Unpreconditioned, its CG / CGLS need about kappa(J) products per Newton step: on the
+// slab's 4337 contacts each step ran into CGLS's cap (docs/method.md "The mode-fixed
+// system at scale"). Until it is preconditioned it runs only on sets of at most this
+// many active contacts (i.e. where polish_max_active is set lower: the tests); larger
+// ones keep the solver's tolerance, as before.
+constexpr int polish_operator_max_active = 64;
+
+struct OperatorPolish {
+  std::vector<int> act;                           // positions in A of the non-breaking contacts
+  VecX F, du, full, Gfull, lam, sig, lam_kept, sig_kept;
+  std::vector<Mode> modes_try, modes_next, modes_kept;
+  std::vector<Mat3> S, T;
+  OperatorModeSystem sys;
+  int newton_budget = 0;
+  int newton_steps = 0, cgls_iterations = 0;
+};
+
+bool polish_operator(OperatorPolish& o, SparseDelassus& G, const VecX& g, const VecX& mu, double L, double vscale,
+                     const VecX& lambda, const std::vector<Mode>& modes) {
+  const int nA = static_cast<int>(mu.size());
+  o.act.clear();
+  for (int i = 0; i < nA; ++i)
+    if (modes[i] != Mode::breaking) o.act.push_back(i);
+  const int na = static_cast<int>(o.act.size());
+  o.lam = lambda;
+  for (int i = 0; i < nA; ++i)
+    if (modes[i] == Mode::breaking) o.lam.segment<3>(3 * i).setZero();
+  o.sig.resize(3 * nA);
+  auto sigma_of = [&](const VecX& lam) {
+    const bool ok = G.apply(lam, o.sig);
+    o.sig += g;
+    return ok;
+  };
+  if (na == 0) {
+    o.sig = g;
+    return true;
+  }
+  o.F.resize(3 * na);
+  o.S.resize(static_cast<std::size_t>(na));
+  o.T.resize(static_cast<std::size_t>(na));
+  o.full.setZero(3 * nA);
+  o.Gfull.resize(3 * nA);
+  // F (and S, T if asked) of the mode equations at o.lam; returns max |F| (inf if a
+  // solve failed).
+  auto evaluate = [&](bool jacobian) {
+    if (!sigma_of(o.lam)) return infinity;
+    for (int a = 0; a < na; ++a) {
+      const int i = o.act[a];
+      if (jacobian) {
+        o.S[a].setIdentity();
+        o.T[a].setZero();
+      }
+      if (modes[i] == Mode::sticking) {
+        o.F.segment<3>(3 * a) = o.sig.segment<3>(3 * i);
+        continue;
+      }
+      o.F[3 * a + 2] = o.sig[3 * i + 2];
+      const double m = mu[i], lN = o.lam[3 * i + 2];
+      const Eigen::Vector2d sT = o.sig.segment<2>(3 * i);
+      const double sn = sT.norm();
+      const bool has_direction = m > 0 && sn > 0;
+      const Eigen::Vector2d t = has_direction ? Eigen::Vector2d(sT / sn) : Eigen::Vector2d::Zero();
+      o.F.segment<2>(3 * a) = L * (o.lam.segment<2>(3 * i) + m * lN * t);
+      if (!jacobian) continue;
+      o.S[a].topRows<2>().setZero();
+      if (has_direction)
+        o.S[a].topLeftCorner<2, 2>() = (L * m * lN / sn) * (Eigen::Matrix2d::Identity() - t * t.transpose());
+      o.T[a].topLeftCorner<2, 2>() = L * Eigen::Matrix2d::Identity();
+      o.T[a].block<2, 1>(0, 2) = L * m * t;
+    }
+    return o.F.cwiseAbs().maxCoeff();
+  };
+  // G_BB y: y scattered on A (zero on its breaking contacts), one product, gathered.
+  auto apply_active = [&](const VecX& y, VecX& out) {
+    for (int a = 0; a < na; ++a) o.full.segment<3>(3 * o.act[a]) = y.segment<3>(3 * a);
+    const bool ok = G.apply(o.full, o.Gfull);
+    out.resize(3 * na);
+    for (int a = 0; a < na; ++a) out.segment<3>(3 * a) = o.Gfull.segment<3>(3 * o.act[a]);
+    return ok;
+  };
+  double norm = evaluate(true);
+  for (int newton = 0; newton < 8 && o.newton_budget > 0; ++newton) {
+    if (!std::isfinite(norm)) return false;
+    if (norm <= 1e-15 * std::max(vscale, L * o.lam.cwiseAbs().maxCoeff())) break;
+    --o.newton_budget;
+    ++o.newton_steps;
+    o.sys.set(apply_active, o.S, o.T);
+    o.F = -o.F;
+    o.sys.solve(o.F, o.du);  // not converged within its budget: the step is still tried
+    o.F = -o.F;
+    o.cgls_iterations += o.sys.last_iterations();
+    if (!o.du.allFinite()) return false;
+    double step = 1, next = infinity;
+    for (int half = 0; half <= 10; ++half, step *= 0.5) {
+      for (int a = 0; a < na; ++a) o.lam.segment<3>(3 * o.act[a]) += step * o.du.segment<3>(3 * a);
+      next = evaluate(false);
+      if (next < norm) break;
+      for (int a = 0; a < na; ++a) o.lam.segment<3>(3 * o.act[a]) -= step * o.du.segment<3>(3 * a);
+    }
+    if (!(next < norm)) {
+      for (int a = 0; a < na; ++a) o.lam.segment<3>(3 * o.act[a]) += o.du.segment<3>(3 * a);
+      break;
+    }
+    norm = evaluate(true);
+  }
+  if (!sigma_of(o.lam)) return false;
+  return o.lam.allFinite() && o.sig.allFinite();
+}
+
+// polish_rounds() on the operator: the problem on the set A (g, mu, lambda, sigma of
+// A; G restricted to A); lambda, sigma, modes and residuals replaced when a polished
+// solution is kept (its residuals below the given ones).
+bool polish_rounds_operator(OperatorPolish& o, SparseDelassus& G, const VecX& g, const VecX& mu, double L,
+                            double vscale, double tol, VecX& lambda, VecX& sigma, std::vector<Mode>& modes,
+                            NcpResiduals& residuals) {
+  o.modes_try = modes;
+  o.newton_budget = polish_max_newton;
+  bool kept = false;
+  const int nA = static_cast<int>(mu.size());
+  for (int round = 0; round < polish_max_rounds; ++round) {
+    if (!polish_operator(o, G, g, mu, L, vscale, lambda, o.modes_try)) break;
+    const NcpResiduals r = residuals_of(o.lam, o.sig, mu, vscale);
+    if (r.max() < residuals.max() || (!kept && r.max() <= residuals.max())) {
+      o.lam_kept = o.lam;
+      o.sig_kept = o.sig;
+      o.modes_kept = o.modes_try;
+      residuals = r;
+      kept = true;
+    }
+    if (r.max() <= tol) break;
+    classify_by(nA, mu, o.lam, o.sig, [&](int) { return L; }, L, o.modes_next);
+    if (o.modes_next == o.modes_try) break;
+    std::swap(o.modes_next, o.modes_try);
+  }
+  if (kept) {
+    lambda = o.lam_kept;
+    sigma = o.sig_kept;
+    modes = o.modes_kept;
+  }
+  return kept;
+}
+
+}  // namespace
+
 // The sparse path (ncp.hpp; docs/method.md "Contact at scale"). The working set of
 // working_set_solve() with G as an operator: the full sigma = G_:W lambda_W + g is one
 // solve, so screening costs no dense G. Each reduced problem: on its dense G_W (at most
 // dense_max_contacts contacts: the dense path's solve_core, ADMM or PGS, then the
-// polish), or by ADMM on the operator; then, if its active contacts are at most
-// polish_max_active, the polish on their dense G_AA (a candidate, kept if the full
+// polish), or by ADMM on the operator; then the polish on their dense G_AA if its
+// active contacts are at most polish_max_active, else on the operator (a candidate, kept if the full
 // residuals are lower). A reduced solve that fails (or exhausts its budget) before the
 // set covers every contact is retried once on all of them. Modes are classified with
 // rho_i = 1 / G_NN,i where a dense G_W gave it, else 1 / L (L the power iteration's
@@ -1024,7 +1180,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
 
   // The polish of a round solved on the operator (lw, sw over the set W of nw
   // contacts): on the dense G_AA of its active contacts, if they are at most
-  // polish_max_active. The candidate (the polished forces on A, 0 elsewhere) goes to
+  // polish_max_active, else on the operator (polish_rounds_operator). The candidate (the polished forces on A, 0 elsewhere) goes to
   // lambda_alt, with its full sigma in sigma_alt; returns whether there is one.
   auto polish_sparse = [&](int nw, Eigen::Index m) {
     if (!options.polish) return false;
@@ -1038,10 +1194,9 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
         w.ids_a.push_back(w.set[b]);
       }
     const int na = static_cast<int>(w.set_a.size());
-    if (na == 0 || na > options.polish_max_active) return false;
+    if (na == 0 || (na > options.polish_max_active && na > polish_operator_max_active)) return false;
     const Eigen::Index ma = 3 * static_cast<Eigen::Index>(na);
     G.restrict_to(w.ids_a);
-    G.dense(w.Gs);
     w.ga.resize(ma);
     w.la.resize(ma);
     w.sa.resize(ma);
@@ -1051,17 +1206,32 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
       w.la.segment<3>(3 * a) = w.lw.segment<3>(3 * w.set_a[a]);
       w.mua[a] = w.muw[w.set_a[a]];
     }
-    w.sa.noalias() = w.Gs * w.la;
-    w.sa += w.ga;
-    const Problem pa{w.Gs, w.ga, w.mua, na, vscale, tol, 0};
-    NcpResiduals ra = residuals_of(w.la, w.sa, w.mua, vscale);
-    classify(pa, w.la, w.sa, w.modes_a);
     bool candidate = false;
-    if (polish_rounds(w, pa, w.la, w.sa, w.modes_a, ra)) {
+    if (na <= options.polish_max_active) {
+      G.dense(w.Gs);
+      w.sa.noalias() = w.Gs * w.la;
+      w.sa += w.ga;
+      const Problem pa{w.Gs, w.ga, w.mua, na, vscale, tol, 0};
+      NcpResiduals ra = residuals_of(w.la, w.sa, w.mua, vscale);
+      classify(pa, w.la, w.sa, w.modes_a);
+      candidate = polish_rounds(w, pa, w.la, w.sa, w.modes_a, ra);
+    } else {
+      // Beyond polish_max_active: the polish on the operator (never a dense G_AA).
+      ++result.operator_polishes;
+      const double L = std::max(Gscale, tiny);
+      G.apply(w.la, w.sa);
+      w.sa += w.ga;
+      NcpResiduals ra = residuals_of(w.la, w.sa, w.mua, vscale);
+      classify_by(na, w.mua, w.la, w.sa, [&](int) { return L; }, L, w.modes_a);
+      OperatorPolish o;
+      candidate = polish_rounds_operator(o, G, w.ga, w.mua, L, vscale, tol, w.la, w.sa, w.modes_a, ra);
+      result.operator_polish_newton += o.newton_steps;
+      result.operator_polish_cgls += o.cgls_iterations;
+    }
+    if (candidate) {
       w.lambda_alt.setZero(n);
       for (int a = 0; a < na; ++a) w.lambda_alt.segment<3>(3 * w.ids_a[a]) = w.la.segment<3>(3 * a);
       full_sigma(w.ids_a, w.lambda_alt, w.sigma_alt);
-      candidate = true;
     }
     G.restrict_to(w.set);
     return candidate;

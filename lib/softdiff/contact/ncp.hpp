@@ -50,9 +50,14 @@ struct NcpOptions {
   // sparse_delassus.hpp.
   bool admm_scaling = false;
   // The polish factorizes a dense (3 na x 3 na) system over the na non-breaking
-  // contacts (a few times): beyond this many it is skipped (O(na^3) would exceed the
-  // rest of the step) and the solver's tolerance stands.
+  // contacts (a few times). Beyond this many: on the dense path it is skipped (O(na^3)
+  // would exceed the rest of the step) and the solver's tolerance stands; on the sparse
+  // operator it runs on the operator (mode_system.hpp, never a dense G_AA).
   int polish_max_active = 400;
+  // The implicit derivative's mode-fixed system (ncp_derivatives.hpp) where no dense G
+  // exists: on the dense G_AA of the active contacts up to this many of them, on the
+  // operator beyond (mode_system.hpp; docs/method.md "The mode-fixed system at scale").
+  int derivative_dense_max_active = 400;
   NcpBackend backend = NcpBackend::automatic;
   // The crossover (measured, docs/method.md "Contact at scale"): the dense G for up to
   // this many contacts (automatic backend); on the sparse path, a working set of at
@@ -83,6 +88,9 @@ struct NcpResult {
   bool sparse = false;          // solved on the sparse operator (NcpSolver::solve(SparseDelassus&, ...))
   int sparse_rounds = 0;        // sparse: reduced problems solved by ADMM on the operator (the others on a dense G_W)
   int polish_factorizations = 0;  // O(na^3) factorizations of the polish's Newton matrix (LU or COD)
+  // sparse: polishes on the operator (more than polish_max_active active contacts), their
+  // Newton steps and CGLS iterations (two solves with the step's factorization each)
+  int operator_polishes = 0, operator_polish_newton = 0, operator_polish_cgls = 0;
 };
 
 NcpResiduals ncp_residuals(const MatX& G, const VecX& g, const VecX& mu, const VecX& lambda);

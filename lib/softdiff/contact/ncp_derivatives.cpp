@@ -5,7 +5,9 @@
 
 #include <Eigen/QR>
 #include <algorithm>
+#include <cmath>
 #include <string>
+#include <utility>
 
 namespace softdiff::contact {
 
@@ -39,6 +41,49 @@ void NcpDerivative::set_active(const VecX& mu, const VecX& lambda, const VecX& s
     if (modes[i] != Mode::breaking) active_.push_back(i);
 }
 
+void NcpDerivative::compute_operator(OperatorModeSystem::Apply G_AA, double L, const VecX& mu, const VecX& lambda,
+                                     const VecX& sigma, const std::vector<Mode>& modes) {
+  set_active(mu, lambda, sigma, modes);
+  SOFTDIFF_DEMAND(L > 0 && std::isfinite(L), "NcpDerivative::compute_operator: the scale L must be positive");
+  const int na = static_cast<int>(active_.size());
+  degenerate_ = 0;
+  rank_deficiency_ = 0;
+  cholesky_ = false;
+  operator_ = true;
+  J_.resize(0, 0);
+  R_.assign(static_cast<std::size_t>(na), Mat3::Zero());
+  D_.assign(static_cast<std::size_t>(na), Vec3::Zero());
+  std::vector<Mat3> T(static_cast<std::size_t>(na));
+  for (int a = 0; a < na; ++a)
+    if (mode_blocks(mu, lambda, sigma, modes, L, a, T[a])) ++degenerate_;
+  op_.set(std::move(G_AA), R_, std::move(T));  // S = R
+}
+
+bool NcpDerivative::mode_blocks(const VecX& mu, const VecX& lambda, const VecX& sigma, const std::vector<Mode>& modes,
+                                double L, int a, Mat3& T) {
+  const int i = active_[a];
+  R_[a].setIdentity();
+  D_[a].setZero();
+  T.setZero();
+  if (modes[i] == Mode::sticking) return false;
+  // Sliding: the normal row stays; the tangential rows are those of
+  // L (lambda_T + mu lambda_N t(sigma_T)).
+  const double mui = mu[i], lN = lambda[3 * i + 2];
+  const Eigen::Vector2d sT = sigma.segment<2>(3 * i);
+  const double sn = sT.norm();
+  R_[a].topRows<2>().setZero();
+  T.topLeftCorner<2, 2>() = L * Eigen::Matrix2d::Identity();
+  if (mui > 0 && sn > 0) {
+    const Eigen::Vector2d t = sT / sn;
+    const Eigen::Matrix2d P = (mui * lN / sn) * (Eigen::Matrix2d::Identity() - t * t.transpose());
+    R_[a].topLeftCorner<2, 2>() = L * P;
+    T.block<2, 1>(0, 2) = L * mui * t;
+    D_[a].head<2>() = L * lN * t;
+    return false;
+  }
+  return mui > 0;  // no sliding direction: lambda_T held
+}
+
 template <typename Block>
 void NcpDerivative::assemble(const VecX& mu, const VecX& lambda, const VecX& sigma, const std::vector<Mode>& modes,
                              double L, const Block& G_ab) {
@@ -46,36 +91,28 @@ void NcpDerivative::assemble(const VecX& mu, const VecX& lambda, const VecX& sig
   degenerate_ = 0;
   rank_deficiency_ = 0;
   cholesky_ = false;
-  R_ = MatX::Zero(m, 3 * nc_);
-  D_ = MatX::Zero(m, nc_);
+  operator_ = false;
+  R_.assign(static_cast<std::size_t>(na), Mat3::Zero());
+  D_.assign(static_cast<std::size_t>(na), Vec3::Zero());
   if (na == 0) return;
   MatX& J = J_;
   J.resize(m, m);
   bool all_sticking = true;
+  Mat3 T;
   for (int a = 0; a < na; ++a) {
     const int i = active_[a];
+    if (mode_blocks(mu, lambda, sigma, modes, L, a, T)) ++degenerate_;
     for (int b = 0; b < na; ++b) J.block<3, 3>(3 * a, 3 * b) = G_ab(a, b);
-    R_.block<3, 3>(3 * a, 3 * i).setIdentity();
     if (modes[i] == Mode::sticking) continue;
     all_sticking = false;
-    // Sliding: the normal row stays; the tangential rows are those of
-    // L (lambda_T + mu lambda_N t(sigma_T)).
-    const double mui = mu[i], lN = lambda[3 * i + 2];
-    const Eigen::Vector2d sT = sigma.segment<2>(3 * i);
-    const double sn = sT.norm();
-    R_.block<2, 3>(3 * a, 3 * i).setZero();
+    // Sliding: J's rows are R_a G_A + T_a; R_a's top rows are L P (or zero without a
+    // sliding direction), its normal row e_N.
     J.middleRows<2>(3 * a).setZero();
-    J.block<2, 2>(3 * a, 3 * a) = L * Eigen::Matrix2d::Identity();
-    if (mui > 0 && sn > 0) {
-      const Eigen::Vector2d t = sT / sn;
-      const Eigen::Matrix2d P = (mui * lN / sn) * (Eigen::Matrix2d::Identity() - t * t.transpose());
-      for (int b = 0; b < na; ++b) J.block<2, 3>(3 * a, 3 * b) += L * P * G_ab(a, b).template topRows<2>();
-      J.block<2, 1>(3 * a, 3 * a + 2) += L * mui * t;
-      R_.block<2, 2>(3 * a, 3 * i) = L * P;
-      D_.block<2, 1>(3 * a, i) = L * lN * t;
-    } else if (mui > 0) {
-      ++degenerate_;  // no sliding direction: lambda_T held
+    if (!R_[a].topLeftCorner<2, 2>().isZero(0)) {
+      const Eigen::Matrix2d LP = R_[a].topLeftCorner<2, 2>();
+      for (int b = 0; b < na; ++b) J.block<2, 3>(3 * a, 3 * b) += LP * G_ab(a, b).template topRows<2>();
     }
+    J.block<2, 3>(3 * a, 3 * a) += T.topRows<2>();
   }
   if (all_sticking) {
     // J = G_AA: symmetric positive semi-definite. Cholesky when it is definite to a
@@ -93,14 +130,34 @@ void NcpDerivative::assemble(const VecX& mu, const VecX& lambda, const VecX& sig
   rank_deficiency_ = m - static_cast<int>(cod_.rank());
 }
 
+void NcpDerivative::right_hand_side(const VecX& b, const VecX& dmu, VecX& rhs) const {
+  SOFTDIFF_DEMAND(b.size() == 3 * nc_ && (dmu.size() == 0 || dmu.size() == nc_), "NcpDerivative: sizes");
+  const int na = static_cast<int>(active_.size());
+  rhs.resize(3 * na);
+  for (int a = 0; a < na; ++a) {
+    const int i = active_[a];
+    rhs.segment<3>(3 * a) = R_[a] * b.segment<3>(3 * i);
+    if (dmu.size()) rhs.segment<3>(3 * a) += D_[a] * dmu[i];
+  }
+}
+
 void NcpDerivative::jvp(const VecX& b, const VecX& dmu, VecX& dlambda) const {
   SOFTDIFF_DEMAND(b.size() == 3 * nc_ && (dmu.size() == 0 || dmu.size() == nc_), "NcpDerivative::jvp: sizes");
   dlambda = VecX::Zero(3 * nc_);
   if (active_.empty()) return;
-  VecX rhs = R_ * b;
-  if (dmu.size()) rhs += D_ * dmu;
-  const VecX d = cholesky_ ? VecX(-llt_.solve(rhs)) : VecX(-cod_.solve(rhs));
-  for (std::size_t a = 0; a < active_.size(); ++a) dlambda.segment<3>(3 * active_[a]) = d.segment<3>(3 * a);
+  const int na = static_cast<int>(active_.size());
+  VecX rhs;
+  right_hand_side(b, dmu, rhs);
+  VecX d;
+  if (operator_) {
+    SOFTDIFF_DEMAND(op_.solve(rhs, d), "NcpDerivative::jvp: the mode-fixed system on the operator did not converge (CGLS, " +
+                                           std::to_string(op_.last_iterations()) + " iterations, " +
+                                           std::to_string(na) + " active contacts)");
+    d = -d;
+  } else {
+    d = cholesky_ ? VecX(-llt_.solve(rhs)) : VecX(-cod_.solve(rhs));
+  }
+  for (int a = 0; a < na; ++a) dlambda.segment<3>(3 * active_[a]) = d.segment<3>(3 * a);
 }
 
 void NcpDerivative::vjp(const VecX& bar_lambda, VecX& bar_b, VecX& bar_mu) const {
@@ -108,10 +165,17 @@ void NcpDerivative::vjp(const VecX& bar_lambda, VecX& bar_b, VecX& bar_mu) const
   bar_b = VecX::Zero(3 * nc_);
   bar_mu = VecX::Zero(nc_);
   if (active_.empty()) return;
-  VecX la(3 * active_.size());
-  for (std::size_t a = 0; a < active_.size(); ++a) la.segment<3>(3 * a) = bar_lambda.segment<3>(3 * active_[a]);
+  const int na = static_cast<int>(active_.size());
+  VecX la(3 * na);
+  for (int a = 0; a < na; ++a) la.segment<3>(3 * a) = bar_lambda.segment<3>(3 * active_[a]);
   VecX y;
-  if (cholesky_) {
+  if (operator_) {
+    // (J^T)^+ la = (J^+)^T la: CGLS on J^T.
+    SOFTDIFF_DEMAND(op_.solve(la, y, true), "NcpDerivative::vjp: the transposed mode-fixed system on the operator did "
+                                            "not converge (CGLS, " + std::to_string(op_.last_iterations()) +
+                                                " iterations, " + std::to_string(na) + " active contacts)");
+    y = -y;
+  } else if (cholesky_) {
     y = -llt_.solve(la);  // J symmetric
   } else {
     // (J^+)^T la from the same decomposition: Eigen 3.4 implements the transposed solve
@@ -121,8 +185,11 @@ void NcpDerivative::vjp(const VecX& bar_lambda, VecX& bar_b, VecX& bar_mu) const
     cod_.template _solve_impl_transposed<false>(la, y);
     y = -y;
   }
-  bar_b = R_.transpose() * y;
-  bar_mu = D_.transpose() * y;
+  for (int a = 0; a < na; ++a) {
+    const int i = active_[a];
+    bar_b.segment<3>(3 * i) = R_[a].transpose() * y.segment<3>(3 * a);
+    bar_mu[i] = D_[a].dot(y.segment<3>(3 * a));
+  }
 }
 
 }  // namespace softdiff::contact

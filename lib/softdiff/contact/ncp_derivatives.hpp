@@ -20,6 +20,11 @@
 // rank_deficiency() counts the dimensions lost. A sliding contact with sigma_T = 0 has
 // no sliding direction (a mode boundary): its tangential rows are lambda_T-fixed and
 // it is counted in degenerate().
+// J = S G_AA + T with S, T block-diagonal (one 3x3 block per active contact) and R = S
+// (on the contact's own columns): compute_operator() never forms G_AA or J and solves
+// by CGLS on the operator (mode_system.hpp), whose minimum-norm least-squares answer is
+// the decomposition's (docs/method.md "The mode-fixed system at scale").
+#include <softdiff/contact/mode_system.hpp>
 #include <softdiff/contact/ncp.hpp>
 
 #include <Eigen/Cholesky>
@@ -36,14 +41,26 @@ class NcpDerivative {
   // the sparse backend, which never forms G (the scale L is then max diag G_AA).
   void compute_active(const MatX& G_AA, const VecX& mu, const VecX& lambda, const VecX& sigma,
                       const std::vector<Mode>& modes);
+  // The same on the operator y -> G_AA y (3 na, the active contacts in increasing
+  // order): never forms G_AA; L is the scale of the force rows (the dense path's
+  // max diag G_AA, so that both paths solve the same system).
+  void compute_operator(OperatorModeSystem::Apply G_AA, double L, const VecX& mu, const VecX& lambda,
+                        const VecX& sigma, const std::vector<Mode>& modes);
+  bool on_operator() const { return operator_; }
+  const OperatorModeSystem& operator_system() const { return op_; }
   // The active (non-breaking) contacts of (modes), as compute() selects them.
   const std::vector<int>& active_contacts() const { return active_; }
 
   // dlambda (3 nc) for b (3 nc) and dmu (nc; empty: zero).
   void jvp(const VecX& b, const VecX& dmu, VecX& dlambda) const;
+  // The right-hand side r = R b + D dmu (3 na) of the mode-fixed system J dlambda_A = -r.
+  void right_hand_side(const VecX& b, const VecX& dmu, VecX& r) const;
+  // J (3 na x 3 na) on the dense paths (empty on the operator path), for reports and tests.
+  const MatX& jacobian() const { return J_; }
   // The transpose: bar_b (3 nc) and bar_mu (nc) for bar_lambda (3 nc).
   void vjp(const VecX& bar_lambda, VecX& bar_b, VecX& bar_mu) const;
 
+  // The dense paths' rank deficiency of J (the operator path makes no rank decision: 0).
   int rank_deficiency() const { return rank_deficiency_; }
   int degenerate() const { return degenerate_; }
   int active() const { return static_cast<int>(active_.size()); }
@@ -53,6 +70,10 @@ class NcpDerivative {
   template <typename Block>
   void assemble(const VecX& mu, const VecX& lambda, const VecX& sigma, const std::vector<Mode>& modes, double L,
                 const Block& G_ab);
+  // R's and D's blocks (and S = R, T) of active contact a (contact i); returns whether
+  // the contact is a degenerate sliding one.
+  bool mode_blocks(const VecX& mu, const VecX& lambda, const VecX& sigma, const std::vector<Mode>& modes, double L,
+                   int a, Mat3& T);
 
   int nc_ = 0;
   std::vector<int> active_;  // active contact ids
@@ -63,8 +84,12 @@ class NcpDerivative {
   Eigen::LLT<MatX> llt_;
   Eigen::CompleteOrthogonalDecomposition<MatX> cod_;
   MatX J_;                   // (3 na x 3 na) the mode system
-  MatX R_;                   // (3 na x 3 nc) d(mode equations)/d sigma at fixed lambda
-  MatX D_;                   // (3 na x nc) d(mode equations)/d mu
+  // d(mode equations)/d sigma at fixed lambda (3 na x 3 nc) and d/d mu (3 na x nc):
+  // block-diagonal, one block per active contact on its own columns.
+  std::vector<Mat3> R_;      // (na) 3x3
+  std::vector<Vec3> D_;      // (na) 3x1
+  bool operator_ = false;    // compute_operator(): solves by op_, no J_
+  OperatorModeSystem op_;
   int rank_deficiency_ = 0, degenerate_ = 0;
 };
 

@@ -1,0 +1,69 @@
+#pragma once
+// The mode-fixed system of the contact problem without G_AA (docs/method.md "Contact at
+// scale", "The mode-fixed system at scale"). Both the polish's Newton steps and the
+// implicit derivative (ncp_derivatives.hpp) solve, over the active (non-breaking)
+// contacts A,
+//     J x = r,   J = S G_AA + T,
+// with S and T block-diagonal (one 3x3 block per active contact: sticking S = I, T = 0;
+// sliding the tangential law's rows, see ncp_derivatives.hpp) and G_AA = h H_A A^{-1}
+// H_A^T. The dense path forms J (3 na x 3 na) and decomposes it; this one applies it:
+//     J x   = S (G_AA x) + T x,        J^T y = G_AA (S^T y) + T^T y,
+// each product one solve with the step's factorization of A (G_AA is symmetric), and
+// solves by CGLS (conjugate gradients on the normal equations, Hestenes-Stiefel; Bjorck
+// 1996, sec. 7.4). From x_0 = 0 its iterates stay in range(J^T), so it converges to the
+// minimum-norm least-squares solution J^+ r: the dense path's complete orthogonal
+// decomposition's answer, also for redundant contacts (J singular) and inconsistent
+// right-hand sides, with no rank decision. The transposed system (the adjoint) is the
+// same iteration with J and J^T exchanged: (J^T)^+ = (J^+)^T.
+// Every active contact sticking (S = I, T = 0: J = G_AA, symmetric positive
+// semi-definite): conjugate gradients first (one product per iteration and about
+// sqrt(kappa) iterations where CGLS needs two and about kappa), whose iterates stay in
+// range(G_AA) and so converge to G_AA^+ r when the system is consistent; when it is not
+// (redundant contacts and r outside the range: CG does not reach its tolerance), CGLS.
+// Memory: a few vectors of 3 na and those of the solves (3n); never (3 na)^2.
+#include <softdiff/core/types.hpp>
+
+#include <functional>
+#include <vector>
+
+namespace softdiff::contact {
+
+class OperatorModeSystem {
+ public:
+  // out = G_AA y (3 na); false if the solve failed (an iterative solver's tolerance).
+  using Apply = std::function<bool(const VecX& y, VecX& out)>;
+
+  // The system for na = S.size() active contacts (S, T: one 3x3 block each).
+  void set(Apply G_AA, std::vector<Mat3> S, std::vector<Mat3> T);
+  int size() const { return 3 * static_cast<int>(S_.size()); }
+
+  // x = J^+ r (transposed: x = (J^T)^+ r). False if a solve failed or CGLS did not
+  // reach its stopping rule within max_iterations (x is then its last iterate).
+  bool solve(const VecX& r, VecX& x, bool transposed = false) const;
+
+  // Stopping rule: ||J^T s|| <= tolerance ||J^T r|| (s = r - J x, the normal equations'
+  // relative residual), or <= 1e-14 ||J||_est ||s|| (the rounding floor of an
+  // inconsistent system, ||J||_est the largest ||J p|| / ||p|| seen).
+  double tolerance = 1e-13;
+  int max_iterations = 0;  // 0: 20 (3 na) + 200
+  // The symmetric case's CG: ||r - G_AA x|| <= cg_tolerance ||r|| (so ||x - x*|| <=
+  // cg_tolerance kappa ||x*||); at most min(2 (3 na) + 50, 2000) iterations.
+  double cg_tolerance = 1e-12;
+
+  int last_iterations() const { return last_iterations_; }
+  int total_iterations() const { return total_iterations_; }
+  int solves() const { return solves_; }  // products with G_AA (solves with A's factor)
+
+ private:
+  bool apply(const VecX& x, VecX& out, bool transposed) const;  // J x or J^T x
+  bool symmetric() const;                                       // S = I, T = 0: J = G_AA
+  bool solve_cg(const VecX& r, VecX& x) const;
+
+  Apply G_;
+  std::vector<Mat3> S_, T_;
+  mutable VecX g_, st_;  // (3 na) scratch of apply
+  mutable VecX s_, p_, q_, t_;  // (3 na) CGLS
+  mutable int last_iterations_ = 0, total_iterations_ = 0, solves_ = 0;
+};
+
+}  // namespace softdiff::contact

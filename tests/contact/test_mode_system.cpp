@@ -1,0 +1,187 @@
+// The mode-fixed system on the operator (mode_system.hpp, NcpDerivative::
+// compute_operator) against the dense path (NcpDerivative::compute: Cholesky or the
+// complete orthogonal decomposition) on the same problems: only sticking, only
+// sliding, mixed, frictionless, and redundant (a duplicated contact: J singular, the
+// minimum-norm least-squares answer, with right-hand sides that are not in J's range).
+// The operator is y -> G y with the problem's G (the step's operator G_AA = h H_A A^{-1}
+// H_A^T is exercised by test_step_derivatives_contact.cpp); forward and reverse mode,
+// and the reverse mode against the transposed forward columns.
+//
+// Tolerance (derived, per comparison): CGLS stops at ||J^T s|| <= 1e-13 ||J^T r|| or
+// <= 1e-14 ||J|| ||s|| (s = r - J x). With x* = J^+ r, J^T J (x - x*) = -J^T s on
+// range(J^T), so ||x - x*|| <= ||J^T s|| / s_min^2 <= 1e-13 kappa^2 ||x*|| (as
+// ||J^T r|| = ||J^T J x*|| <= s_max^2 ||x*||) or <= 1e-14 kappa^2 ||r|| / s_max; plus
+// rounding: eps kappa for the dense decomposition and eps kappa^2 for the normal
+// equations that CGLS works on. All sticking (J = G_AA), CG first: it stops at
+// ||r - J x|| <= 1e-12 ||r||, so ||x - x*|| <= 1e-12 kappa ||x*||. kappa = s_max / s_min over the singular values of the
+// dense J above 1e-12 s_max (the decomposition's rank decision); a factor 10 of margin.
+#include <softdiff/contact/mode_system.hpp>
+#include <softdiff/contact/ncp_derivatives.hpp>
+
+#include <support/fd.hpp>
+
+#include <gtest/gtest.h>
+
+#include <Eigen/SVD>
+#include <cstdio>
+#include <limits>
+#include <random>
+
+using namespace softdiff;
+using namespace softdiff::contact;
+
+namespace test_mode_system_local {
+
+struct Problem {
+  MatX G;
+  VecX mu, lambda, sigma;
+  std::vector<Mode> modes;
+};
+
+// As test_ncp_derivatives.cpp: G = W W^T / n + 0.1 I (W random, n x n+3), or singular
+// with contact nc-1 a copy of contact 0 (same rows of W) when duplicate; a solution with
+// the given modes (strictly complementary).
+Problem make_problem(const std::vector<Mode>& modes, unsigned seed, bool duplicate, double mu) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1);
+  const int nc = static_cast<int>(modes.size()), n = 3 * nc;
+  Problem p;
+  MatX W = MatX::Zero(n, n + 3);
+  for (int r = 0; r < n; ++r)
+    for (int c = 0; c < n + 3; ++c) W(r, c) = u(rng);
+  if (duplicate) W.bottomRows<3>() = W.topRows<3>();
+  p.G = W * W.transpose() / n;
+  if (!duplicate) p.G += 0.1 * MatX::Identity(n, n);
+  p.mu = VecX::Constant(nc, mu);
+  p.lambda = VecX::Zero(n);
+  p.sigma = VecX::Zero(n);
+  for (int i = 0; i < nc; ++i) {
+    const double lN = 1 + 0.5 * u(rng);
+    const Eigen::Vector2d dir = Eigen::Vector2d(u(rng), u(rng)).normalized();
+    switch (modes[i]) {
+      case Mode::breaking: p.sigma.segment<3>(3 * i) = Vec3(0.3 * u(rng), 0.3 * u(rng), 0.5 + 0.3 * u(rng)); break;
+      case Mode::sticking: p.lambda.segment<3>(3 * i) = Vec3(0.2 * lN * dir[0], 0.2 * lN * dir[1], lN); break;
+      case Mode::sliding:
+        p.sigma.segment<2>(3 * i) = (0.3 + 0.2 * std::abs(u(rng))) * dir;
+        p.lambda.segment<3>(3 * i) = Vec3(-mu * lN * dir[0], -mu * lN * dir[1], lN);
+        break;
+    }
+  }
+  if (duplicate) {
+    p.sigma.tail<3>() = p.sigma.head<3>();
+    p.lambda.tail<3>() = p.lambda.head<3>();
+  }
+  p.modes = modes;
+  return p;
+}
+
+// The derived bound of the header for x (the dense answer) and r (the right-hand side).
+double bound(const MatX& J, const VecX& x, const VecX& r) {
+  const Eigen::JacobiSVD<MatX> svd(J);
+  const VecX s = svd.singularValues();
+  double s_min = s[0];
+  for (Eigen::Index k = 0; k < s.size(); ++k)
+    if (s[k] > 1e-12 * s[0]) s_min = s[k];
+  const double kappa = s[0] / s_min, eps = std::numeric_limits<double>::epsilon();
+  return 10 * ((1e-13 + eps) * kappa * kappa * x.norm() + 1e-14 * kappa * kappa * r.norm() / s[0] +
+                (1e-12 + eps) * kappa * x.norm());
+}
+
+void check(const std::vector<Mode>& modes, bool duplicate, double mu, const char* name) {
+  const Problem p = make_problem(modes, 5, duplicate, mu);
+  const int n = static_cast<int>(p.G.rows()), nc = n / 3;
+  NcpDerivative dense, op;
+  dense.compute(p.G, p.mu, p.lambda, p.sigma, p.modes);
+  if (duplicate) {
+    EXPECT_GT(dense.rank_deficiency(), 0) << name;
+  }
+  // G_AA of the active contacts as an operator.
+  const std::vector<int> act = dense.active_contacts();
+  const int na = static_cast<int>(act.size());
+  MatX G_AA(3 * na, 3 * na);
+  double L = 1e-300;
+  for (int a = 0; a < na; ++a)
+    for (int b = 0; b < na; ++b) G_AA.block<3, 3>(3 * a, 3 * b) = p.G.block<3, 3>(3 * act[a], 3 * act[b]);
+  for (int a = 0; a < na; ++a) L = std::max(L, G_AA.block<3, 3>(3 * a, 3 * a).diagonal().maxCoeff());
+  op.compute_operator(
+      [&](const VecX& y, VecX& out) {
+        out = G_AA * y;
+        return true;
+      },
+      L, p.mu, p.lambda, p.sigma, p.modes);
+  ASSERT_TRUE(op.on_operator()) << name;
+  ASSERT_EQ(op.active_contacts(), act) << name;
+  EXPECT_EQ(op.degenerate(), dense.degenerate()) << name;
+  const MatX& J = dense.jacobian();
+  ASSERT_EQ(J.rows(), 3 * na) << name;
+  // Forward: random b and dmu (not in J's range when J is singular).
+  for (unsigned seed = 10; seed < 13; ++seed) {
+    const VecX b = test::random_vector(n, 1.0, seed), dmu = 0.2 * test::random_vector(nc, 1.0, seed + 100);
+    VecX dl_dense, dl_op, r;
+    dense.jvp(b, dmu, dl_dense);
+    op.jvp(b, dmu, dl_op);
+    dense.right_hand_side(b, dmu, r);
+    ASSERT_GT(dl_dense.norm(), 0) << name;
+    const double tol = bound(J, dl_dense, r);
+    std::printf("%s jvp: difference %.2e, bound %.2e (|dlambda| %.2e)\n", name, (dl_op - dl_dense).norm(), tol,
+                dl_dense.norm());
+    EXPECT_LE((dl_op - dl_dense).norm(), tol) << name << " jvp, seed " << seed << ": CGLS iterations "
+                                              << op.operator_system().last_iterations();
+    // Reverse.
+    VecX bb_dense, bm_dense, bb_op, bm_op;
+    dense.vjp(b, bb_dense, bm_dense);
+    op.vjp(b, bb_op, bm_op);
+    VecX la(3 * na);
+    for (int a = 0; a < na; ++a) la.segment<3>(3 * a) = b.segment<3>(3 * act[a]);
+    // (bar_b, bar_mu) = (R^T y, D^T y): the bound on y times |(R, D)| <= max over the
+    // blocks of 1 + |L P| + |D_i| (sliding: |L P| = L mu lambda_N / |sigma_T|,
+    // |D_i| = L lambda_N).
+    const VecX y_dense = J.transpose().completeOrthogonalDecomposition().solve(la);
+    double RD = 1;
+    for (int a = 0; a < na; ++a)
+      if (p.modes[act[a]] == Mode::sliding && p.mu[act[a]] > 0) {
+        const double lN = p.lambda[3 * act[a] + 2];
+        RD = std::max(RD, 1 + L * p.mu[act[a]] * lN / p.sigma.segment<2>(3 * act[a]).norm() + L * lN);
+      }
+    const double tol_r = RD * bound(J.transpose(), y_dense, la);
+    std::printf("%s vjp: difference %.2e, bound %.2e (|bar_b| %.2e)\n", name,
+                (bb_op - bb_dense).norm() + (bm_op - bm_dense).norm(), tol_r, bb_dense.norm());
+    EXPECT_LE((bb_op - bb_dense).norm() + (bm_op - bm_dense).norm(), tol_r) << name << " vjp, seed " << seed;
+  }
+  // The reverse mode is the transpose of the forward one, column by column: e_k^T
+  // (d dlambda / d b) from jvp equals bar_b's entry k of the vjp of e_j.
+  MatX Jf(n, n), Jr(n, n);
+  for (int k = 0; k < n; ++k) {
+    VecX col, bb, bm;
+    op.jvp(VecX::Unit(n, k), VecX(), col);
+    Jf.col(k) = col;
+    op.vjp(VecX::Unit(n, k), bb, bm);
+    Jr.row(k) = bb.transpose();
+  }
+  const auto cmp = test::compare(Jr, Jf);
+  EXPECT_LT(cmp.rel_error, 1e-9) << name << " vjp rows against jvp columns: " << cmp.str();
+}
+
+}  // namespace test_mode_system_local
+
+using test_mode_system_local::check;
+
+TEST(OperatorModeSystem, OnlySticking) { check(std::vector<Mode>(5, Mode::sticking), false, 0.5, "sticking"); }
+TEST(OperatorModeSystem, OnlySliding) { check(std::vector<Mode>(5, Mode::sliding), false, 0.5, "sliding"); }
+TEST(OperatorModeSystem, Mixed) {
+  check({Mode::sticking, Mode::sliding, Mode::breaking, Mode::sliding, Mode::sticking, Mode::breaking}, false, 0.5,
+        "mixed");
+}
+TEST(OperatorModeSystem, Frictionless) {
+  check({Mode::sliding, Mode::sliding, Mode::breaking, Mode::sliding}, false, 0.0, "frictionless");
+}
+TEST(OperatorModeSystem, RedundantSticking) {
+  check({Mode::sticking, Mode::sticking, Mode::breaking, Mode::sticking, Mode::sticking}, true, 0.5,
+        "redundant sticking");
+}
+TEST(OperatorModeSystem, RedundantMixed) {
+  check({Mode::sticking, Mode::sliding, Mode::breaking, Mode::sticking, Mode::sticking}, true, 0.5, "redundant mixed");
+}
+TEST(OperatorModeSystem, RedundantSliding) {
+  check({Mode::sliding, Mode::sliding, Mode::sticking, Mode::sliding}, true, 0.5, "redundant sliding");
+}
