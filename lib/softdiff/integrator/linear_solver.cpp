@@ -156,6 +156,13 @@ class CholmodSolver final : public LinearSolver {
   }
 
   bool direct_solve(const VecX& b, VecX& x) {
+    solve_with_factor(b, X_, "a solve", x);
+    return true;
+  }
+
+  // out = (L L^T)^{-1} b with the current numeric factor; X: the CHOLMOD workspace
+  // that receives the solution (reused across calls, no allocation once sized).
+  void solve_with_factor(const VecX& b, cholmod_dense*& X, const char* what, VecX& out) {
     cholmod_dense B;
     B.nrow = b.size();
     B.ncol = 1;
@@ -166,11 +173,10 @@ class CholmodSolver final : public LinearSolver {
     B.xtype = CHOLMOD_REAL;
     B.dtype = CHOLMOD_DOUBLE;
     use_planned_blas_threads();
-    const int ok = cholmod_solve2(CHOLMOD_A, factor_, &B, nullptr, &X_, nullptr, &Y_, &E_, &common_);
-    throw_if_out_of_memory("a solve", b.size());
+    const int ok = cholmod_solve2(CHOLMOD_A, factor_, &B, nullptr, &X, nullptr, &Y_, &E_, &common_);
+    throw_if_out_of_memory(what, b.size());
     SOFTDIFF_DEMAND(ok, "cholmod_solve2 failed (status " + std::to_string(common_.status) + ")");
-    x = Eigen::Map<const VecX>(static_cast<const double*>(X_->x), b.size());
-    return true;
+    out = Eigen::Map<const VecX>(static_cast<const double*>(X->x), b.size());
   }
 
   // G = B^T A^{-1} B by blocks of columns: X = A^{-1} B_block with one supernodal
@@ -239,22 +245,7 @@ class CholmodSolver final : public LinearSolver {
   }
 
   // z = (L L^T)^{-1} r with the (stale) factor: the preconditioner.
-  void apply_factor(const VecX& r, VecX& z) {
-    cholmod_dense B;
-    B.nrow = r.size();
-    B.ncol = 1;
-    B.nzmax = r.size();
-    B.d = r.size();
-    B.x = const_cast<double*>(r.data());
-    B.z = nullptr;
-    B.xtype = CHOLMOD_REAL;
-    B.dtype = CHOLMOD_DOUBLE;
-    use_planned_blas_threads();
-    const int ok = cholmod_solve2(CHOLMOD_A, factor_, &B, nullptr, &Z_, nullptr, &Y_, &E_, &common_);
-    throw_if_out_of_memory("a preconditioner solve", r.size());
-    SOFTDIFF_DEMAND(ok, "cholmod_solve2 failed (status " + std::to_string(common_.status) + ")");
-    z = Eigen::Map<const VecX>(static_cast<const double*>(Z_->x), r.size());
-  }
+  void apply_factor(const VecX& r, VecX& z) { solve_with_factor(r, Z_, "a preconditioner solve", z); }
 
   // Conjugate gradients on A_ (the matrix of the last factorize()) preconditioned by
   // the stale factor, from x = 0 or the caller's guess, until ||b - A x|| <= pcg_tolerance ||b|| (the true
