@@ -13,7 +13,7 @@
 #include <softdiff/integrator/linear_solver.hpp>
 #include <softdiff/io/build_model.hpp>
 #include <softdiff/io/scene.hpp>
-#include <support/meshes.hpp>
+#include <bench/beam.hpp>
 #include <support/model_builder.hpp>
 
 #include <gtest/gtest.h>
@@ -72,15 +72,7 @@ TEST(FactorReuseValidation, TrunkMatchesTheDirectSolveStepByStep) {
 }
 
 TEST(FactorReuseValidation, BeamMatchesTheDirectSolveStepByStep) {
-  test::BodySpec spec;
-  spec.young = 1e6;
-  spec.poisson = 0.45;
-  spec.density = 1070;
-  spec.rayleigh_mass = 0.1;
-  spec.rayleigh_stiffness = 0.001;
-  spec.fixed = [](const Vec3& p) { return p.x() < 1e-9; };
-  const Model model =
-      test::make_model(test::box_mesh(30, 3, 3, 0.2, 0.02, 0.02), spec, Vec3(0, 0, -9.81), 0.01, 100);
+  const Model model = bench::cantilever_beam(3, material::Law::corotational, 100);  // the benchmarks' 1.6k-tet beam
   check_lockstep(model, 100, "beam 1.6k tets");
 }
 
