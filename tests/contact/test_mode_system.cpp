@@ -87,7 +87,18 @@ double bound(const MatX& J, const VecX& x, const VecX& r) {
                 (1e-12 + eps) * kappa * x.norm());
 }
 
-void check(const std::vector<Mode>& modes, bool duplicate, double mu, const char* name) {
+// Preconditioned (M = (G_AA + c I)^{-1}, c = operator_shift_fraction L, formed densely):
+// PCG stops as CG does (bound() covers it); CGLS on J M at ||(JM)^T s|| <= 1e-13
+// ||(JM)^T r||, so with z* = M^{-1} x* the error in z is bound()'s for J M and z*, and
+// ||x - x*|| <= ||M|| ||z - z*||. The sum of both bounds.
+double bound_preconditioned(const MatX& J, const MatX& M, const VecX& x, const VecX& r) {
+  const Eigen::JacobiSVD<MatX> svd(M);
+  const double M_norm = svd.singularValues()[0];
+  const VecX z = M.inverse() * x;
+  return bound(J, x, r) + M_norm * bound(J * M, z, r);
+}
+
+void check(const std::vector<Mode>& modes, bool duplicate, double mu, const char* name, bool precondition = false) {
   const Problem p = make_problem(modes, 5, duplicate, mu);
   const int n = static_cast<int>(p.G.rows()), nc = n / 3;
   NcpDerivative dense, op;
@@ -109,6 +120,19 @@ void check(const std::vector<Mode>& modes, bool duplicate, double mu, const char
         return true;
       },
       L, p.mu, p.lambda, p.sigma, p.modes);
+  const MatX M = (G_AA + operator_shift_fraction * L * MatX::Identity(3 * na, 3 * na)).inverse();
+  if (precondition) {
+    op.compute_operator(
+        [&](const VecX& y, VecX& out) {
+          out = G_AA * y;
+          return true;
+        },
+        L, p.mu, p.lambda, p.sigma, p.modes, [&](VecX& v) {
+          v = M * v;
+          return true;
+        });
+    ASSERT_TRUE(op.operator_system().preconditioned()) << name;
+  }
   ASSERT_TRUE(op.on_operator()) << name;
   ASSERT_EQ(op.active_contacts(), act) << name;
   EXPECT_EQ(op.degenerate(), dense.degenerate()) << name;
@@ -122,7 +146,7 @@ void check(const std::vector<Mode>& modes, bool duplicate, double mu, const char
     op.jvp(b, dmu, dl_op);
     dense.right_hand_side(b, dmu, r);
     ASSERT_GT(dl_dense.norm(), 0) << name;
-    const double tol = bound(J, dl_dense, r);
+    const double tol = precondition ? bound_preconditioned(J, M, dl_dense, r) : bound(J, dl_dense, r);
     std::printf("%s jvp: difference %.2e, bound %.2e (|dlambda| %.2e)\n", name, (dl_op - dl_dense).norm(), tol,
                 dl_dense.norm());
     EXPECT_LE((dl_op - dl_dense).norm(), tol) << name << " jvp, seed " << seed << ": CGLS iterations "
@@ -143,7 +167,8 @@ void check(const std::vector<Mode>& modes, bool duplicate, double mu, const char
         const double lN = p.lambda[3 * act[a] + 2];
         RD = std::max(RD, 1 + L * p.mu[act[a]] * lN / p.sigma.segment<2>(3 * act[a]).norm() + L * lN);
       }
-    const double tol_r = RD * bound(J.transpose(), y_dense, la);
+    const double tol_r =
+        RD * (precondition ? bound_preconditioned(J.transpose(), M, y_dense, la) : bound(J.transpose(), y_dense, la));
     std::printf("%s vjp: difference %.2e, bound %.2e (|bar_b| %.2e)\n", name,
                 (bb_op - bb_dense).norm() + (bm_op - bm_dense).norm(), tol_r, bb_dense.norm());
     EXPECT_LE((bb_op - bb_dense).norm() + (bm_op - bm_dense).norm(), tol_r) << name << " vjp, seed " << seed;
@@ -184,4 +209,18 @@ TEST(OperatorModeSystem, RedundantMixed) {
 }
 TEST(OperatorModeSystem, RedundantSliding) {
   check({Mode::sliding, Mode::sliding, Mode::sticking, Mode::sliding}, true, 0.5, "redundant sliding");
+}
+// Preconditioned by (G_AA + c I)^{-1} (mode_system.hpp): every contact sticking, PCG (and,
+// redundant with right-hand sides outside the range, CGLS on G M: still G^+ r, M being a
+// function of G); and the mixed (invertible) system by CGLS on J M: J^{-1} r.
+TEST(OperatorModeSystem, PreconditionedSticking) {
+  check(std::vector<Mode>(5, Mode::sticking), false, 0.5, "preconditioned sticking", true);
+}
+TEST(OperatorModeSystem, PreconditionedRedundantSticking) {
+  check({Mode::sticking, Mode::sticking, Mode::breaking, Mode::sticking, Mode::sticking}, true, 0.5,
+        "preconditioned redundant sticking", true);
+}
+TEST(OperatorModeSystem, PreconditionedMixed) {
+  check({Mode::sticking, Mode::sliding, Mode::breaking, Mode::sliding, Mode::sticking, Mode::breaking}, false, 0.5,
+        "preconditioned mixed", true);
 }

@@ -9,6 +9,7 @@
 // Steps as in test_step_derivatives.cpp (positions 1e-6 of the element size,
 // velocities 1e-6 m/s, parameters 1e-5 of their value); the NCP is solved to 1e-14
 // (polished to round-off), so that the differences see the exact map: tolerance 1e-6.
+#include <softdiff/contact/sparse_delassus.hpp>
 #include <softdiff/data.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
 #include <softdiff/integrator/implicit_euler_derivatives.hpp>
@@ -20,6 +21,9 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
+#include <Eigen/SVD>
+#include <algorithm>
+#include <limits>
 #include <cstdio>
 #include <random>
 #include <string>
@@ -53,6 +57,9 @@ struct Params {
   double dt = 2e-3;
   double squeeze = 0;
   double speed = 0.05;
+  // > 0: a slab of cells x cells x 1 elements, 1 cm thick with 1 cm cells, instead of
+  // the 2x2x2 cube ((cells + 1)^2 bottom vertices on the plane).
+  int cells = 0;
 };
 
 // The Newton variant of the cases: 40 iterations at most, converged to newton_tolerance
@@ -81,7 +88,10 @@ Model build(Case c, const Params& p) {
   spec.rayleigh_stiffness = 1e-3;
   const double a = c == Case::sliding ? 0.6 : 0.0;  // gravity tilted: tan 0.6 = 0.68 > mu = 0.3
   const Vec3 g(9.81 * std::sin(a), 0, -9.81 * std::cos(a));
-  Model model = test::make_model(test::box_mesh(2, 2, 2, 0.04, 0.04, 0.04), spec, g, p.dt, 1);
+  const double side = p.cells > 0 ? 0.01 * p.cells : 0.04;
+  Model model = test::make_model(p.cells > 0 ? test::box_mesh(p.cells, p.cells, 1, side, side, 0.01)
+                                             : test::box_mesh(2, 2, 2, 0.04, 0.04, 0.04),
+                                 spec, g, p.dt, 1);
   model.step.newton_iterations = p.newton;
   model.step.newton_tolerance = 1e-13;
   test::ContactSpec cs;
@@ -283,6 +293,10 @@ void check(Case c, const Params& p = Params{}) {
   }
   // The path that the derivative took.
   EXPECT_EQ(d.ncp_derivative().on_operator(), p.operator_mode) << name_of(c);
+  // ... preconditioned by (G_AA + c I)^{-1} (mode_system.hpp) where every active contact
+  // sticks (J = G_AA: PCG), unpreconditioned CGLS otherwise (contact_step_derivatives.cpp).
+  if (p.operator_mode)
+    EXPECT_EQ(d.ncp_derivative().operator_system().preconditioned(), counts[2] == 0) << name_of(c);
   // Reverse mode.
   std::mt19937 rng(5);
   std::uniform_real_distribution<double> u(-1, 1);
@@ -346,6 +360,199 @@ TEST(StepDerivativesContact, NewtonOperatorModeSystem) {
 }
 
 }  // namespace
+
+// The preconditioned mode-fixed system on the operator (mode_system.hpp) against the
+// dense path on more than 64 active contacts: a 9 x 9 slab (100 bottom vertices), the
+// cases' initial states (on the slab: "sticking" has a few sliding contacts, so CGLS on
+// J M; "sliding" all sliding; "tipped" 10 breaking and the rest sticking, so PCG), one
+// step. The NCP derivative of the
+// operator path (derivative_dense_max_active 0) and of the dense G_AA path (the
+// default 400) of the same step, for random b and dmu, forward and reverse.
+// Tolerance (derived; as test_mode_system.cpp, with J's dense matrix from the dense
+// path, G_AA = h H_A A^{-1} H_A^T from the step's factor and M = (G_AA + c I)^{-1}
+// formed here): all sticking, PCG stops at ||r - J x|| <= 1e-12 ||r||, so ||x - x*||
+// <= 1e-12 kappa(J) ||x*||; otherwise CGLS on J M stops at ||(JM)^T s|| <= 1e-13
+// ||(JM)^T r|| (or its rounding floor 1e-14 ||JM|| ||s||), so with z* = M^{-1} x*,
+// ||x - x*|| <= ||M|| ||z - z*|| <= ||M|| (1e-13 kappa(JM)^2 ||z*|| + 1e-14 kappa(JM)^2
+// ||r|| / s_max(JM)); plus rounding, eps kappa(J) ||x*|| for the dense decomposition
+// and eps kappa(JM)^2 ||M|| ||z*|| for the normal equations; a factor 10 of margin.
+// Also: the preconditioned solve takes fewer products than the unpreconditioned one on
+// the same system (printed).
+namespace test_precond_local {
+
+double condition(const MatX& X, double* s_max = nullptr) {
+  const Eigen::JacobiSVD<MatX> svd(X);
+  const VecX s = svd.singularValues();
+  double s_min = s[0];
+  for (Eigen::Index k = 0; k < s.size(); ++k)
+    if (s[k] > 1e-12 * s[0]) s_min = s[k];
+  if (s_max) *s_max = s[0];
+  return s[0] / s_min;
+}
+
+void compare_paths(Case c) {
+  Params p;
+  p.backend = contact::NcpBackend::sparse;
+  p.cells = 9;
+  p.operator_mode = true;  // derivative_dense_max_active 0 (and the polish on the operator)
+  const Model model = build(c, p);
+  Model dense_model = model;
+  dense_model.contact.ncp.derivative_dense_max_active = 400;
+  const State in = start(model, c, p);
+  Data data(model);
+  State out;
+  const StepStatus status = integrator::implicit_euler_step(model, data, in, out, 1);
+  ASSERT_TRUE(status.ok()) << name_of(c) << ": " << describe(model, status);
+  const auto& cd = data.contact;
+  const std::vector<ParameterId> params = {{Parameter::friction, 0}};
+  integrator::StepDerivatives d_op(model, params), d_dense(dense_model, params);
+  StateTangent r_op, r_dense;
+  StepTangent t;
+  t.v = VecX::Unit(in.v.size(), 0);
+  ASSERT_TRUE(d_op.jvp(model, data, in, out, t, r_op)) << name_of(c);
+  ASSERT_TRUE(d_dense.jvp(dense_model, data, in, out, t, r_dense)) << name_of(c);
+  const auto& dense = d_dense.ncp_derivative();
+  ASSERT_FALSE(dense.on_operator()) << name_of(c);
+  const std::vector<int> act = dense.active_contacts();
+  const int na = static_cast<int>(act.size()), nc = cd.contacts.size(), n = 3 * nc;
+  std::printf("%s: %d contacts, %d active\n", name_of(c), nc, na);
+  ASSERT_GT(na, 64) << name_of(c);
+  const bool sticking = std::all_of(act.begin(), act.end(), [&](int i) { return cd.modes[i] == contact::Mode::sticking; });
+  // Dense J, G_AA and M.
+  const MatX& J = dense.jacobian();
+  ASSERT_EQ(J.rows(), 3 * na);
+  SparseMatrix HtA;
+  contact::select_contact_columns(cd.Ht, act, HtA);
+  MatX G;
+  ASSERT_TRUE(data.solver->inverse_congruence(HtA, G));
+  G *= model.step.dt;
+  const double L = G.diagonal().maxCoeff(), shift = contact::operator_shift_fraction * L;
+  const MatX M = (G + shift * MatX::Identity(3 * na, 3 * na)).inverse();
+  // The path: every active contact sticking, the step's operator with its Woodbury
+  // preconditioner; with sliding contacts the step keeps the dense G_AA beyond 64
+  // (contact_step_derivatives.cpp), and the preconditioned CGLS of mode_system.hpp is
+  // checked here on the dense G_AA and M (the same system, the same iteration).
+  contact::NcpDerivative local;
+  const contact::NcpDerivative* opp = &d_op.ncp_derivative();
+  if (sticking) {
+    ASSERT_TRUE(opp->on_operator()) << name_of(c);
+    ASSERT_TRUE(opp->operator_system().preconditioned()) << name_of(c);
+    ASSERT_EQ(opp->active_contacts(), act) << name_of(c);
+  } else {
+    ASSERT_FALSE(opp->on_operator()) << name_of(c) << ": a mixed set beyond 64 keeps the dense G_AA";
+    local.compute_operator(
+        [&](const VecX& y, VecX& o) {
+          o = G * y;
+          return true;
+        },
+        L, cd.mu, cd.lambda, cd.sigma, cd.modes,
+        [&](VecX& v) {
+          v = M * v;
+          return true;
+        });
+    opp = &local;
+  }
+  const contact::NcpDerivative& op = *opp;
+  const MatX JM = J * M;
+  double s_max_jm = 0;
+  double Mnorm = 0, Ginv_norm = 0;  // ||M|| and ||M^-1|| = ||G_AA|| + c
+  const double kJ = condition(J), kJM = condition(JM, &s_max_jm);
+  condition(M, &Mnorm);
+  condition(G, &Ginv_norm);
+  Ginv_norm += shift;
+  const double eps = std::numeric_limits<double>::epsilon();
+  const auto sliding = std::count_if(act.begin(), act.end(), [&](int i) { return cd.modes[i] == contact::Mode::sliding; });
+  std::printf("%s: %ld of the active contacts sliding (%s); kappa(J) %.2e, kappa(J M) %.2e\n", name_of(c),
+              static_cast<long>(sliding), sticking ? "PCG" : "CGLS on J M", kJ, kJM);
+  for (unsigned seed = 20; seed < 22; ++seed) {
+    const VecX b = test::random_vector(n, 1.0, seed), dmu = 0.2 * test::random_vector(nc, 1.0, seed + 100);
+    for (int transposed = 0; transposed < 2; ++transposed) {
+      VecX x_op, x_dense, r;
+      if (!transposed) {
+        op.jvp(b, dmu, x_op);
+        dense.jvp(b, dmu, x_dense);
+        dense.right_hand_side(b, dmu, r);
+      } else {
+        VecX bm_op, bm_dense;
+        op.vjp(b, x_op, bm_op);
+        dense.vjp(b, x_dense, bm_dense);
+        r.resize(3 * na);
+        for (int a = 0; a < na; ++a) r.segment<3>(3 * a) = b.segment<3>(3 * act[a]);
+      }
+      const int iterations = op.operator_system().last_iterations();
+      // The bound on dlambda (forward); the reverse's bar_b = R^T y has |R| <= 1 + |L P|
+      // (sliding: L mu lambda_N / |sigma_T|), on y's bound.
+      double R = 1;
+      for (int a = 0; a < na; ++a)
+        if (cd.modes[act[a]] == contact::Mode::sliding && cd.mu[act[a]] > 0)
+          R = std::max(R, 1 + L * cd.mu[act[a]] * cd.lambda[3 * act[a] + 2] / cd.sigma.segment<2>(3 * act[a]).norm());
+      const double xs = transposed ? J.transpose().completeOrthogonalDecomposition().solve(r).norm() : x_dense.norm();
+      double tol = 0;
+      if (sticking) tol = (1e-12 + eps) * kJ * xs;  // J = J^T = G_AA
+      if (!sticking) {
+        const double zs = Ginv_norm * xs;  // ||z*|| <= ||M^-1|| ||x*||
+        tol = Mnorm * ((1e-13 + eps) * kJM * kJM * zs + 1e-14 * kJM * kJM * r.norm() / s_max_jm) + eps * kJ * xs;
+      }
+      tol *= 10 * (transposed ? R : 1);
+      const double diff = (x_op - x_dense).norm();
+      std::printf("%s %s: difference %.2e, bound %.2e (|x| %.2e), %d iterations\n", name_of(c),
+                  transposed ? "vjp" : "jvp", diff, tol, x_dense.norm(), iterations);
+      EXPECT_LE(diff, tol) << name_of(c) << (transposed ? " vjp" : " jvp") << ", seed " << seed;
+    }
+  }
+  // The preconditioner pays: the same mode-fixed system on the same G_AA, unpreconditioned,
+  // takes more products (with G_AA, plus those with M) for the same right-hand side.
+  {
+    contact::NcpDerivative plain_ncp;
+    plain_ncp.compute_operator(
+        [&](const VecX& y, VecX& o) {
+          o = G * y;
+          return true;
+        },
+        L, cd.mu, cd.lambda, cd.sigma, cd.modes);
+    const VecX b = test::random_vector(n, 1.0, 30);
+    VecX x_plain, x_pre;
+    const int before_plain = plain_ncp.operator_system().solves();
+    plain_ncp.jvp(b, VecX(), x_plain);
+    const int products_plain = plain_ncp.operator_system().solves() - before_plain;
+    const int before_pre = op.operator_system().solves() + op.operator_system().preconditioner_solves();
+    op.jvp(b, VecX(), x_pre);
+    const int products_pre = op.operator_system().solves() + op.operator_system().preconditioner_solves() - before_pre;
+    std::printf("%s: the mode-fixed system, %d products unpreconditioned (%d iterations), %d preconditioned "
+                "(%d iterations)\n",
+                name_of(c), products_plain, plain_ncp.operator_system().last_iterations(), products_pre,
+                op.operator_system().last_iterations());
+    // Every contact sticking: PCG against CG. With sliding contacts the figures are
+    // measurements (docs/method.md): fewer with one sliding contact, more when all slide.
+    if (sticking) EXPECT_LT(products_pre, products_plain) << name_of(c);
+  }
+  // The same for J = G_AA (PCG against CG).
+  contact::OperatorModeSystem plain, pre;
+  std::vector<Mat3> S(static_cast<std::size_t>(na), Mat3::Identity()), T(static_cast<std::size_t>(na), Mat3::Zero());
+  auto apply = [&](const VecX& y, VecX& o) {
+    o = G * y;
+    return true;
+  };
+  plain.set(apply, S, T);
+  pre.set(apply, S, T);
+  pre.set_preconditioner([&](VecX& v) {
+    v = M * v;
+    return true;
+  });
+  const VecX rhs = test::random_vector(3 * na, 1.0, 7);
+  VecX x1, x2;
+  plain.solve(rhs, x1);
+  pre.solve(rhs, x2);
+  std::printf("%s, J = G_AA: %d products unpreconditioned, %d preconditioned (+ %d of M)\n", name_of(c),
+              plain.solves(), pre.solves(), pre.preconditioner_solves());
+  EXPECT_LT(pre.solves() + pre.preconditioner_solves(), plain.solves()) << name_of(c);
+}
+
+}  // namespace test_precond_local
+
+TEST(StepDerivativesContact, PreconditionedOperatorMatchesDenseBeyond64) {
+  for (const Case c : {Case::sticking, Case::sliding, Case::tipped}) test_precond_local::compare_paths(c);
+}
 
 // Randomized smoothing in the step (model.contact.smoothing): the cube half over the
 // edge of a box, its middle column of bottom vertices within sigma of the boundary

@@ -5,6 +5,7 @@
 #include <softdiff/core/assert.hpp>
 
 #include <algorithm>
+#include <utility>
 
 namespace softdiff::contact {
 
@@ -21,17 +22,19 @@ Eigen::Matrix<double, 12, 1> gather_contact(const collision::Contact& c, const V
 }
 }  // namespace
 
-// Unpreconditioned, the operator's CG / CGLS need about kappa(J) products: on the
-// slab's 4337 active contacts (configs/slab_on_plane.yaml) CGLS did not converge in
-// its 3000 iterations (docs/method.md "The mode-fixed system at scale"). Until it is
-// preconditioned the operator path is taken only for sets of at most this many active
-// contacts (i.e. where derivative_dense_max_active is set lower: the tests), and
-// larger ones keep the dense G_AA, as before.
-constexpr int operator_derivative_max_active = 64;
+// The operator path beyond derivative_dense_max_active active contacts: every active
+// contact sticking (J = G_AA), by CG preconditioned with (G_AA + c I)^{-1}; with sliding
+// contacts, by CGLS unpreconditioned and on at most this many active contacts. Measured
+// (docs/method.md "The mode-fixed system at scale"): with sliding contacts neither CGLS
+// nor CGLS on J M converges on the slab's 4337 (3000 iterations), and on J M it takes
+// more products than without M when every contact slides; larger mixed sets keep the
+// dense G_AA.
+constexpr int operator_mixed_max_active = 64;
 
 bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, const VecX& x,
                                      integrator::LinearSolver& solver, double h, bool use_record_G,
-                                     const std::vector<Mode>* modes_in, const VecX* sigma_in) {
+                                     const std::vector<Mode>* modes_in, const VecX* sigma_in,
+                                     const SparseMatrix* A_upper) {
   const std::vector<Mode>& modes = modes_in ? *modes_in : cd.modes;
   const VecX& sigma = sigma_in ? *sigma_in : cd.sigma;
   const auto& det = model.contact.detection;
@@ -66,7 +69,10 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
       if (modes[static_cast<std::size_t>(i)] != Mode::breaking) active_ids_.push_back(i);
     select_contact_columns(cd.Ht, active_ids_, Ht_active_);
     const int na = static_cast<int>(active_ids_.size());
-    if (na > model.contact.ncp.derivative_dense_max_active && na <= operator_derivative_max_active) {
+    bool all_sticking = true;
+    for (int i : active_ids_) all_sticking = all_sticking && modes[static_cast<std::size_t>(i)] == Mode::sticking;
+    if (na > model.contact.ncp.derivative_dense_max_active &&
+        (all_sticking || na <= operator_mixed_max_active)) {
       // Beyond the crossover: the mode-fixed system on the operator (mode_system.hpp),
       // G_AA y = h H_A A^{-1} H_A^T y, one solve with `solver` per product (the caller
       // keeps its factorization until the last jvp / vjp). L = max diag G_AA as on the
@@ -84,6 +90,16 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
       G_active_.resize(0, 0);
       L = std::max(L, 1e-300);
       integrator::LinearSolver* A = &solver;
+      // The preconditioner (G_AA + c I)^{-1}: one factorization of B = A + (h/c) H_A^T H_A.
+      OperatorModeSystem::Precondition M;
+      if (A_upper && all_sticking) {
+        shifted_.bind(solver, *A_upper, cd.Ht, h, model.solver);
+        shifted_.restrict_to(active_ids_);
+        // B is positive definite where A is; where it does not factorize (the static
+        // solver's tangent need not be), the system is solved unpreconditioned.
+        if (shifted_.factorize_shifted(operator_shift_fraction * L))
+          M = [this](VecX& r) { return shifted_.solve_shifted(r); };
+      }
       ncp_.compute_operator(
           [this, A, h](const VecX& y, VecX& out) {
             op_u_.noalias() = Ht_active_ * y;
@@ -91,7 +107,7 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
             out.noalias() = h * (Ht_active_.transpose() * op_w_);
             return ok;
           },
-          L, cd.mu, cd.lambda, sigma, modes);
+          L, cd.mu, cd.lambda, sigma, modes, std::move(M));
     } else {
       if (!solver.inverse_congruence(Ht_active_, G_active_)) return false;
       G_active_ *= h;

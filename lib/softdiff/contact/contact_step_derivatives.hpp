@@ -11,13 +11,16 @@
 //    dense G or, where the record has none (sparse backend) or the caller asks for
 //    another A, on G_AA = h H_A A^{-1} H_A^T of the active contacts (one congruence
 //    with the given factorization), or, beyond ncp.derivative_dense_max_active active
-//    contacts (and at most 64, for now: contact_step_derivatives.cpp), on the operator
-//    y -> G_AA y (mode_system.hpp: never a dense G_AA; the jvp / vjp then solve with
-//    `solver`, which must keep its factorization);
+//    contacts where every active contact sticks (any number) or where at most 64 are
+//    active (with sliding contacts), on the operator y -> G_AA y (mode_system.hpp:
+//    never a dense G_AA; all sticking, preconditioned by (G_AA + c I)^{-1} when A_upper
+//    is given; the jvp / vjp then solve with `solver`, which must keep its
+//    factorization);
 //  - the products of the geometry terms: h dH[dx]^T lambda (the force), dH[dx] u +
 //    (0, 0, dphi[dx] / h) (sigma at fixed lambda) and their transposes.
 #include <softdiff/collision/contact_derivatives.hpp>
 #include <softdiff/contact/ncp_derivatives.hpp>
+#include <softdiff/contact/sparse_delassus.hpp>
 #include <softdiff/core/parameters.hpp>
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
@@ -32,8 +35,11 @@ class ContactStageDerivative {
   // G: cd.G when use_record_G and the record holds it; otherwise G_AA = h H_A A^{-1}
   // H_A^T with `solver` (A's factorization). Returns false if that solve failed.
   // modes, sigma: the modes and sigma the NCP derivative holds (default: cd's).
+  // A_upper: the matrix `solver` factorized (upper triangle), for the operator path's
+  // preconditioner (mode_system.hpp; nullptr: the operator path is unpreconditioned).
   bool prepare(const Model& model, const ContactData& cd, const VecX& x, integrator::LinearSolver& solver, double h,
-               bool use_record_G, const std::vector<Mode>* modes = nullptr, const VecX* sigma = nullptr);
+               bool use_record_G, const std::vector<Mode>* modes = nullptr, const VecX* sigma = nullptr,
+               const SparseMatrix* A_upper = nullptr);
 
   // r += h sum_i dH_i[dx]^T lambda_i (the contact forces' change with the positions).
   void add_force_jvp(const ContactData& cd, double h, const VecX& dx, VecX& r) const;
@@ -65,6 +71,7 @@ class ContactStageDerivative {
   MatX G_active_;                //   and G_AA (dense path; a batch's block on the operator path)
   SparseMatrix Ht_batch_;        // operator path: a batch of Ht_active_'s columns (the scale L)
   VecX op_u_, op_w_;             // operator path: (3n) scratch of the products with G_AA
+  SparseDelassus shifted_;       // operator path: (G_AA + c I)^{-1}, the preconditioner
   int nondifferentiable_ = 0, smoothed_ = 0;
 };
 

@@ -21,6 +21,24 @@
 // range(G_AA) and so converge to G_AA^+ r when the system is consistent; when it is not
 // (redundant contacts and r outside the range: CG does not reach its tolerance), CGLS.
 // Memory: a few vectors of 3 na and those of the solves (3n); never (3 na)^2.
+//
+// Preconditioned (set_preconditioner; docs/method.md "The mode-fixed system at scale"):
+// M = (G_AA + c I)^{-1}, SparseDelassus's Woodbury shifted solve, one factorization of
+// B = A + (h/c) H_A^T H_A per system. M is a function of G_AA (same eigenvectors,
+// eigenvalues 1 / (lambda_i + c)), so it commutes with G_AA and maps range(G_AA) into
+// itself:
+// - all sticking: preconditioned CG. Its iterates stay in span{M r, (M G) M r, ...},
+//   inside range(G_AA) for r in range(G_AA): the limit is still G_AA^+ r. The
+//   eigenvalues of M G_AA are lambda_i / (lambda_i + c): kappa <= 1 + c / lambda_min.
+// - otherwise: CGLS on the right-preconditioned system min ||J M z - r|| from z = 0,
+//   x = M z. J invertible: x = J^{-1} r, exact. J = G_AA (or any J whose null space and
+//   range M maps into themselves): x = M (J M)^+ r = J^+ r. A singular mixed J: x is a
+//   least-squares solution (J x - r the same residual as J^+ r's) that may differ from
+//   J^+ r by an element of null(J). Where CGLS on J M does not reach its stopping rule
+//   (a singular J and r outside its range: M's 1 / c on null(G_AA) amplifies rounding
+//   there, test_mode_system.cpp PreconditionedRedundantSticking), the unpreconditioned
+//   CGLS from x = 0 follows: J^+ r.
+// Without a preconditioner, the unpreconditioned iterations above.
 #include <softdiff/core/types.hpp>
 
 #include <functional>
@@ -28,13 +46,26 @@
 
 namespace softdiff::contact {
 
+// The preconditioner's shift c = operator_shift_fraction L, L = max diag G_AA (the
+// derivative) or the largest known G_NN / eigenvalue (the polish): the eigenvalues of
+// M G_AA are lambda_i / (lambda_i + c), so a smaller c preconditions better, down to
+// where the Woodbury solve's cancellation, about 1e-16 L / c relative, spoils M
+// (docs/method.md "The mode-fixed system at scale": the measurement).
+inline constexpr double operator_shift_fraction = 1e-4;
+
 class OperatorModeSystem {
  public:
   // out = G_AA y (3 na); false if the solve failed (an iterative solver's tolerance).
   using Apply = std::function<bool(const VecX& y, VecX& out)>;
+  // r <- M r (3 na), M symmetric positive definite, commuting with G_AA (see above).
+  using Precondition = std::function<bool(VecX& r)>;
 
   // The system for na = S.size() active contacts (S, T: one 3x3 block each).
+  // Clears the preconditioner.
   void set(Apply G_AA, std::vector<Mat3> S, std::vector<Mat3> T);
+  // M (empty: none) for the following solves.
+  void set_preconditioner(Precondition M) { M_ = std::move(M); }
+  bool preconditioned() const { return static_cast<bool>(M_); }
   int size() const { return 3 * static_cast<int>(S_.size()); }
 
   // x = J^+ r (transposed: x = (J^T)^+ r). False if a solve failed or CGLS did not
@@ -53,17 +84,21 @@ class OperatorModeSystem {
   int last_iterations() const { return last_iterations_; }
   int total_iterations() const { return total_iterations_; }
   int solves() const { return solves_; }  // products with G_AA (solves with A's factor)
+  int preconditioner_solves() const { return precond_solves_; }  // applications of M
 
  private:
   bool apply(const VecX& x, VecX& out, bool transposed) const;  // J x or J^T x
   bool symmetric() const;                                       // S = I, T = 0: J = G_AA
   bool solve_cg(const VecX& r, VecX& x) const;
+  bool precondition(VecX& v) const;  // v <- M v (counted)
 
   Apply G_;
+  mutable Precondition M_;  // (solve() sets it aside for its unpreconditioned fallback)
   std::vector<Mat3> S_, T_;
   mutable VecX g_, st_;  // (3 na) scratch of apply
   mutable VecX s_, p_, q_, t_;  // (3 na) CGLS
-  mutable int last_iterations_ = 0, total_iterations_ = 0, solves_ = 0;
+  mutable VecX z_, mv_;         // (3 na) preconditioned: CG's M s; CGLS's z and M p
+  mutable int last_iterations_ = 0, total_iterations_ = 0, solves_ = 0, precond_solves_ = 0;
 };
 
 }  // namespace softdiff::contact

@@ -981,12 +981,16 @@ namespace {
 // and polish_rounds(); L (the force rows' scale) is the largest known G_NN or the power
 // iteration's eigenvalue instead of max diag G (a row scale: the same Newton step for a
 // consistent system). Scratch is allocated per call (once per round, not per iteration).
-// Unpreconditioned, its CG / CGLS need about kappa(J) products per Newton step: on the
-// slab's 4337 contacts each step ran into CGLS's cap (docs/method.md "The mode-fixed
-// system at scale"). Until it is preconditioned it runs only on sets of at most this
-// many active contacts (i.e. where polish_max_active is set lower: the tests); larger
-// ones keep the solver's tolerance, as before.
-constexpr int polish_operator_max_active = 64;
+// Where every contact of B sticks (J = G_BB), preconditioned (mode_system.hpp) by
+// M = (G_AA + c I)^{-1}, c = operator_shift_fraction L, one factorization of B per polish
+// (polish_rounds_operator); when some contacts of A break under the modes tried (B a
+// proper subset), by M's principal block on B (symmetric positive definite, but not a
+// function of G_BB: the polish's steps are judged by the residuals, the minimum-norm
+// property is not needed there). With sliding contacts, unpreconditioned (right
+// preconditioning by M did not converge on the slab either and costs more products
+// when every contact slides: contact_step_derivatives.cpp), and so only on sets of at
+// most polish_operator_mixed_max_active active contacts.
+constexpr int polish_operator_mixed_max_active = 64;
 
 struct OperatorPolish {
   std::vector<int> act;                           // positions in A of the non-breaking contacts
@@ -994,6 +998,8 @@ struct OperatorPolish {
   std::vector<Mode> modes_try, modes_next, modes_kept;
   std::vector<Mat3> S, T;
   OperatorModeSystem sys;
+  bool preconditioned = false;                    // G holds the factorization of (G_AA + c I)
+  VecX pre_full;                                  // (3 nA) scratch of the preconditioner on B
   int newton_budget = 0;
   int newton_steps = 0, cgls_iterations = 0;
 };
@@ -1005,6 +1011,9 @@ bool polish_operator(OperatorPolish& o, SparseDelassus& G, const VecX& g, const 
   for (int i = 0; i < nA; ++i)
     if (modes[i] != Mode::breaking) o.act.push_back(i);
   const int na = static_cast<int>(o.act.size());
+  bool all_sticking = true;
+  for (int a = 0; a < na; ++a) all_sticking = all_sticking && modes[o.act[a]] == Mode::sticking;
+  if (!all_sticking && na > polish_operator_mixed_max_active) return false;  // see above
   o.lam = lambda;
   for (int i = 0; i < nA; ++i)
     if (modes[i] == Mode::breaking) o.lam.segment<3>(3 * i).setZero();
@@ -1068,6 +1077,15 @@ bool polish_operator(OperatorPolish& o, SparseDelassus& G, const VecX& g, const 
     --o.newton_budget;
     ++o.newton_steps;
     o.sys.set(apply_active, o.S, o.T);
+    if (o.preconditioned && all_sticking)
+      o.sys.set_preconditioner([&](VecX& v) {
+        if (na == nA) return G.solve_shifted(v);
+        o.pre_full.setZero(3 * nA);
+        for (int a = 0; a < na; ++a) o.pre_full.segment<3>(3 * o.act[a]) = v.segment<3>(3 * a);
+        const bool ok = G.solve_shifted(o.pre_full);
+        for (int a = 0; a < na; ++a) v.segment<3>(3 * a) = o.pre_full.segment<3>(3 * o.act[a]);
+        return ok;
+      });
     o.F = -o.F;
     o.sys.solve(o.F, o.du);  // not converged within its budget: the step is still tried
     o.F = -o.F;
@@ -1098,6 +1116,7 @@ bool polish_rounds_operator(OperatorPolish& o, SparseDelassus& G, const VecX& g,
                             NcpResiduals& residuals) {
   o.modes_try = modes;
   o.newton_budget = polish_max_newton;
+  o.preconditioned = G.factorize_shifted(operator_shift_fraction * L);  // else unpreconditioned
   bool kept = false;
   const int nA = static_cast<int>(mu.size());
   for (int round = 0; round < polish_max_rounds; ++round) {
@@ -1194,7 +1213,10 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
         w.ids_a.push_back(w.set[b]);
       }
     const int na = static_cast<int>(w.set_a.size());
-    if (na == 0 || (na > options.polish_max_active && na > polish_operator_max_active)) return false;
+    bool all_sticking = true;
+    for (int b : w.set_a) all_sticking = all_sticking && w.modes_set[b] == Mode::sticking;
+    if (na == 0 || (na > options.polish_max_active && na > polish_operator_mixed_max_active && !all_sticking))
+      return false;
     const Eigen::Index ma = 3 * static_cast<Eigen::Index>(na);
     G.restrict_to(w.ids_a);
     w.ga.resize(ma);

@@ -52,11 +52,15 @@ struct NcpOptions {
   // The polish factorizes a dense (3 na x 3 na) system over the na non-breaking
   // contacts (a few times). Beyond this many: on the dense path it is skipped (O(na^3)
   // would exceed the rest of the step) and the solver's tolerance stands; on the sparse
-  // operator it runs on the operator (mode_system.hpp, never a dense G_AA).
+  // operator it runs on the operator (mode_system.hpp, never a dense G_AA) where every
+  // such contact sticks (preconditioned CG), and on sets with sliding contacts only up
+  // to 64 of them (ncp.cpp; docs/method.md "The mode-fixed system at scale").
   int polish_max_active = 400;
   // The implicit derivative's mode-fixed system (ncp_derivatives.hpp) where no dense G
   // exists: on the dense G_AA of the active contacts up to this many of them, on the
-  // operator beyond (mode_system.hpp; docs/method.md "The mode-fixed system at scale").
+  // operator beyond (mode_system.hpp; docs/method.md "The mode-fixed system at scale")
+  // where every active contact sticks, and for sets with sliding contacts up to 64
+  // (contact_step_derivatives.cpp; larger mixed sets keep the dense G_AA).
   int derivative_dense_max_active = 400;
   NcpBackend backend = NcpBackend::automatic;
   // The crossover (measured, docs/method.md "Contact at scale"): the dense G for up to

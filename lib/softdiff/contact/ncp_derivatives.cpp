@@ -42,7 +42,8 @@ void NcpDerivative::set_active(const VecX& mu, const VecX& lambda, const VecX& s
 }
 
 void NcpDerivative::compute_operator(OperatorModeSystem::Apply G_AA, double L, const VecX& mu, const VecX& lambda,
-                                     const VecX& sigma, const std::vector<Mode>& modes) {
+                                     const VecX& sigma, const std::vector<Mode>& modes,
+                                     OperatorModeSystem::Precondition M) {
   set_active(mu, lambda, sigma, modes);
   SOFTDIFF_DEMAND(L > 0 && std::isfinite(L), "NcpDerivative::compute_operator: the scale L must be positive");
   const int na = static_cast<int>(active_.size());
@@ -57,6 +58,7 @@ void NcpDerivative::compute_operator(OperatorModeSystem::Apply G_AA, double L, c
   for (int a = 0; a < na; ++a)
     if (mode_blocks(mu, lambda, sigma, modes, L, a, T[a])) ++degenerate_;
   op_.set(std::move(G_AA), R_, std::move(T));  // S = R
+  op_.set_preconditioner(std::move(M));
 }
 
 bool NcpDerivative::mode_blocks(const VecX& mu, const VecX& lambda, const VecX& sigma, const std::vector<Mode>& modes,

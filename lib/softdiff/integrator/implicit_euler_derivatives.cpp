@@ -154,7 +154,9 @@ void StepDerivatives::prepare_contact(const Model& model, const Data& data, cons
   // the last Newton factorization, one iterate before the converged v_f; the implicit
   // function theorem at v_f needs G with the converged tangent A_f (`solver`, this
   // object's factorization), so the record's G is not used and G_AA is formed with A_f.
-  SOFTDIFF_DEMAND(contact_.prepare(model, data.contact, in.x, solver, step_size(model, data), !is_newton(model)),
+  const SparseMatrix* A = is_newton(model) ? &newton_A_ : &data.A;  // the matrix `solver` factorized
+  SOFTDIFF_DEMAND(contact_.prepare(model, data.contact, in.x, solver, step_size(model, data), !is_newton(model),
+                                   nullptr, nullptr, A),
                   "iterative linear solver did not reach its tolerance (contact derivative)");
   contact_v_ = out.v;
 }

@@ -102,7 +102,7 @@ class EquilibriumSystem {
       factorized = factorize(model_, data_, 1).ok();
       if (!factorized && (held_.empty() || c >= kProximalMax)) return false;
     }
-    if (contact_ && !stage_.prepare(model_, cd, *x_, *data_.solver, 1.0, false, &modes_, &sigma_)) return false;
+    if (contact_ && !stage_.prepare(model_, cd, *x_, *data_.solver, 1.0, false, &modes_, &sigma_, &data_.A)) return false;
     return true;
   }
 
