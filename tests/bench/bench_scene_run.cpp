@@ -17,6 +17,7 @@
 #include <softdiff/io/scene.hpp>
 
 #include <benchmark/benchmark.h>
+#include <algorithm>
 #include <chrono>
 #include <ctime>
 #include <string>
