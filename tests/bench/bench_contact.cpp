@@ -3,14 +3,21 @@
 // contacts, for ADMM and PGS, on the automatic backend (dense G up to 400 contacts, the
 // sparse operator beyond) and, up to 1000 contacts, on the dense one.
 // After 5 warm-up steps (contacts established, warm start in place), each iteration
-// is one step. Counters (per step): contacts, step_ms and its split detection_ms,
-// delassus_ms (H_c, G from forward solves, g), ncp_ms (solver + polish),
-// correction_ms (one more solve), fem_ms (assembly + factorization + free solve);
+// is one step. Counters (per step): contacts, step_ms and its split detection_ms
+// (broad and narrow phase, the speculative filter), system_ms (the assembly of the
+// contact system: H_c, g, and G from forward solves on the dense backend or, on the
+// sparse one, B's pattern and values and the dense G_W of small working sets; the
+// CLI's ms_per_step.delassus; named delassus_ms before 2026-12-02, when B's assembly
+// was still booked as NCP time), ncp_ms (the solver and the polish, their
+// factorizations included), ncp_factor_ms (of which the factorizations of G + rho I or
+// of B), correction_ms (one more solve), fem_ms (assembly + factorization + free solve);
 // iterations (ADMM/PGS); floor_ms: a bare CHOLMOD factorize + solve of the same A in
 // the same run; ratio = step_ms / floor_ms; free_ms: a step of the same slab with
 // contact disabled (it falls freely), same run; over_free = step_ms / free_ms;
 // rho_updates: ADMM's factorizations of G + rho I (dense) or A + (h/c) H^T H (sparse);
-// sparse: 1 if the step used the sparse backend. BM_Gripper: the same counters on the
+// sparse: 1 if the step used the sparse backend; step_cpu_ms, floor_cpu_ms, free_cpu_ms,
+// ratio_cpu, over_free_cpu: the same in process CPU time (with one thread the work done,
+// the figure that holds on a loaded machine, as in step_timing.hpp). BM_Gripper: the same counters on the
 // shipped gripper scene (soft fingers, self-contact, a fixed object).
 // BM_ContactMemory/<contacts>/<contact>: the peak resident memory (getrusage's
 // ru_maxrss, the whole process) of the slab after 6 steps with contact (1) or with
@@ -31,6 +38,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <ctime>
 #include <vector>
 #include <string>
 
@@ -39,6 +47,13 @@ using namespace softdiff;
 namespace {
 
 constexpr long kGripperWarmup = 100;  // steps until the fingers hold the object (configs/gripper.yaml)
+
+// The process's CPU time (s), all threads.
+double cpu_now() { return static_cast<double>(std::clock()) / CLOCKS_PER_SEC; }
+
+struct Seconds {
+  double wall = 0, cpu = 0;
+};
 
 Model slab(int contacts, contact::NcpSolverKind solver, contact::NcpBackend backend) {
   int nx = 4, ny = 1;  // (nx + 1)(ny + 1) bottom vertices
@@ -66,19 +81,23 @@ Model slab(int contacts, contact::NcpSolverKind solver, contact::NcpBackend back
   return model;
 }
 
-// Wall seconds of one step of `model` without contact (the same state), median of 3.
-double free_step_seconds(Model model, const State& s, long k) {
+// Seconds of one step of `model` without contact (the same state), wall and CPU, each
+// the median of 3.
+Seconds free_step_seconds(Model model, const State& s, long k) {
   model.contact.enabled = false;
   Data data(model);
   State next;
-  std::vector<double> t;
+  std::vector<double> t, c;
   for (int r = 0; r < 3; ++r) {
     const auto t0 = std::chrono::steady_clock::now();
+    const double c0 = cpu_now();
     (void)integrator::implicit_euler_step(model, data, s, next, k);
+    c.push_back(cpu_now() - c0);
     t.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
   }
   std::sort(t.begin(), t.end());
-  return t[1];
+  std::sort(c.begin(), c.end());
+  return {t[1], c[1]};
 }
 
 // Runs `warmup` steps, then one step per benchmark iteration (the state advances),
@@ -97,11 +116,13 @@ void time_contact_steps(benchmark::State& st, const Model& model, long warmup) {
     std::swap(s, next);
   }
   StepTimings total;
-  double wall = 0, iterations = 0, contacts = 0, rho_updates = 0, sparse = 0;
+  double wall = 0, cpu = 0, iterations = 0, contacts = 0, rho_updates = 0, sparse = 0, ncp_factor = 0;
   long steps = 0;
   for (auto _ : st) {
     const auto t0 = Clock::now();
+    const double c0 = cpu_now();
     const auto status = integrator::implicit_euler_step(model, data, s, next, ++k);
+    cpu += cpu_now() - c0;
     wall += std::chrono::duration<double>(Clock::now() - t0).count();
     if (!status.ok()) {
       st.SkipWithError(describe(model, status).c_str());
@@ -111,6 +132,7 @@ void time_contact_steps(benchmark::State& st, const Model& model, long warmup) {
     total += data.timings;
     iterations += data.contact.result.iterations;
     rho_updates += data.contact.result.rho_updates;
+    ncp_factor += data.contact.result.factorization_seconds;
     sparse += data.contact.result.sparse;
     contacts += data.contact.contacts.size();
     ++steps;
@@ -119,11 +141,13 @@ void time_contact_steps(benchmark::State& st, const Model& model, long warmup) {
   auto floor_solver = integrator::make_linear_solver({integrator::SolverKind::cholmod});
   floor_solver->analyze(data.A);
   VecX x;
-  double floor = 0;
+  double floor = 0, floor_cpu = 0;
   for (int r = 0; r < 5; ++r) {
     const auto t0 = Clock::now();
+    const double c0 = cpu_now();
     floor_solver->factorize(data.A);
     floor_solver->solve(data.rhs, x);
+    floor_cpu += (cpu_now() - c0) / 5;
     floor += std::chrono::duration<double>(Clock::now() - t0).count() / 5;
   }
   const double per = 1e3 / static_cast<double>(steps);
@@ -132,15 +156,21 @@ void time_contact_steps(benchmark::State& st, const Model& model, long warmup) {
   st.counters["step_ms"] = wall * per;
   st.counters["fem_ms"] = (total.assembly + total.factorization + total.solve + total.other) * per;
   st.counters["detection_ms"] = total.detection * per;
-  st.counters["delassus_ms"] = total.delassus * per;
+  st.counters["system_ms"] = total.delassus * per;
   st.counters["ncp_ms"] = total.ncp * per;
+  st.counters["ncp_factor_ms"] = ncp_factor * per;
   st.counters["correction_ms"] = total.correction * per;
   st.counters["iterations"] = iterations / steps;
   st.counters["floor_ms"] = 1e3 * floor;
   st.counters["ratio"] = wall / steps / floor;
-  const double free = free_step_seconds(model, s, k + 1);
-  st.counters["free_ms"] = 1e3 * free;
-  st.counters["over_free"] = wall / steps / free;
+  const Seconds free = free_step_seconds(model, s, k + 1);
+  st.counters["free_ms"] = 1e3 * free.wall;
+  st.counters["over_free"] = wall / steps / free.wall;
+  st.counters["step_cpu_ms"] = cpu * per;
+  st.counters["floor_cpu_ms"] = 1e3 * floor_cpu;
+  st.counters["free_cpu_ms"] = 1e3 * free.cpu;
+  st.counters["ratio_cpu"] = cpu / steps / floor_cpu;
+  st.counters["over_free_cpu"] = cpu / steps / free.cpu;
   st.counters["rho_updates"] = rho_updates / steps;
   st.counters["sparse"] = sparse / steps;
   const auto backend = model.contact.ncp.backend;

@@ -405,4 +405,58 @@ TEST(SparseNcp, TrajectoryMatchesTheDenseBackend) {
   }
 }
 
+// The split of the step's contact time (docs/performance.md "Contact"): on the
+// operator, forming contact-system matrices (B's pattern and values, the dense G_W) is
+// the assembly of the contact system (timings.delassus), B's factorizations are NCP
+// time and counted apart (NcpResult::factorization_seconds). Bookkeeping only: which
+// counter holds a time, never how long it took (a clock reading of a CHOLMOD
+// factorization or of a sparse product is positive; a counter that was not fed is 0).
+TEST(SparseDelassus, BooksTheSystemsAssemblyApartFromItsFactorizations) {
+  Model model = slab_model();
+  model.contact.ncp.backend = contact::NcpBackend::dense;
+  Data data(model);
+  step_to_contact(model, data);
+  contact::SparseDelassus op;
+  op.bind(*data.solver, data.A, data.contact.Ht, model.step.dt, model.solver);
+  EXPECT_EQ(op.assembly_seconds(), 0);
+  EXPECT_EQ(op.factorization_seconds(), 0);
+  ASSERT_TRUE(op.factorize_shifted(1.0));  // B's pattern and values, then its factorization
+  const double assembled = op.assembly_seconds(), factorized = op.factorization_seconds();
+  EXPECT_GT(assembled, 0);
+  EXPECT_GT(factorized, 0);
+  ASSERT_TRUE(op.factorize_shifted(2.0));  // the same pattern: a factorization only
+  EXPECT_EQ(op.assembly_seconds(), assembled);
+  EXPECT_GT(op.factorization_seconds(), factorized);
+  MatX G;
+  ASSERT_TRUE(op.dense(G));  // a dense G_W is an assembly
+  EXPECT_GT(op.assembly_seconds(), assembled);
+  op.bind(*data.solver, data.A, data.contact.Ht, model.step.dt, model.solver);  // a new step
+  EXPECT_EQ(op.assembly_seconds(), 0);
+  EXPECT_EQ(op.factorization_seconds(), 0);
+
+  // A step on the operator: its B assembly is booked as the contact system's, and the
+  // NCP reports its factorizations of B (ADMM refactorizes at least once per step).
+  Model sparse = slab_model();
+  sparse.contact.ncp.backend = contact::NcpBackend::sparse;
+  sparse.contact.ncp.dense_max_contacts = 0;
+  Data ds(sparse);
+  step_to_contact(sparse, ds);
+  const auto& cd = ds.contact;
+  ASSERT_TRUE(cd.result.sparse);
+  ASSERT_GT(cd.result.rho_updates, 0);
+  EXPECT_GT(cd.result.factorization_seconds, 0);
+  EXPECT_GE(cd.result.factorization_seconds, cd.sparse.factorization_seconds());  // (+ any dense fallback's)
+  EXPECT_GT(cd.sparse.assembly_seconds(), 0);
+  EXPECT_GE(ds.timings.delassus, cd.sparse.assembly_seconds());
+  EXPECT_GE(ds.timings.ncp, cd.result.factorization_seconds);
+
+  // The dense backend times its factorizations of G + rho I in the NCP's result too.
+  Data dd(model);
+  step_to_contact(model, dd);
+  ASSERT_FALSE(dd.contact.result.sparse);
+  ASSERT_GT(dd.contact.result.rho_updates, 0);  // ADMM factorizes G + rho I at least once
+  EXPECT_GT(dd.contact.result.factorization_seconds, 0);
+  EXPECT_GE(dd.timings.ncp, dd.contact.result.factorization_seconds);
+}
+
 }  // namespace sparse_delassus_test

@@ -4,6 +4,7 @@
 #include <softdiff/contact/sparse_delassus.hpp>
 
 #include <softdiff/core/assert.hpp>
+#include <softdiff/core/timer.hpp>
 
 #include <algorithm>
 #include <Eigen/Cholesky>
@@ -309,6 +310,7 @@ bool all_finite(const V& v) {
 // dual residuals are within the tolerance.
 struct DenseOperator {
   static constexpr bool cheap_apply = true;
+  static constexpr bool times_its_factorizations = false;  // admm() times factorize()
   Buffers& w;
   const Eigen::Ref<const MatX>& G;
   Eigen::Index n;
@@ -353,6 +355,9 @@ struct DenseOperator {
 
 struct SparseOperator {
   static constexpr bool cheap_apply = false;
+  // SparseDelassus times B's factorizations itself (without the assembly of B's
+  // pattern, which factorize_shifted may do first); solve() adds them to the result.
+  static constexpr bool times_its_factorizations = true;
   SparseDelassus& d;  // records a missed iterative-solver tolerance itself (failed())
   // The per-contact scale d_i (admm()): the operator's estimate of G_ii (sparse_delassus.hpp).
   void contact_scale(VecRef out) { d.contact_compliance(out); }
@@ -409,7 +414,11 @@ NcpResult admm(Buffers& w, Operator& op, const Problem& p, VecRef lambda, VecRef
   double rho = std::clamp(op.initial_rho(std::sqrt(L * eta) * std::pow(cond, 0.2)), rho_min, rho_max);
   auto factorize = [&]() {
     ++result.rho_updates;
-    return op.factorize(rho + eta);
+    if constexpr (Operator::times_its_factorizations) return op.factorize(rho + eta);
+    const auto t0 = Clock::now();
+    const bool ok = op.factorize(rho + eta);
+    result.factorization_seconds += seconds_since(t0);
+    return ok;
   };
 
   // Warm start: y = P_K(lambda), z = P_K*(sigma + Gamma(sigma)) at y.
@@ -872,6 +881,7 @@ NcpResult working_set_solve(Buffers& w, const Problem& p, const NcpOptions& opti
     const NcpResult sub = nw > 0 ? solve_core(w, r, options, w.lw.head(m), w.sw.head(m), w.modes_set) : NcpResult{};
     result.iterations += sub.iterations;
     result.rho_updates += sub.rho_updates;
+    result.factorization_seconds += sub.factorization_seconds;
     result.fallback_iterations += sub.fallback_iterations;
     result.polished = sub.polished;
     // Scatter (lambda is 0 outside W) and the full sigma, O(n m).
@@ -956,6 +966,7 @@ NcpResult NcpSolver::solve(const MatX& G, const VecX& g, const VecX& mu, const N
     result = solve_core(w, p, options, lambda, sigma, modes);
     result.iterations += ws.iterations;
     result.rho_updates += ws.rho_updates;
+    result.factorization_seconds += ws.factorization_seconds;
     result.working_set_rounds = ws.working_set_rounds;
     result.working_set_size = ws.working_set_size;
     result.working_set_fallback = options.working_set;
@@ -1329,6 +1340,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
       const NcpResult q = solve_core(w, pc, inner, w.la, w.sa, w.modes_a);
       sub.iterations += q.iterations;
       sub.rho_updates += q.rho_updates;
+      sub.factorization_seconds += q.factorization_seconds;
       sub.fallback_iterations += q.fallback_iterations;
       // The full candidate (0 outside C) and its full sigma (sigma_p: scratch, n).
       w.lambda_p.setZero(n);
@@ -1397,6 +1409,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
         const NcpResult part = admm(w, op, r, w.lw.head(m), w.sw.head(m), window, options.admm_scaling);
         sub.iterations += part.iterations;
         sub.rho_updates += part.rho_updates;
+        sub.factorization_seconds += part.factorization_seconds;
         sub.residuals = part.residuals;
         Gscale = std::max(Gscale, G.last_eigenvalue());
         const bool stalled = part.fallback_iterations < 0;
@@ -1411,6 +1424,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
     }
     result.iterations += sub.iterations;
     result.rho_updates += sub.rho_updates;
+    result.factorization_seconds += sub.factorization_seconds;
     result.fallback_iterations += sub.fallback_iterations;
     result.polished = sub.polished;
     // Scatter (lambda is 0 outside W) and the full sigma.
@@ -1447,6 +1461,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
   classify_by(nc, mu, lambda, sigma, gnn, std::max(Gscale, tiny), modes);
   result.converged = result.residuals.max() <= tol && !G.failed();
   result.polish_factorizations = w.polish_factorizations;
+  result.factorization_seconds += G.factorization_seconds();
   count_modes(modes, result);
   return result;
 }

@@ -84,6 +84,10 @@ struct NcpResult {
   bool converged = false;       // residuals.max() <= tolerance
   bool polished = false;        // the polished solution was kept
   int rho_updates = 0;          // ADMM: refactorizations of G + rho I
+  // Wall seconds (reports only) of the NCP's factorizations of its shifted systems: ADMM's
+  // dense G + rho D, and on the operator B = A + (h/c) H^T D^-1 H (ADMM's and the
+  // polish preconditioner's; SparseDelassus::factorization_seconds). Part of the NCP's time.
+  double factorization_seconds = 0;
   int sticking = 0, sliding = 0, breaking = 0;
   int working_set_rounds = 0;   // reduced solves (0: the full problem was solved directly)
   int working_set_size = 0;     // contacts in the last working set

@@ -2,6 +2,7 @@
 #include <softdiff/contact/sparse_delassus.hpp>
 
 #include <softdiff/core/assert.hpp>
+#include <softdiff/core/timer.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -88,6 +89,7 @@ void SparseDelassus::bind(integrator::LinearSolver& A_solver, const SparseMatrix
   nc_ = static_cast<int>(Ht.cols() / 3);
   options_ = options;
   failed_ = false;
+  assembly_seconds_ = factorization_seconds_ = 0;
   restrict_to_all();
 }
 
@@ -101,8 +103,10 @@ void SparseDelassus::restrict_to_all() {
 }
 
 void SparseDelassus::restrict_to(const std::vector<int>& W) {
+  const auto t0 = Clock::now();
   W_ = W;
   select_contact_columns(*Ht_, W, HtW_);
+  assembly_seconds_ += seconds_since(t0);
   scale_sqrt_inv_.resize(0);  // unscaled: HtWs_ is not used
   pattern_ready_ = false;
   c_ = 0;
@@ -129,9 +133,11 @@ void SparseDelassus::set_scale(const Eigen::Ref<const VecX>& d) {
   const Eigen::Index m = static_cast<Eigen::Index>(W_.size());
   SOFTDIFF_DEMAND(d.size() == m && (m == 0 || d.minCoeff() > 0),
                   "SparseDelassus::set_scale: expected " + std::to_string(m) + " positive values");
+  const auto t0 = Clock::now();
   scale_sqrt_inv_.resize(3 * m);
   for (Eigen::Index b = 0; b < m; ++b) scale_sqrt_inv_.segment<3>(3 * b).setConstant(1 / std::sqrt(d[b]));
   HtWs_ = HtW_ * scale_sqrt_inv_.asDiagonal();
+  assembly_seconds_ += seconds_since(t0);
   pattern_ready_ = false;  // H~^T H~ changes (the pattern does not)
   c_ = 0;
 }
@@ -153,13 +159,16 @@ bool SparseDelassus::apply_full(const Eigen::Ref<const VecX>& y, Eigen::Ref<VecX
 }
 
 bool SparseDelassus::dense(MatX& G) {
+  const auto t0 = Clock::now();
   const bool ok = A_solver_->inverse_congruence(HtW_, G);
   failed_ = failed_ || !ok;
   G *= h_;
+  assembly_seconds_ += seconds_since(t0);
   return ok;
 }
 
 void SparseDelassus::build_pattern() {
+  const auto t0 = Clock::now();
   // P = H~_W^T H~_W, upper triangle (H~ = D^-1/2 H: the same pattern as H's).
   const SparseMatrix& Hs = scaled_columns(HtW_, HtWs_, scale_sqrt_inv_);
   const SparseMatrix full = Hs * Hs.transpose();
@@ -179,15 +188,19 @@ void SparseDelassus::build_pattern() {
   SOFTDIFF_DEMAND(scatter_into(P, S_, p_values_), "SparseDelassus: H^T H outside the analyzed pattern");
   SOFTDIFF_DEMAND(scatter_into(*A_, S_, a_values_), "SparseDelassus: A outside the analyzed pattern");
   pattern_ready_ = true;
+  assembly_seconds_ += seconds_since(t0);
 }
 
 bool SparseDelassus::factorize_shifted(double c) {
   SOFTDIFF_DEMAND(c > 0, "SparseDelassus::factorize_shifted: the shift must be positive");
   if (!pattern_ready_) build_pattern();
+  const auto t0 = Clock::now();
   Eigen::Map<VecX>(S_.valuePtr(), S_.nonZeros()) = a_values_ + (h_ / c) * p_values_;
   ++factorizations_;
   c_ = 0;
-  if (!B_solver_->factorize(S_).ok) return false;
+  const bool ok = B_solver_->factorize(S_).ok;
+  factorization_seconds_ += seconds_since(t0);
+  if (!ok) return false;
   c_ = c;
   return true;
 }

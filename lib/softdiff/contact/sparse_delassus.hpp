@@ -90,6 +90,13 @@ class SparseDelassus {
   int analyses() const { return analyses_; }          // symbolic analyses of B
   Eigen::Index pattern_nonzeros() const { return S_.nonZeros(); }  // of the analyzed pattern (upper)
   int factorizations() const { return factorizations_; }
+  // Wall seconds since bind() (reports only, never asserted): forming contact-system
+  // matrices (restrict_to's columns, set_scale's H~, B's pattern and values from
+  // H_W^T H_W, the dense G_WW of dense()), and B's numeric factorizations
+  // (factorize_shifted without its pattern). contact_step.cpp books the first as the
+  // assembly of the contact system, not as NCP time (docs/performance.md "Contact").
+  double assembly_seconds() const { return assembly_seconds_; }
+  double factorization_seconds() const { return factorization_seconds_; }
 
  private:
   void build_pattern();  // P = H_W^T H_W (upper), S grown if needed, values scattered
@@ -116,6 +123,7 @@ class SparseDelassus {
   double last_eigenvalue_ = 0, last_rho_ = 0;
   bool failed_ = false;
   int analyses_ = 0, factorizations_ = 0;
+  double assembly_seconds_ = 0, factorization_seconds_ = 0;  // since bind()
 };
 
 }  // namespace softdiff::contact
