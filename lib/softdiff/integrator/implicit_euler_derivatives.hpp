@@ -122,7 +122,7 @@ class StepDerivatives {
   VecX h_alpha_, k_coef_;            // (bodies) h alpha_b, h beta_b + h^2
   VecX minus_h_, minus_k_coef_;      // (bodies) -h, -(coefficient of K~(x_i) w): -(h beta_b + h^2), Newton -h beta_b
   VecX zero_bodies_;                 // (bodies) zeros
-  VecX r_, y_, q_, w_, delta_, tmp_, tmp2_, zero_, q_extra_;  // (3n) workspace
+  VecX r_, y_, q_, w_, delta_, tmp_, tmp2_, zero_, q_extra_, work_;  // (3n) workspace
   // Contact (the linearized step with contact): the geometry derivative of every
   // contact and the NCP derivative at the step's solution, computed once per step
   // (cached by v_f). Counts the contacts whose geometry is not differentiable (their
