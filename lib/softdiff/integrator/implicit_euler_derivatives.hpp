@@ -24,7 +24,9 @@
 //   bar_v_i = v~ - h alpha M y - (h beta + h^2) K~ y
 //   bar_lambda_a = h H_a y,   bar_p_j = y . q_j.
 // Every solve uses the step's factorization (data.solver): k JVP columns cost k
-// solves, a VJP one. Fixed dofs: Pi as in the step (their dx_i still moves the
+// solves, a VJP one. The linearized step's K dx_i and dK~[dx_i] w (and their
+// transposes) come from the step's record data.fem (fem::add_stiffness_product: the
+// assembled K, the kept polar decompositions), not from an element pass with SVD. Fixed dofs: Pi as in the step (their dx_i still moves the
 // elastic forces; their velocity stays 0).
 //
 // newton_iterations > 1: the implicit function theorem on the converged residual
