@@ -20,7 +20,8 @@ struct FemData {
   VecX element_energy;        // (m) V_e psi(F_e); written by evaluate when energy is requested
   double energy = 0;          // sum of element_energy
   VecX f_int;                 // (3n) f_int = -dE/dx; written by evaluate (forces)
-  VecX K_values;              // (nnz) K = d^2E/dx^2 in the pattern (unprojected); written by evaluate (stiffness)
+  VecX K_values;              // (nnz) K~ in the pattern: K = d^2E/dx^2, per element projected for a body with
+                              // psd_projection; written by evaluate (stiffness)
   int bad_element = -1;       // first element where the law is undefined or det F <= 0, or -1
   double bad_det = 0;         // det F of that element
 
