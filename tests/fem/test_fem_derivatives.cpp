@@ -122,6 +122,49 @@ TEST_P(FemDerivatives, ReverseProductsAreTheTransposes) {
   EXPECT_NEAR(lhs, rhs, 1e-10 * (y.norm() * Ju.norm() + JTy.norm() * u.norm())) << name_of(c);
 }
 
+// The products from the record of an evaluation (add_stiffness_product, the forward
+// sensitivities' path: K u from the assembled K, dK[u] w from the kept polar
+// decompositions, no SVD): against the same central differences (kStep, kTol above),
+// and against the element-pass products, which they equal up to rounding (1e-12).
+TEST_P(FemDerivatives, ProductsFromTheRecordMatchFiniteDifferences) {
+  const Case c = GetParam();
+  const Model model = make(c);
+  const VecX x = deformed(model, 10);
+  const Eigen::Index n = x.size();
+  const VecX u = random_vector(n, kEdge, 11), w = random_vector(n, 1.0, 12);
+  const VecX one = VecX::Ones(1), none = VecX::Zero(1);
+  fem::FemData record;
+  record.resize(model.fem);
+  ASSERT_TRUE(fem::evaluate(model.fem, x, {false, true, true}, record));
+  VecX work(n);
+  VecX Ku = VecX::Zero(n), dKw = VecX::Zero(n);
+  ASSERT_EQ(fem::add_stiffness_product(model.fem, record, x, fem::StiffnessProduct::jvp, u, w, one, none, Ku, work), -1);
+  ASSERT_EQ(fem::add_stiffness_product(model.fem, record, x, fem::StiffnessProduct::jvp, u, w, none, one, dKw, work), -1);
+  const VecX Ku_fd = -(forces(model, x + kStep * u) - forces(model, x - kStep * u)) / (2 * kStep);
+  const VecX dKw_fd = (stiffness_times(model, x + kStep * u, w) - stiffness_times(model, x - kStep * u, w)) / (2 * kStep);
+  ASSERT_GT(Ku.norm(), 0);
+  EXPECT_LE((Ku - Ku_fd).norm(), kTol * Ku_fd.norm()) << name_of(c);
+  if (c.law == Law::linear) {
+    EXPECT_EQ(dKw.norm(), 0);
+  } else {
+    ASSERT_GT(dKw.norm(), 0);
+    EXPECT_LE((dKw - dKw_fd).norm(), kTol * dKw_fd.norm()) << name_of(c);
+  }
+  // The element-pass products, forward and reverse, with both terms at once.
+  const VecX a = VecX::Constant(1, -0.3), cc = VecX::Constant(1, 1.7);
+  for (auto kind : {fem::StiffnessProduct::jvp, fem::StiffnessProduct::vjp}) {
+    VecX got = VecX::Zero(n), ref = VecX::Zero(n);
+    ASSERT_EQ(fem::add_stiffness_product(model.fem, record, x, kind, u, w, a, cc, got, work), -1);
+    if (kind == fem::StiffnessProduct::jvp) {
+      ASSERT_EQ(fem::add_stiffness_jvp(model.fem, x, u, w, a, cc, ref), -1);
+    } else {
+      ASSERT_EQ(fem::add_stiffness_vjp(model.fem, x, u, w, a, cc, ref), -1);
+    }
+    ASSERT_GT(ref.norm(), 0);
+    EXPECT_LE((got - ref).norm(), 1e-12 * ref.norm()) << name_of(c) << (kind == fem::StiffnessProduct::jvp ? " jvp" : " vjp");
+  }
+}
+
 TEST_P(FemDerivatives, ElasticParameterDerivativesMatchFiniteDifferences) {
   const Case c = GetParam();
   const Model model = make(c);

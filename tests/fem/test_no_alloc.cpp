@@ -6,6 +6,7 @@
 // (CHOLMOD, libgomp) are not counted: they are not softdiff's loops.
 #include <softdiff/data.hpp>
 #include <softdiff/fem/assembly.hpp>
+#include <softdiff/fem/fem_derivatives.hpp>
 #include <softdiff/integrator/bdf2.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
 #include <support/meshes.hpp>
@@ -102,6 +103,36 @@ TEST(NoAllocation, AssemblyAndStepAllocateNothing) {
       ASSERT_TRUE(integrator::implicit_euler_step(model, data, s, next, 2).ok());
       EXPECT_EQ(c.count(), 0) << material::law_name(law) << ": the step allocated";
     }
+  }
+}
+
+// The stiffness products of a JVP/VJP from the step's record (fem::add_stiffness_product:
+// the sparse product with K, the element pass on the kept polar decompositions; with
+// psd_projection the element pass with the projection's derivative) allocate nothing.
+TEST(NoAllocation, StiffnessProductsFromTheRecordAllocateNothing) {
+  for (const bool psd : {false, true})
+  for (auto law : {material::Law::corotational, material::Law::stvk, material::Law::neo_hookean}) {
+    SCOPED_TRACE(psd ? "psd_projection" : "no projection");
+    test::BodySpec spec;
+    spec.law = law;
+    spec.psd_projection = psd;
+    spec.fixed = [](const Vec3& p) { return p.x() < 1e-9; };
+    const Model model = test::make_model(test::box_mesh(8, 3, 3, 0.1, 0.02, 0.02), spec);
+    fem::FemData record;
+    record.resize(model.fem);
+    const VecX x = model.initial.x + VecX::Constant(model.initial.x.size(), 1e-4).cwiseProduct(
+                                         VecX::LinSpaced(model.initial.x.size(), -1.0, 1.0));
+    const VecX u = VecX::LinSpaced(x.size(), 0.0, 1e-3), w = VecX::LinSpaced(x.size(), 1.0, -1.0);
+    const VecX a = VecX::Constant(1, -0.01), c = VecX::Constant(1, -1e-4);
+    VecX out = VecX::Zero(x.size()), work = VecX::Zero(x.size());
+    ASSERT_TRUE(fem::evaluate(model.fem, x, {false, true, true}, record));
+    {
+      Counting counter;
+      for (auto kind : {fem::StiffnessProduct::jvp, fem::StiffnessProduct::vjp})
+        ASSERT_EQ(fem::add_stiffness_product(model.fem, record, x, kind, u, w, a, c, out, work), -1);
+      EXPECT_EQ(counter.count(), 0) << material::law_name(law) << ": the products allocated";
+    }
+    EXPECT_GT(out.norm(), 0);
   }
 }
 

@@ -397,6 +397,40 @@ TEST_P(Laws, DirectionalDerivativeOfStressDerivative) {
   }
 }
 
+// stress_second_derivative (d^2P[E, W] from the polar decomposition stress() kept, the
+// product the forward sensitivities use): against central differences of dP/dF along E
+// applied to vec(W) (the step and tolerance of DirectionalDerivativeOfStressDerivative:
+// truncation ~1e-12, round-off ~1e-10 relative, a formula error O(1)), and against the
+// 9x9 directional derivative times vec(W), which it must equal up to rounding (1e-12).
+TEST_P(Laws, SecondDerivativeOfStressFromTheKeptPolarDecomposition) {
+  std::mt19937 rng(12);
+  for (const Lame& l : {kLame, kLameStiff}) {
+    std::vector<Sample> all = fd_samples();
+    all.push_back({"identity", Mat3::Identity()});  // repeated singular values
+    for (const auto& s : all) {
+      SCOPED_TRACE(s.name);
+      const Mat3 E = random_matrix(rng).normalized(), W = random_matrix(rng).normalized();
+      Mat3 P;
+      PointCache cache;
+      ASSERT_TRUE(stress(law(), s.F, l, P, nullptr, &cache));
+      Mat3 d2P;
+      ASSERT_TRUE(stress_second_derivative(law(), s.F, cache, l, E, W, d2P));
+      const Vec9 got = detail::vec(d2P);
+      ASSERT_GT(got.norm(), 0);
+      const double h = 1e-6 * std::max(1.0, s.F.cwiseAbs().maxCoeff());
+      const Vec9 fd = (dP_dF_of(law(), s.F + h * E, l) - dP_dF_of(law(), s.F - h * E, l)) * detail::vec(W) / (2.0 * h);
+      std::string where;
+      EXPECT_LT(rel_error(got, fd, &where), 1e-6) << where;
+      const Vec9 product = directional_of(law(), s.F, l, E) * detail::vec(W);
+      EXPECT_LT(rel_error(got, product, &where), 1e-12) << where;
+      // A third derivative: symmetric in E and W.
+      Mat3 d2P_swapped;
+      ASSERT_TRUE(stress_second_derivative(law(), s.F, cache, l, W, E, d2P_swapped));
+      EXPECT_LT(rel_error(got, Vec9(detail::vec(d2P_swapped))), 1e-12);
+    }
+  }
+}
+
 INSTANTIATE_TEST_SUITE_P(Material, Laws, ::testing::ValuesIn(kLaws),
                          [](const ::testing::TestParamInfo<Law>& param) { return std::string(law_name(param.param)); });
 

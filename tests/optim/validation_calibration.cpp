@@ -90,6 +90,35 @@ void recovers(Parameter kind, double truth, double tolerance) {
 TEST(Calibration, RecoversYoungFromFarGuesses) { recovers(Parameter::young, 1e6, 1e-6); }
 TEST(Calibration, RecoversPoissonFromFarGuesses) { recovers(Parameter::poisson, 0.04, 1e-6); }
 
+// The step test (docs/method.md "Calibration", "Stopping"): the last iteration's trial
+// step is below xtol and is not run, so the calibration ends with as many runs as
+// iterations (the initial guess's run, one per iteration but the last), and its answer
+// is MINPACK's own to the step test's bound: against the same calibration with xtol = 0
+// (no step test and no trust-region test: MINPACK runs every trial, down to the cost's
+// round-off floor and machine precision), young agrees to 1e-9 relative (the bound
+// xtol |z| = 1e-10 log(1e6) = 1.4e-9 on the skipped step in z = log E, as
+// dE / E = dz).
+TEST(Calibration, StopsBeforeATrialStepBelowXtol) {
+  const Model truth_model = beam(1e6);
+  const optim::CalibrationTarget target = test::every_frame_target(truth_model, kSteps);
+  const optim::CalibrationResult r =
+      optim::calibrate(truth_model, {{Parameter::young, 0}}, {0.5e6}, target, optim::CalibrationOptions{});
+  ASSERT_TRUE(r.converged) << r.stop_reason;
+  EXPECT_EQ(r.stop_reason, "relative step below xtol (the trial was not run)");
+  ASSERT_GE(r.history.size(), 2u);
+  const auto& last = r.history.back();
+  EXPECT_EQ(last.evaluations, r.history[r.history.size() - 2].evaluations) << "the last iteration ran a trial";
+  EXPECT_EQ(last.rejected, 0);
+  EXPECT_EQ(r.evaluations, r.iterations + r.rejected);
+  optim::CalibrationOptions full;
+  full.xtol = 0;
+  const optim::CalibrationResult m =
+      optim::calibrate(truth_model, {{Parameter::young, 0}}, {0.5e6}, target, full);
+  EXPECT_GT(m.evaluations, r.evaluations);
+  EXPECT_NEAR(r.values[0] / m.values[0], 1.0, 1e-9) << r.values[0] << " against " << m.values[0] << " (" << m.stop_reason
+                                                    << ")";
+}
+
 TEST(Calibration, ResidualJacobianAgainstCentralDifferences) {
   const Model m = beam();
   const optim::CalibrationTarget target = test::every_frame_target(beam(1.3e6), kSteps);

@@ -12,7 +12,9 @@
 //
 // Forward sensitivities: S_x = d x_t / d theta and S_v = d v_t / d theta (3n x k) carried
 // step to step: k JVPs per step, each one solve with the step's own factorization.
-// Cost: k solves plus k element passes per step; memory 2 (3n x k).
+// Cost: k solves plus k stiffness products from the step's record per step (one sparse
+// product with K and, for a dK term, an element pass without SVD:
+// fem::add_stiffness_product); memory 2 (3n x k).
 //
 // Adjoint: a forward pass records the states on a Tape (x and v of every frame, and
 // the actuation values of every step: 48 n + 8 n_a bytes per step, n the number of

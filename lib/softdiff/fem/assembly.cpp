@@ -24,6 +24,8 @@ double min_det_F10(const FemModel& model, const VecX& x, int e) {
 void FemData::resize(const FemModel& model) {
   F.assign(model.num_tets, Mat3::Identity());
   R.assign(model.num_tets, Mat3::Identity());
+  polar_V.assign(model.num_tets, Mat3::Identity());
+  polar_sigma.assign(model.num_tets, Vec3::Ones());
   F_qp.assign(4 * static_cast<size_t>(model.num_quadratic), Mat3::Identity());
   R_qp.assign(4 * static_cast<size_t>(model.num_quadratic), Mat3::Identity());
   element_energy = VecX::Zero(model.num_tets);
@@ -44,7 +46,7 @@ void element_stiffness_from_tangent(const Mat9& C, const Eigen::Matrix<double, 3
 
 bool element_forces_stiffness(material::Law law, const material::Lame& lame, double volume, const Mat3& Dm_inv,
                               const Eigen::Matrix<double, 3, 4>& x_e, bool psd_projection, Mat3& F, Vec12& f_e,
-                              Mat12* K_e, double* energy, Mat3* R) {
+                              Mat12* K_e, double* energy, Mat3* R, Mat3* polar_V, Vec3* polar_sigma) {
   Mat3 Ds;
   Ds.col(0) = x_e.col(1) - x_e.col(0);
   Ds.col(1) = x_e.col(2) - x_e.col(0);
@@ -57,6 +59,8 @@ bool element_forces_stiffness(material::Law law, const material::Lame& lame, dou
   material::PointCache cache;
   if (!material::stress(law, F, lame, P, K_e ? &dP_dF : nullptr, &cache)) return false;
   if (R) *R = cache.R;
+  if (polar_V) *polar_V = cache.V;
+  if (polar_sigma) *polar_sigma = cache.sigma;
   if (energy) *energy = volume * material::psi(law, F, lame);
   // f_a = -V P g_a
   Eigen::Map<Eigen::Matrix<double, 3, 4>>(f_e.data()).noalias() = -volume * P * G;
@@ -130,7 +134,8 @@ bool evaluate(const FemModel& model, const VecX& x, const EvalRequest& request, 
     double psi_e = 0;
     if (!element_forces_stiffness(body.law, body.lame, model.rest_volume[e], model.Dm_inv[e], x_e,
                                   body.psd_projection, data.F[e], f_e, request.stiffness ? &K_e : nullptr,
-                                  request.energy ? &psi_e : nullptr, &data.R[e]))
+                                  request.energy ? &psi_e : nullptr, &data.R[e], &data.polar_V[e],
+                                  &data.polar_sigma[e]))
       return false;
     if (request.energy) data.element_energy[e] = psi_e;
     if (request.forces)

@@ -12,12 +12,16 @@ struct FemData {
   std::vector<Mat3> F;        // (m) deformation gradient per element (quadratic: at the quadrature point
                               // with the smallest det F); written by evaluate
   std::vector<Mat3> R;        // (m) corotational: rotation of F = R S (else unused); written by evaluate
+  std::vector<Mat3> polar_V;  // (m) corotational, linear tets: V of the signed SVD F = U diag(sigma) V^T
+                              // (U = R V); written by evaluate (read by add_stiffness_product)
+  std::vector<Vec3> polar_sigma;  // (m) corotational, linear tets: its signed singular values; written by evaluate
   std::vector<Mat3> F_qp;     // (4 per quadratic element, FemModel::quad_slot) F at each quadrature point
   std::vector<Mat3> R_qp;     // (4 per quadratic element) corotational: its rotation
   VecX element_energy;        // (m) V_e psi(F_e); written by evaluate when energy is requested
   double energy = 0;          // sum of element_energy
   VecX f_int;                 // (3n) f_int = -dE/dx; written by evaluate (forces)
-  VecX K_values;              // (nnz) K = d^2E/dx^2 in the pattern (unprojected); written by evaluate (stiffness)
+  VecX K_values;              // (nnz) K~ in the pattern: K = d^2E/dx^2, per element projected for a body with
+                              // psd_projection; written by evaluate (stiffness)
   int bad_element = -1;       // first element where the law is undefined or det F <= 0, or -1
   double bad_det = 0;         // det F of that element
 
@@ -60,10 +64,12 @@ void add_stiffness_from_tangent(const Mat9& C, const Eigen::Matrix<double, 3, N>
 }
 
 // Element kernel (exposed for tests): forces (12) and stiffness (12x12) of one tet.
+// R, polar_V, polar_sigma (if not null): the corotational polar decomposition of F.
 // Returns false when the law is undefined at F.
 bool element_forces_stiffness(material::Law law, const material::Lame& lame, double volume,
                               const Mat3& Dm_inv, const Eigen::Matrix<double, 3, 4>& x_e, bool psd_projection,
-                              Mat3& F, Vec12& f_e, Mat12* K_e, double* energy, Mat3* R);
+                              Mat3& F, Vec12& f_e, Mat12* K_e, double* energy, Mat3* R,
+                              Mat3* polar_V = nullptr, Vec3* polar_sigma = nullptr);
 
 // The 10-node element (fem/tet10.hpp): G[q] = dN/dX and weight[q] = w_q det J_q at the
 // stiffness rule's 4 points (FemModel::qp_G, qp_weight). F[q] = x_e G[q]^T,

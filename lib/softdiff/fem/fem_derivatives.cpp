@@ -231,6 +231,60 @@ void check_product_sizes(const FemModel& model, const VecX& x, const VecX& u, co
   check_body_scalars(model, c, "c");
 }
 
+// One linear element's share of add_stiffness_jvp (ab, cb: its body's scalars).
+bool linear_jvp(const FemModel& model, const VecX& x, const VecX& u, const VecX& w, double ab, double cb, int e,
+                VecX& out) {
+  ElementPoint p;
+  if (!p.compute(model, x, e, cb != 0)) return false;
+  const Mat3 dF_u = p.dF(gather(model, u, e));
+  Mat34 r = Mat34::Zero();
+  if (ab != 0) r += ab * p.spread(p.C * vec9(dF_u));
+  if (cb != 0) {
+    Mat9 dC;
+    if (!material::stress_hessian_directional(p.law, p.F, p.lame, dF_u, dC)) return false;
+    const Mat34 w_e = gather(model, w, e);
+    if (!p.projected) {
+      r += cb * p.spread(dC * vec9(p.dF(w_e)));
+    } else {
+      r += cb * as34(p.projection.apply_tangent(dC, p.V, as12(w_e)));
+    }
+  }
+  scatter_add(model, e, r, out);
+  return true;
+}
+
+// One linear element's share of add_stiffness_vjp.
+bool linear_vjp(const FemModel& model, const VecX& x, const VecX& y, const VecX& w, double ab, double cb, int e,
+                VecX& out) {
+  ElementPoint p;
+  if (!p.compute(model, x, e, cb != 0)) return false;
+  const Mat34 y_e = gather(model, y, e);
+  const Mat3 dF_y = p.dF(y_e);
+  Mat34 r = Mat34::Zero();
+  if (ab != 0) r += ab * p.spread(p.C * vec9(dF_y));
+  if (cb != 0) {
+    const Mat34 w_e = gather(model, w, e);
+    if (!p.projected) {
+      Mat9 dC;
+      if (!material::stress_hessian_directional(p.law, p.F, p.lame, dF_y, dC)) return false;
+      r += cb * p.spread(dC * vec9(p.dF(w_e)));
+    } else {
+      const Mat9 S_hat = p.projection.reverse(as12(y_e), as12(w_e));
+      Vec9 g;
+      for (int m = 0; m < 9; ++m) {
+        Mat3 E = Mat3::Zero();
+        E(m % 3, m / 3) = 1;
+        Mat9 dC;
+        if (!material::stress_hessian_directional(p.law, p.F, p.lame, E, dC)) return false;
+        g[m] = S_hat.cwiseProduct(dC).sum();
+      }
+      r += cb * p.spread(g);
+    }
+  }
+  scatter_add(model, e, r, out);
+  return true;
+}
+
 }  // namespace
 
 int add_stiffness_jvp(const FemModel& model, const VecX& x, const VecX& u, const VecX& w, const VecX& a,
@@ -241,23 +295,7 @@ int add_stiffness_jvp(const FemModel& model, const VecX& x, const VecX& u, const
     const double ab = a[b], cb = c[b];
     if (ab == 0 && cb == 0) return true;
     if (model.quadratic[e]) return quadratic_jvp(model, x, u, w, ab, cb, e, out);
-    ElementPoint p;
-    if (!p.compute(model, x, e, cb != 0)) return false;
-    const Mat3 dF_u = p.dF(gather(model, u, e));
-    Mat34 r = Mat34::Zero();
-    if (ab != 0) r += ab * p.spread(p.C * vec9(dF_u));
-    if (cb != 0) {
-      Mat9 dC;
-      if (!material::stress_hessian_directional(p.law, p.F, p.lame, dF_u, dC)) return false;
-      const Mat34 w_e = gather(model, w, e);
-      if (!p.projected) {
-        r += cb * p.spread(dC * vec9(p.dF(w_e)));
-      } else {
-        r += cb * as34(p.projection.apply_tangent(dC, p.V, as12(w_e)));
-      }
-    }
-    scatter_add(model, e, r, out);
-    return true;
+    return linear_jvp(model, x, u, w, ab, cb, e, out);
   });
 }
 
@@ -269,32 +307,63 @@ int add_stiffness_vjp(const FemModel& model, const VecX& x, const VecX& y, const
     const double ab = a[b], cb = c[b];
     if (ab == 0 && cb == 0) return true;
     if (model.quadratic[e]) return quadratic_vjp(model, x, y, w, ab, cb, e, out);
-    ElementPoint p;
-    if (!p.compute(model, x, e, cb != 0)) return false;
-    const Mat34 y_e = gather(model, y, e);
-    const Mat3 dF_y = p.dF(y_e);
-    Mat34 r = Mat34::Zero();
-    if (ab != 0) r += ab * p.spread(p.C * vec9(dF_y));
-    if (cb != 0) {
-      const Mat34 w_e = gather(model, w, e);
-      if (!p.projected) {
-        Mat9 dC;
-        if (!material::stress_hessian_directional(p.law, p.F, p.lame, dF_y, dC)) return false;
-        r += cb * p.spread(dC * vec9(p.dF(w_e)));
-      } else {
-        const Mat9 S_hat = p.projection.reverse(as12(y_e), as12(w_e));
-        Vec9 g;
-        for (int m = 0; m < 9; ++m) {
-          Mat3 E = Mat3::Zero();
-          E(m % 3, m / 3) = 1;
-          Mat9 dC;
-          if (!material::stress_hessian_directional(p.law, p.F, p.lame, E, dC)) return false;
-          g[m] = S_hat.cwiseProduct(dC).sum();
-        }
-        r += cb * p.spread(g);
-      }
+    return linear_vjp(model, x, y, w, ab, cb, e, out);
+  });
+}
+
+int add_stiffness_product(const FemModel& model, const FemData& record, const VecX& x, StiffnessProduct kind,
+                          const VecX& u, const VecX& w, const VecX& a, const VecX& c, VecX& out, VecX& work) {
+  check_product_sizes(model, x, u, w, a, c, out);
+  const auto nb = static_cast<Eigen::Index>(model.bodies.size());
+  SOFTDIFF_DEMAND(record.K_values.size() == model.pattern.nnz() &&
+                      record.F.size() == static_cast<std::size_t>(model.num_tets) &&
+                      record.polar_V.size() == record.F.size() && record.polar_sigma.size() == record.F.size(),
+                  "add_stiffness_product: the record is not sized for this model (FemData::resize)");
+  // a_b K u from the record's K (bodies without projection: K~ = K there).
+  bool any_plain = false;
+  for (Eigen::Index b = 0; b < nb; ++b) any_plain = any_plain || (a[b] != 0 && !model.bodies[b].psd_projection);
+  if (any_plain) {
+    symmetric_multiply(model, record.K_values, u, work);  // bodies share no node: K is block diagonal per body
+    for (Eigen::Index b = 0; b < nb; ++b) {
+      const auto& body = model.bodies[static_cast<std::size_t>(b)];
+      if (a[b] == 0 || body.psd_projection) continue;
+      out.segment(3L * body.node_begin, 3L * body.num_nodes) += a[b] * work.segment(3L * body.node_begin, 3L * body.num_nodes);
     }
-    scatter_add(model, e, r, out);
+  }
+  bool any_element = false;  // an element pass is needed: a dK term, or a projected body
+  for (Eigen::Index b = 0; b < nb; ++b) {
+    const auto& body = model.bodies[static_cast<std::size_t>(b)];
+    any_element = any_element || (body.psd_projection && a[b] != 0) ||
+                  (c[b] != 0 && body.law != material::Law::linear);
+  }
+  if (!any_element) return -1;
+  return for_each_element_by_color(model, [&](int e) {
+    const int b = model.tet_body[e];
+    const auto& body = model.bodies[b];
+    const double ab = a[b], cb = c[b];
+    if (body.psd_projection) {  // K~ != K, dK~ needs the projection's derivative: the element pass
+      if (ab == 0 && cb == 0) return true;
+      if (kind == StiffnessProduct::jvp)
+        return model.quadratic[e] ? quadratic_jvp(model, x, u, w, ab, cb, e, out) : linear_jvp(model, x, u, w, ab, cb, e, out);
+      return model.quadratic[e] ? quadratic_vjp(model, x, u, w, ab, cb, e, out) : linear_vjp(model, x, u, w, ab, cb, e, out);
+    }
+    // Without projection dK[u] w = dK[w] u = grad_x(u^T K w): the jvp and vjp agree.
+    if (cb == 0 || body.law == material::Law::linear) return true;
+    if (model.quadratic[e]) return quadratic_jvp(model, x, u, w, 0.0, cb, e, out);
+    const Mat3& F = record.F[e];
+    SOFTDIFF_ASSERT((gather(model, x, e) * shape_gradients(model.Dm_inv[e]).transpose() - F).norm() <=
+                    1e-12 * (1 + F.norm()));  // the record is at x
+    if (!(F.determinant() > 0)) return false;
+    const Eigen::Matrix<double, 3, 4> G = shape_gradients(model.Dm_inv[e]);
+    material::PointCache polar;
+    polar.R = record.R[e];
+    polar.V = record.polar_V[e];
+    polar.sigma = record.polar_sigma[e];
+    const Mat3 dF_u = gather(model, u, e) * G.transpose();
+    const Mat3 dF_w = gather(model, w, e) * G.transpose();
+    Mat3 d2P;
+    if (!material::stress_second_derivative(body.law, F, polar, body.lame, dF_u, dF_w, d2P)) return false;
+    scatter_add(model, e, (cb * model.rest_volume[e]) * d2P * G, out);
     return true;
   });
 }

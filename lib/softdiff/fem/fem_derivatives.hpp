@@ -24,6 +24,7 @@
 // whose scalar is 0 are skipped. Every function returns the first element where the
 // law is undefined (det F <= 0), or -1; outputs are then unspecified. Parallel over
 // elements by color (element_loop.hpp); no heap allocation in the element loop.
+#include <softdiff/fem/assembly.hpp>
 #include <softdiff/fem/fem_model.hpp>
 
 namespace softdiff::fem {
@@ -36,6 +37,23 @@ int add_stiffness_jvp(const FemModel& model, const VecX& x, const VecX& u, const
 // u -> add_stiffness_jvp(x, u, w), applied to y.
 int add_stiffness_vjp(const FemModel& model, const VecX& x, const VecX& y, const VecX& w, const VecX& a,
                       const VecX& c, VecX& out);
+
+// The same products from the record of an evaluation at x (`record`: fem::evaluate(model,
+// x, stiffness) wrote it; the step's data.fem of a linearized step), for the forward
+// sensitivities (docs/method.md "Derivatives", "The cost of a JVP column"):
+//   - a_b K u from the record's assembled K (one sparse product for all bodies; K~ = K
+//     for a body without psd_projection), not an element pass;
+//   - c_b dK[u] w per element from the record's F and polar decomposition (R,
+//     polar_V, polar_sigma) and material::stress_second_derivative: no SVD, no 9x9;
+//     no element pass at all when every such c_b is 0 or the law is linear;
+//   - bodies with psd_projection (dK~ is the projection's derivative) and quadratic
+//     elements' dK term: the element pass of add_stiffness_jvp / _vjp as above.
+// kind: jvp gives add_stiffness_jvp(x, u, w), vjp gives add_stiffness_vjp(x, y = u, w);
+// without projection they are the same product (dK[u] w = grad_x(u^T K w)). The same
+// values as those functions up to rounding. work: (3n) scratch. Returns as those do.
+enum class StiffnessProduct { jvp, vjp };
+int add_stiffness_product(const FemModel& model, const FemData& record, const VecX& x, StiffnessProduct kind,
+                          const VecX& u, const VecX& w, const VecX& a, const VecX& c, VecX& out, VecX& work);
 
 enum class ElasticParameter { young, poisson };
 

@@ -49,7 +49,7 @@ StepDerivatives::StepDerivatives(const Model& model, std::vector<ParameterId> pa
                                                     std::to_string(p.body) + " does not exist");
   }
   const Eigen::Index n = 3L * model.fem.num_nodes;
-  for (VecX* v : {&r_, &y_, &q_, &w_, &delta_, &tmp_, &tmp2_, &zero_, &q_extra_}) *v = VecX::Zero(n);
+  for (VecX* v : {&r_, &y_, &q_, &w_, &delta_, &tmp_, &tmp2_, &zero_, &q_extra_, &work_}) *v = VecX::Zero(n);
   zero_bodies_ = VecX::Zero(nb);
 }
 
@@ -222,8 +222,10 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
       fem::symmetric_multiply(fem, data.fem.K_values, dx, tmp_);
       r_ = -h * tmp_;
       if (fem::add_stiffness_jvp(fem, in.x, dx, out.v, zero_bodies_, minus_k_coef_, r_) >= 0) return false;
-    } else if (fem::add_stiffness_jvp(fem, in.x, dx, out.v, minus_h_, minus_k_coef_, r_) >= 0) {
-      // -h K dx - (h beta + h^2) dK~[dx] w
+    } else if (fem::add_stiffness_product(fem, data.fem, in.x, fem::StiffnessProduct::jvp, dx, out.v, minus_h_,
+                                          minus_k_coef_, r_, work_) >= 0) {
+      // -h K dx - (h beta + h^2) dK~[dx] w, from the step's record at x_i: K dx with the
+      // assembled K, dK~[dx] w from the kept polar decompositions (fem_derivatives.hpp)
       return false;
     }
   }
@@ -328,7 +330,8 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
     fem::symmetric_multiply(fem, data.fem.K_values, y_, tmp2_);
     bar_in.x -= h * tmp2_;
     if (fem::add_stiffness_vjp(fem, in.x, y_, out.v, zero_bodies_, minus_k_coef_, bar_in.x) >= 0) return false;
-  } else if (fem::add_stiffness_vjp(fem, in.x, y_, out.v, minus_h_, minus_k_coef_, bar_in.x) >= 0) {
+  } else if (fem::add_stiffness_product(fem, data.fem, in.x, fem::StiffnessProduct::vjp, y_, out.v, minus_h_,
+                                        minus_k_coef_, bar_in.x, work_) >= 0) {
     return false;
   }
   if (model.contact.enabled && !data.contact.contacts.empty())

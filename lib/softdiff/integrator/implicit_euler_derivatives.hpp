@@ -24,7 +24,9 @@
 //   bar_v_i = v~ - h alpha M y - (h beta + h^2) K~ y
 //   bar_lambda_a = h H_a y,   bar_p_j = y . q_j.
 // Every solve uses the step's factorization (data.solver): k JVP columns cost k
-// solves, a VJP one. Fixed dofs: Pi as in the step (their dx_i still moves the
+// solves, a VJP one. The linearized step's K dx_i and dK~[dx_i] w (and their
+// transposes) come from the step's record data.fem (fem::add_stiffness_product: the
+// assembled K, the kept polar decompositions), not from an element pass with SVD. Fixed dofs: Pi as in the step (their dx_i still moves the
 // elastic forces; their velocity stays 0).
 //
 // newton_iterations > 1: the implicit function theorem on the converged residual
@@ -122,7 +124,7 @@ class StepDerivatives {
   VecX h_alpha_, k_coef_;            // (bodies) h alpha_b, h beta_b + h^2
   VecX minus_h_, minus_k_coef_;      // (bodies) -h, -(coefficient of K~(x_i) w): -(h beta_b + h^2), Newton -h beta_b
   VecX zero_bodies_;                 // (bodies) zeros
-  VecX r_, y_, q_, w_, delta_, tmp_, tmp2_, zero_, q_extra_;  // (3n) workspace
+  VecX r_, y_, q_, w_, delta_, tmp_, tmp2_, zero_, q_extra_, work_;  // (3n) workspace
   // Contact (the linearized step with contact): the geometry derivative of every
   // contact and the NCP derivative at the step's solution, computed once per step
   // (cached by v_f). Counts the contacts whose geometry is not differentiable (their

@@ -198,6 +198,51 @@ inline void stress_hessian_directional(const Polar& p, double mu, double lambda,
   out.noalias() += c * NdB.lazyProduct(N.transpose());
 }
 
+// d^2P[E, W] = d(dP/dF)[E] vec(W) as a 3x3 matrix, from the polar decomposition of the
+// step (R, V, sigma: PointCache, FemData::R / polar_V / polar_sigma), without the SVD and
+// without forming the 9x9 d(dP/dF)[E]: the forward sensitivities need only this product
+// (fem::add_stiffness_jvp with a record, docs/method.md "Derivatives"). It is the product
+// of stress_hessian_directional above with vec(W), term by term, with
+// N^T vec(X) = vee(R^T X), vee(Y) = (Y_21 - Y_12, Y_02 - Y_20, Y_10 - Y_01) (the columns
+// of N are vec(R [e_m]_x)), N a = vec(R [a]_x), dN^T vec(X) = vee(dR^T X),
+// dN a = vec(dR [a]_x), G^T vec(W) = B N^T vec(W) = B a_W:
+//   d^2P[E, W] = lambda (R:W) dR + lambda (dR:W) R + c dR [B a_W]_x + R [z]_x,
+//   z = lambda (R:E) B a_W + c B vee(dR^T W) + c dB a_W.
+// About 400 flops against the SVD and the 9x9 products of the directional derivative.
+// Exact wherever stress_hessian_directional is (the same clamped twist weights).
+inline void stress_second_derivative(const Mat3& R, const Mat3& V, const Vec3& sigma, double mu, double lambda,
+                                     const Mat3& E, const Mat3& W, Mat3& out) {
+  const auto vee = [](const Mat3& Y) { return Vec3(Y(2, 1) - Y(1, 2), Y(0, 2) - Y(2, 0), Y(1, 0) - Y(0, 1)); };
+  const double c = lambda * (sigma.sum() - 3.0) - 2.0 * mu;
+  Mat3 B, S;
+  B.noalias() = V * twist_weights(sigma).asDiagonal() * V.transpose();
+  S.noalias() = V * sigma.asDiagonal() * V.transpose();
+  Mat3 RtE;
+  RtE.noalias() = R.transpose() * E;
+  const Vec3 w_E = B * vee(RtE);
+  const Mat3 W_E = detail::skew(w_E);
+  Mat3 dR;
+  dR.noalias() = R * W_E;
+  const double R_dot_E = RtE.trace();  // R:E = tr(R^T E)
+  Mat3 dS = RtE;
+  dS.noalias() -= W_E * S;
+  dS = 0.5 * (dS + dS.transpose()).eval();
+  Mat3 X = -dS;
+  X.diagonal().array() += R_dot_E;
+  Mat3 RtW, dRtW;
+  RtW.noalias() = R.transpose() * W;
+  dRtW.noalias() = dR.transpose() * W;
+  const Vec3 a_W = vee(RtW);
+  const Vec3 b_W = B * a_W;
+  // dB a_W = -B X B a_W = -B X b_W.
+  const Vec3 z = (lambda * R_dot_E) * b_W + c * (B * vee(dRtW)) - c * (B * (X * b_W));
+  const double R_dot_W = RtW.trace(), dR_dot_W = dRtW.trace();
+  out.noalias() = (lambda * R_dot_W) * dR;
+  out.noalias() += (lambda * dR_dot_W) * R;
+  out.noalias() += c * (dR * detail::skew(b_W));
+  out.noalias() += R * detail::skew(z);
+}
+
 inline void stress_hessian_directional(const Mat3& F, double mu, double lambda, const Mat3& dF, Mat9& out) {
   Polar p;
   polar_svd(F, p);

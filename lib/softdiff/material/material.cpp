@@ -30,6 +30,8 @@ bool stress(Law law, const Mat3& F, const Lame& lame, Mat3& P, Mat9* dP_dF, Poin
       if (cache != nullptr) {
         cache->R = polar.R;
         cache->S = polar.stretch();
+        cache->V = polar.V;
+        cache->sigma = polar.sigma;
       }
       return true;
     }
@@ -50,6 +52,22 @@ bool stress_hessian_directional(Law law, const Mat3& F, const Lame& lame, const 
     case Law::linear: d_dP_dF.setZero(); return true;  // constant dP/dF
   }
   return false;
+}
+
+bool stress_second_derivative(Law law, const Mat3& F, const PointCache& cache, const Lame& lame, const Mat3& E,
+                              const Mat3& W, Mat3& out) {
+  if (law == Law::corotational) {
+    corotational::stress_second_derivative(cache.R, cache.V, cache.sigma, lame.mu, lame.lambda, E, W, out);
+    return true;
+  }
+  if (law == Law::linear) {  // constant dP/dF
+    out.setZero();
+    return true;
+  }
+  Mat9 T;
+  if (!stress_hessian_directional(law, F, lame, E, T)) return false;
+  Eigen::Map<Vec9>(out.data()).noalias() = T * detail::vec(W);
+  return true;
 }
 
 void project_psd(Mat12& K) { clamp_negative_eigenvalues(K); }

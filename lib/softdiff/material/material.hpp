@@ -26,6 +26,8 @@ Lame lame_from_young_poisson(double young, double poisson);
 struct PointCache {
   Mat3 R = Mat3::Identity();  // corotational: rotation of the polar decomposition F = R S
   Mat3 S = Mat3::Identity();  // corotational: symmetric stretch
+  Mat3 V = Mat3::Identity();  // corotational: the signed SVD F = U diag(sigma) V^T (U = R V)
+  Vec3 sigma = Vec3::Ones();  // corotational: its signed singular values
 };
 
 // The kernels of each law (templated psi, P, dP/dF, directional derivative) are
@@ -43,6 +45,14 @@ bool stress(Law law, const Mat3& F, const Lame& lame, Mat3& P, Mat9* dP_dF, Poin
 // Returns false (output unspecified) where the law is undefined (neo_hookean, J <= 0).
 // Corotational: exact wherever dP/dF is (see corotational.hpp on sigma_i + sigma_j -> 0).
 bool stress_hessian_directional(Law law, const Mat3& F, const Lame& lame, const Mat3& dF, Mat9& d_dP_dF);
+
+// d^2P[E, W] = d(dP/dF)[E] vec(W) (3x3), the third derivative of psi contracted with E
+// and W, at F with the polar decomposition `cache` of F that stress() filled (read by the
+// corotational law only; the others work from F). The product the forward sensitivities
+// need, without the SVD and the 9x9 of stress_hessian_directional. Returns false where
+// the law is undefined.
+bool stress_second_derivative(Law law, const Mat3& F, const PointCache& cache, const Lame& lame, const Mat3& E,
+                              const Mat3& W, Mat3& out);
 
 // Symmetric eigenvalue clamp of a 12x12 element Hessian: negative eigenvalues set
 // to zero (the `psd_projection` option). No heap allocation.

@@ -243,6 +243,17 @@ struct Functor : Eigen::DenseFunctor<double> {
       fvec = evaluate(z).r;
       return 0;
     }
+    // The step test before the trial's run (docs/method.md "Calibration", "Stopping"):
+    // a trial step z - z_k with |D (z - z_k)| <= xtol |D z_k| (D: lmder's column scaling,
+    // the norms of its xtol test) is not run; the iteration stops at z_k. Returning -1
+    // makes minimizeOneStep return UserAsked without touching z.
+    if (diag != nullptr && xtol > 0) {
+      const double step = diag->cwiseProduct(z - current_z).stableNorm();
+      if (step <= xtol * diag->cwiseProduct(current_z).stableNorm()) {
+        stopped_on_step = true;
+        return -1;
+      }
+    }
     try {
       fvec = evaluate(z).r;
     } catch (const ComputationError& e) {
@@ -271,6 +282,10 @@ struct Functor : Eigen::DenseFunctor<double> {
   int next = 0;
   int evaluations = 0;
   bool in_step = false;      // evaluations are trial points of minimizeOneStep
+  VecX current_z;            // the current (accepted) point, set by calibrate before each iteration
+  const VecX* diag = nullptr;  // lmder's column scaling D (LevenbergMarquardt::diag())
+  double xtol = 0;           // the relative step tolerance
+  bool stopped_on_step = false;  // a trial step was below xtol and not run
   double current_norm = 0;   // |r| at the current (accepted) point
   int failed = 0;            // trial runs that failed (counted in evaluations)
   std::string last_failure;  // the message of the last failed trial run
@@ -350,6 +365,9 @@ CalibrationResult calibrate(const Model& model, const std::vector<ParameterId>& 
     failed_before = functor.failed;
     const VecX z_before = z;
     functor.current_norm = lm.fnorm();
+    functor.current_z = z;
+    functor.diag = &lm.diag();
+    functor.xtol = options.xtol;
     functor.in_step = true;
     status = lm.minimizeOneStep(z);
     functor.in_step = false;
@@ -361,6 +379,10 @@ CalibrationResult calibrate(const Model& model, const std::vector<ParameterId>& 
     if (status != Eigen::LevenbergMarquardtSpace::Running) {
       result.converged = converged_status(status);
       result.stop_reason = status_text(status);
+      if (status == Eigen::LevenbergMarquardtSpace::UserAsked && functor.stopped_on_step) {
+        result.converged = true;
+        result.stop_reason = "relative step below xtol (the trial was not run)";
+      }
       // The trust region shrank below xtol through failed trial runs alone: not a
       // convergence.
       if (!moved && result.history.back().failed > 0) {

@@ -16,7 +16,9 @@
 // The Levenberg-Marquardt is Eigen's (unsupported/Eigen/LevenbergMarquardt, the MINPACK
 // lmder port: Moré's trust-region damping with column scaling), stopped on the relative
 // cost reduction (ftol), the relative step (xtol) or the gradient (gtol, the cosine
-// between r and the columns of J), whichever comes first; every function evaluation is
+// between r and the columns of J), whichever comes first; a trial step already below
+// xtol (|D dz| <= xtol |D z|) is not run: the calibration stops at the current point
+// (docs/method.md "Calibration", the step test); every function evaluation is
 // one simulation with its sensitivities (the Jacobian of an accepted point is the one
 // computed with its residual). A trial step whose run fails (parameters the simulation
 // cannot run, e.g. an element inverts) is rejected like a step that raises the cost:
