@@ -1080,6 +1080,7 @@ bool polish_operator(OperatorPolish& o, SparseDelassus& G, const VecX& g, const 
     return ok;
   };
   double norm = evaluate(true);
+  bool reduced_factorized = false;  // the reduced preconditioner of this call (below)
   for (int newton = 0; newton < 8 && o.newton_budget > 0; ++newton) {
     if (!std::isfinite(norm)) return false;
     if (norm <= 1e-15 * std::max(vscale, L * o.lam.cwiseAbs().maxCoeff())) break;
@@ -1094,9 +1095,13 @@ bool polish_operator(OperatorPolish& o, SparseDelassus& G, const VecX& g, const 
     }
     if (o.preconditioned && !all_sticking) {
       // On A's rows: frames and weights of B's, weight 0 (no column) on A's breaking
-      // contacts; one factorization per Newton step (S and T change).
+      // contacts. Factorized at the first Newton step of this call and kept for the
+      // following ones (the modes, and so the local rows, are those of the call; the
+      // frames and C of the later steps differ a little from the factorized ones: a
+      // preconditioner still, GMRES's answer is the same).
       o.sys.set_reduced_preconditioner(
           [&](const std::vector<Mat3>& frames, const VecX& s) {
+            if (reduced_factorized) return true;
             o.frames.assign(static_cast<std::size_t>(nA), Mat3::Identity());
             o.weights.setZero(3 * nA);
             for (int a = 0; a < na; ++a) {
@@ -1105,7 +1110,8 @@ bool polish_operator(OperatorPolish& o, SparseDelassus& G, const VecX& g, const 
             }
             o.frames_set = true;
             G.set_frames(o.frames, o.weights);
-            return G.factorize_shifted(1.0);
+            reduced_factorized = G.factorize_shifted(1.0);
+            return reduced_factorized;
           },
           [&](VecX& v) {
             o.pre_full.setZero(3 * nA);
