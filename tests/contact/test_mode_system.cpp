@@ -98,7 +98,50 @@ double bound_preconditioned(const MatX& J, const MatX& M, const VecX& x, const V
   return bound(J, x, r) + M_norm * bound(J * M, z, r);
 }
 
-void check(const std::vector<Mode>& modes, bool duplicate, double mu, const char* name, bool precondition = false) {
+// The reduced preconditioner of mixed sets (mode_system.hpp "Mixed sets"), formed densely
+// from G: s (I + diag(s) Rot G Rot^T diag(s))^{-1} s (SparseDelassus::set_frames' operator
+// on a dense G; rows with s = 0 map to 0).
+struct DenseReduced {
+  const MatX* G = nullptr;
+  MatX M;
+  bool factorize(const std::vector<Mat3>& frames, const VecX& s) {
+    const Eigen::Index m = G->rows();
+    MatX R = MatX::Zero(m, m);
+    for (std::size_t a = 0; a < frames.size(); ++a) R.block<3, 3>(3 * a, 3 * a) = frames[a];
+    const MatX K = s.asDiagonal() * R * (*G) * R.transpose() * s.asDiagonal();
+    M = s.asDiagonal() * (MatX::Identity(m, m) + K).inverse() * s.asDiagonal();
+    return true;
+  }
+};
+
+// GMRES with the reduced preconditioner stops at ||Dl Rot (r - J x)|| <= 1e-12 ||Dl Rot r||
+// (forward; Rot orthogonal, Dl = diag(1, 1 / (L w)) with L w = L mu lambda_N / |sigma_T|
+// on the sliding rows p), so ||r - J x|| <= kappa(Dl) 1e-12 ||r|| and ||x - x*|| <=
+// ||r - J x|| / s_min(J); the adjoint's J'^T y' = Rot r gives ||r - J^T y|| <= 1e-12 ||r||
+// (kappa(Dl) bounds both). Plus rounding: eps kappa(J) ||x*|| for the dense
+// decomposition, eps kappa(Dl) ||r|| / s_min for GMRES's recomputed residual; a factor
+// 10 of margin. Redundant (J singular, r outside its range): GMRES does not reach its
+// tolerance and the CGLS follows: bound() (the sum of both is taken).
+double bound_reduced(const MatX& J, const Problem& p, const std::vector<int>& act, double L, const VecX& x,
+                     const VecX& r) {
+  const Eigen::JacobiSVD<MatX> svd(J);
+  const VecX sv = svd.singularValues();
+  double s_min = sv[0];
+  for (Eigen::Index k = 0; k < sv.size(); ++k)
+    if (sv[k] > 1e-12 * sv[0]) s_min = sv[k];
+  double dmax = 1, dmin = 1;
+  for (int i : act)
+    if (p.modes[i] == Mode::sliding && p.mu[i] > 0) {
+      const double Lw = L * p.mu[i] * p.lambda[3 * i + 2] / p.sigma.segment<2>(3 * i).norm();
+      dmax = std::max(dmax, 1 / Lw);
+      dmin = std::min(dmin, 1 / Lw);
+    }
+  const double eps = std::numeric_limits<double>::epsilon(), kD = dmax / dmin;
+  return bound(J, x, r) + 10 * ((1e-12 + eps) * kD * r.norm() / s_min + eps * sv[0] / s_min * x.norm());
+}
+
+// precondition: 0 none, 1 M = (G_AA + c I)^{-1}, 2 the reduced preconditioner (mixed sets).
+void check(const std::vector<Mode>& modes, bool duplicate, double mu, const char* name, int precondition = 0) {
   const Problem p = make_problem(modes, 5, duplicate, mu);
   const int n = static_cast<int>(p.G.rows()), nc = n / 3;
   NcpDerivative dense, op;
@@ -133,6 +176,21 @@ void check(const std::vector<Mode>& modes, bool duplicate, double mu, const char
         });
     ASSERT_TRUE(op.operator_system().preconditioned()) << name;
   }
+  DenseReduced reduced{&G_AA, MatX()};
+  if (precondition == 2) {
+    op.compute_operator(
+        [&](const VecX& y, VecX& out) {
+          out = G_AA * y;
+          return true;
+        },
+        L, p.mu, p.lambda, p.sigma, p.modes, {},
+        [&](const std::vector<Mat3>& frames, const VecX& s) { return reduced.factorize(frames, s); },
+        [&](VecX& v) {
+          v = reduced.M * v;
+          return true;
+        });
+    ASSERT_FALSE(op.operator_system().preconditioned()) << name;
+  }
   ASSERT_TRUE(op.on_operator()) << name;
   ASSERT_EQ(op.active_contacts(), act) << name;
   EXPECT_EQ(op.degenerate(), dense.degenerate()) << name;
@@ -146,11 +204,17 @@ void check(const std::vector<Mode>& modes, bool duplicate, double mu, const char
     op.jvp(b, dmu, dl_op);
     dense.right_hand_side(b, dmu, r);
     ASSERT_GT(dl_dense.norm(), 0) << name;
-    const double tol = precondition ? bound_preconditioned(J, M, dl_dense, r) : bound(J, dl_dense, r);
+    const double tol = precondition == 2   ? bound_reduced(J, p, act, L, dl_dense, r)
+                       : precondition == 1 ? bound_preconditioned(J, M, dl_dense, r)
+                                           : bound(J, dl_dense, r);
     std::printf("%s jvp: difference %.2e, bound %.2e (|dlambda| %.2e)\n", name, (dl_op - dl_dense).norm(), tol,
                 dl_dense.norm());
     EXPECT_LE((dl_op - dl_dense).norm(), tol) << name << " jvp, seed " << seed << ": CGLS iterations "
                                               << op.operator_system().last_iterations();
+    if (precondition == 2 && !duplicate) {
+      EXPECT_TRUE(op.operator_system().reduced_used()) << name << ": GMRES with the reduced preconditioner";
+      std::printf("%s jvp: %d GMRES iterations\n", name, op.operator_system().last_iterations());
+    }
     // Reverse.
     VecX bb_dense, bm_dense, bb_op, bm_op;
     dense.vjp(b, bb_dense, bm_dense);
@@ -168,7 +232,9 @@ void check(const std::vector<Mode>& modes, bool duplicate, double mu, const char
         RD = std::max(RD, 1 + L * p.mu[act[a]] * lN / p.sigma.segment<2>(3 * act[a]).norm() + L * lN);
       }
     const double tol_r =
-        RD * (precondition ? bound_preconditioned(J.transpose(), M, y_dense, la) : bound(J.transpose(), y_dense, la));
+        RD * (precondition == 2   ? bound_reduced(J.transpose(), p, act, L, y_dense, la)
+              : precondition == 1 ? bound_preconditioned(J.transpose(), M, y_dense, la)
+                                  : bound(J.transpose(), y_dense, la));
     std::printf("%s vjp: difference %.2e, bound %.2e (|bar_b| %.2e)\n", name,
                 (bb_op - bb_dense).norm() + (bm_op - bm_dense).norm(), tol_r, bb_dense.norm());
     EXPECT_LE((bb_op - bb_dense).norm() + (bm_op - bm_dense).norm(), tol_r) << name << " vjp, seed " << seed;
@@ -214,13 +280,86 @@ TEST(OperatorModeSystem, RedundantSliding) {
 // redundant with right-hand sides outside the range, CGLS on G M: still G^+ r, M being a
 // function of G); and the mixed (invertible) system by CGLS on J M: J^{-1} r.
 TEST(OperatorModeSystem, PreconditionedSticking) {
-  check(std::vector<Mode>(5, Mode::sticking), false, 0.5, "preconditioned sticking", true);
+  check(std::vector<Mode>(5, Mode::sticking), false, 0.5, "preconditioned sticking", 1);
 }
 TEST(OperatorModeSystem, PreconditionedRedundantSticking) {
   check({Mode::sticking, Mode::sticking, Mode::breaking, Mode::sticking, Mode::sticking}, true, 0.5,
-        "preconditioned redundant sticking", true);
+        "preconditioned redundant sticking", 1);
 }
 TEST(OperatorModeSystem, PreconditionedMixed) {
   check({Mode::sticking, Mode::sliding, Mode::breaking, Mode::sliding, Mode::sticking, Mode::breaking}, false, 0.5,
-        "preconditioned mixed", true);
+        "preconditioned mixed", 1);
+}
+// The reduced preconditioner of mixed sets (mode_system.hpp "Mixed sets"): GMRES on the
+// rotated, row-scaled system, right-preconditioned by the Delassus of the reduced
+// directions plus C; the local rows exact. Mixed, all sliding, frictionless (every
+// tangential row local) and a mixed set of 36 active contacts (of 40, 14 sliding); the
+// step's operator on more than 64 is test_step_derivatives_contact.cpp's.
+TEST(OperatorModeSystem, ReducedMixed) {
+  check({Mode::sticking, Mode::sliding, Mode::breaking, Mode::sliding, Mode::sticking, Mode::breaking}, false, 0.5,
+        "reduced mixed", 2);
+}
+TEST(OperatorModeSystem, ReducedSliding) {
+  check(std::vector<Mode>(5, Mode::sliding), false, 0.5, "reduced sliding", 2);
+}
+TEST(OperatorModeSystem, ReducedFrictionless) {
+  check({Mode::sliding, Mode::sliding, Mode::breaking, Mode::sticking}, false, 0.0, "reduced frictionless", 2);
+}
+TEST(OperatorModeSystem, ReducedLargeMixed) {
+  std::vector<Mode> modes(40, Mode::sticking);
+  for (int i = 0; i < 40; i += 3) modes[i] = Mode::sliding;
+  for (int i = 1; i < 40; i += 10) modes[i] = Mode::breaking;
+  check(modes, false, 0.5, "reduced large mixed", 2);
+}
+// Redundant (contact 4 a copy of contact 0: J singular). Right-hand sides outside J's
+// range: GMRES does not reach its tolerance, the CGLS follows (J^+ r, as the dense
+// path; checked by check()). A consistent right-hand side r = J x0: GMRES converges to a
+// solution x of J x = r, which may differ from J^+ r by an element of null(J): its
+// residual and its component in range(J^T) are checked against the dense answer.
+TEST(OperatorModeSystem, ReducedRedundantMixed) {
+  const std::vector<Mode> modes = {Mode::sticking, Mode::sliding, Mode::breaking, Mode::sticking, Mode::sticking};
+  check(modes, true, 0.5, "reduced redundant mixed", 2);
+  using namespace test_mode_system_local;
+  const Problem p = make_problem(modes, 5, true, 0.5);
+  NcpDerivative dense, op;
+  dense.compute(p.G, p.mu, p.lambda, p.sigma, p.modes);
+  const std::vector<int> act = dense.active_contacts();
+  const int na = static_cast<int>(act.size());
+  MatX G_AA(3 * na, 3 * na);
+  for (int a = 0; a < na; ++a)
+    for (int b = 0; b < na; ++b) G_AA.block<3, 3>(3 * a, 3 * b) = p.G.block<3, 3>(3 * act[a], 3 * act[b]);
+  const double L = p.G.diagonal().maxCoeff();  // the dense path's scale: the same J
+  DenseReduced reduced{&G_AA, MatX()};
+  op.compute_operator(
+      [&](const VecX& y, VecX& out) {
+        out = G_AA * y;
+        return true;
+      },
+      L, p.mu, p.lambda, p.sigma, p.modes, {},
+      [&](const std::vector<Mat3>& frames, const VecX& s) { return reduced.factorize(frames, s); },
+      [&](VecX& v) {
+        v = reduced.M * v;
+        return true;
+      });
+  const MatX& J = dense.jacobian();
+  const Eigen::CompleteOrthogonalDecomposition<MatX> cod(J);
+  ASSERT_LT(cod.rank(), J.rows());
+  for (int transposed = 0; transposed < 2; ++transposed) {
+    const MatX Jt = transposed ? MatX(J.transpose()) : J;
+    const VecX r = Jt * test::random_vector(3 * na, 1.0, 40 + transposed);  // in range(Jt)
+    VecX x;
+    ASSERT_TRUE(op.operator_system().solve(r, x, transposed)) << transposed;
+    EXPECT_TRUE(op.operator_system().reduced_used()) << transposed;
+    const VecX x_min = Jt.completeOrthogonalDecomposition().solve(r);  // Jt^+ r
+    // The component of x in range(Jt^T) is Jt^+ Jt x = Jt^+ (r - s), s = r - Jt x.
+    const VecX x_range = Jt.completeOrthogonalDecomposition().solve(VecX(Jt * x));
+    const double residual = (Jt * x - r).norm();
+    const double tol = bound_reduced(Jt, p, act, L, x_min, r);
+    std::printf("reduced redundant mixed, consistent (%s): |J x - r| %.2e, |P(x) - J^+ r| %.2e, "
+                "|x - J^+ r| %.2e, bound %.2e, %d GMRES iterations\n",
+                transposed ? "transposed" : "forward", residual, (x_range - x_min).norm(), (x - x_min).norm(), tol,
+                op.operator_system().last_iterations());
+    EXPECT_LE((x_range - x_min).norm(), tol) << transposed;
+    EXPECT_LE(residual, tol * Jt.norm()) << transposed;
+  }
 }

@@ -297,6 +297,10 @@ void check(Case c, const Params& p = Params{}) {
   // sticks (J = G_AA: PCG), unpreconditioned CGLS otherwise (contact_step_derivatives.cpp).
   if (p.operator_mode)
     EXPECT_EQ(d.ncp_derivative().operator_system().preconditioned(), counts[2] == 0) << name_of(c);
+  // ... and with sliding contacts by GMRES with the reduced preconditioner (mode_system.hpp
+  // "Mixed sets"; the step passes A, so it is factorized).
+  if (p.operator_mode && counts[2] > 0)
+    EXPECT_TRUE(d.ncp_derivative().operator_system().reduced_used()) << name_of(c);
   // Reverse mode.
   std::mt19937 rng(5);
   std::uniform_real_distribution<double> u(-1, 1);
@@ -363,21 +367,16 @@ TEST(StepDerivativesContact, NewtonOperatorModeSystem) {
 
 // The preconditioned mode-fixed system on the operator (mode_system.hpp) against the
 // dense path on more than 64 active contacts: a 9 x 9 slab (100 bottom vertices), the
-// cases' initial states (on the slab: "sticking" has a few sliding contacts, so CGLS on
-// J M; "sliding" all sliding; "tipped" 10 breaking and the rest sticking, so PCG), one
-// step. The NCP derivative of the
-// operator path (derivative_dense_max_active 0) and of the dense G_AA path (the
-// default 400) of the same step, for random b and dmu, forward and reverse.
-// Tolerance (derived; as test_mode_system.cpp, with J's dense matrix from the dense
-// path, G_AA = h H_A A^{-1} H_A^T from the step's factor and M = (G_AA + c I)^{-1}
-// formed here): all sticking, PCG stops at ||r - J x|| <= 1e-12 ||r||, so ||x - x*||
-// <= 1e-12 kappa(J) ||x*||; otherwise CGLS on J M stops at ||(JM)^T s|| <= 1e-13
-// ||(JM)^T r|| (or its rounding floor 1e-14 ||JM|| ||s||), so with z* = M^{-1} x*,
-// ||x - x*|| <= ||M|| ||z - z*|| <= ||M|| (1e-13 kappa(JM)^2 ||z*|| + 1e-14 kappa(JM)^2
-// ||r|| / s_max(JM)); plus rounding, eps kappa(J) ||x*|| for the dense decomposition
-// and eps kappa(JM)^2 ||M|| ||z*|| for the normal equations; a factor 10 of margin.
-// Also: the preconditioned solve takes fewer products than the unpreconditioned one on
-// the same system (printed).
+// cases' initial states (on the slab: "sticking" has a few sliding contacts and
+// "sliding" all sliding, so GMRES with the reduced preconditioner; "tipped" 10 breaking
+// and the rest sticking, so PCG), one step. The NCP derivative of the operator path
+// (derivative_dense_max_active 0) and of the dense G_AA path (the default 400) of the
+// same step, for random b and dmu, forward and reverse.
+// Tolerance (derived, with J's dense matrix from the dense path): all sticking, PCG
+// stops at ||r - J x|| <= 1e-12 ||r||, so ||x - x*|| <= 1e-12 kappa(J) ||x*||; mixed, see
+// compare_paths; plus rounding, eps kappa(J) ||x*|| for the dense decomposition; a
+// factor 10 of margin. Also: the preconditioned solve takes fewer products than the
+// unpreconditioned one on the same system (printed).
 namespace test_precond_local {
 
 double condition(const MatX& X, double* s_max = nullptr) {
@@ -428,42 +427,32 @@ void compare_paths(Case c) {
   G *= model.step.dt;
   const double L = G.diagonal().maxCoeff(), shift = contact::operator_shift_fraction * L;
   const MatX M = (G + shift * MatX::Identity(3 * na, 3 * na)).inverse();
-  // The path: every active contact sticking, the step's operator with its Woodbury
-  // preconditioner; with sliding contacts the step keeps the dense G_AA beyond 64
-  // (contact_step_derivatives.cpp), and the preconditioned CGLS of mode_system.hpp is
-  // checked here on the dense G_AA and M (the same system, the same iteration).
-  contact::NcpDerivative local;
+  // The path: the step's operator; every active contact sticking with its Woodbury
+  // preconditioner (PCG), with sliding contacts GMRES with the reduced preconditioner.
   const contact::NcpDerivative* opp = &d_op.ncp_derivative();
-  if (sticking) {
-    ASSERT_TRUE(opp->on_operator()) << name_of(c);
-    ASSERT_TRUE(opp->operator_system().preconditioned()) << name_of(c);
-    ASSERT_EQ(opp->active_contacts(), act) << name_of(c);
-  } else {
-    ASSERT_FALSE(opp->on_operator()) << name_of(c) << ": a mixed set beyond 64 keeps the dense G_AA";
-    local.compute_operator(
-        [&](const VecX& y, VecX& o) {
-          o = G * y;
-          return true;
-        },
-        L, cd.mu, cd.lambda, cd.sigma, cd.modes,
-        [&](VecX& v) {
-          v = M * v;
-          return true;
-        });
-    opp = &local;
-  }
+  ASSERT_TRUE(opp->on_operator()) << name_of(c);
+  ASSERT_EQ(opp->active_contacts(), act) << name_of(c);
+  if (sticking) ASSERT_TRUE(opp->operator_system().preconditioned()) << name_of(c);
   const contact::NcpDerivative& op = *opp;
   const MatX JM = J * M;
-  double s_max_jm = 0;
-  double Mnorm = 0, Ginv_norm = 0;  // ||M|| and ||M^-1|| = ||G_AA|| + c
-  const double kJ = condition(J), kJM = condition(JM, &s_max_jm);
-  condition(M, &Mnorm);
-  condition(G, &Ginv_norm);
-  Ginv_norm += shift;
+  const double kJ = condition(J), kJM = condition(JM);
   const double eps = std::numeric_limits<double>::epsilon();
   const auto sliding = std::count_if(act.begin(), act.end(), [&](int i) { return cd.modes[i] == contact::Mode::sliding; });
   std::printf("%s: %ld of the active contacts sliding (%s); kappa(J) %.2e, kappa(J M) %.2e\n", name_of(c),
-              static_cast<long>(sliding), sticking ? "PCG" : "CGLS on J M", kJ, kJM);
+              static_cast<long>(sliding), sticking ? "PCG" : "GMRES, reduced preconditioner", kJ, kJM);
+  // GMRES (mixed) stops at ||Dl Rot (r - J x)|| <= 1e-12 ||Dl Rot r|| (mode_system.hpp;
+  // Rot orthogonal, Dl = 1 or 1 / (L w) per row, L w = L mu lambda_N / |sigma_T| on a
+  // sliding row p), so ||r - J x|| <= kappa(Dl) 1e-12 ||r|| and ||x - x*|| <= that /
+  // s_min(J) (forward); the adjoint's ||r - J^T y|| <= 1e-12 ||r|| (kappa(Dl) covers it).
+  double dmax = 1, dmin = 1;
+  for (int a = 0; a < na; ++a)
+    if (cd.modes[act[a]] == contact::Mode::sliding && cd.mu[act[a]] > 0) {
+      const double Lw = L * cd.mu[act[a]] * cd.lambda[3 * act[a] + 2] / cd.sigma.segment<2>(3 * act[a]).norm();
+      dmax = std::max(dmax, 1 / Lw);
+      dmin = std::min(dmin, 1 / Lw);
+    }
+  double s_max_j = 0;
+  const double kJ_s = condition(J, &s_max_j), s_min_j = s_max_j / kJ_s;
   for (unsigned seed = 20; seed < 22; ++seed) {
     const VecX b = test::random_vector(n, 1.0, seed), dmu = 0.2 * test::random_vector(nc, 1.0, seed + 100);
     for (int transposed = 0; transposed < 2; ++transposed) {
@@ -490,8 +479,8 @@ void compare_paths(Case c) {
       double tol = 0;
       if (sticking) tol = (1e-12 + eps) * kJ * xs;  // J = J^T = G_AA
       if (!sticking) {
-        const double zs = Ginv_norm * xs;  // ||z*|| <= ||M^-1|| ||x*||
-        tol = Mnorm * ((1e-13 + eps) * kJM * kJM * zs + 1e-14 * kJM * kJM * r.norm() / s_max_jm) + eps * kJ * xs;
+        EXPECT_TRUE(op.operator_system().reduced_used()) << name_of(c);
+        tol = (1e-12 + eps) * (dmax / dmin) * r.norm() / s_min_j + eps * kJ * xs;
       }
       tol *= 10 * (transposed ? R : 1);
       const double diff = (x_op - x_dense).norm();
@@ -522,9 +511,8 @@ void compare_paths(Case c) {
                 "(%d iterations)\n",
                 name_of(c), products_plain, plain_ncp.operator_system().last_iterations(), products_pre,
                 op.operator_system().last_iterations());
-    // Every contact sticking: PCG against CG. With sliding contacts the figures are
-    // measurements (docs/method.md): fewer with one sliding contact, more when all slide.
-    if (sticking) EXPECT_LT(products_pre, products_plain) << name_of(c);
+    // PCG against CG; GMRES with the reduced preconditioner against CGLS.
+    EXPECT_LT(products_pre, products_plain) << name_of(c);
   }
   // The same for J = G_AA (PCG against CG).
   contact::OperatorModeSystem plain, pre;
@@ -552,6 +540,81 @@ void compare_paths(Case c) {
 
 TEST(StepDerivativesContact, PreconditionedOperatorMatchesDenseBeyond64) {
   for (const Case c : {Case::sticking, Case::sliding, Case::tipped}) test_precond_local::compare_paths(c);
+}
+
+// Central differences of the step through the reduced preconditioner's GMRES on more
+// than 64 active contacts: the 9 x 9 slab's "sticking" case (mixed: a few contacts
+// slide) and "sliding" case (all slide), derivative_dense_max_active 0, along random
+// directions of x_i and v_i (entries in [-1, 1]) and for friction: J t against
+// (step(s + e t) - step(s - e t)) / (2 e). Steps as in check(): e = 1e-6 of the element
+// size (1 cm) for positions, 1e-6 m/s for velocities, 1e-5 of mu; the NCP solved to
+// 1e-14 and polished, the same modes at s +/- e t (checked); tolerance 1e-6 relative, as
+// check()'s. Directions instead of every column: the slab has 600 dofs.
+namespace test_precond_fd_local {
+
+void check_directions(Case c) {
+  Params p;
+  p.backend = contact::NcpBackend::sparse;
+  p.cells = 9;
+  p.operator_mode = true;
+  const Model model = build(c, p);
+  const State in = start(model, c, p);
+  Data data(model);
+  State out;
+  ASSERT_TRUE(integrator::implicit_euler_step(model, data, in, out, 1).ok()) << name_of(c);
+  const auto& cd = data.contact;
+  const std::vector<ParameterId> params = {{Parameter::friction, 0}};
+  integrator::StepDerivatives d(model, params);
+  const Outcome base = step(model, in);
+  const Eigen::Index n = in.x.size();
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (int which = 0; which < 3; ++which) {
+    StepTangent t;
+    double e = 1e-6;
+    State sp = in, sm = in;
+    Params pp = p, pm = p;
+    if (which < 2) {
+      VecX dir(n);
+      for (Eigen::Index k = 0; k < n; ++k) dir[k] = u(rng);
+      (which == 0 ? t.x : t.v) = dir;
+      if (which == 0) e = 1e-6 * 0.01;
+      (which == 0 ? sp.x : sp.v) += e * dir;
+      (which == 0 ? sm.x : sm.v) -= e * dir;
+    } else {
+      t.p = VecX::Unit(1, 0);
+      e = 1e-5 * cd.mu[0];
+      pp.mu = cd.mu[0] + e;
+      pm.mu = cd.mu[0] - e;
+    }
+    StateTangent r;
+    ASSERT_TRUE(d.jvp(model, data, in, out, t, r)) << name_of(c);
+    const auto& op = d.ncp_derivative();
+    ASSERT_TRUE(op.on_operator()) << name_of(c);
+    ASSERT_GT(op.active(), 64) << name_of(c);
+    EXPECT_TRUE(op.operator_system().reduced_used()) << name_of(c);
+    VecX y(2 * n);
+    y << r.x, r.v;
+    const Model mp = build(c, pp), mm = build(c, pm);
+    const Outcome op_ = which < 2 ? step(model, sp) : step(mp, start(mp, c, p));
+    const Outcome om_ = which < 2 ? step(model, sm) : step(mm, start(mm, c, p));
+    ASSERT_EQ(op_.keys, base.keys) << name_of(c) << ": the contact set changed";
+    ASSERT_EQ(op_.modes, base.modes) << name_of(c) << ": the modes switched";
+    ASSERT_EQ(om_.modes, base.modes) << name_of(c);
+    const VecX fd = (op_.y - om_.y) / (2 * e);
+    const auto cmp = test::compare(y, fd);
+    const auto sliding = std::count(base.modes.begin(), base.modes.end(), contact::Mode::sliding);
+    std::printf("%s (%d active, %ld sliding), direction %d: %s, %d GMRES iterations\n", name_of(c), op.active(),
+                static_cast<long>(sliding), which, cmp.str().c_str(), op.operator_system().last_iterations());
+    EXPECT_GT(y.norm(), 0) << name_of(c);
+    EXPECT_LT(cmp.rel_error, 1e-6) << name_of(c) << " direction " << which << ": " << cmp.str();
+  }
+}
+
+}  // namespace test_precond_fd_local
+
+TEST(StepDerivativesContact, ReducedPreconditionerFiniteDifferencesBeyond64) {
+  for (const Case c : {Case::sticking, Case::sliding}) test_precond_fd_local::check_directions(c);
 }
 
 // Randomized smoothing in the step (model.contact.smoothing): the cube half over the

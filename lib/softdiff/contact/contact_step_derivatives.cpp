@@ -24,12 +24,12 @@ Eigen::Matrix<double, 12, 1> gather_contact(const collision::Contact& c, const V
 
 // The operator path beyond derivative_dense_max_active active contacts: every active
 // contact sticking (J = G_AA), by CG preconditioned with (G_AA + c I)^{-1}; with sliding
-// contacts, by CGLS unpreconditioned and on at most this many active contacts. Measured
-// (docs/method.md "The mode-fixed system at scale"): with sliding contacts neither CGLS
-// nor CGLS on J M converges on the slab's 4337 (3000 iterations), and on J M it takes
-// more products than without M when every contact slides; larger mixed sets keep the
-// dense G_AA.
-constexpr int operator_mixed_max_active = 64;
+// contacts, by GMRES with the reduced preconditioner (mode_system.hpp "Mixed sets") when
+// A_upper is given. Without A_upper (no preconditioner can be factorized), mixed sets
+// take the operator path only up to this many active contacts (unpreconditioned CGLS
+// needs about kappa(J) iterations: on the slab's 4337 it did not converge in 3000) and
+// keep the dense G_AA beyond.
+constexpr int operator_unpreconditioned_mixed_max_active = 64;
 
 bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, const VecX& x,
                                      integrator::LinearSolver& solver, double h, bool use_record_G,
@@ -72,7 +72,7 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
     bool all_sticking = true;
     for (int i : active_ids_) all_sticking = all_sticking && modes[static_cast<std::size_t>(i)] == Mode::sticking;
     if (na > model.contact.ncp.derivative_dense_max_active &&
-        (all_sticking || na <= operator_mixed_max_active)) {
+        (all_sticking || A_upper || na <= operator_unpreconditioned_mixed_max_active)) {
       // Beyond the crossover: the mode-fixed system on the operator (mode_system.hpp),
       // G_AA y = h H_A A^{-1} H_A^T y, one solve with `solver` per product (the caller
       // keeps its factorization until the last jvp / vjp). L = max diag G_AA as on the
@@ -91,14 +91,24 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
       L = std::max(L, 1e-300);
       integrator::LinearSolver* A = &solver;
       // The preconditioner (G_AA + c I)^{-1}: one factorization of B = A + (h/c) H_A^T H_A.
-      OperatorModeSystem::Precondition M;
-      if (A_upper && all_sticking) {
+      OperatorModeSystem::Precondition M, reduce_apply;
+      OperatorModeSystem::FactorizeReduced reduce;
+      if (A_upper) {
         shifted_.bind(solver, *A_upper, cd.Ht, h, model.solver);
         shifted_.restrict_to(active_ids_);
         // B is positive definite where A is; where it does not factorize (the static
         // solver's tangent need not be), the system is solved unpreconditioned.
-        if (shifted_.factorize_shifted(operator_shift_fraction * L))
-          M = [this](VecX& r) { return shifted_.solve_shifted(r); };
+        if (all_sticking) {
+          if (shifted_.factorize_shifted(operator_shift_fraction * L))
+            M = [this](VecX& r) { return shifted_.solve_shifted(r); };
+        } else {
+          // Mixed: the reduced preconditioner, factorized at the first solve.
+          reduce = [this](const std::vector<Mat3>& frames, const VecX& s) {
+            shifted_.set_frames(frames, s);
+            return shifted_.factorize_shifted(1.0);
+          };
+          reduce_apply = [this](VecX& r) { return shifted_.solve_shifted(r); };
+        }
       }
       ncp_.compute_operator(
           [this, A, h](const VecX& y, VecX& out) {
@@ -107,7 +117,7 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
             out.noalias() = h * (Ht_active_.transpose() * op_w_);
             return ok;
           },
-          L, cd.mu, cd.lambda, sigma, modes, std::move(M));
+          L, cd.mu, cd.lambda, sigma, modes, std::move(M), std::move(reduce), std::move(reduce_apply));
     } else {
       if (!solver.inverse_congruence(Ht_active_, G_active_)) return false;
       G_active_ *= h;

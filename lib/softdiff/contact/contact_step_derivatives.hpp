@@ -11,10 +11,10 @@
 //    dense G or, where the record has none (sparse backend) or the caller asks for
 //    another A, on G_AA = h H_A A^{-1} H_A^T of the active contacts (one congruence
 //    with the given factorization), or, beyond ncp.derivative_dense_max_active active
-//    contacts where every active contact sticks (any number) or where at most 64 are
-//    active (with sliding contacts), on the operator y -> G_AA y (mode_system.hpp:
-//    never a dense G_AA; all sticking, preconditioned by (G_AA + c I)^{-1} when A_upper
-//    is given; the jvp / vjp then solve with `solver`, which must keep its
+//    contacts, on the operator y -> G_AA y (mode_system.hpp: never a dense G_AA; when
+//    A_upper is given, all sticking preconditioned by (G_AA + c I)^{-1}, mixed by the
+//    reduced preconditioner with GMRES, at any size; without A_upper mixed sets only up
+//    to 64 active contacts; the jvp / vjp then solve with `solver`, which must keep its
 //    factorization);
 //  - the products of the geometry terms: h dH[dx]^T lambda (the force), dH[dx] u +
 //    (0, 0, dphi[dx] / h) (sigma at fixed lambda) and their transposes.

@@ -39,6 +39,35 @@
 //   there, test_mode_system.cpp PreconditionedRedundantSticking), the unpreconditioned
 //   CGLS from x = 0 follows: J^+ r.
 // Without a preconditioner, the unpreconditioned iterations above.
+//
+// Mixed sets, the reduced preconditioner (set_reduced_preconditioner; docs/method.md
+// "The mixed preconditioner"). Per sliding contact with a sliding direction t (T's
+// column L mu t), rotate its tangent plane to (t, t_perp) and write x = (x_s, x_p, x_N):
+//   row s:  L (x_s + mu x_N) = r_s                (P t = 0: no G in it; local, exact)
+//   row p:  L w (G x)_p + L x_p = r_p, w = mu lambda_N / |sigma_T| (S's factor)
+//           scaled by 1 / (L w): (G x)_p + (1 / w) x_p = r_p / (L w)
+//   row N:  (G x)_N = r_N.
+// Without a direction (mu = 0 or sigma_T = 0) both tangential rows are L x_T = r_T, and
+// with w = 0 (lambda_N = 0) so is row p: local too. In these coordinates and row scales,
+// J' = Dl Rot J Rot^T, and the rows that are not local (every sticking row, N and p of
+// a sliding one: "reduced", R) read Q G' Q^T x_R + C x_R + (the -mu column: x_s of a
+// sliding contact follows -mu x_N, which enters G' through its s column), G' = Rot G_AA
+// Rot^T, C = diag(1 / w) on the p rows. The preconditioner (right, exact on the local
+// rows):
+//   P' v:  z_R = (Q G' Q^T + C + c I)^{-1} v_R,   local rows z_k = v_k / L,
+//          and z_s -= mu z_N (the s row's own elimination),
+// its first part by the Woodbury identity on B = A + h H~^T H~, H~ = (C + c I)^{-1/2} Q
+// Rot H_A (SparseDelassus::set_frames; one factorization per system, on the analyzed
+// pattern of A + H_A^T H_A), c = operator_shift_fraction L. What P' leaves of J' P' is
+// the coupling through the -mu columns (rank: the sliding contacts). Solved by
+// restarted GMRES (right-preconditioned, Saad 2003 sec. 9.3.2) on J' P' z = Dl Rot r,
+// x = Rot^T P' z, to ||Dl Rot (r - J x)|| <= gmres_tolerance ||Dl Rot r||; the adjoint
+// by the same on J'^T with P'^T (J^T = Rot^T J'^T Dl^{-1} Rot). J invertible: x = J^{-1} r
+// to that tolerance. J singular (redundant contacts): GMRES converges to a solution of
+// a consistent system, not necessarily J^+ r (it may differ by an element of null(J));
+// where it does not reach its tolerance (r outside range(J)), the CGLS of the
+// preconditioned path above follows (slow but J^+ r). The dense path keeps the minimum
+// norm below the crossover (contact_step_derivatives.cpp, ncp.cpp).
 #include <softdiff/core/types.hpp>
 
 #include <functional>
@@ -65,6 +94,20 @@ class OperatorModeSystem {
   void set(Apply G_AA, std::vector<Mat3> S, std::vector<Mat3> T);
   // M (empty: none) for the following solves.
   void set_preconditioner(Precondition M) { M_ = std::move(M); }
+  // The mixed sets' preconditioner (see above): factorize(frames, s) prepares
+  // v <- s (I + h H~ A^{-1} H~^T)^{-1} s v, H~ = diag(s) blockdiag(frames) H_A (the
+  // na rotations and 3 na row weights, s = 0 on local rows), apply does it
+  // (SparseDelassus::set_frames, factorize_shifted(1), solve_shifted). Used where some
+  // active contact does not stick, before M; factorized once, at the first solve.
+  using FactorizeReduced = std::function<bool(const std::vector<Mat3>& frames, const VecX& s)>;
+  void set_reduced_preconditioner(FactorizeReduced factorize, Precondition apply) {
+    reduced_factorize_ = std::move(factorize);
+    reduced_apply_ = std::move(apply);
+    reduced_state_ = 0;
+  }
+  // The reduced preconditioner was factorized and used (false: not set, not applicable
+  // or GMRES did not converge with it in the last solve).
+  bool reduced_used() const { return reduced_state_ == 1 && last_reduced_ok_; }
   bool preconditioned() const { return static_cast<bool>(M_); }
   int size() const { return 3 * static_cast<int>(S_.size()); }
 
@@ -81,6 +124,12 @@ class OperatorModeSystem {
   // cg_tolerance kappa ||x*||); at most min(2 (3 na) + 50, 2000) iterations.
   double cg_tolerance = 1e-12;
 
+  // The mixed path's GMRES: relative residual of the scaled system (above), restart
+  // length, and at most gmres_max_iterations iterations (then the CGLS path).
+  double gmres_tolerance = 1e-12;
+  int gmres_restart = 100;
+  int gmres_max_iterations = 1000;
+
   int last_iterations() const { return last_iterations_; }
   int total_iterations() const { return total_iterations_; }
   int solves() const { return solves_; }  // products with G_AA (solves with A's factor)
@@ -90,7 +139,12 @@ class OperatorModeSystem {
   bool apply(const VecX& x, VecX& out, bool transposed) const;  // J x or J^T x
   bool symmetric() const;                                       // S = I, T = 0: J = G_AA
   bool solve_cg(const VecX& r, VecX& x) const;
+  bool solve_cgls(const VecX& r, VecX& x, bool transposed) const;  // from x = 0 (CGLS on J M or J)
   bool precondition(VecX& v) const;  // v <- M v (counted)
+  bool prepare_reduced() const;      // rot_, dl_, local_, mu_s_, weights_; factorize
+  bool apply_scaled(const VecX& v, VecX& out, bool transposed) const;  // J' v or J'^T v
+  bool precondition_reduced(VecX& v, bool transposed) const;         // P' v or P'^T v
+  bool solve_gmres(const VecX& r, VecX& x, bool transposed) const;
 
   Apply G_;
   mutable Precondition M_;  // (solve() sets it aside for its unpreconditioned fallback)
@@ -98,6 +152,17 @@ class OperatorModeSystem {
   mutable VecX g_, st_;  // (3 na) scratch of apply
   mutable VecX s_, p_, q_, t_;  // (3 na) CGLS
   mutable VecX z_, mv_;         // (3 na) preconditioned: CG's M s; CGLS's z and M p
+  FactorizeReduced reduced_factorize_;
+  Precondition reduced_apply_;
+  mutable int reduced_state_ = 0;  // 0: not prepared, 1: factorized, -1: not applicable / failed
+  mutable bool last_reduced_ok_ = false;
+  mutable std::vector<Mat3> rot_;  // (na) the rotated frames Rot_a (rows s, p, N; I for sticking)
+  mutable VecX dl_;                // (3 na) row scales Dl
+  mutable VecX local_;             // (3 na) L on the local rows, 0 on the reduced ones
+  mutable VecX mu_s_;              // (na) mu of the s row's -mu x_N (0: none)
+  mutable VecX weights_;           // (3 na) s = (C + c I)^{-1/2} on reduced rows, 0 on local
+  mutable MatX V_, Hh_;            // GMRES: (3 na x (m + 1)) basis, ((m + 1) x m) Hessenberg
+  mutable VecX gc_, gs_, gg_, gy_, gb_, gw_, gx_, gv_;  // Givens cos / sin, rhs, y; (3 na) vectors
   mutable int last_iterations_ = 0, total_iterations_ = 0, solves_ = 0, precond_solves_ = 0;
 };
 

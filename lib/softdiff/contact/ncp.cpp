@@ -997,11 +997,15 @@ namespace {
 // (polish_rounds_operator); when some contacts of A break under the modes tried (B a
 // proper subset), by M's principal block on B (symmetric positive definite, but not a
 // function of G_BB: the polish's steps are judged by the residuals, the minimum-norm
-// property is not needed there). With sliding contacts, unpreconditioned (right
-// preconditioning by M did not converge on the slab either and costs more products
-// when every contact slides: contact_step_derivatives.cpp), and so only on sets of at
-// most polish_operator_mixed_max_active active contacts.
+// property is not needed there). With sliding contacts, GMRES with the reduced
+// preconditioner (mode_system.hpp "Mixed sets"; its factorization on A's rows with
+// weight 0 on A's breaking contacts, one per Newton step since S and T change), at any
+// size; where B does not factorize, unpreconditioned CGLS on sets of at most
+// polish_operator_mixed_max_active active contacts (it needs about kappa(J) iterations).
+// Where GMRES does not reach its tolerance the CGLS that follows is capped at
+// polish_reduced_cgls_max_iterations (the step is still tried and judged by max |F|).
 constexpr int polish_operator_mixed_max_active = 64;
+constexpr int polish_reduced_cgls_max_iterations = 200;
 
 struct OperatorPolish {
   std::vector<int> act;                           // positions in A of the non-breaking contacts
@@ -1009,7 +1013,10 @@ struct OperatorPolish {
   std::vector<Mode> modes_try, modes_next, modes_kept;
   std::vector<Mat3> S, T;
   OperatorModeSystem sys;
-  bool preconditioned = false;                    // G holds the factorization of (G_AA + c I)
+  bool preconditioned = false;                    // B = A + (h/c) H_A^T H_A factorizes (G_AA + c I)
+  bool frames_set = false;                        // G holds the reduced preconditioner's frames
+  std::vector<Mat3> frames;                       // (nA) its frames on A (I on breaking contacts)
+  VecX weights;                                   // (3 nA) its row weights on A (0 on breaking)
   VecX pre_full;                                  // (3 nA) scratch of the preconditioner on B
   int newton_budget = 0;
   int newton_steps = 0, cgls_iterations = 0;
@@ -1024,7 +1031,9 @@ bool polish_operator(OperatorPolish& o, SparseDelassus& G, const VecX& g, const 
   const int na = static_cast<int>(o.act.size());
   bool all_sticking = true;
   for (int a = 0; a < na; ++a) all_sticking = all_sticking && modes[o.act[a]] == Mode::sticking;
-  if (!all_sticking && na > polish_operator_mixed_max_active) return false;  // see above
+  // Mixed: the reduced preconditioner (mode_system.hpp "Mixed sets") where B factorizes
+  // (o.preconditioned); unpreconditioned only up to polish_operator_mixed_max_active.
+  if (!all_sticking && na > polish_operator_mixed_max_active && !o.preconditioned) return false;
   o.lam = lambda;
   for (int i = 0; i < nA; ++i)
     if (modes[i] == Mode::breaking) o.lam.segment<3>(3 * i).setZero();
@@ -1082,12 +1091,50 @@ bool polish_operator(OperatorPolish& o, SparseDelassus& G, const VecX& g, const 
     return ok;
   };
   double norm = evaluate(true);
+  bool reduced_factorized = false;  // the reduced preconditioner of this call (below)
   for (int newton = 0; newton < 8 && o.newton_budget > 0; ++newton) {
     if (!std::isfinite(norm)) return false;
     if (norm <= 1e-15 * std::max(vscale, L * o.lam.cwiseAbs().maxCoeff())) break;
     --o.newton_budget;
     ++o.newton_steps;
     o.sys.set(apply_active, o.S, o.T);
+    if (o.preconditioned && all_sticking && o.frames_set) {
+      // The reduced preconditioner replaced G's scale: back to (G_AA + c I)^{-1}.
+      o.frames_set = false;
+      G.set_scale(VecX::Ones(nA));
+      o.preconditioned = G.factorize_shifted(operator_shift_fraction * L);
+    }
+    if (o.preconditioned && !all_sticking) {
+      // On A's rows: frames and weights of B's, weight 0 (no column) on A's breaking
+      // contacts. Factorized at the first Newton step of this call and kept for the
+      // following ones (the modes, and so the local rows, are those of the call; the
+      // frames and C of the later steps differ a little from the factorized ones: a
+      // preconditioner still, GMRES's answer is the same).
+      o.sys.set_reduced_preconditioner(
+          [&](const std::vector<Mat3>& frames, const VecX& s) {
+            if (reduced_factorized) return true;
+            o.frames.assign(static_cast<std::size_t>(nA), Mat3::Identity());
+            o.weights.setZero(3 * nA);
+            for (int a = 0; a < na; ++a) {
+              o.frames[static_cast<std::size_t>(o.act[a])] = frames[static_cast<std::size_t>(a)];
+              o.weights.segment<3>(3 * o.act[a]) = s.segment<3>(3 * a);
+            }
+            o.frames_set = true;
+            G.set_frames(o.frames, o.weights);
+            reduced_factorized = G.factorize_shifted(1.0);
+            return reduced_factorized;
+          },
+          [&](VecX& v) {
+            o.pre_full.setZero(3 * nA);
+            for (int a = 0; a < na; ++a) o.pre_full.segment<3>(3 * o.act[a]) = v.segment<3>(3 * a);
+            const bool ok = G.solve_shifted(o.pre_full);
+            for (int a = 0; a < na; ++a) v.segment<3>(3 * a) = o.pre_full.segment<3>(3 * o.act[a]);
+            return ok;
+          });
+      // GMRES not converging falls back to CGLS: bounded here (the step is judged by the
+      // residuals), so that a hard system costs at most this many iterations.
+      o.sys.max_iterations = polish_reduced_cgls_max_iterations;
+    }
     if (o.preconditioned && all_sticking)
       o.sys.set_preconditioner([&](VecX& v) {
         if (na == nA) return G.solve_shifted(v);
@@ -1224,10 +1271,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
         w.ids_a.push_back(w.set[b]);
       }
     const int na = static_cast<int>(w.set_a.size());
-    bool all_sticking = true;
-    for (int b : w.set_a) all_sticking = all_sticking && w.modes_set[b] == Mode::sticking;
-    if (na == 0 || (na > options.polish_max_active && na > polish_operator_mixed_max_active && !all_sticking))
-      return false;
+    if (na == 0) return false;
     const Eigen::Index ma = 3 * static_cast<Eigen::Index>(na);
     G.restrict_to(w.ids_a);
     w.ga.resize(ma);

@@ -43,7 +43,9 @@ void NcpDerivative::set_active(const VecX& mu, const VecX& lambda, const VecX& s
 
 void NcpDerivative::compute_operator(OperatorModeSystem::Apply G_AA, double L, const VecX& mu, const VecX& lambda,
                                      const VecX& sigma, const std::vector<Mode>& modes,
-                                     OperatorModeSystem::Precondition M) {
+                                     OperatorModeSystem::Precondition M,
+                                     OperatorModeSystem::FactorizeReduced reduce,
+                                     OperatorModeSystem::Precondition reduce_apply) {
   set_active(mu, lambda, sigma, modes);
   SOFTDIFF_DEMAND(L > 0 && std::isfinite(L), "NcpDerivative::compute_operator: the scale L must be positive");
   const int na = static_cast<int>(active_.size());
@@ -59,6 +61,7 @@ void NcpDerivative::compute_operator(OperatorModeSystem::Apply G_AA, double L, c
     if (mode_blocks(mu, lambda, sigma, modes, L, a, T[a])) ++degenerate_;
   op_.set(std::move(G_AA), R_, std::move(T));  // S = R
   op_.set_preconditioner(std::move(M));
+  if (reduce && reduce_apply) op_.set_reduced_preconditioner(std::move(reduce), std::move(reduce_apply));
 }
 
 bool NcpDerivative::mode_blocks(const VecX& mu, const VecX& lambda, const VecX& sigma, const std::vector<Mode>& modes,

@@ -44,9 +44,12 @@ class NcpDerivative {
   // The same on the operator y -> G_AA y (3 na, the active contacts in increasing
   // order): never forms G_AA; L is the scale of the force rows (the dense path's
   // max diag G_AA, so that both paths solve the same system).
-  // M (optional): the preconditioner (G_AA + c I)^{-1} of mode_system.hpp.
+  // M (optional): the preconditioner (G_AA + c I)^{-1} of mode_system.hpp;
+  // reduce, reduce_apply (optional): the mixed sets' reduced preconditioner there.
   void compute_operator(OperatorModeSystem::Apply G_AA, double L, const VecX& mu, const VecX& lambda,
-                        const VecX& sigma, const std::vector<Mode>& modes, OperatorModeSystem::Precondition M = {});
+                        const VecX& sigma, const std::vector<Mode>& modes, OperatorModeSystem::Precondition M = {},
+                        OperatorModeSystem::FactorizeReduced reduce = {},
+                        OperatorModeSystem::Precondition reduce_apply = {});
   bool on_operator() const { return operator_; }
   const OperatorModeSystem& operator_system() const { return op_; }
   // The active (non-breaking) contacts of (modes), as compute() selects them.

@@ -142,6 +142,27 @@ void SparseDelassus::set_scale(const Eigen::Ref<const VecX>& d) {
   c_ = 0;
 }
 
+void SparseDelassus::set_frames(const std::vector<Mat3>& frames, const Eigen::Ref<const VecX>& s) {
+  const Eigen::Index m = static_cast<Eigen::Index>(W_.size());
+  SOFTDIFF_DEMAND(static_cast<Eigen::Index>(frames.size()) == m && s.size() == 3 * m && (m == 0 || s.minCoeff() >= 0),
+                  "SparseDelassus::set_frames: expected " + std::to_string(m) + " frames and " +
+                      std::to_string(3 * m) + " non-negative weights");
+  // Z = blockdiag(frames[b]^T) diag(s): the columns of H_W^T R^T diag(s) = HtW_ Z.
+  std::vector<Eigen::Triplet<double, int>> t;
+  t.reserve(static_cast<std::size_t>(9 * m));
+  for (Eigen::Index b = 0; b < m; ++b)
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j)
+        if (s[3 * b + j] != 0 && frames[b](j, i) != 0)
+          t.emplace_back(static_cast<int>(3 * b + i), static_cast<int>(3 * b + j), frames[b](j, i) * s[3 * b + j]);
+  SparseMatrix Z(3 * m, 3 * m);
+  Z.setFromTriplets(t.begin(), t.end());
+  HtWs_ = HtW_ * Z;
+  scale_sqrt_inv_ = s;
+  pattern_ready_ = false;
+  c_ = 0;
+}
+
 bool SparseDelassus::apply(const Eigen::Ref<const VecX>& y, Eigen::Ref<VecX> out) {
   u_.noalias() = HtW_ * y;
   const bool ok = A_solver_->solve(u_, w_);

@@ -73,6 +73,14 @@ class SparseDelassus {
   // The per-contact scale D (|W|, positive) of the shifted solves and of
   // largest_eigenvalue; restrict_to resets it to 1. Invalidates the shifted factorization.
   void set_scale(const Eigen::Ref<const VecX>& d);
+  // Rotated, weighted rows (the mixed mode-fixed system's preconditioner, mode_system.hpp):
+  // with R = blockdiag(frames[b]) (one 3x3 rotation per contact of W, rows: the directions
+  // in the contact frame) and s (3|W|, >= 0) a weight per rotated row, the shifted
+  // solve with c = 1 becomes r <- s (I + h H~ A^{-1} H~^T)^{-1} s r, H~ = diag(s) R H_W,
+  // i.e. (diag(s)^{-2} + R G_WW R^T)^{-1} on the rows with s > 0 (0 on the others), and
+  // B = A + h H~^T H~ (the same pattern). Replaces set_scale; restrict_to resets it;
+  // largest_eigenvalue is then that of H~'s operator. Invalidates the shifted factorization.
+  void set_frames(const std::vector<Mat3>& frames, const Eigen::Ref<const VecX>& s);
   // Factorize B for the shift c > 0; false if B is not positive definite (A is not).
   bool factorize_shifted(double c);
   // r <- (G_WW + c D)^{-1} r with the last factorize_shifted(c).
@@ -110,7 +118,7 @@ class SparseDelassus {
   std::vector<int> W_;
   SparseMatrix HtW_;                 // (3n x 3|W|) columns of Ht for W
   SparseMatrix HtWs_;                // (3n x 3|W|) HtW_ D^-1/2 (set_scale; unused when not scaled)
-  VecX scale_sqrt_inv_;              // (3|W|) D^-1/2 per column (empty: not scaled)
+  VecX scale_sqrt_inv_;              // (3|W|) D^-1/2 per column, or set_frames' s (empty: not scaled)
   const VecX* mass_ = nullptr;       // (3n) set_mass
   bool pattern_ready_ = false;       // S holds B's pattern for the current W
   double c_ = 0;                     // the shift of the current factorization (0: none)
