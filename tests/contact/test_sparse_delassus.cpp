@@ -355,6 +355,40 @@ TEST(SparseNcp, AgreesWithTheDenseSolver) {
   }
 }
 
+// The polish on the operator (beyond polish_max_active active contacts) runs by default
+// only where ADMM did not reach the tolerance by itself; polish_at_scale_always runs it
+// after every operator solve. polish_max_active 0 puts every active set beyond the dense
+// polish; the slab's ADMM converges (no stall), so the default leaves its solution as is.
+TEST(SparseNcp, PolishAtScaleOnlyWhereAdmmDidNotConvergeUnlessAlways) {
+  const Model model = slab_model();
+  Data data(model);
+  step_to_contact(model, data);
+  const auto& cd = data.contact;
+  const int nc = cd.contacts.size();
+  contact::NcpOptions o = model.contact.ncp;
+  o.tolerance = 1e-8;
+  o.max_iterations = 20000;
+  o.dense_max_contacts = 0;
+  o.polish_max_active = 0;
+  std::vector<contact::Mode> modes;
+  contact::NcpResult r[2];
+  for (const bool always : {false, true}) {
+    o.polish_at_scale_always = always;
+    contact::SparseDelassus op;
+    op.bind(*data.solver, data.A, cd.Ht, model.step.dt, model.solver);
+    VecX lam = VecX::Zero(3 * nc), sig;
+    contact::NcpSolver solver;
+    r[always] = solver.solve(op, cd.g, cd.mu, o, lam, sig, modes);
+    EXPECT_TRUE(r[always].converged) << always << " residual " << r[always].residuals.max();
+    EXPECT_LE(contact::ncp_residuals(cd.G, cd.g, cd.mu, lam).max(), o.tolerance) << always;
+  }
+  EXPECT_GT(r[0].sparse_rounds, 0);
+  EXPECT_EQ(r[0].operator_polishes, 0);
+  EXPECT_FALSE(r[0].polished);
+  EXPECT_GT(r[1].operator_polishes, 0);
+  EXPECT_EQ(r[1].iterations, r[0].iterations);  // the same ADMM before the polish
+}
+
 // Warm-started from the solution, the sparse solve is one round with nothing to do.
 TEST(SparseNcp, WarmStartFromTheSolution) {
   const Model model = slab_model();

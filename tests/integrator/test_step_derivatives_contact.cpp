@@ -108,6 +108,7 @@ Model build(Case c, const Params& p) {
   if (p.backend == contact::NcpBackend::sparse) cs.ncp.dense_max_contacts = 0;
   if (p.operator_mode) {
     cs.ncp.polish_max_active = 0;
+    cs.ncp.polish_at_scale_always = true;  // the polish on the operator even where ADMM converged
     cs.ncp.derivative_dense_max_active = 0;
   }
   std::vector<collision::Obstacle> obstacles;

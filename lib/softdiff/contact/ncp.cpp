@@ -1259,7 +1259,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
   // contacts): on the dense G_AA of its active contacts, if they are at most
   // polish_max_active, else on the operator (polish_rounds_operator). The candidate (the polished forces on A, 0 elsewhere) goes to
   // lambda_alt, with its full sigma in sigma_alt; returns whether there is one.
-  auto polish_sparse = [&](int nw, Eigen::Index m) {
+  auto polish_sparse = [&](int nw, Eigen::Index m, bool needed) {
     if (!options.polish) return false;
     const auto gnn = [&](int b) { return w.gnn[w.set[b]] > 0 ? w.gnn[w.set[b]] : Gscale; };
     classify_by(nw, w.muw.head(nw), w.lw.head(m), w.sw.head(m), gnn, std::max(Gscale, tiny), w.modes_set);
@@ -1272,6 +1272,9 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
       }
     const int na = static_cast<int>(w.set_a.size());
     if (na == 0) return false;
+    // Beyond polish_max_active, the polish on the operator runs only where ADMM did not
+    // reach the tolerance by itself, unless asked for always (NcpOptions).
+    if (na > options.polish_max_active && !needed && !options.polish_at_scale_always) return false;
     const Eigen::Index ma = 3 * static_cast<Eigen::Index>(na);
     G.restrict_to(w.ids_a);
     w.ga.resize(ma);
@@ -1457,7 +1460,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
         sub.residuals = part.residuals;
         Gscale = std::max(Gscale, G.last_eigenvalue());
         const bool stalled = part.fallback_iterations < 0;
-        polish_candidate = polish_sparse(nw, m);
+        polish_candidate = polish_sparse(nw, m, stalled || part.residuals.max() > tol);
         if (!stalled || sub.iterations >= budget || part.iterations == 0) break;
         if (polish_candidate && residuals_of(w.lambda_alt, w.sigma_alt, mu, vscale).max() <= tol) break;
         if (options.admm_fallback && attempt == 0 && dense_fallback(nw, m, polish_candidate, sub)) {

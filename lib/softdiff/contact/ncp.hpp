@@ -56,6 +56,14 @@ struct NcpOptions {
   // such contact sticks (preconditioned CG), and on sets with sliding contacts only up
   // to 64 of them (ncp.cpp; docs/method.md "The mode-fixed system at scale").
   int polish_max_active = 400;
+  // The polish on the operator (beyond polish_max_active active contacts, sparse path):
+  // by default only where ADMM stalled (its iterate did not reach the tolerance
+  // without help); where ADMM converged, its solution within `tolerance` stands, as
+  // without a polish. true: after every solve on the operator (scene key
+  // contact.polish_at_scale: always). Measured on configs/slab_on_plane.yaml: the
+  // polish after a converged ADMM costs 3.6x the whole run's CPU (docs/performance.md
+  // "Contact at scale").
+  bool polish_at_scale_always = false;
   // The implicit derivative's mode-fixed system (ncp_derivatives.hpp) where no dense G
   // exists: on the dense G_AA of the active contacts up to this many of them, on the
   // operator beyond (mode_system.hpp; docs/method.md "The mode-fixed system at scale")

@@ -267,6 +267,7 @@ void build_contact(const SceneDesc& scene, Model& model) {
   settings.ncp.tolerance = c.tolerance;
   settings.ncp.max_iterations = c.max_iterations;
   settings.ncp.polish = c.polish;
+  settings.ncp.polish_at_scale_always = c.polish_at_scale_always;
   settings.ncp.backend = c.backend == ContactDesc::Backend::dense    ? contact::NcpBackend::dense
                          : c.backend == ContactDesc::Backend::sparse ? contact::NcpBackend::sparse
                                                                      : contact::NcpBackend::automatic;

@@ -556,6 +556,7 @@ class Reader {
     d.tolerance = number(get(c, "tolerance"), d.tolerance);
     d.max_iterations = static_cast<int>(integer(get(c, "max_iterations"), d.max_iterations));
     d.polish = boolean(get(c, "polish"), d.polish);
+    if (const Node* at_scale = get(c, "polish_at_scale")) d.polish_at_scale_always = at_scale->scalar == "always";
     if (const Node* backend = get(c, "backend"))
       d.backend = backend->scalar == "dense"    ? ContactDesc::Backend::dense
                   : backend->scalar == "sparse" ? ContactDesc::Backend::sparse

@@ -120,6 +120,7 @@ struct ContactDesc {
   double tolerance = 1e-8;
   int max_iterations = 1000;
   bool polish = true;            // extension
+  bool polish_at_scale_always = false;  // extension: polish_at_scale: always (default: stalled)
   enum class Backend { automatic, dense, sparse } backend = Backend::automatic;  // extension
   int dense_max_contacts = 400;  // extension: the automatic backend's crossover
   // extension: randomized smoothing of the collision-detection derivatives

@@ -96,6 +96,7 @@ SpecPtr contact() {
       key("tolerance", number(gt(0))),
       key("max_iterations", integer(ge(1))),
       key("polish", boolean()),  // extension
+      key("polish_at_scale", choice({"stalled", "always"})),  // extension (docs/method.md "The mode-fixed system at scale")
       key("backend", choice({"auto", "dense", "sparse"})),  // extension (docs/method.md "Contact at scale")
       key("dense_max_contacts", integer(ge(0))),            // extension
       key("smoothing", map({      // extension: collision-detection derivatives
