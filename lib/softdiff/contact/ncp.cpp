@@ -215,6 +215,8 @@ struct Buffers {
   std::vector<Mode> modes_try, modes_next, modes_kept;  // (nc) polish rounds
   int newton_budget = 0;                              // Newton steps left to the polish rounds
   int polish_factorizations = 0;                      // of the current solve (NcpResult)
+  int polish_lu = 0;                                  // LU factorizations among them, kept or not (NcpResult)
+  bool polish_singular = false;                       // a Newton matrix of this solve needed the COD (polish())
   // working set (working_set_solve()): the reduced problem, (3 nw x 3 nw) and (3 nw)
   std::vector<int> set;          // the working set's contact ids, ascending
   std::vector<char> in_set;      // (nc) membership
@@ -704,9 +706,21 @@ bool polish(Buffers& w, const Problem& p, const VecCRef& lambda, const std::vect
       // the complete orthogonal decomposition (the minimum-norm least-squares step).
       // polish_lu_rcond (1e-10, LU's reciprocal condition estimate) is above the COD's
       // rank threshold (1e-13): where LU is used the COD would see full rank as well.
-      w.lu.compute(w.J);
-      factored_lu = w.lu.rcond() > polish_lu_rcond;
-      if (!factored_lu) w.cod.compute(w.J);
+      // Once a Newton matrix of this solve needed the COD (redundant contacts: J is
+      // singular by structure, rows of G_AA that depend on each other, whatever the
+      // iterate or the mode round), the later ones go to the COD directly: the LU and
+      // its condition estimate (a third of the COD's time at m = 300 to 400) would be
+      // thrown away (measured on the self-contact scene: docs/performance.md).
+      factored_lu = false;
+      if (!w.polish_singular) {
+        w.lu.compute(w.J);
+        ++w.polish_lu;
+        factored_lu = w.lu.rcond() > polish_lu_rcond;
+      }
+      if (!factored_lu) {
+        w.cod.compute(w.J);
+        w.polish_singular = true;
+      }
       factored = true;
       ++w.polish_factorizations;
     }
@@ -933,6 +947,8 @@ NcpResult NcpSolver::solve(const MatX& G, const VecX& g, const VecX& mu, const N
   Workspace& w = *work_;
   w.resize(n);
   w.polish_factorizations = 0;
+  w.polish_lu = 0;
+  w.polish_singular = false;
   const int nc = static_cast<int>(mu.size());
   if (lambda.size() != n || !lambda.allFinite()) lambda.setZero(n);
   sigma.resize(n);
@@ -962,6 +978,7 @@ NcpResult NcpSolver::solve(const MatX& G, const VecX& g, const VecX& mu, const N
   }
   result.converged = result.residuals.max() <= options.tolerance;
   result.polish_factorizations = w.polish_factorizations;
+  result.polish_lu_factorizations = w.polish_lu;
   count_modes(modes, result);
   return result;
 }
@@ -1164,6 +1181,8 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
   Workspace& w = *work_;
   w.resize(n);
   w.polish_factorizations = 0;
+  w.polish_lu = 0;
+  w.polish_singular = false;
   const int nc = static_cast<int>(mu.size());
   if (lambda.size() != n || !lambda.allFinite()) lambda.setZero(n);
   sigma.resize(n);
@@ -1447,6 +1466,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
   classify_by(nc, mu, lambda, sigma, gnn, std::max(Gscale, tiny), modes);
   result.converged = result.residuals.max() <= tol && !G.failed();
   result.polish_factorizations = w.polish_factorizations;
+  result.polish_lu_factorizations = w.polish_lu;
   count_modes(modes, result);
   return result;
 }
