@@ -706,11 +706,12 @@ bool polish(Buffers& w, const Problem& p, const VecCRef& lambda, const std::vect
       // the complete orthogonal decomposition (the minimum-norm least-squares step).
       // polish_lu_rcond (1e-10, LU's reciprocal condition estimate) is above the COD's
       // rank threshold (1e-13): where LU is used the COD would see full rank as well.
-      // Once a Newton matrix of this solve needed the COD (redundant contacts: J is
-      // singular by structure, rows of G_AA that depend on each other, whatever the
-      // iterate or the mode round), the later ones go to the COD directly: the LU and
-      // its condition estimate (a third of the COD's time at m = 300 to 400) would be
-      // thrown away (measured on the self-contact scene: docs/performance.md).
+      // Once a Newton matrix of this solve needed the COD (redundant contacts: rows of
+      // G_AA that depend on each other keep J singular, mostly, across iterates and mode
+      // rounds), the later ones go to the COD directly: the LU and its condition
+      // estimate (a third of the COD's time at m = 300 to 400) would mostly be thrown
+      // away (measured on the self-contact scene: docs/performance.md). Where a later J
+      // would have passed LU's test, the COD gives the same step up to J's conditioning.
       factored_lu = false;
       if (!w.polish_singular) {
         w.lu.compute(w.J);
