@@ -216,6 +216,8 @@ struct Buffers {
   std::vector<Mode> modes_try, modes_next, modes_kept;  // (nc) polish rounds
   int newton_budget = 0;                              // Newton steps left to the polish rounds
   int polish_factorizations = 0;                      // of the current solve (NcpResult)
+  int polish_lu = 0;                                  // LU factorizations among them, kept or not (NcpResult)
+  bool polish_singular = false;                       // a Newton matrix of this solve needed the COD (polish())
   // working set (working_set_solve()): the reduced problem, (3 nw x 3 nw) and (3 nw)
   std::vector<int> set;          // the working set's contact ids, ascending
   std::vector<char> in_set;      // (nc) membership
@@ -713,9 +715,22 @@ bool polish(Buffers& w, const Problem& p, const VecCRef& lambda, const std::vect
       // the complete orthogonal decomposition (the minimum-norm least-squares step).
       // polish_lu_rcond (1e-10, LU's reciprocal condition estimate) is above the COD's
       // rank threshold (1e-13): where LU is used the COD would see full rank as well.
-      w.lu.compute(w.J);
-      factored_lu = w.lu.rcond() > polish_lu_rcond;
-      if (!factored_lu) w.cod.compute(w.J);
+      // Once a Newton matrix of this solve needed the COD (redundant contacts: rows of
+      // G_AA that depend on each other keep J singular, mostly, across iterates and mode
+      // rounds), the later ones go to the COD directly: the LU and its condition
+      // estimate (a third of the COD's time at m = 300 to 400) would mostly be thrown
+      // away (measured on the self-contact scene: docs/performance.md). Where a later J
+      // would have passed LU's test, the COD gives the same step up to J's conditioning.
+      factored_lu = false;
+      if (!w.polish_singular) {
+        w.lu.compute(w.J);
+        ++w.polish_lu;
+        factored_lu = w.lu.rcond() > polish_lu_rcond;
+      }
+      if (!factored_lu) {
+        w.cod.compute(w.J);
+        w.polish_singular = true;
+      }
       factored = true;
       ++w.polish_factorizations;
     }
@@ -943,6 +958,8 @@ NcpResult NcpSolver::solve(const MatX& G, const VecX& g, const VecX& mu, const N
   Workspace& w = *work_;
   w.resize(n);
   w.polish_factorizations = 0;
+  w.polish_lu = 0;
+  w.polish_singular = false;
   const int nc = static_cast<int>(mu.size());
   if (lambda.size() != n || !lambda.allFinite()) lambda.setZero(n);
   sigma.resize(n);
@@ -973,6 +990,7 @@ NcpResult NcpSolver::solve(const MatX& G, const VecX& g, const VecX& mu, const N
   }
   result.converged = result.residuals.max() <= options.tolerance;
   result.polish_factorizations = w.polish_factorizations;
+  result.polish_lu_factorizations = w.polish_lu;
   count_modes(modes, result);
   return result;
 }
@@ -1222,6 +1240,8 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
   Workspace& w = *work_;
   w.resize(n);
   w.polish_factorizations = 0;
+  w.polish_lu = 0;
+  w.polish_singular = false;
   const int nc = static_cast<int>(mu.size());
   if (lambda.size() != n || !lambda.allFinite()) lambda.setZero(n);
   sigma.resize(n);
@@ -1509,6 +1529,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
   result.converged = result.residuals.max() <= tol && !G.failed();
   result.polish_factorizations = w.polish_factorizations;
   result.factorization_seconds += G.factorization_seconds();
+  result.polish_lu_factorizations = w.polish_lu;
   count_modes(modes, result);
   return result;
 }

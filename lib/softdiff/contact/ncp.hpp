@@ -104,6 +104,9 @@ struct NcpResult {
   bool sparse = false;          // solved on the sparse operator (NcpSolver::solve(SparseDelassus&, ...))
   int sparse_rounds = 0;        // sparse: reduced problems solved by ADMM on the operator (the others on a dense G_W)
   int polish_factorizations = 0;  // O(na^3) factorizations of the polish's Newton matrix (LU or COD)
+  // LU factorizations tried among them (kept where the Newton matrix is well conditioned;
+  // after the first that is not, the solve's later Newton steps use the COD directly)
+  int polish_lu_factorizations = 0;
   // sparse: polishes on the operator (more than polish_max_active active contacts), their
   // Newton steps and CGLS iterations (two solves with the step's factorization each)
   int operator_polishes = 0, operator_polish_newton = 0, operator_polish_cgls = 0;
