@@ -16,6 +16,8 @@
 #include <softdiff/io/build_model.hpp>
 #include <softdiff/io/scene.hpp>
 
+#include "step_timing.hpp"
+
 #include <benchmark/benchmark.h>
 #include <algorithm>
 #include <chrono>
@@ -23,15 +25,15 @@
 #include <string>
 
 using namespace softdiff;
+using softdiff::bench::Stopwatch;
 
 namespace {
 
 void BM_PianistRun(benchmark::State& st) {
-  using Clock = std::chrono::steady_clock;
   const Model model = io::build_model(io::load_scene(std::string(SOFTDIFF_SOURCE_DIR) + "/configs/pianist.yaml"));
   const long steps = st.range(0) > 0 ? std::min<long>(st.range(0), model.step.steps) : model.step.steps;
-  auto cpu_now = [] { return static_cast<double>(std::clock()) / CLOCKS_PER_SEC; };
-  double wall = 0, cpu = 0, floor = 0, floor_cpu = 0, contacts = 0;
+  Stopwatch run, floor_watch;
+  double contacts = 0;
   StepTimings total;
   long runs = 0;
   auto floor_solver = integrator::make_linear_solver({integrator::SolverKind::cholmod});
@@ -43,11 +45,8 @@ void BM_PianistRun(benchmark::State& st) {
     if (runs == 0) floor_solver->analyze(data.A);
     State s = model.initial, next, previous;
     for (long k = 1; k <= steps; ++k) {
-      const auto t0 = Clock::now();
-      const double c0 = cpu_now();
-      const auto status = integrator::time_step(model, data, s, k > 1 ? &previous : nullptr, next, k);
-      cpu += cpu_now() - c0;
-      wall += std::chrono::duration<double>(Clock::now() - t0).count();
+      const auto status =
+          run.time([&] { return integrator::time_step(model, data, s, k > 1 ? &previous : nullptr, next, k); });
       if (!status.ok()) {
         st.SkipWithError(describe(model, status).c_str());
         return;
@@ -55,12 +54,10 @@ void BM_PianistRun(benchmark::State& st) {
       total += data.timings;
       contacts += static_cast<double>(data.contact.contacts.size());
       // The floor of this step's matrix (outside the run's clock).
-      const auto f0 = Clock::now();
-      const double fc0 = cpu_now();
-      floor_solver->factorize(data.A);
-      floor_solver->solve(data.rhs, x);
-      floor_cpu += cpu_now() - fc0;
-      floor += std::chrono::duration<double>(Clock::now() - f0).count();
+      floor_watch.time([&] {
+        floor_solver->factorize(data.A);
+        floor_solver->solve(data.rhs, x);
+      });
       benchmark::DoNotOptimize(x.data());
       previous = s;
       std::swap(s, next);
@@ -69,6 +66,7 @@ void BM_PianistRun(benchmark::State& st) {
     ++runs;
   }
   if (runs == 0) return;
+  const double wall = run.wall, cpu = run.cpu, floor = floor_watch.wall, floor_cpu = floor_watch.cpu;
   const double per_run = 1e3 / static_cast<double>(runs), per_step = per_run / static_cast<double>(steps);
   st.counters["tets"] = model.fem.num_tets;
   st.counters["dofs"] = 3.0 * model.fem.num_nodes;

@@ -25,6 +25,7 @@
 #include <softdiff/io/scene.hpp>
 
 #include "beam.hpp"
+#include "step_timing.hpp"
 
 #include <benchmark/benchmark.h>
 #include <chrono>
@@ -34,6 +35,7 @@
 #include <vector>
 
 using namespace softdiff;
+using softdiff::bench::Stopwatch;
 
 namespace {
 
@@ -46,15 +48,13 @@ Model trajectory_model(int which) {
 }
 
 void BM_Trajectory(benchmark::State& st) {
-  using Clock = std::chrono::steady_clock;
   const int which = static_cast<int>(st.range(0));
   Model model = trajectory_model(which);
   model.solver.factor_reuse = st.range(1) != 0;
   model.solver.pcg_tolerance = std::pow(10.0, -static_cast<double>(st.range(2)));
   constexpr int steps = 100;
   std::vector<VecX> A_values(steps), rhs(steps);
-  double wall = 0, floor = 0, cpu = 0, floor_cpu = 0;
-  auto cpu_now = [] { return static_cast<double>(std::clock()) / CLOCKS_PER_SEC; };
+  Stopwatch run, floor_watch;
   StepTimings total;
   long runs = 0, numeric = 0, pcg_iterations = 0, kept = 0;
   auto floor_solver = integrator::make_linear_solver({integrator::SolverKind::cholmod});
@@ -64,11 +64,7 @@ void BM_Trajectory(benchmark::State& st) {
     data.analyzed = true;
     State s = model.initial, next;
     for (int k = 1; k <= steps; ++k) {
-      const auto t0 = Clock::now();
-      const double c0 = cpu_now();
-      const auto status = integrator::time_step(model, data, s, nullptr, next, k);
-      cpu += cpu_now() - c0;
-      wall += std::chrono::duration<double>(Clock::now() - t0).count();
+      const auto status = run.time([&] { return integrator::time_step(model, data, s, nullptr, next, k); });
       if (!status.ok()) {
         st.SkipWithError(describe(model, status).c_str());
         return;
@@ -89,17 +85,16 @@ void BM_Trajectory(benchmark::State& st) {
     VecX x;
     for (int k = 0; k < steps; ++k) {
       Eigen::Map<VecX>(A.valuePtr(), A.nonZeros()) = A_values[k];
-      const auto t0 = Clock::now();
-      const double c0 = cpu_now();
-      floor_solver->factorize(A);
-      floor_solver->solve(rhs[k], x);
-      floor_cpu += cpu_now() - c0;
-      floor += std::chrono::duration<double>(Clock::now() - t0).count();
+      floor_watch.time([&] {
+        floor_solver->factorize(A);
+        floor_solver->solve(rhs[k], x);
+      });
       benchmark::DoNotOptimize(x.data());
     }
     ++runs;
   }
   const double per_run = 1e3 / static_cast<double>(runs);
+  const double wall = run.wall, cpu = run.cpu, floor = floor_watch.wall, floor_cpu = floor_watch.cpu;
   st.counters["tets"] = model.fem.num_tets;
   st.counters["dofs"] = 3.0 * model.fem.num_nodes;
   st.counters["trajectory_ms"] = wall * per_run;

@@ -21,8 +21,27 @@
 
 namespace softdiff::bench {
 
+// Wall time and process CPU time (all threads) accumulated over timed calls:
+// `auto r = watch.time([&] { return work(); });`.
+struct Stopwatch {
+  double wall = 0, cpu = 0;
+  static double cpu_now() { return static_cast<double>(std::clock()) / CLOCKS_PER_SEC; }
+  template <class F>
+  decltype(auto) time(F&& f) {
+    struct Stop {  // adds the elapsed times when f has returned (void or not)
+      Stopwatch& w;
+      std::chrono::steady_clock::time_point t0 = std::chrono::steady_clock::now();
+      double c0 = cpu_now();
+      ~Stop() {
+        w.cpu += cpu_now() - c0;
+        w.wall += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      }
+    } stop{*this};
+    return f();
+  }
+};
+
 inline void time_steps(benchmark::State& st, const Model& model) {
-  using Clock = std::chrono::steady_clock;
   Data data(model);
   State s = model.initial, next;
   for (int k = 1; k <= 3; ++k) {
@@ -35,14 +54,9 @@ inline void time_steps(benchmark::State& st, const Model& model) {
   }
   StepTimings total;
   long steps = 0;
-  double wall = 0, cpu = 0;
-  auto cpu_now = [] { return static_cast<double>(std::clock()) / CLOCKS_PER_SEC; };
+  Stopwatch run, floor_watch;
   for (auto _ : st) {
-    const auto t0 = Clock::now();
-    const double c0 = cpu_now();
-    const auto status = integrator::implicit_euler_step(model, data, s, next, 4 + steps);
-    cpu += cpu_now() - c0;
-    wall += std::chrono::duration<double>(Clock::now() - t0).count();
+    const auto status = run.time([&] { return integrator::implicit_euler_step(model, data, s, next, 4 + steps); });
     if (!status.ok()) st.SkipWithError(describe(model, status).c_str());
     benchmark::DoNotOptimize(next.x.data());
     total += data.timings;
@@ -52,19 +66,15 @@ inline void time_steps(benchmark::State& st, const Model& model) {
   auto floor_solver = integrator::make_linear_solver({integrator::SolverKind::cholmod});
   floor_solver->analyze(data.A);
   VecX x;
-  double floor = 0, floor_cpu = 0;
   const int reps = static_cast<int>(std::max<long>(3, std::min<long>(steps, 20)));
   for (int r = 0; r < reps; ++r) {
-    const auto t0 = Clock::now();
-    const double c0 = cpu_now();
-    floor_solver->factorize(data.A);
-    floor_solver->solve(data.rhs, x);
-    floor_cpu += cpu_now() - c0;
-    floor += std::chrono::duration<double>(Clock::now() - t0).count();
+    floor_watch.time([&] {
+      floor_solver->factorize(data.A);
+      floor_solver->solve(data.rhs, x);
+    });
     benchmark::DoNotOptimize(x.data());
   }
-  floor /= reps;
-  floor_cpu /= reps;
+  const double wall = run.wall, cpu = run.cpu, floor = floor_watch.wall / reps, floor_cpu = floor_watch.cpu / reps;
   const double per = 1e3 / static_cast<double>(steps);
   st.counters["tets"] = model.fem.num_tets;
   st.counters["dofs"] = 3.0 * model.fem.num_nodes;

@@ -114,6 +114,21 @@ struct DenseReduced {
   }
 };
 
+// The operator path with the reduced preconditioner, G_AA and the preconditioner dense.
+void compute_reduced(NcpDerivative& op, const MatX& G_AA, double L, const Problem& p, DenseReduced& reduced) {
+  op.compute_operator(
+      [&](const VecX& y, VecX& out) {
+        out = G_AA * y;
+        return true;
+      },
+      L, p.mu, p.lambda, p.sigma, p.modes, {},
+      [&](const std::vector<Mat3>& frames, const VecX& s) { return reduced.factorize(frames, s); },
+      [&](VecX& v) {
+        v = reduced.M * v;
+        return true;
+      });
+}
+
 // GMRES with the reduced preconditioner stops at ||Dl Rot (r - J x)|| <= 1e-12 ||Dl Rot r||
 // (forward; Rot orthogonal, Dl = diag(1, 1 / (L w)) with L w = L mu lambda_N / |sigma_T|
 // on the sliding rows p), so ||r - J x|| <= kappa(Dl) 1e-12 ||r|| and ||x - x*|| <=
@@ -178,17 +193,7 @@ void check(const std::vector<Mode>& modes, bool duplicate, double mu, const char
   }
   DenseReduced reduced{&G_AA, MatX()};
   if (precondition == 2) {
-    op.compute_operator(
-        [&](const VecX& y, VecX& out) {
-          out = G_AA * y;
-          return true;
-        },
-        L, p.mu, p.lambda, p.sigma, p.modes, {},
-        [&](const std::vector<Mat3>& frames, const VecX& s) { return reduced.factorize(frames, s); },
-        [&](VecX& v) {
-          v = reduced.M * v;
-          return true;
-        });
+    compute_reduced(op, G_AA, L, p, reduced);
     ASSERT_FALSE(op.operator_system().preconditioned()) << name;
   }
   ASSERT_TRUE(op.on_operator()) << name;
@@ -330,17 +335,7 @@ TEST(OperatorModeSystem, ReducedRedundantMixed) {
     for (int b = 0; b < na; ++b) G_AA.block<3, 3>(3 * a, 3 * b) = p.G.block<3, 3>(3 * act[a], 3 * act[b]);
   const double L = p.G.diagonal().maxCoeff();  // the dense path's scale: the same J
   DenseReduced reduced{&G_AA, MatX()};
-  op.compute_operator(
-      [&](const VecX& y, VecX& out) {
-        out = G_AA * y;
-        return true;
-      },
-      L, p.mu, p.lambda, p.sigma, p.modes, {},
-      [&](const std::vector<Mat3>& frames, const VecX& s) { return reduced.factorize(frames, s); },
-      [&](VecX& v) {
-        v = reduced.M * v;
-        return true;
-      });
+  compute_reduced(op, G_AA, L, p, reduced);
   const MatX& J = dense.jacobian();
   const Eigen::CompleteOrthogonalDecomposition<MatX> cod(J);
   ASSERT_LT(cod.rank(), J.rows());
