@@ -85,17 +85,30 @@ struct StepInfo {
 // One implicit step of length h under gravity and an external wrench (world, force at the
 // centre of mass). Joint constraints (fixed, hinge, slider) and limits (unilateral, exact:
 // no penalty, no springs) are enforced at the end of the step. The state out must not alias in.
+// Free: implicit Euler on (v, omega) with the gyroscopic term implicit (Newton on omega).
+// Hinge, slider: implicit Euler in the joint coordinate (the body moves exactly on the
+// joint), a limit clamps the coordinate (the exact solution of the size-1 LCP); the
+// reaction is the momentum change over h minus the applied loads. Throws
+// std::invalid_argument for a bad call (h <= 0, out aliasing in) and softdiff's
+// ComputationError naming the body for a non-finite state or load or a Newton solve that
+// does not converge (the caller adds the step number).
 StepInfo step(const RigidBody& body, const RigidState& in, double h, const Vec3& gravity,
               const Vec3& force, const Vec3& torque, RigidState& out);
 
 // The body's surface vertices in world coordinates for a state (output, XDMF).
 Mat3X world_vertices(const RigidBody& body, const RigidState& state);
 
-// Extension (for the contact rows of later increments): the 6x6 matrix A of the step's
-// velocity update A (v_{n+1}, omega_{n+1}) = rhs, linearized at the end-of-step state `at`
-// (rows/columns: linear velocity, then angular velocity, world axes), before the joint's
-// constraints. The Delassus block of a contact Jacobian H_r (k x 6) is H_r A^{-1} H_r^T,
-// with the joint's constraints eliminated as in step() (docs/method.md "Rigid bodies").
-Mat6 step_matrix(const RigidBody& body, const RigidState& at, double h);
+// Extensions (for the contact rows of later increments; docs/method.md "Rigid bodies").
+// The 6x6 Newton matrix A of the unconstrained step's velocity update, at the step
+// in -> out: rows and columns are (linear velocity, angular velocity), world axes;
+// A = diag(m I, dr/domega) with r(omega) = exp(h [omega]) I_w(q_n) omega - L_n - h tau
+// the angular residual. A contact impulse p (6) changes the end velocities by A^{-1} p,
+// so the Delassus block of a contact Jacobian H_r (k x 6) is H_r A^{-1} H_r^T; with a
+// joint, reduce A by the joint's motion basis T (joint_motion_basis): T^T A T.
+Mat6 step_matrix(const RigidBody& body, const RigidState& in, const RigidState& out, double h);
+
+// The joint's allowed velocities at a state: 6 x k, (v, omega) = T qdot. free: the 6x6
+// identity; fixed: 6 x 0; hinge: [n x (x - anchor); n]; slider: [n; 0].
+Eigen::Matrix<double, 6, Eigen::Dynamic> joint_motion_basis(const RigidBody& body, const RigidState& state);
 
 }  // namespace softdiff::rigid
