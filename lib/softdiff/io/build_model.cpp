@@ -330,7 +330,7 @@ rigid::RigidBody build_rigid_body(const RigidBodyDesc& d, rigid::RigidState& ini
     r.mass = d.mass;
     r.inertia = d.inertia;
   }
-  // Curved primitives: about 24 segments around the circumference.
+  // Curved primitives: max_edge r / 4, i.e. ceil(2 pi 4) = 26 segments around the circumference.
   const double max_edge = shape.kind == S::box || shape.kind == S::mesh ? 0.0 : 0.25 * shape.radius;
   r.surface = rigid::tessellate(shape, mp.centre, max_edge);
 
