@@ -72,7 +72,9 @@ struct JointEquation {
 double solve_joint(const JointEquation& e, const RigidBody& b) {
   const double centre = e.h * e.cdot;
   const double reach = e.h * e.h * (std::abs(e.Q0) + std::hypot(e.c1, e.c2)) / e.I_a;
-  double lo = centre - reach * (1 + 1e-9) - 1e-300, hi = centre + reach * (1 + 1e-9) + 1e-300;
+  // Padded for the round-off of d / h - cdot (a fast joint under a tiny load).
+  const double pad = 1e-9 * reach + 1e-12 * std::abs(centre) + 1e-300;
+  double lo = centre - reach - pad, hi = centre + reach + pad;
   // Q constant (a slider, a hinge without lever arm): the update is linear.
   if (reach == 0 || (e.c1 == 0 && e.c2 == 0)) return e.h * (e.cdot + e.h * e.Q0 / e.I_a);
   double glo = e.g(lo), ghi = e.g(hi);
