@@ -2,6 +2,7 @@
 // projection, the joint coordinate, the rotational Newton's Jacobian against central
 // differences, the step matrix against the step, and exact joint limits.
 #include <softdiff/core/error.hpp>
+#include <softdiff/rigid/joint_equation.hpp>
 #include <softdiff/rigid/rigid_body.hpp>
 #include <softdiff/rigid/rotation.hpp>
 #include <support/fd.hpp>
@@ -331,6 +332,24 @@ TEST(RigidStep, FastHingeManyTurns) {
     ASSERT_LT((a.position + R * b.anchor_body - b.joint.anchor).norm(), 1e-15) << "step " << k;
     ASSERT_LT((R * b.axis_body - b.joint.axis).norm(), 1e-12) << "step " << k;
     ASSERT_NEAR(a.angular_velocity.z(), 200, 1e-9) << "step " << k;
+  }
+}
+
+// The hinge equation's derivative dg/ddelta (its safeguarded Newton) against central
+// differences with step 1e-6 (delta is an angle of order 0.1-1 rad): g is smooth with
+// derivatives of order I_a / h and h |c|, so the fd error is ~1e-10 relative; 1e-7.
+TEST(RigidStep, JointEquationDerivativeMatchesCentralDifferences) {
+  JointEquation e;
+  e.I_a = 0.02;
+  e.cdot = 3;
+  e.Q0 = 0.1;
+  e.c1 = 4;
+  e.c2 = -7;
+  e.h = 0.05;  // large, so that the load term is a sizeable part of dg
+  for (double d : {-0.8, 0.0, 0.15, 1.3}) {
+    const double fd = (e.g(d + 1e-6) - e.g(d - 1e-6)) / 2e-6;
+    EXPECT_NEAR(e.dg(d), fd, 1e-7 * std::abs(fd)) << "delta " << d;
+    EXPECT_GT(std::abs(e.dg(d) - e.I_a / e.h), 1e-3 * std::abs(fd)) << "delta " << d;
   }
 }
 

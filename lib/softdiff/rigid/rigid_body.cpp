@@ -2,6 +2,7 @@
 // joints to the world in their own coordinate with exact limits (docs/method.md
 // "Rigid bodies").
 #include <softdiff/core/error.hpp>
+#include <softdiff/rigid/joint_equation.hpp>
 #include <softdiff/rigid/rigid_body.hpp>
 #include <softdiff/rigid/rotation.hpp>
 
@@ -55,18 +56,6 @@ double angle_window_centre(const Joint& j) { return j.limits ? 0.5 * (j.limits->
 double wrap(double angle, double centre) {
   return angle - 2 * pi * std::floor((angle - centre + pi) / (2 * pi));
 }
-
-// The end-of-step motion along a joint coordinate c: c_{n+1} = c_n + delta with
-// delta = h cdot_{n+1}; g(delta) = I_a (delta / h - cdot_n) - h Q(delta) = 0, where the
-// generalized force Q(delta) = Q0 + c1 cos(delta) - c2 sin(delta) (hinge) or Q0 (slider).
-// g is increasing when h^2 sqrt(c1^2 + c2^2) < I_a (always for a step that resolves the
-// pendulum's period); the root then lies within h^2 Q_max / I_a of h cdot_n.
-struct JointEquation {
-  double I_a = 0, cdot = 0, Q0 = 0, c1 = 0, c2 = 0, h = 0;
-  double Q(double d) const { return Q0 + c1 * std::cos(d) - c2 * std::sin(d); }
-  double g(double d) const { return I_a * (d / h - cdot) - h * Q(d); }
-  double dg(double d) const { return I_a / h + h * (c1 * std::sin(d) + c2 * std::cos(d)); }
-};
 
 // Safeguarded Newton on the bracket [lo, hi] where g changes sign.
 double solve_joint(const JointEquation& e, const RigidBody& b) {
