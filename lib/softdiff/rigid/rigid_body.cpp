@@ -2,6 +2,7 @@
 // joints to the world in their own coordinate with exact limits (docs/method.md
 // "Rigid bodies").
 #include <softdiff/core/error.hpp>
+#include <softdiff/rigid/joint_equation.hpp>
 #include <softdiff/rigid/rigid_body.hpp>
 #include <softdiff/rigid/rotation.hpp>
 
@@ -56,23 +57,13 @@ double wrap(double angle, double centre) {
   return angle - 2 * pi * std::floor((angle - centre + pi) / (2 * pi));
 }
 
-// The end-of-step motion along a joint coordinate c: c_{n+1} = c_n + delta with
-// delta = h cdot_{n+1}; g(delta) = I_a (delta / h - cdot_n) - h Q(delta) = 0, where the
-// generalized force Q(delta) = Q0 + c1 cos(delta) - c2 sin(delta) (hinge) or Q0 (slider).
-// g is increasing when h^2 sqrt(c1^2 + c2^2) < I_a (always for a step that resolves the
-// pendulum's period); the root then lies within h^2 Q_max / I_a of h cdot_n.
-struct JointEquation {
-  double I_a = 0, cdot = 0, Q0 = 0, c1 = 0, c2 = 0, h = 0;
-  double Q(double d) const { return Q0 + c1 * std::cos(d) - c2 * std::sin(d); }
-  double g(double d) const { return I_a * (d / h - cdot) - h * Q(d); }
-  double dg(double d) const { return I_a / h + h * (c1 * std::sin(d) + c2 * std::cos(d)); }
-};
-
 // Safeguarded Newton on the bracket [lo, hi] where g changes sign.
 double solve_joint(const JointEquation& e, const RigidBody& b) {
   const double centre = e.h * e.cdot;
   const double reach = e.h * e.h * (std::abs(e.Q0) + std::hypot(e.c1, e.c2)) / e.I_a;
-  double lo = centre - reach * (1 + 1e-9) - 1e-300, hi = centre + reach * (1 + 1e-9) + 1e-300;
+  // Padded for the round-off of d / h - cdot (a fast joint under a tiny load).
+  const double pad = 1e-9 * reach + 1e-12 * std::abs(centre) + 1e-300;
+  double lo = centre - reach - pad, hi = centre + reach + pad;
   // Q constant (a slider, a hinge without lever arm): the update is linear.
   if (reach == 0 || (e.c1 == 0 && e.c2 == 0)) return e.h * (e.cdot + e.h * e.Q0 / e.I_a);
   double glo = e.g(lo), ghi = e.g(hi);
