@@ -266,6 +266,7 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
   report.strict = o.strict;
   const Model model = io::build_model(scene, &report);
   for (const auto& w : report.warnings) warn(w);
+  demand_no_rigid_bodies("calibrate", model);
   const Calibrated params = parse_params(o.param, model);
 
   // Initial values.

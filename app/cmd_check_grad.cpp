@@ -117,6 +117,7 @@ int run_check_grad(const CheckGradOptions& o) {
   io::BuildReport report;
   Model model = io::build_model(scene, &report);
   for (const auto& w : report.warnings) warn(w);
+  demand_no_rigid_bodies("check-grad", model);
   const bool is_static = model.step.integrator == IntegratorKind::static_equilibrium;
   // Finite differences of the equilibrium need it to round-off: the residual criterion
   // (static.tolerance), never the answer criterion's earlier stop (method.md).

@@ -132,6 +132,7 @@ int run_control(const ControlOptions& o, const std::string& command_line) {
   report.strict = o.strict;
   const Model model = io::build_model(scene, &report);
   for (const auto& w : report.warnings) warn(w);
+  demand_no_rigid_bodies("control", model);
   if (model.step.integrator == IntegratorKind::static_equilibrium)
     throw InputError("control: the scene's integrator must be implicit_euler or bdf2 (inverse dynamics is per time step)");
   if (model.actuation.actuators.empty()) throw InputError("control: the scene has no actuators to control");

@@ -20,6 +20,29 @@ namespace {
 
 std::vector<double> v3(const Vec3& v) { return {v.x(), v.y(), v.z()}; }
 
+// A rigid body's shape, joint and inertia in words and numbers (info, docs/cli.md).
+const char* shape_name(const rigid::Shape& s) {
+  switch (s.kind) {
+    case rigid::Shape::Kind::box: return "box";
+    case rigid::Shape::Kind::sphere: return "sphere";
+    case rigid::Shape::Kind::capsule: return "capsule";
+    case rigid::Shape::Kind::cylinder: return "cylinder";
+    case rigid::Shape::Kind::mesh: return "mesh";
+  }
+  return "?";
+}
+const char* joint_name(const rigid::Joint& j) {
+  switch (j.kind) {
+    case rigid::Joint::Kind::free: return "free";
+    case rigid::Joint::Kind::fixed: return "fixed";
+    case rigid::Joint::Kind::hinge: return "hinge";
+    case rigid::Joint::Kind::slider: return "slider";
+  }
+  return "?";
+}
+// [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] (the scene's `inertia` order)
+std::vector<double> inertia6(const Mat3& I) { return {I(0, 0), I(1, 1), I(2, 2), I(0, 1), I(0, 2), I(1, 2)}; }
+
 // Unit of an actuator's value: cable tension and servo force in N, pressure in Pa,
 // servo torque in N m.
 const char* value_unit(const actuation::ActuatorModel& a) {
@@ -129,6 +152,22 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
           .end_object();
     }
     j.end_array();
+    j.begin_array("rigid_bodies");
+    for (const auto& r : model.rigid) {
+      j.begin_object()
+          .value("name", r.name)
+          .value("shape", shape_name(r.shape))
+          .value("surface_vertices", static_cast<long>(r.surface.vertices.cols()))
+          .value("mass", r.mass)
+          .value("inertia", inertia6(r.inertia));
+      j.begin_object("joint").value("type", joint_name(r.joint));
+      if (r.joint.kind != rigid::Joint::Kind::free) j.value("anchor", v3(r.joint.anchor));
+      if (r.joint.kind == rigid::Joint::Kind::hinge || r.joint.kind == rigid::Joint::Kind::slider)
+        j.value("axis", v3(r.joint.axis));
+      if (r.joint.limits) j.value("limits", std::vector<double>{r.joint.limits->first, r.joint.limits->second});
+      j.end_object().end_object();
+    }
+    j.end_array();
     j.begin_array("actuators");
     for (const auto& a : model.actuation.actuators) {
       j.begin_object().value("name", a.name).value("type", a.kind_name()).value("body", fem.bodies[a.body].name);
@@ -176,6 +215,21 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
                 "size %.4g x %.4g x %.4g m, mass %.4g kg\n",
                 b.name.c_str(), b.num_nodes, b.num_tets, b.mesh.order == 2 ? "quadratic" : "linear", fixed_nodes, std::string(material::law_name(b.law)).c_str(),
                 b.young, b.poisson, b.density, size.extents.x(), size.extents.y(), size.extents.z(), size.mass);
+  }
+  for (const auto& r : model.rigid) {
+    const Mat3& I = r.inertia;
+    std::printf("rigid       %s: %s, %ld surface vertices, mass %.4g kg, inertia [%.4g, %.4g, %.4g, %.4g, %.4g, %.4g] kg m^2 "
+                "(Ixx Iyy Izz Ixy Ixz Iyz), joint %s",
+                r.name.c_str(), shape_name(r.shape), static_cast<long>(r.surface.vertices.cols()), r.mass, I(0, 0),
+                I(1, 1), I(2, 2), I(0, 1), I(0, 2), I(1, 2), joint_name(r.joint));
+    if (r.joint.kind != rigid::Joint::Kind::free)
+      std::printf(" at [%g, %g, %g]", r.joint.anchor.x(), r.joint.anchor.y(), r.joint.anchor.z());
+    if (r.joint.kind == rigid::Joint::Kind::hinge || r.joint.kind == rigid::Joint::Kind::slider)
+      std::printf(", axis [%g, %g, %g]", r.joint.axis.x(), r.joint.axis.y(), r.joint.axis.z());
+    if (r.joint.limits)
+      std::printf(", limits [%g, %g] %s", r.joint.limits->first, r.joint.limits->second,
+                  r.joint.kind == rigid::Joint::Kind::hinge ? "rad" : "m");
+    std::printf("\n");
   }
   for (const auto& a : model.actuation.actuators) {
     std::string line = "actuator    " + a.name + ": " + a.kind_name() + " on " + fem.bodies[a.body].name + ", " +

@@ -176,6 +176,14 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
     else
       out_bodies.push_back({b.name, b.mesh.X, b.mesh.tets, b.surface});
   }
+  // Rigid bodies (output.md): a surface-only body each (no tets; its surface posed
+  // per frame in x, and so in the XDMF), after the soft bodies.
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+    const auto& body = model.rigid[r];
+    const auto& initial = model.initial.rigid[r];
+    Mat3X posed = (initial.orientation.toRotationMatrix() * body.surface.vertices).colwise() + initial.position;
+    out_bodies.push_back({body.name, std::move(posed), Eigen::MatrixXi(4, 0), body.surface.triangles});
+  }
   const bool is_static = model.step.integrator == IntegratorKind::static_equilibrium;
   const long total = is_static ? model.step.static_load_steps : model.step.steps;
   const long every = std::max<long>(1, scene.output.every);
@@ -185,6 +193,7 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
     const long frames = is_static ? total + 1 : total / every + (total % every != 0 ? 1 : 0) + 1;
     double series = model.contact.enabled ? 8 + 4 + 8 : 0;
     for (const auto& a : model.actuation.actuators) series += a.has_measure() ? 16 : 8;
+    series += 104.0 * static_cast<double>(model.rigid.size());  // position, orientation, velocity, angular_velocity
     series += 24.0 * static_cast<double>(model.actuation.effectors.size());
     check_output_space(out_path,
                        io::estimate_output(out_bodies, wo.write_v, wo.write_contact_force, frames, series,
@@ -258,6 +267,44 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
   for (const auto& e : model.actuation.effectors)
     effector_series.push_back(
         writer.add_series("/bodies/" + model.fem.bodies[e.body].name + "/effectors/" + e.name, 3, "m"));
+  // Rigid bodies (output.md): /bodies/<r>/{position, orientation (w, x, y, z), velocity,
+  // angular_velocity}, one row per frame; x (and v) of the whole output: the soft
+  // bodies' nodes, then each rigid body's surface vertices posed by its state.
+  struct RigidSeries {
+    int position = -1, orientation = -1, velocity = -1, angular_velocity = -1;
+  };
+  std::vector<RigidSeries> rigid_series;
+  long rigid_vertices = 0;
+  for (const auto& r : model.rigid) {
+    const std::string group = "/bodies/" + r.name;
+    rigid_series.push_back({writer.add_series(group + "/position", 3, "m"), writer.add_series(group + "/orientation", 4, "1"),
+                            writer.add_series(group + "/velocity", 3, "m/s"),
+                            writer.add_series(group + "/angular_velocity", 3, "rad/s")});
+    rigid_vertices += r.surface.vertices.cols();
+  }
+  VecX x_out, v_out;  // soft x, v followed by the rigid surfaces' (sized once)
+  if (!model.rigid.empty()) {
+    x_out.resize(model.initial.x.size() + 3 * rigid_vertices);
+    if (wo.write_v) v_out.resize(x_out.size());
+  }
+  auto pose_rigid_surfaces = [&](const State& st) {
+    x_out.head(st.x.size()) = st.x;
+    if (wo.write_v) v_out.head(st.v.size()) = st.v;
+    Eigen::Index offset = st.x.size();
+    for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+      const auto& body = model.rigid[r];
+      const auto& rs = st.rigid[r];
+      const Eigen::Index nv = body.surface.vertices.cols();
+      Eigen::Map<Mat3X> x(x_out.data() + offset, 3, nv);
+      x.noalias() = rs.orientation.toRotationMatrix() * body.surface.vertices;  // R p: the lever arms
+      if (wo.write_v) {
+        Eigen::Map<Mat3X> v(v_out.data() + offset, 3, nv);
+        for (Eigen::Index i = 0; i < nv; ++i) v.col(i) = rs.velocity + rs.angular_velocity.cross(x.col(i));
+      }
+      x.colwise() += rs.position;
+      offset += 3 * nv;
+    }
+  };
   // Contacts (output.md /contact/*, /solver/contact_*): the contacts of the step
   // that produced each frame (none at frame 0).
   struct ContactOutput {
@@ -330,7 +377,20 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
   auto write_frame = [&](const State& st, double step_seconds, bool first = false) {
     std::lock_guard<std::mutex> lock(writer_mutex);
     if (model.contact.enabled) compute_nodal_contact_force(first);
-    writer.append_frame(st.t, st.x, &st.v, step_seconds, model.contact.enabled ? &nodal_contact_force : nullptr);
+    if (model.rigid.empty()) {
+      writer.append_frame(st.t, st.x, &st.v, step_seconds, model.contact.enabled ? &nodal_contact_force : nullptr);
+    } else {
+      pose_rigid_surfaces(st);
+      writer.append_frame(st.t, x_out, wo.write_v ? &v_out : nullptr, step_seconds, nullptr);  // (no contact with rigid bodies)
+      for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+        const auto& rs = st.rigid[r];
+        const double q[4] = {rs.orientation.w(), rs.orientation.x(), rs.orientation.y(), rs.orientation.z()};
+        writer.append_series(rigid_series[r].position, rs.position.data());
+        writer.append_series(rigid_series[r].orientation, q);
+        writer.append_series(rigid_series[r].velocity, rs.velocity.data());
+        writer.append_series(rigid_series[r].angular_velocity, rs.angular_velocity.data());
+      }
+    }
     write_contacts(first);
     for (size_t a = 0; a < actuator_series.size(); ++a) {
       const auto& act = model.actuation.actuators[a];
@@ -635,6 +695,16 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
           .value("max_displacement", max_disp)
           .value("centroid", std::vector<double>{centroid.x(), centroid.y(), centroid.z()})
           .end_object();
+    }
+    for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+      const auto& rs = state.rigid[r];
+      j.begin_object(model.rigid[r].name)
+          .value("position", std::vector<double>{rs.position.x(), rs.position.y(), rs.position.z()})
+          .value("orientation",
+                 std::vector<double>{rs.orientation.w(), rs.orientation.x(), rs.orientation.y(), rs.orientation.z()});
+      if (model.rigid[r].joint.kind == rigid::Joint::Kind::hinge || model.rigid[r].joint.kind == rigid::Joint::Kind::slider)
+        j.value("joint_coordinate", rigid::joint_coordinate(model.rigid[r], rs));
+      j.end_object();
     }
     j.end_object();
     j.end_object();

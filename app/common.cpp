@@ -283,6 +283,8 @@ CLI::Validator positive_integer() {
 std::vector<std::string> scene_input_files(const io::SceneDesc& scene) {
   std::vector<std::string> files{scene.file.string()};
   for (const auto& b : scene.bodies) files.push_back(b.mesh.string());
+  for (const auto& r : scene.rigid_bodies)
+    if (!r.shape.mesh.empty()) files.push_back(r.shape.mesh.string());
   for (const auto& o : scene.obstacles)
     if (!o.mesh.empty()) files.push_back(o.mesh.string());
   return files;

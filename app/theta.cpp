@@ -13,6 +13,7 @@ namespace {
 
 
 void demand_differentiable(const std::string& option, const Model& model) {
+  demand_no_rigid_bodies(option, model);
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
     for (const auto& b : model.fem.bodies)
       if (b.psd_projection)
@@ -33,6 +34,12 @@ void demand_differentiable(const std::string& option, const Model& model) {
 }
 
 }  // namespace
+
+void demand_no_rigid_bodies(const std::string& what, const Model& model) {
+  if (!model.rigid.empty())
+    throw InputError(what + ": derivatives with rigid bodies are not supported yet (issue 21; rigid body '" +
+                     model.rigid.front().name + "')");
+}
 
 ThetaSelection parse_theta(const std::string& option, const std::string& list, const Model& model) {
   const std::vector<std::string> names = split_list(list);

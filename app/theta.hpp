@@ -27,6 +27,11 @@ struct ThetaSelection {
 // actuators, or a scene whose step is not differentiated (newton_iterations > 1 with
 // psd_projection; a static scene with psd_projection, a pressure cavity or a rotation
 // servo; x0, v0 for a static scene), naming the option.
+// Issue 21, increment 1: the step of a scene with rigid bodies is not differentiated
+// yet. InputError "<what>: derivatives with rigid bodies are not supported yet (issue 21; ...)".
+// parse_theta calls it; commands that check other things first call it themselves.
+void demand_no_rigid_bodies(const std::string& what, const Model& model);
+
 ThetaSelection parse_theta(const std::string& option, const std::string& list, const Model& model);
 
 }  // namespace softdiff::app

@@ -22,6 +22,7 @@ Data::Data(const Model& model) {
   lambda_a = VecX::Zero(static_cast<Eigen::Index>(model.actuation.actuators.size()));
   f_act = VecX::Zero(ndof);
   solver = integrator::make_linear_solver(model.solver);
+  rigid.resize(model.rigid.size());
   if (model.contact.enabled) {
     contact.detector = std::make_unique<collision::CollisionDetector>(model.contact.detection);
     contact.v_free = VecX::Zero(ndof);
@@ -115,7 +116,8 @@ std::string describe(const Model& model, const StepStatus& st) {
            "or newton_iterations > 1) or, for a static solve, a body is not held by fixed nodes";
       break;
     case StepStatus::Code::non_finite:
-      s << "non-finite value (NaN or Inf) at " << node_name(model, st.dof);
+      s << "non-finite value (NaN or Inf)";
+      if (st.dof >= 0) s << " at " << node_name(model, st.dof);  // (a rigid body: named in detail)
       break;
     case StepStatus::Code::diverged:
       s << "diverged: " << node_name(model, st.dof) << " moved " << st.value << " m from rest, more than "

@@ -120,6 +120,7 @@ struct Data {
   int static_shifted_iterations = 0;  // solve_static: Newton iterations of the last solve whose
                                       // tangent was shifted (A + tau I: A not positive definite)
   ContactData contact;              // contact stage (model.contact.enabled)
+  std::vector<rigid::StepInfo> rigid;  // (model.rigid) the last step of each rigid body: limit, joint reaction
   StepTimings timings;              // of the last step
   long factorizations = 0;          // count over the run
 };

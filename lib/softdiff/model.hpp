@@ -8,8 +8,10 @@
 #include <softdiff/core/types.hpp>
 #include <softdiff/fem/fem_model.hpp>
 #include <softdiff/integrator/linear_solver.hpp>
+#include <softdiff/rigid/rigid_body.hpp>
 
 #include <string>
+#include <vector>
 
 namespace softdiff {
 
@@ -44,6 +46,7 @@ struct State {
   double t = 0;
   VecX x;  // (3n) positions, node-major
   VecX v;  // (3n) velocities
+  std::vector<rigid::RigidState> rigid;  // one per Model::rigid body (pose and velocities)
 };
 
 // Contact (scene.md `contact`): collision detection and the NCP solver settings.
@@ -65,7 +68,10 @@ struct Model {
   StepSettings step;
   integrator::SolverOptions solver;
   ContactSettings contact;
-  State initial;  // x = rest positions, v = initial velocities (0 on fixed dofs)
+  // Rigid bodies (issue 21, scene.md `type: rigid`), in scene order: each its own
+  // 6-DoF system, stepped after the soft bodies by rigid::step (no contact yet).
+  std::vector<rigid::RigidBody> rigid;
+  State initial;  // x = rest positions, v = initial velocities (0 on fixed dofs); rigid: the scene's
 
   // True when the system matrix A does not depend on the state: every body uses
   // the `linear` law (constant K; h is constant). Then K is assembled and A

@@ -1,7 +1,8 @@
 # Reads softdiff's XDMF output with meshio 7's xdmf.TimeSeriesReader and checks it
 # against the HDF5 file with h5py (docs/output.md "XDMF"):
 #   - the mesh: points = /bodies/BODY/x[0], cells = /bodies/BODY/tets (tetra; tetra10 for a
-#     quadratic body, with gmsh's nodes 8 and 9 swapped);
+#     quadratic body, with gmsh's nodes 8 and 9 swapped; a body without tets, a rigid body:
+#     triangle, /bodies/BODY/surface);
 #   - every frame k: time = /time[k], point data x = x[k], displacement = x[k] - rest,
 #     v = v[k] and contact_force = contact_force[k] when the file has them.
 # Usage (Debian's python3 with python3-meshio, python3-h5py, python3-numpy):
@@ -26,8 +27,9 @@ def main(h5_path, body, xmf_path):
             problems.append("mesh points differ from x[0]")
         tets = group["tets"][()]
         # A quadratic body: Tetrahedron_10 in XDMF's (VTK's) order, gmsh's nodes 8 and 9 swapped.
+        # A body without tets (a rigid body): its surface triangles.
         cell_type, expected_cells = ("tetra10", tets[:, [0, 1, 2, 3, 4, 5, 6, 7, 9, 8]]) if tets.shape[1] == 10 \
-            else ("tetra", tets)
+            else ("triangle", group["surface"][()]) if tets.shape[0] == 0 else ("tetra", tets)
         if len(cells) != 1 or cells[0].type != cell_type or not np.array_equal(cells[0].data, expected_cells):
             problems.append("cells differ from tets: %s" % [(c.type, c.data.shape) for c in cells])
         if reader.num_steps != len(times):

@@ -1084,4 +1084,21 @@ TEST(Xdmf, EscapesNames) {
   EXPECT_NE(text.find("<Time Value=\"0.5\"/>"), std::string::npos);
 }
 
+// A body without tets (a rigid body's surface, posed per frame in x): Triangle
+// topology from its /bodies/<b>/surface; a body with neither tets nor triangles is
+// still left out.
+TEST(Xdmf, SurfaceOnlyBodyHasTriangleTopology) {
+  const std::string text = softdiff::io::xdmf_text(
+      "out.h5", {{"beam", 8, 6, 4, 0}, {"key", 8, 0, 4, 12}, {"empty", 0, 0, 4, 0}}, {0.0}, {"x"});
+  std::string problem;
+  EXPECT_TRUE(well_formed_xml(text, problem)) << problem << "\n" << text;
+  EXPECT_NE(text.find("<Topology TopologyType=\"Tetrahedron\" NumberOfElements=\"6\">"), std::string::npos) << text;
+  EXPECT_NE(text.find("<Topology TopologyType=\"Triangle\" NumberOfElements=\"12\">"), std::string::npos) << text;
+  EXPECT_NE(text.find("Dimensions=\"12 3\" NumberType=\"Int\" Precision=\"8\" Format=\"HDF\">out.h5:/bodies/key/surface<"),
+            std::string::npos)
+      << text;
+  EXPECT_NE(text.find("out.h5:/xdmf/key/x/0<"), std::string::npos) << text;
+  EXPECT_EQ(text.find("empty"), std::string::npos) << text;
+}
+
 }  // namespace

@@ -498,8 +498,9 @@ TEST_F(Scene, BadEnumListsValidValues) {
   expect_error(edit("  dt", "  integrator: explicit\n  dt"), ":3:3: simulation.integrator: must be one of: implicit_euler, bdf2, static; got 'explicit'");
   expect_error(kBase + "linear_solver: cholesky\n", ":12:1: linear_solver: must be one of: cholmod, ldlt, cg; got 'cholesky'");
   expect_error(kBase + "    mass: lumpd\n", ":12:5: bodies[0].mass: must be one of: lumped, consistent; got 'lumpd' (did you mean 'lumped'?)");
-  expect_error(kBase + "    type: rigid\n",
-               ":12:5: bodies[0].type: must be one of: soft; got 'rigid' (static rigid shapes are 'obstacles')");
+  expect_error(kBase + "    type: rigd\n",
+               ":12:5: bodies[0].type: must be one of: soft, rigid; got 'rigd' (did you mean 'rigid'?) (static rigid shapes are "
+               "'obstacles')");
 }
 
 TEST_F(Scene, MissingMeshFile) {
@@ -809,6 +810,142 @@ TEST_F(Scene, SetErrors) {
             "'neo_hookean'?)");
   EXPECT_EQ(error(kBase, {"contact.solver=lcp"}), "--set: contact.solver: must be one of: admm, pgs; got 'lcp'");
   EXPECT_EQ(error(kBase, {"softdiff=2"}), "--set: softdiff: unsupported format version '2' (supported: 1)");
+}
+
+// ---------------------------------------------------------------------------
+// Rigid bodies (scene.md, additions of 2026-12; issue 21)
+
+// kBase plus a rigid key from line 12: body keys at column 5, joint keys at 7.
+const std::string kRigid = kBase + R"(  - name: key
+    type: rigid
+    shape: {type: box, half_extents: [0.011, 0.07, 0.006]}
+    density: 1200
+    position: [0.1, 0, 0]
+    orientation: [0.7071, 0.7071, 0, 0]
+    joint:
+      type: hinge
+      anchor: [0.1, -0.06, -0.006]
+      axis: [2, 0, 0]
+      limits: [-0.1, 0.2]
+)";
+
+std::string rigid_edit(const std::string& from, const std::string& to) { return edit(from, to, kRigid); }
+
+TEST_F(Scene, RigidBodyParsesEveryField) {
+  const SceneDesc s = load(kRigid);
+  ASSERT_EQ(s.bodies.size(), 1u);  // the soft beam
+  ASSERT_EQ(s.rigid_bodies.size(), 1u);
+  const RigidBodyDesc& r = s.rigid_bodies[0];
+  EXPECT_EQ(r.name, "key");
+  EXPECT_EQ(r.where.path, "bodies[1]");
+  EXPECT_EQ(r.shape.kind, RigidShapeDesc::Kind::box);
+  EXPECT_EQ(r.shape.half_extents, Vec3(0.011, 0.07, 0.006));
+  ASSERT_TRUE(r.density.has_value());
+  EXPECT_EQ(*r.density, 1200);
+  EXPECT_EQ(r.position, Vec3(0.1, 0, 0));
+  // Normalized: [0.7071, 0.7071, 0, 0] has norm 0.99999 (within the 1e-3 accepted).
+  EXPECT_NEAR(r.orientation[0], std::sqrt(0.5), 1e-15);
+  EXPECT_NEAR(r.orientation[1], std::sqrt(0.5), 1e-15);
+  EXPECT_EQ(r.velocity, Vec3::Zero());
+  EXPECT_EQ(r.angular_velocity, Vec3::Zero());
+  ASSERT_TRUE(r.joint.has_value());
+  EXPECT_EQ(r.joint->kind, JointDesc::Kind::hinge);
+  EXPECT_EQ(r.joint->anchor, Vec3(0.1, -0.06, -0.006));
+  EXPECT_EQ(r.joint->axis, Vec3(1, 0, 0));  // normalized
+  ASSERT_TRUE(r.joint->limits.has_value());
+  EXPECT_EQ((*r.joint->limits)[0], -0.1);
+  EXPECT_EQ((*r.joint->limits)[1], 0.2);
+}
+
+TEST_F(Scene, RigidBodyDefaultsAndGivenInertia) {
+  const SceneDesc s = load(kBase + "  - {name: ball, type: rigid, shape: {type: sphere, radius: 0.01}, mass: 0.2, "
+                                   "inertia: [3, 4, 5, 0.5, 0.25, -0.125]}\n"
+                                   "  - {name: rod, type: rigid, shape: {type: capsule, radius: 0.01, length: 0.1}, "
+                                   "mass: 0.1, inertia: [2, 2, 1], joint: {type: slider, axis: [0, 0, -3]}}\n");
+  ASSERT_EQ(s.rigid_bodies.size(), 2u);
+  const RigidBodyDesc& ball = s.rigid_bodies[0];
+  EXPECT_FALSE(ball.density.has_value());
+  EXPECT_EQ(ball.mass, 0.2);
+  softdiff::Mat3 I;
+  I << 3, 0.5, 0.25, 0.5, 4, -0.125, 0.25, -0.125, 5;  // [Ixx, Iyy, Izz, Ixy, Ixz, Iyz]
+  EXPECT_EQ(ball.inertia, I);
+  EXPECT_EQ(ball.position, Vec3::Zero());
+  EXPECT_EQ(ball.orientation, (std::array<double, 4>{1, 0, 0, 0}));
+  EXPECT_FALSE(ball.joint.has_value());
+  const RigidBodyDesc& rod = s.rigid_bodies[1];
+  EXPECT_EQ(rod.shape.kind, RigidShapeDesc::Kind::capsule);
+  EXPECT_EQ(rod.shape.length, 0.1);
+  EXPECT_EQ(rod.inertia, Vec3(2, 2, 1).asDiagonal().toDenseMatrix());
+  ASSERT_TRUE(rod.joint.has_value());
+  EXPECT_EQ(rod.joint->kind, JointDesc::Kind::slider);
+  EXPECT_EQ(rod.joint->axis, Vec3(0, 0, -1));
+  EXPECT_EQ(rod.joint->anchor, Vec3::Zero());  // default: the body's position
+  EXPECT_FALSE(rod.joint->limits.has_value());
+}
+
+TEST_F(Scene, RigidBodySetAddressesItsKeys) {
+  const SceneDesc s = load(kRigid, {"bodies.key.shape.half_extents=[0.01, 0.05, 0.005]", "bodies.key.joint.limits=[-0.2, 0]"});
+  EXPECT_EQ(s.rigid_bodies[0].shape.half_extents, Vec3(0.01, 0.05, 0.005));
+  EXPECT_EQ((*s.rigid_bodies[0].joint->limits)[0], -0.2);
+  EXPECT_EQ(error(kRigid, {"bodies.key.desnity=3"}), "--set bodies.key.desnity: unknown key 'desnity'; did you mean 'density'?");
+}
+
+TEST_F(Scene, RigidBodyErrors) {
+  // unknown shape type, a key of another shape type, a missing one
+  expect_error(rigid_edit("{type: box,", "{type: cone,"),
+               ":14:13: bodies[1].shape.type: must be one of: box, sphere, capsule, cylinder, mesh; got 'cone'");
+  expect_error(rigid_edit("half_extents: [0.011, 0.07, 0.006]", "half_extents: [0.011, 0.07, 0.006], radius: 1"),
+               ":14:60: bodies[1].shape.radius: not used by a box shape");
+  expect_error(rigid_edit("{type: box, half_extents: [0.011, 0.07, 0.006]}", "{type: cylinder, radius: 0.01}"),
+               ":14:5: bodies[1].shape: a cylinder shape needs 'length'");
+  // density and mass, neither, mass without inertia
+  expect_error(rigid_edit("    density: 1200\n", "    density: 1200\n    mass: 1\n"),
+               ":16:5: bodies[1].mass: give either 'density' or 'mass' and 'inertia', not both");
+  expect_error(rigid_edit("    density: 1200\n", ""), ":12:5: bodies[1]: a rigid body needs 'density', or 'mass' and 'inertia'");
+  expect_error(rigid_edit("    density: 1200\n", "    mass: 1\n"), ":15:5: bodies[1].mass: needs 'inertia' too (or 'density' alone)");
+  // inertia: not positive definite, 4 entries
+  expect_error(rigid_edit("    density: 1200\n", "    mass: 1\n    inertia: [1, 1, 1, 2, 0, 0]\n"),
+               ":16:5: bodies[1].inertia: must be positive definite (principal moments -1, 1, 3 kg m^2)");
+  expect_error(rigid_edit("    density: 1200\n", "    mass: 1\n    inertia: [1, 1, 1, 0]\n"),
+               ":16:5: bodies[1].inertia: expected a list of 3 numbers [Ixx, Iyy, Izz] or 6 [Ixx, Iyy, Izz, Ixy, Ixz, Iyz], got 4");
+  // orientation far from unit, zero
+  expect_error(rigid_edit("[0.7071, 0.7071, 0, 0]", "[1, 1, 0, 0]"),
+               ":17:5: bodies[1].orientation: must be a unit quaternion [w, x, y, z] (norm within 0.001 of 1), got norm 1.41421356237");
+  expect_error(rigid_edit("[0.7071, 0.7071, 0, 0]", "[0, 0, 0, 0]"),
+               ":17:5: bodies[1].orientation: must be a unit quaternion [w, x, y, z] (norm within 0.001 of 1), got norm 0");
+  // joint: zero axis, limits reversed or not around the initial state, keys of another type
+  expect_error(rigid_edit("axis: [2, 0, 0]", "axis: [0, 0, 0]"), ":21:7: bodies[1].joint.axis: must be a non-zero vector");
+  expect_error(rigid_edit("limits: [-0.1, 0.2]", "limits: [0.2, -0.1]"),
+               ":22:7: bodies[1].joint.limits: lo must not exceed hi, got [0.2, -0.1]");
+  expect_error(rigid_edit("limits: [-0.1, 0.2]", "limits: [0.1, 0.2]"),
+               ":22:7: bodies[1].joint.limits: must contain 0 (the angle is measured from the initial state), got [0.1, 0.2]");
+  expect_error(rigid_edit("      axis: [2, 0, 0]\n", ""), ":18:5: bodies[1].joint: a hinge joint needs 'axis'");
+  expect_error(rigid_edit("type: hinge", "type: fixed"), ":21:7: bodies[1].joint.axis: not used by a fixed joint");
+  expect_error(rigid_edit("type: hinge", "type: ball"), ":19:7: bodies[1].joint.type: must be one of: fixed, hinge, slider; got 'ball'");
+  // unknown keys: of a rigid body (with the closest), and a soft body's key
+  expect_error(rigid_edit("    density: 1200\n", "    density: 1200\n    angular_velocty: [0, 0, 1]\n"),
+               ":16:5: bodies[1].angular_velocty: unknown key; did you mean 'angular_velocity'?");
+  expect_error(rigid_edit("    density: 1200\n", "    density: 1200\n    material: {young: 1}\n"), ":16:5: bodies[1].material: unknown key (valid keys: name, type, shape, density, mass, inertia, position, "
+               "orientation, velocity, angular_velocity, joint)");
+  // a mesh shape: the file must exist, .msh or .stl
+  expect_error(rigid_edit("{type: box, half_extents: [0.011, 0.07, 0.006]}", "{type: mesh, mesh: meshes/nope.msh}"),
+               ":14:25: bodies[1].shape.mesh: mesh file not found: " + (kDir / "meshes" / "nope.msh").string());
+  write_file(kDir / "meshes" / "part.obj", "not read: only its extension is checked\n");
+  expect_error(rigid_edit("{type: box, half_extents: [0.011, 0.07, 0.006]}", "{type: mesh, mesh: meshes/part.obj}"),
+               ":14:25: bodies[1].shape.mesh: expected a closed triangle surface (.msh or .stl), got 'part.obj'");
+  // names are shared with soft bodies and obstacles
+  expect_error(rigid_edit("name: key", "name: beam"), ":12:5: bodies[1].name: duplicate body name 'beam' (also bodies[0])");
+}
+
+TEST_F(Scene, RigidBodiesRefuseWhatIsNotSupportedYet) {
+  expect_error(kRigid + "contact: {friction: 0.5}\n",
+               ":23:1: contact: contact with rigid bodies is not supported yet (issue 21; bodies[1] is rigid): remove the "
+               "section or set enabled: false");
+  expect_error(rigid_edit("  dt: 0.01\n", "  integrator: bdf2\n  dt: 0.01\n"), ":3:3: simulation.integrator: integrator 'bdf2' with rigid bodies is not supported yet (issue 21; "
+               "bodies[1] is rigid): use implicit_euler");
+  EXPECT_NO_THROW(load(kRigid + "contact: {enabled: false}\n"));
+  expect_error(edit("    material:", "    rigidify: [{group: hub, attach: free}]\n    material:"),
+               ":8:5: bodies[0].rigidify: not supported yet (planned: issue 21, rigidified parts of a soft body)");
 }
 
 }  // namespace

@@ -4,6 +4,7 @@
 #include <softdiff/core/assert.hpp>
 #include <softdiff/core/timer.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
+#include <softdiff/integrator/rigid_bodies.hpp>
 
 #include <string>
 
@@ -35,9 +36,13 @@ StepStatus bdf2_step(const Model& model, Data& data, const State& in, const Stat
 
 StepStatus time_step(const Model& model, Data& data, const State& in, const State* previous, State& out,
                      long step_index, const VecX* lambda_a) {
-  if (model.step.integrator == IntegratorKind::bdf2)
-    return bdf2_step(model, data, in, previous, out, step_index, lambda_a);
-  return implicit_euler_step(model, data, in, out, step_index, lambda_a);
+  const StepStatus soft = model.step.integrator == IntegratorKind::bdf2
+                              ? bdf2_step(model, data, in, previous, out, step_index, lambda_a)
+                              : implicit_euler_step(model, data, in, out, step_index, lambda_a);
+  if (model.rigid.empty() || !(soft.ok() || soft.code == StepStatus::Code::not_converged)) return soft;
+  // The rigid bodies: independent of the soft ones while there is no contact.
+  const StepStatus rigid = step_rigid_bodies(model, data, in, out, step_index);
+  return rigid.ok() ? soft : rigid;
 }
 
 }  // namespace softdiff::integrator

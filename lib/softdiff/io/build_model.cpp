@@ -4,12 +4,15 @@
 #include <softdiff/io/gmsh_msh.hpp>
 #include <softdiff/io/plausibility.hpp>
 #include <softdiff/actuation/embedding.hpp>
+#include <softdiff/collision/obstacle.hpp>
+#include <softdiff/rigid/rigid_body.hpp>
 
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <numbers>
 #include <sstream>
+#include <stdexcept>
 #include <unordered_map>
 
 namespace softdiff::io {
@@ -277,6 +280,85 @@ void build_contact(const SceneDesc& scene, Model& model) {
   settings.smoothing.seed = static_cast<std::uint64_t>(c.smoothing_seed);
 }
 
+// A rigid body of the scene (scene.md `type: rigid`): its shape (a mesh shape read as
+// a closed surface, oriented outward), mass properties (from the density, or as
+// given: then the centre of mass is still the uniform-density one, the shape's
+// geometric centroid), its surface tessellation, joint, and initial state
+// (rigid::initialize). Messages carry the scene location.
+namespace {
+
+rigid::RigidBody build_rigid_body(const RigidBodyDesc& d, rigid::RigidState& initial) {
+  rigid::RigidBody r;
+  r.name = d.name;
+  rigid::Shape& shape = r.shape;
+  using K = RigidShapeDesc::Kind;
+  using S = rigid::Shape::Kind;
+  shape.kind = d.shape.kind == K::box       ? S::box
+               : d.shape.kind == K::sphere  ? S::sphere
+               : d.shape.kind == K::capsule ? S::capsule
+               : d.shape.kind == K::cylinder ? S::cylinder
+                                            : S::mesh;
+  shape.half_extents = d.shape.half_extents;
+  shape.radius = d.shape.radius;
+  shape.length = d.shape.length;
+  if (shape.kind == S::mesh) {
+    collision::TriangleSurface surface;
+    try {
+      surface = collision::read_triangle_surface(d.shape.mesh, d.shape.mesh_scale);
+    } catch (const InputError& e) {  // "FILE: open edge ..." -> with the scene location first
+      fail(d.shape.mesh_where, e.what());
+    }
+    // Outward: gmsh orients a surface by its own normal, not by the enclosed volume.
+    double volume6 = 0;
+    for (Eigen::Index t = 0; t < surface.triangles.cols(); ++t)
+      volume6 += surface.vertices.col(surface.triangles(0, t))
+                     .dot(surface.vertices.col(surface.triangles(1, t)).cross(surface.vertices.col(surface.triangles(2, t))));
+    if (volume6 < 0) surface.triangles.row(1).swap(surface.triangles.row(2));
+    shape.mesh_vertices = std::move(surface.vertices);
+    shape.mesh_triangles = std::move(surface.triangles);
+  }
+  rigid::MassProperties mp;
+  try {
+    mp = rigid::mass_properties(shape, d.density.value_or(1.0));
+  } catch (const std::invalid_argument& e) {
+    fail(shape.kind == S::mesh ? d.shape.mesh_where : d.shape.where, e.what());
+  }
+  if (d.density) {
+    r.mass = mp.mass;
+    r.inertia = mp.inertia;
+  } else {
+    r.mass = d.mass;
+    r.inertia = d.inertia;
+  }
+  // Curved primitives: max_edge r / 4, i.e. ceil(2 pi 4) = 26 segments around the circumference.
+  const double max_edge = shape.kind == S::box || shape.kind == S::mesh ? 0.0 : 0.25 * shape.radius;
+  r.surface = rigid::tessellate(shape, mp.centre, max_edge);
+
+  initial.position = d.position;
+  initial.orientation = Eigen::Quaterniond(d.orientation[0], d.orientation[1], d.orientation[2], d.orientation[3]);
+  initial.orientation.normalize();
+  initial.velocity = d.velocity;
+  initial.angular_velocity = d.angular_velocity;
+  if (d.joint) {
+    using J = JointDesc::Kind;
+    r.joint.kind = d.joint->kind == J::hinge    ? rigid::Joint::Kind::hinge
+                   : d.joint->kind == J::slider ? rigid::Joint::Kind::slider
+                                                : rigid::Joint::Kind::fixed;
+    r.joint.anchor = d.joint->anchor;
+    r.joint.axis = d.joint->axis;
+    if (d.joint->limits) r.joint.limits = std::make_pair((*d.joint->limits)[0], (*d.joint->limits)[1]);
+  }
+  try {
+    rigid::initialize(r, initial);
+  } catch (const std::invalid_argument& e) {
+    fail(d.joint ? d.joint->where : d.where, e.what());
+  }
+  initial = r.reference;  // the initial velocity projected onto the joint's motion
+  return r;
+}
+
+}  // namespace
+
 Model build_model(const SceneDesc& scene, BuildReport* report) {
   Model model;
   model.name = scene.name;
@@ -306,6 +388,10 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
   model.solver.pcg_max_iterations = scene.linear_solver.pcg_max_iterations;
   model.solver.refactor_iterations = scene.linear_solver.refactor_iterations;
 
+  if (scene.bodies.empty()) {
+    Where w = scene.rigid_bodies.empty() ? Where{scene.file.string(), 0, 0, "bodies"} : scene.rigid_bodies.front().where;
+    fail(w, "a scene of rigid bodies only is not supported yet (issue 21): the step needs a soft body beside them");
+  }
   std::vector<fem::BodyModel> bodies;
   std::vector<unsigned char> fixed;
   std::vector<Vec3> initial_velocity;
@@ -389,6 +475,11 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
   }
   for (int k = 0; k < ndof; ++k)
     if (model.fem.fixed[k]) model.initial.v[k] = 0;
+  for (const auto& rd : scene.rigid_bodies) {
+    rigid::RigidState initial;
+    model.rigid.push_back(build_rigid_body(rd, initial));
+    model.initial.rigid.push_back(initial);
+  }
   if (report) {
     std::vector<std::string> implausible;
     check_plausibility(scene, model, implausible, report->warnings);

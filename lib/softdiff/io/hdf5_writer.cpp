@@ -238,6 +238,7 @@ struct BodyOutput {
   Eigen::Index first_node = 0;  // offset in the global node-major x
   Eigen::Index nodes = 0;
   Eigen::Index tets = 0;
+  Eigen::Index triangles = 0;  // surface triangles (the XDMF topology of a body without tets)
   int nodes_per_tet = 4;  // 4 or 10
   VecX rest;          // (3n) node-major rest positions
   VecX displacement;  // (3n) x - rest of the frame being appended (sized at creation)
@@ -549,6 +550,7 @@ struct Hdf5Writer::Impl {
       out.first_node = total_nodes;
       out.nodes = body.rest.cols();
       out.tets = body.tets.cols();
+      out.triangles = body.surface.cols();
       out.nodes_per_tet = body.tets.cols() == 0 ? 4 : static_cast<int>(body.tets.rows());
       SOFTDIFF_DEMAND(out.nodes_per_tet == 4 || out.nodes_per_tet == 10, "OutputBody::tets: 4 or 10 rows");
       const int surface_nodes = out.nodes_per_tet == 10 ? 6 : 3;
@@ -872,8 +874,8 @@ struct Hdf5Writer::Impl {
     std::vector<XdmfBody> described;
     described.reserve(bodies.size());
     for (const BodyOutput& body : bodies)
-      described.push_back(
-          {body.name, static_cast<long>(body.nodes), static_cast<long>(body.tets), body.nodes_per_tet});
+      described.push_back({body.name, static_cast<long>(body.nodes), static_cast<long>(body.tets), body.nodes_per_tet,
+                           static_cast<long>(body.triangles)});
     const std::string h5_name = h5_file.filename().string();
     const std::vector<std::string> fields = node_fields();
     for (const XdmfBody& body : described)
@@ -1089,8 +1091,8 @@ OutputEstimate estimate_output(const std::vector<OutputBody>& bodies, bool write
     if (b.tets.rows() == 10) fixed += 8.0 * static_cast<double>(b.tets.size());  // /xdmf/<b>/tets
     e.frame_bytes += 24.0 * static_cast<double>(b.rest.cols()) * node_fields;
     e.frame_bytes += 512.0 * node_fields;  // the frame's views /xdmf/<b>/<field>/<k> (about 0.5 kB each)
-    described.push_back(
-        {b.name, static_cast<long>(b.rest.cols()), static_cast<long>(b.tets.cols()), b.tets.rows() == 10 ? 10 : 4});
+    described.push_back({b.name, static_cast<long>(b.rest.cols()), static_cast<long>(b.tets.cols()),
+                         b.tets.rows() == 10 ? 10 : 4, static_cast<long>(b.surface.cols())});
   }
   const auto frames_d = static_cast<double>(std::max<long>(frames, 1));
   e.hdf5_bytes = fixed + e.frame_bytes * frames_d;

@@ -67,7 +67,10 @@
 #include <softdiff/io/yaml_tree.hpp>
 #include <softdiff/io/yaml_validate.hpp>
 
+#include <Eigen/Eigenvalues>
+
 #include <algorithm>
+#include <cctype>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
@@ -129,13 +132,22 @@ class Reader {
     const Entry* bodies = root.find("bodies");
     for (std::size_t i = 0; i < bodies->value.items.size(); ++i) {
       const Node& body = bodies->value.items[i];
-      BodyDesc desc = read_body(body, yaml::index_path("bodies", i));
-      for (std::size_t j = 0; j < i; ++j)
-        if (scene.bodies[j].name == desc.name) {
-          const Entry* e = body.find("name");
-          ctx_.fail(e->key_mark, desc.where.path + ".name",
-                    "duplicate body name '" + desc.name + "' (also bodies[" + std::to_string(j) + "])");
-        }
+      const std::string body_path = yaml::index_path("bodies", i);
+      const std::string body_name = get(body, "name")->scalar;
+      const auto same_name = [&](const Where& other) {
+        ctx_.fail(body.find("name")->key_mark, body_path + ".name",
+                  "duplicate body name '" + body_name + "' (also " + other.path + ")");
+      };
+      for (const auto& b : scene.bodies)
+        if (b.name == body_name) same_name(b.where);
+      for (const auto& r : scene.rigid_bodies)
+        if (r.name == body_name) same_name(r.where);
+      const Node* type = get(body, "type");
+      if (type && type->scalar == "rigid") {
+        scene.rigid_bodies.push_back(read_rigid_body(body, body_path));
+        continue;
+      }
+      BodyDesc desc = read_body(body, body_path);
       // Actuator names are global (output: /actuators/<name>).
       for (const auto& a : desc.actuators)
         for (const auto& other : scene.bodies)
@@ -150,6 +162,7 @@ class Reader {
       scene.bodies.push_back(std::move(desc));
     }
     read_obstacles(root, scene);
+    check_rigid_support(root, scene);
     read_contact(root, scene);
     read_output(root, scene.output);
     check_factor_reuse(root, scene);
@@ -284,6 +297,168 @@ class Reader {
     if (scene.contact.enabled)
       ctx_.fail(key->key_mark, path, "pcg is not available with contact (use factor_reuse: off or contact.enabled: false)");
   }
+
+  // Rigid bodies, increment 1 of issue 21: stepped by implicit Euler, without contact.
+  void check_rigid_support(const Node& root, const SceneDesc& scene) const {
+    if (scene.rigid_bodies.empty()) return;
+    const std::string first = scene.rigid_bodies.front().where.path;
+    if (scene.simulation.integrator != Integrator::implicit_euler) {
+      const Entry* integrator = root.get("simulation")->find("integrator");
+      ctx_.fail(integrator->key_mark, "simulation.integrator",
+                "integrator '" + integrator->value.scalar + "' with rigid bodies is not supported yet (issue 21; " +
+                    first + " is rigid): use implicit_euler");
+    }
+    const Entry* contact = root.find("contact");
+    if (contact && !contact->value.is_null() && boolean(get(contact->value, "enabled"), true))
+      ctx_.fail(contact->key_mark, "contact",
+                "contact with rigid bodies is not supported yet (issue 21; " + first +
+                    " is rigid): remove the section or set enabled: false");
+  }
+
+  RigidBodyDesc read_rigid_body(const Node& body, const std::string& path) const {
+    RigidBodyDesc d;
+    d.where = ctx_.where(body.mark, path);
+    d.name = get(body, "name")->scalar;
+
+    // shape: the keys of its type, and nothing it ignores
+    const Entry* shape = body.find("shape");
+    const Node& sh = shape->value;
+    const std::string spath = path + ".shape";
+    RigidShapeDesc& s = d.shape;
+    s.where = where(*shape, spath);
+    const std::string type = get(sh, "type")->scalar;
+    using K = RigidShapeDesc::Kind;
+    std::vector<std::string> needed, allowed = {"type"};
+    if (type == "box") { s.kind = K::box; needed = {"half_extents"}; }
+    else if (type == "sphere") { s.kind = K::sphere; needed = {"radius"}; }
+    else if (type == "capsule") { s.kind = K::capsule; needed = {"radius", "length"}; }
+    else if (type == "cylinder") { s.kind = K::cylinder; needed = {"radius", "length"}; }
+    else { s.kind = K::mesh; needed = {"mesh"}; allowed.push_back("mesh_scale"); }
+    allowed.insert(allowed.end(), needed.begin(), needed.end());
+    for (const Entry& e : sh.entries)
+      if (std::find(allowed.begin(), allowed.end(), e.key) == allowed.end())
+        ctx_.fail(e.key_mark, spath + "." + e.key, "not used by a " + type + " shape");
+    for (const std::string& k : needed)
+      if (!sh.find(k)) ctx_.fail(shape->key_mark, spath, "a " + type + " shape needs '" + k + "'");
+    s.half_extents = vec3(get(sh, "half_extents"), s.half_extents);
+    s.radius = number(get(sh, "radius"), s.radius);
+    s.length = number(get(sh, "length"), s.length);
+    s.mesh_scale = number(get(sh, "mesh_scale"), s.mesh_scale);
+    if (s.kind == K::box)
+      for (int k = 0; k < 3; ++k)
+        if (!(s.half_extents[k] > 0))
+          ctx_.fail(sh.find("half_extents")->key_mark, spath + ".half_extents",
+                    "must be > 0 on every axis, got " + format_number(s.half_extents[k]));
+    if (s.kind == K::mesh) {
+      const Entry* mesh = sh.find("mesh");
+      s.mesh = (folder_ / fs::path(mesh->value.scalar)).lexically_normal();
+      s.mesh_where = where(*mesh, spath + ".mesh");
+      std::error_code ec;
+      const fs::file_status status = fs::status(s.mesh, ec);
+      if (!fs::exists(status)) ctx_.fail(mesh->key_mark, spath + ".mesh", "mesh file not found: " + s.mesh.string());
+      if (fs::is_directory(status))
+        ctx_.fail(mesh->key_mark, spath + ".mesh", "is a directory, not a mesh file: " + s.mesh.string());
+      std::string ext = s.mesh.extension().string();
+      for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+      if (ext != ".msh" && ext != ".stl")
+        ctx_.fail(mesh->key_mark, spath + ".mesh",
+                  "expected a closed triangle surface (.msh or .stl), got '" + s.mesh.filename().string() + "'");
+    }
+
+    // density, or mass and inertia
+    const Entry* density = body.find("density");
+    const Entry* mass = body.find("mass");
+    const Entry* inertia = body.find("inertia");
+    if (density && (mass || inertia)) {
+      const Entry* second = mass ? mass : inertia;
+      ctx_.fail(second->key_mark, path + "." + second->key,
+                "give either 'density' or 'mass' and 'inertia', not both");
+    }
+    if (!density && !mass && !inertia)
+      ctx_.fail(body.mark, path, "a rigid body needs 'density', or 'mass' and 'inertia'");
+    if (!density && !(mass && inertia))
+      ctx_.fail((mass ? mass : inertia)->key_mark, path + "." + (mass ? "mass" : "inertia"),
+                std::string("needs '") + (mass ? "inertia" : "mass") + "' too (or 'density' alone)");
+    if (density) d.density = *yaml::to_number(density->value);
+    if (mass) {
+      d.mass = *yaml::to_number(mass->value);
+      const auto& items = inertia->value.items;
+      const std::string ipath = path + ".inertia";
+      if (items.size() != 3 && items.size() != 6)
+        ctx_.fail(inertia->key_mark, ipath,
+                  "expected a list of 3 numbers [Ixx, Iyy, Izz] or 6 [Ixx, Iyy, Izz, Ixy, Ixz, Iyz], got " +
+                      std::to_string(items.size()));
+      double I[6] = {0, 0, 0, 0, 0, 0};
+      for (std::size_t k = 0; k < items.size(); ++k) I[k] = *yaml::to_number(items[k]);
+      d.inertia << I[0], I[3], I[4], I[3], I[1], I[5], I[4], I[5], I[2];
+      // positive definite: the smallest eigenvalue > 0, relative to the largest (a
+      // tensor with a zero or negative principal moment has no finite rotation)
+      const Eigen::SelfAdjointEigenSolver<Mat3> eig(d.inertia, Eigen::EigenvaluesOnly);
+      const Vec3 moments = eig.eigenvalues();
+      if (!(moments[0] > 1e-12 * std::abs(moments[2])) || !(moments[2] > 0))
+        ctx_.fail(inertia->key_mark, ipath,
+                  "must be positive definite (principal moments " + format_number(moments[0]) + ", " +
+                      format_number(moments[1]) + ", " + format_number(moments[2]) + " kg m^2)");
+    }
+
+    // the initial state
+    d.position = vec3(get(body, "position"), d.position);
+    d.velocity = vec3(get(body, "velocity"), d.velocity);
+    d.angular_velocity = vec3(get(body, "angular_velocity"), d.angular_velocity);
+    if (const Entry* q = body.find("orientation")) {
+      double norm2 = 0;
+      for (int k = 0; k < 4; ++k) {
+        d.orientation[static_cast<std::size_t>(k)] = *yaml::to_number(q->value.items[static_cast<std::size_t>(k)]);
+        norm2 += d.orientation[static_cast<std::size_t>(k)] * d.orientation[static_cast<std::size_t>(k)];
+      }
+      const double norm = std::sqrt(norm2);
+      // Normalized; written with a few digits (0.7071) a quaternion is off by ~1e-5.
+      if (!(std::abs(norm - 1) <= kQuaternionTolerance))
+        ctx_.fail(q->key_mark, path + ".orientation",
+                  "must be a unit quaternion [w, x, y, z] (norm within " + format_number(kQuaternionTolerance) +
+                      " of 1), got norm " + format_number(norm));
+      for (double& c : d.orientation) c /= norm;
+    }
+
+    // joint: the keys of its type
+    if (const Entry* joint = body.find("joint")) {
+      const Node& j = joint->value;
+      const std::string jpath = path + ".joint";
+      JointDesc jd;
+      jd.where = where(*joint, jpath);
+      const std::string jtype = get(j, "type")->scalar;
+      jd.kind = jtype == "hinge" ? JointDesc::Kind::hinge : jtype == "slider" ? JointDesc::Kind::slider
+                                                                             : JointDesc::Kind::fixed;
+      if (jd.kind == JointDesc::Kind::fixed)
+        for (const Entry& e : j.entries)
+          if (e.key != "type" && e.key != "anchor") ctx_.fail(e.key_mark, jpath + "." + e.key, "not used by a fixed joint");
+      jd.anchor = vec3(get(j, "anchor"), d.position);
+      if (jd.kind != JointDesc::Kind::fixed) {
+        const Entry* axis = j.find("axis");
+        if (!axis) ctx_.fail(joint->key_mark, jpath, "a " + jtype + " joint needs 'axis'");
+        const Vec3 a = vec3(&axis->value, Vec3::Zero());
+        if (!(a.norm() > 0)) ctx_.fail(axis->key_mark, jpath + ".axis", "must be a non-zero vector");
+        jd.axis = a.normalized();
+        if (const Entry* limits = j.find("limits")) {
+          const double lo = *yaml::to_number(limits->value.items[0]), hi = *yaml::to_number(limits->value.items[1]);
+          if (!(lo <= hi))
+            ctx_.fail(limits->key_mark, jpath + ".limits",
+                      "lo must not exceed hi, got [" + limits->value.items[0].scalar + ", " +
+                          limits->value.items[1].scalar + "]");
+          if (!(lo <= 0 && 0 <= hi))
+            ctx_.fail(limits->key_mark, jpath + ".limits",
+                      std::string("must contain 0 (the ") + (jd.kind == JointDesc::Kind::hinge ? "angle" : "travel") +
+                          " is measured from the initial state), got [" + limits->value.items[0].scalar + ", " +
+                          limits->value.items[1].scalar + "]");
+          jd.limits = std::array<double, 2>{lo, hi};
+        }
+      }
+      d.joint = jd;
+    }
+    return d;
+  }
+
+  static constexpr double kQuaternionTolerance = 1e-3;
 
   BodyDesc read_body(const Node& body, const std::string& path) const {
     BodyDesc d;
@@ -533,6 +708,10 @@ class Reader {
         if (b.name == o.name)
           ctx_.fail(item.find("name")->key_mark, path + ".name",
                     "obstacle name '" + o.name + "' is also a body's name (contact pairs refer to either)");
+      for (const auto& r : scene.rigid_bodies)
+        if (r.name == o.name)
+          ctx_.fail(item.find("name")->key_mark, path + ".name",
+                    "obstacle name '" + o.name + "' is also a rigid body's name (contact pairs refer to either)");
       for (const auto& other : scene.obstacles)
         if (other.name == o.name)
           ctx_.fail(item.find("name")->key_mark, path + ".name",

@@ -87,6 +87,42 @@ struct BodyDesc {
   Where where;
 };
 
+// A rigid body (scene.md `type: rigid`, additions of 2026-12): a 6-DoF body, free or
+// on a joint with the world. Plain data; io::build_model turns it into a
+// rigid::RigidBody (mass properties, tessellation, joint).
+struct RigidShapeDesc {
+  enum class Kind { box, sphere, capsule, cylinder, mesh } kind = Kind::box;
+  Vec3 half_extents = Vec3::Zero();  // box
+  double radius = 0;                 // sphere, capsule, cylinder
+  double length = 0;                 // capsule (its segment), cylinder: along the body z axis
+  std::filesystem::path mesh;        // mesh: .msh (triangles), resolved against the scene folder
+  double mesh_scale = 1.0;           // mesh
+  Where where;                       // the `shape` key
+  Where mesh_where;                  // the `mesh` key (mesh shapes)
+};
+
+struct JointDesc {
+  enum class Kind { fixed, hinge, slider } kind = Kind::fixed;
+  Vec3 anchor = Vec3::Zero();        // world, at t = 0 (default: the body's position)
+  Vec3 axis = Vec3::UnitZ();         // world, unit (normalized here): hinge, slider
+  std::optional<std::array<double, 2>> limits;  // rad (hinge) or m (slider), lo <= hi
+  Where where;
+};
+
+struct RigidBodyDesc {
+  std::string name;
+  RigidShapeDesc shape;
+  std::optional<double> density;     // kg/m^3; else mass and inertia are given
+  double mass = 0;                   // kg (given)
+  Mat3 inertia = Mat3::Zero();       // kg m^2 about the centre of mass, body axes (given), SPD
+  Vec3 position = Vec3::Zero();      // centre of mass, world
+  std::array<double, 4> orientation{1, 0, 0, 0};  // w, x, y, z; unit (normalized here)
+  Vec3 velocity = Vec3::Zero();
+  Vec3 angular_velocity = Vec3::Zero();  // world, rad/s
+  std::optional<JointDesc> joint;    // absent: a free body
+  Where where;
+};
+
 // A static rigid obstacle (scene.md `obstacles`), world coordinates.
 struct ObstacleDesc {
   enum class Kind { plane, box, sphere, capsule, cylinder, mesh } kind = Kind::plane;
@@ -175,7 +211,8 @@ struct SceneDesc {
   std::string name;
   SimulationDesc simulation;
   LinearSolverDesc linear_solver;
-  std::vector<BodyDesc> bodies;
+  std::vector<BodyDesc> bodies;              // the soft bodies (type: soft), in scene order
+  std::vector<RigidBodyDesc> rigid_bodies;   // the rigid bodies (type: rigid), in scene order
   std::vector<ObstacleDesc> obstacles;
   ContactDesc contact;
   OutputDesc output;

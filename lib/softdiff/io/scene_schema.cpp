@@ -107,10 +107,13 @@ SpecPtr contact() {
   });
 }
 
-SpecPtr body() {
+// `type` of a body: soft (the default) or rigid; the keys of each are below.
+SpecPtr body_type() { return choice({"soft", "rigid"}, "static rigid shapes are 'obstacles'"); }
+
+SpecPtr soft_body() {
   return map({
       required("name", name()),
-      key("type", choice({"soft"}, "static rigid shapes are 'obstacles'")),
+      key("type", body_type()),
       required("mesh", text(true)),
       key("mesh_scale", number(gt(0))),
       key("translate", vec3()),
@@ -127,8 +130,56 @@ SpecPtr body() {
       key("initial_velocity", vec3()),
       key("actuators", list(actuator(), "a list", 0, false, "actuator")),
       key("effectors", list(effector(), "a list", 0, false, "effector")),
+      planned(key("rigidify", list(map({key("group", text(true)), key("box", box6()), key("attach", text(true))}))),
+              "issue 21, rigidified parts of a soft body"),
   });
 }
+
+// A rigid body (scene.md, additions of 2026-12). Keys that depend on the shape type
+// or the joint type (radius for a sphere, axis for a hinge), `density` against
+// `mass` + `inertia`, and the values that relate several numbers (a unit quaternion,
+// an inertia that is positive definite, limits in order) are checked by scene.cpp.
+SpecPtr rigid_shape() {
+  return map({
+      required("type", choice({"box", "sphere", "capsule", "cylinder", "mesh"})),
+      key("half_extents", vec3()),
+      key("radius", number(gt(0))),
+      key("length", number(gt(0))),
+      key("mesh", text(true)),
+      key("mesh_scale", number(gt(0))),
+  });
+}
+
+SpecPtr rigid_joint() {
+  return map({
+      required("type", choice({"fixed", "hinge", "slider"})),
+      key("anchor", vec3()),
+      key("axis", vec3()),
+      key("limits", numbers(2, "a list of 2 numbers [lo, hi]")),
+  });
+}
+
+SpecPtr rigid_body() {
+  auto inertia = std::make_shared<Spec>(
+      *list(number(), "a list of 3 numbers [Ixx, Iyy, Izz] or 6 [Ixx, Iyy, Izz, Ixy, Ixz, Iyz]", 3));
+  inertia->max_items = 6;
+  return map({
+      required("name", name()),
+      required("type", body_type()),
+      required("shape", rigid_shape()),
+      key("density", number(gt(0))),
+      key("mass", number(gt(0))),
+      key("inertia", inertia),
+      key("position", vec3()),
+      key("orientation", numbers(4, "a list of 4 numbers [w, x, y, z] (a unit quaternion)")),
+      key("velocity", vec3()),
+      key("angular_velocity", vec3()),
+      key("joint", rigid_joint()),
+  });
+}
+
+// A body: soft unless `type: rigid`.
+SpecPtr body() { return variants("type", {{"soft", soft_body()}, {"rigid", rigid_body()}}); }
 
 SpecPtr simulation() {
   return map({

@@ -53,7 +53,11 @@ void append_body_grid(std::string& out, const std::string& indent, const std::st
   };
   out += indent + "<Grid Name=\"" + name + "\" GridType=\"Uniform\">\n";
   if (time != nullptr) out += indent + "  <Time Value=\"" + *time + "\"/>\n";
-  if (body.nodes_per_tet == 10) {
+  if (body.tets == 0) {
+    const std::string k = std::to_string(body.triangles);
+    out += indent + "  <Topology TopologyType=\"Triangle\" NumberOfElements=\"" + k + "\">\n";
+    append_data_item(out, indent + "    ", k + " 3", "Int", file + ":/bodies/" + name + "/surface");
+  } else if (body.nodes_per_tet == 10) {
     out += indent + "  <Topology TopologyType=\"Tetrahedron_10\" NumberOfElements=\"" + m + "\">\n";
     append_data_item(out, indent + "    ", m + " 10", "Int", file + ":" + xml_escape(xdmf_tets_path(body.name)));
   } else {
@@ -90,9 +94,9 @@ std::filesystem::path xdmf_body_path(const std::filesystem::path& h5_file, const
 std::string xdmf_text(const std::string& h5_name, const std::vector<XdmfBody>& bodies,
                       const std::vector<double>& times, const std::vector<std::string>& fields) {
   const std::string file = xml_escape(h5_name);
-  std::vector<const XdmfBody*> shown;  // bodies ParaView can show (nodes and tets)
+  std::vector<const XdmfBody*> shown;  // bodies ParaView can show (nodes and tets, or a surface)
   for (const XdmfBody& body : bodies)
-    if (body.nodes > 0 && body.tets > 0) shown.push_back(&body);
+    if (body.nodes > 0 && (body.tets > 0 || body.triangles > 0)) shown.push_back(&body);
   const bool single = shown.size() == 1;
   const long frames = static_cast<long>(times.size());
   std::string out;

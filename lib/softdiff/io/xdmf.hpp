@@ -12,6 +12,8 @@
 //       several:    Grid "frame k" (Collection, Spatial), Time = /time[k]
 //                     Grid "<body>" (Uniform)                         (per body)
 //         Topology Tetrahedron       <- out.h5:/bodies/<body>/tets (m, 4)
+//                  Triangle          <- out.h5:/bodies/<body>/surface (k, 3) for a body without
+//                                       tets (a rigid body: its surface, x posed per frame)
 //                  Tetrahedron_10    <- out.h5:/xdmf/<body>/tets (m, 10) for a quadratic body:
 //                                       /bodies/<body>/tets (gmsh's node order) with
 //                                       nodes 8 and 9 swapped (XDMF and VTK list the
@@ -39,6 +41,9 @@ struct XdmfBody {
   long nodes = 0;  // n: rows of /bodies/<name>/rest and of each frame of x
   long tets = 0;   // m: rows of /bodies/<name>/tets
   int nodes_per_tet = 4;  // 4, or 10 (Tetrahedron_10 from /xdmf/<name>/tets)
+  // A surface-only body (tets == 0: a rigid body's surface, posed per frame in x):
+  // Topology Triangle from /bodies/<name>/surface (triangles, 3).
+  long triangles = 0;
 };
 
 // The (m, 10) connectivity in XDMF's order of a quadratic body: "/xdmf/<body>/tets".

@@ -107,6 +107,22 @@ SpecPtr map(std::vector<Field> fields, std::string shorthand) {
   return s;
 }
 
+SpecPtr variants(std::string key, std::vector<std::pair<std::string, SpecPtr>> kinds) {
+  auto s = make(Kind::map, "a map");
+  s->variant_key = std::move(key);
+  s->variants = std::move(kinds);
+  return s;
+}
+
+const Spec& resolve(const Spec& spec, const yaml::Node& node) {
+  if (spec.variants.empty()) return spec;
+  const yaml::Node* k = node.is_map() ? node.get(spec.variant_key) : nullptr;
+  if (k && k->is_scalar())
+    for (const auto& [value, variant] : spec.variants)
+      if (value == k->scalar) return *variant;
+  return *spec.variants.front().second;
+}
+
 Field key(std::string field_name, SpecPtr spec) {
   Field f;
   f.name = std::move(field_name);
@@ -259,7 +275,8 @@ void validate_map(const Node& node, const Spec& spec, const Context& ctx, const 
 
 }  // namespace
 
-void validate(const Node& node, const Spec& spec, const Context& ctx, const yaml::Mark& at, const std::string& path) {
+void validate(const Node& node, const Spec& given, const Context& ctx, const yaml::Mark& at, const std::string& path) {
+  const Spec& spec = resolve(given, node);
   switch (spec.kind) {
     case Kind::map: validate_map(node, spec, ctx, at, path); return;
     case Kind::list: validate_list(node, spec, ctx, at, path); return;
@@ -381,6 +398,7 @@ void apply_override(Node& root, const Spec& root_spec, std::string_view assignme
     const std::string& part = parts[i];
     const bool last = i + 1 == parts.size();
     const std::string here = walked.empty() ? std::string("the scene") : "'" + walked + "'";
+    spec = &resolve(*spec, *node);
     if (spec->kind == Kind::map) {
       if (node->is_scalar() && !spec->shorthand.empty()) {  // linear_solver: cg -> {type: cg}
         Node expanded;

@@ -72,6 +72,11 @@ struct Spec {
   // map
   std::vector<Field> fields;
   std::string shorthand;   // a scalar value stands for {shorthand: value} (linear_solver: cg)
+  // A map whose keys depend on the value of one of them (bodies: `type: soft | rigid`):
+  // the variant named by the node's `variant_key` (a scalar), else the first one.
+  // validate() and apply_override() use the variant that resolve() picks.
+  std::string variant_key;
+  std::vector<std::pair<std::string, SpecPtr>> variants;
 
   const Field* field(std::string_view name) const;
   std::vector<std::string> field_names() const;
@@ -99,6 +104,11 @@ SpecPtr vec3();                                             // [x, y, z]
 SpecPtr list(SpecPtr item, std::string expected = "a list", std::size_t min_items = 0, bool unique = false,
              std::string item_noun = {});
 SpecPtr map(std::vector<Field> fields, std::string shorthand = {});
+// A map of one of several kinds, chosen by the value of `key` (the first kind when the
+// key is absent or names none of them; its own `key` field then reports a bad value).
+SpecPtr variants(std::string key, std::vector<std::pair<std::string, SpecPtr>> kinds);
+// The Spec that applies to `node`: spec itself, or the variant the node names.
+const Spec& resolve(const Spec& spec, const yaml::Node& node);
 
 // Fields of a map.
 Field key(std::string name, SpecPtr spec);       // optional

@@ -1,0 +1,20 @@
+#pragma once
+// The rigid bodies' part of a time step (issue 21, increment 1): each rigid body of
+// the model is its own small implicit system (rigid/rigid_body.hpp: implicit Euler on
+// the velocities, the exponential map on the orientation, joints and limits exact),
+// stepped after the soft bodies with the same h under the scene's gravity and no
+// external wrench. Without contact the two are independent, so the order does not
+// matter. integrator::time_step calls it when the model has rigid bodies (and only
+// then: a scene without them pays nothing).
+#include <softdiff/data.hpp>
+#include <softdiff/model.hpp>
+
+namespace softdiff::integrator {
+
+// Steps every rigid body from in.rigid to out.rigid (resized to match on first use;
+// no allocation afterwards) over model.step.dt; records each body's StepInfo in
+// data.rigid. A non-finite result is a non_finite status naming the body.
+// Implicit Euler only: the scene reader refuses bdf2 and static with rigid bodies.
+StepStatus step_rigid_bodies(const Model& model, Data& data, const State& in, State& out, long step_index);
+
+}  // namespace softdiff::integrator

@@ -1,0 +1,217 @@
+// Rigid bodies on the command line (issue 21, increment 1): configs/hinged_key.yaml
+// writes its key's pose and the key rests on its hinge limit; `info` lists rigid
+// bodies; what is not supported yet with rigid bodies is refused with exit code 2, a
+// message naming issue 21, and no output file.
+#include <support/cli.hpp>
+#include <support/h5.hpp>
+
+#include <gtest/gtest.h>
+#include <hdf5.h>
+
+#include <Eigen/Geometry>
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+using namespace softdiff::test;
+namespace fs = std::filesystem;
+
+namespace {
+
+const fs::path kRigidRoot = SOFTDIFF_SOURCE_DIR;
+const fs::path kRigidWork = fs::path(SOFTDIFF_TEST_DATA_DIR) / "cli_rigid";
+
+// A small scene: the shipped beam (clamped) and a free rigid sphere; `body_extra` is
+// appended to the sphere, `top_extra` to the file.
+std::string beam_and_sphere(const std::string& body_extra = "", const std::string& top_extra = "",
+                            const std::string& shape = "{type: sphere, radius: 0.01}") {
+  return "softdiff: 1\n"
+         "simulation: {dt: 0.01, steps: 3}\n"
+         "bodies:\n"
+         "  - name: beam\n"
+         "    mesh: " +
+         (kRigidRoot / "meshes/beam.msh").string() +
+         "\n"
+         "    material: {young: 1.0e6, poisson: 0.45, density: 1070}\n"
+         "    fixed: [{group: clamp}]\n"
+         "  - name: ball\n"
+         "    type: rigid\n"
+         "    shape: " +
+         shape +
+         "\n"
+         "    density: 1000\n"
+         "    position: [0.1, 0.1, 0]\n" +
+         body_extra + top_extra;
+}
+
+// Only the inputs (and run_cli's stdout.txt, stderr.txt) are left in `dir`: no .h5, .xmf,
+// .partial or side file.
+void expect_no_output(const fs::path& dir) {
+  for (const auto& entry : fs::directory_iterator(dir)) {
+    const std::string ext = entry.path().extension().string();
+    EXPECT_TRUE(ext == ".yaml" || ext == ".stl" || ext == ".txt") << entry.path();  // (.txt: run_cli's stdout, stderr)
+  }
+}
+
+// The hinge angle about +x of an orientation (w, x, y, z) that turns about x only.
+double angle_about_x(const double* q) { return 2 * std::atan2(q[1], q[0]); }
+
+TEST(Cli, RigidKeyWritesItsPoseAndRestsOnItsLimit) {
+  const fs::path dir = softdiff::test::fresh_dir(kRigidWork, "hinged_key");
+  const fs::path scene = kRigidRoot / "configs/hinged_key.yaml";
+  const auto r = run_cli("simulate '" + scene.string() + "' -o out.h5 --quiet --json", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const std::string file = (dir / "out.h5").string();
+  const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  // 0.2 s / 0.002 s = 100 steps, every 5th written, and frame 0.
+  const hsize_t T = 21;
+  const std::string g = "/bodies/rigid_key/";
+  EXPECT_EQ(h5_shape(f, g + "position"), (std::vector<hsize_t>{T, 3}));
+  EXPECT_EQ(h5_shape(f, g + "orientation"), (std::vector<hsize_t>{T, 4}));
+  EXPECT_EQ(h5_shape(f, g + "velocity"), (std::vector<hsize_t>{T, 3}));
+  EXPECT_EQ(h5_shape(f, g + "angular_velocity"), (std::vector<hsize_t>{T, 3}));
+  EXPECT_EQ(h5_string_attribute(f, g + "position", "units"), "m");
+  EXPECT_EQ(h5_string_attribute(f, g + "orientation", "units"), "1");
+  EXPECT_EQ(h5_string_attribute(f, g + "velocity", "units"), "m/s");
+  EXPECT_EQ(h5_string_attribute(f, g + "angular_velocity", "units"), "rad/s");
+  const std::vector<double> time = h5_read(f, "/time");
+  const std::vector<double> p = h5_read(f, g + "position");
+  const std::vector<double> q = h5_read(f, g + "orientation");
+  const std::vector<double> w = h5_read(f, g + "angular_velocity");
+  // The posed surface: (T, vertices, 3), a box's 8 corners at least.
+  const std::vector<hsize_t> xs = h5_shape(f, g + "x");
+  ASSERT_EQ(xs.size(), 3u);
+  EXPECT_EQ(xs[0], T);
+  EXPECT_GE(xs[1], 8u);
+  const std::vector<double> x = h5_read(f, g + "x");
+  H5Fclose(f);
+  ASSERT_EQ(time.size(), T);
+
+  const double lower = -0.08;                         // configs/hinged_key.yaml: joint.limits[0]
+  const Eigen::Vector3d anchor(0.035, 0.06, -0.012);  // joint.anchor
+  const Eigen::Vector3d p0(p[0], p[1], p[2]);
+  EXPECT_NEAR((p0 - Eigen::Vector3d(0.035, 0.07, -0.006)).norm(), 0, 1e-15);
+  bool landed = false;
+  for (hsize_t k = 0; k < T; ++k) {
+    SCOPED_TRACE("frame " + std::to_string(k) + ", t = " + std::to_string(time[k]));
+    const double* qk = &q[4 * k];
+    // A hinge about x: the orientation turns about x only, and the pin does not move
+    // (p_k + R_k (anchor - p_0) = anchor). Round-off: the joint is enforced exactly,
+    // each step adds ~1e-16 relative; 1e-12 m is four orders above that over 100 steps.
+    EXPECT_NEAR(std::hypot(qk[2], qk[3]), 0, 1e-12);
+    const Eigen::Quaterniond R(qk[0], qk[1], qk[2], qk[3]);
+    const Eigen::Vector3d pk(p[3 * k], p[3 * k + 1], p[3 * k + 2]);
+    EXPECT_NEAR((pk + R * (anchor - p0) - anchor).norm(), 0, 1e-12);
+    // The posed surface is the pose applied to frame 0's surface (its first vertex).
+    const Eigen::Vector3d v0(x[0], x[1], x[2]);
+    const std::size_t at = static_cast<std::size_t>(k * xs[1] * 3);
+    const Eigen::Vector3d vk(x[at], x[at + 1], x[at + 2]);
+    EXPECT_NEAR((vk - (pk + R * (v0 - p0))).norm(), 0, 1e-12);
+    // Back-heavy: the angle only decreases, never below the limit (exact limits: no
+    // penetration beyond round-off), and once on the limit it stays there at rest.
+    const double angle = angle_about_x(qk);
+    EXPECT_GE(angle, lower - 1e-12);
+    if (k > 0) {
+      EXPECT_LE(angle, angle_about_x(&q[4 * (k - 1)]) + 1e-12);
+    }
+    if (landed) {
+      EXPECT_NEAR(angle, lower, 1e-12);
+      EXPECT_NEAR(std::abs(w[3 * k]), 0, 1e-9);
+    }
+    landed = landed || std::abs(angle - lower) < 1e-12;
+  }
+  // Estimated landing ~0.054 s (the config's header): on the limit by 0.1 s, and the
+  // final hinge angle equals the limit.
+  EXPECT_TRUE(landed);
+  EXPECT_NEAR(angle_about_x(&q[4 * (T - 1)]), lower, 1e-12);
+  EXPECT_NEAR(angle_about_x(&q[4 * 10]), lower, 1e-12) << "not on its limit at t = " << time[10];
+  EXPECT_GT(angle_about_x(&q[4 * 1]), lower) << "on its limit at once: the scene shows no fall";
+  EXPECT_NE(r.out.find("\"joint_coordinate\":-0.08"), std::string::npos) << r.out;
+  // The XDMF: one file per body, the key's surface as Triangle topology.
+  const std::string xmf = read_text(dir / "out.rigid_key.xmf");
+  EXPECT_NE(xmf.find("TopologyType=\"Triangle\""), std::string::npos);
+  EXPECT_NE(xmf.find("out.h5:/bodies/rigid_key/surface"), std::string::npos);
+  // meshio 7 reads it (tests/app/meshio_read_xdmf.py: triangles = surface, every
+  // frame's x, v, displacement equal to the HDF5 datasets).
+  const fs::path log = dir / "meshio.txt";
+  const std::string command = "/usr/bin/python3 '" + (kRigidRoot / "tests/app/meshio_read_xdmf.py").string() + "' '" +
+                              file + "' rigid_key '" + (dir / "out.rigid_key.xmf").string() + "' > '" + log.string() +
+                              "' 2>&1";
+  EXPECT_EQ(std::system(command.c_str()), 0) << read_text(log);
+  EXPECT_EQ(read_text(log).rfind("ok rigid_key 21", 0), 0u) << read_text(log);
+}
+
+TEST(Cli, InfoListsRigidBodies) {
+  const fs::path dir = softdiff::test::fresh_dir(kRigidWork, "info");
+  const fs::path scene = kRigidRoot / "configs/hinged_key.yaml";
+  auto r = run_cli("info '" + scene.string() + "'", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  // 1200 kg/m^3 x 0.022 x 0.14 x 0.012 m = 0.044352 kg
+  EXPECT_NE(r.out.find("rigid       rigid_key: box, 8 surface vertices, mass 0.04435 kg"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("joint hinge at [0.035, 0.06, -0.012], axis [1, 0, 0], limits [-0.08, 0.17] rad"),
+            std::string::npos)
+      << r.out;
+  r = run_cli("info '" + scene.string() + "' --json", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("\"rigid_bodies\":[{\"name\":\"rigid_key\",\"shape\":\"box\""), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("\"type\":\"hinge\""), std::string::npos) << r.out;
+}
+
+// Every refusal: exit code 2, the message, and no output file.
+TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
+  struct Case {
+    std::string name, scene, args, message;
+  };
+  const std::string plane = "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.1}]\n";
+  const std::vector<Case> cases = {
+      {"contact", beam_and_sphere("", plane + "contact: {friction: 0.3}\n"), "simulate scene.yaml -o out.h5",
+       "contact: contact with rigid bodies is not supported yet (issue 21; bodies[1] is rigid)"},
+      {"bdf2", beam_and_sphere(), "simulate scene.yaml -o out.h5 --set simulation.integrator=bdf2",
+       "simulation.integrator: integrator 'bdf2' with rigid bodies is not supported yet (issue 21"},
+      {"static", beam_and_sphere(),
+       "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
+       "simulation.steps=null",
+       "integrator 'static' with rigid bodies is not supported yet (issue 21"},
+      {"jacobian", beam_and_sphere(), "simulate scene.yaml -o out.h5 --jacobian young",
+       "--jacobian: derivatives with rigid bodies are not supported yet (issue 21; rigid body 'ball')"},
+      {"check_grad", beam_and_sphere(), "check-grad scene.yaml",
+       "check-grad: derivatives with rigid bodies are not supported yet (issue 21"},
+      {"calibrate", beam_and_sphere(), "calibrate scene.yaml --param young --target target.h5 -o out.h5",
+       "calibrate: derivatives with rigid bodies are not supported yet (issue 21"},
+      {"control", beam_and_sphere(), "control scene.yaml --target 0,0,0 -o out.h5",
+       "control: derivatives with rigid bodies are not supported yet (issue 21"},
+      {"rigid_only",
+       "softdiff: 1\nsimulation: {dt: 0.01, steps: 3}\nbodies:\n  - {name: ball, type: rigid, shape: {type: sphere, "
+       "radius: 0.01}, density: 1000}\n",
+       "simulate scene.yaml -o out.h5", "bodies[0]: a scene of rigid bodies only is not supported yet (issue 21)"},
+      {"rigidify",
+       "softdiff: 1\nsimulation: {dt: 0.01, steps: 3}\nbodies:\n  - name: beam\n    mesh: " +
+           (kRigidRoot / "meshes/beam.msh").string() +
+           "\n    material: {young: 1.0e6, poisson: 0.45, density: 1070}\n    rigidify: [{group: clamp, attach: "
+           "free}]\n",
+       "simulate scene.yaml -o out.h5", "bodies[0].rigidify: not supported yet (planned: issue 21"},
+      {"missing_mesh", beam_and_sphere("", "", "{type: mesh, mesh: nope.msh}"),
+       "simulate scene.yaml -o out.h5", "bodies[1].shape.mesh: mesh file not found"},
+      {"open_mesh", beam_and_sphere("", "", "{type: mesh, mesh: open.stl}"),
+       "simulate scene.yaml -o out.h5", "bodies[1].shape.mesh: "},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const fs::path dir = softdiff::test::fresh_dir(kRigidWork, "refuse_" + c.name);
+    write_text(dir / "scene.yaml", c.scene);
+    // One triangle: an open surface (mass properties need a closed one).
+    write_text(dir / "open.stl",
+               "solid open\n facet normal 0 0 1\n  outer loop\n   vertex 0 0 0\n   vertex 0.01 0 0\n   vertex 0 0.01 0\n"
+               "  endloop\n endfacet\nendsolid open\n");
+    const auto r = run_cli(c.args, dir);
+    EXPECT_EQ(r.code, 2) << r.err;
+    EXPECT_NE(r.err.find(c.message), std::string::npos) << r.err;
+    expect_no_output(dir);
+  }
+}
+
+}  // namespace
