@@ -277,6 +277,40 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
   return d_out.x.allFinite() && d_out.v.allFinite();
 }
 
+bool StepDerivatives::actuation_jvps(const Model& model, const Data& data, const State& in, const State& out,
+                                     const MatX& dlambda, MatX& dx_out) {
+  demand_supported(model);
+  const Eigen::Index n = 3L * model.fem.num_nodes;
+  const auto na = static_cast<Eigen::Index>(model.actuation.actuators.size());
+  SOFTDIFF_DEMAND(dlambda.rows() == na, "actuation tangents: expected " + std::to_string(na) + " rows, got " +
+                                            std::to_string(dlambda.rows()));
+  SOFTDIFF_DEMAND(!(model.contact.enabled && !data.contact.contacts.empty()),
+                  "actuation_jvps: the step has contacts (their tangent goes through the NCP's modes: jvp() per column)");
+  const double h = step_size(model, data);
+  set_step_size(model, h);
+  LinearSolver* solver = system(model, data, out);
+  if (!solver) return false;
+  const Eigen::Index k = dlambda.cols();
+  rhs_columns_.resize(n, k);  // no allocation when k and n are those of the last call
+  for (Eigen::Index j = 0; j < k; ++j) {
+    // jvp()'s right-hand side with only d.lambda_a: Pi h H_a(x_i)^T dlambda_j.
+    lambda_column_ = dlambda.col(j);
+    r_.setZero();
+    model.actuation.add_forces(in.x, lambda_column_, h, r_);
+    project(model, r_);
+    rhs_columns_.col(j) = r_;
+  }
+  if (!solver->solve(rhs_columns_, y_columns_)) return false;
+  // Linearized: dv_f = dv_i + dDelta = y; Newton: dv_f = y. dx_f = dx_i + h dv_f = h y.
+  dx_out.resize(n, k);
+  for (Eigen::Index j = 0; j < k; ++j) {
+    y_ = y_columns_.col(j);
+    project(model, y_);
+    dx_out.col(j) = h * y_;
+  }
+  return dx_out.allFinite();
+}
+
 bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in, const State& out,
                           const StateTangent& bar_out, StepCotangent& bar_in) {
   demand_supported(model);

@@ -105,6 +105,15 @@ class StepDerivatives {
            StateTangent& d_out);
   bool vjp(const Model& model, const Data& data, const State& in, const State& out, const StateTangent& bar_out,
            StepCotangent& bar_in);
+  // Several actuation tangents at once, without contact in the record (the control's
+  // actuation Jacobian): column j of dx_out is d_out.x of jvp() with d.lambda_a =
+  // dlambda.col(j) and d.x, d.v, d.p zero (the velocity's tangent is dx_out / h). The
+  // right-hand sides h Pi H_a^T dlambda_j go to the step's factor in ONE solve with k
+  // columns (LinearSolver::solve(MatX)), not k solves. With contacts in the record the
+  // tangent goes through the NCP's modes (jvp(), one column at a time): demanded absent.
+  // Returns false as jvp() does.
+  bool actuation_jvps(const Model& model, const Data& data, const State& in, const State& out, const MatX& dlambda,
+                      MatX& dx_out);
 
  private:
   // q = the column of parameter j (see above) at the step's record.
@@ -147,6 +156,8 @@ class StepDerivatives {
   std::unique_ptr<LinearSolver> newton_solver_;
   VecX newton_v_;                    // the v_f newton_A_ was factorized for
   double newton_h_ = 0;              // and its step size
+  VecX lambda_column_;               // (n_a) actuation_jvps(): one column of dlambda
+  MatX rhs_columns_, y_columns_;     // (3n x k) actuation_jvps(): right-hand sides, solutions
 };
 
 }  // namespace softdiff::integrator

@@ -69,6 +69,9 @@ class CholmodSolver final : public LinearSolver {
     if (Yb_) cholmod_free_dense(&Yb_, &common_);
     if (Eb_) cholmod_free_dense(&Eb_, &common_);
     if (Z_) cholmod_free_dense(&Z_, &common_);
+    if (Xm_) cholmod_free_dense(&Xm_, &common_);
+    if (Ym_) cholmod_free_dense(&Ym_, &common_);
+    if (Em_) cholmod_free_dense(&Em_, &common_);
     cholmod_finish(&common_);
   }
   std::string name() const override { return "cholmod"; }
@@ -153,6 +156,35 @@ class CholmodSolver final : public LinearSolver {
     counters_.last_pcg_iterations = 0;
     if (stale_) return pcg_solve(b, x, x.size() == b.size() && x.allFinite());
     return direct_solve(b, x);
+  }
+
+  // Several right-hand sides: with the current factor, X = A^{-1} B in one
+  // cholmod_solve2 call on the dense n x k B (the supernodes' triangular solves run as
+  // BLAS-3 on all k columns at once, and the factor is read once, not k times). The
+  // workspaces (Xm_, Ym_, Em_) are kept: repeated solves with the same k allocate
+  // nothing once X is sized. A kept (stale) factor: PCG per column (the base class).
+  bool solve(const MatX& B, MatX& X) override {
+    SOFTDIFF_DEMAND(factored_, "solve() without a valid factorization");
+    if (stale_ || B.cols() <= 1) return LinearSolver::solve(B, X);
+    solve_factor_status_ = {};
+    counters_.last_pcg_iterations = 0;
+    const Eigen::Index n = B.rows(), k = B.cols();
+    cholmod_dense D;
+    D.nrow = n;
+    D.ncol = k;
+    D.nzmax = n * k;
+    D.d = n;
+    D.x = const_cast<double*>(B.data());
+    D.z = nullptr;
+    D.xtype = CHOLMOD_REAL;
+    D.dtype = CHOLMOD_DOUBLE;
+    use_planned_blas_threads();
+    const int ok = cholmod_solve2(CHOLMOD_A, factor_, &D, nullptr, &Xm_, nullptr, &Ym_, &Em_, &common_);
+    throw_if_out_of_memory("a solve with several right-hand sides", n);
+    SOFTDIFF_DEMAND(ok, "cholmod_solve2 failed (status " + std::to_string(common_.status) + ")");
+    X = Eigen::Map<const MatX, 0, Eigen::OuterStride<>>(static_cast<const double*>(Xm_->x), n, k,
+                                                        Eigen::OuterStride<>(static_cast<Eigen::Index>(Xm_->d)));
+    return true;
   }
 
   bool direct_solve(const VecX& b, VecX& x) {
@@ -362,6 +394,7 @@ class CholmodSolver final : public LinearSolver {
   cholmod_dense* Y_ = nullptr;
   cholmod_dense* E_ = nullptr;
   cholmod_dense *Xb_ = nullptr, *Yb_ = nullptr, *Eb_ = nullptr;  // inverse_congruence's blocks
+  cholmod_dense *Xm_ = nullptr, *Ym_ = nullptr, *Em_ = nullptr;  // solve()'s several right-hand sides
   MatX block_;                     // inverse_congruence's right-hand sides (n x 64)
   SupernodalCongruence congruence_;  // inverse_congruence's reach solves (buffers grow only)
   Eigen::SparseMatrix<double, Eigen::RowMajor, int> Bt_;  // B^T, rows = columns of B

@@ -59,7 +59,10 @@ class LinearSolver {
   // with a kept factor starts from it (its stopping test stays ||b - A x|| <=
   // pcg_tolerance ||b||); a direct solve ignores it.
   virtual bool solve_from(const VecX& b, VecX& x) { return solve(b, x); }
-  // Several right-hand sides (columns of B).
+  // Several right-hand sides (columns of B; X and B may not alias). CHOLMOD with a
+  // current factor: one supernodal solve of the dense n x k B (workspaces kept: no
+  // allocation per call once sized); with a kept factor (factor reuse) and the other
+  // solvers: one solve per column.
   virtual bool solve(const MatX& B, MatX& X);
   // The congruence G = B^T A^{-1} B (m x m, dense, symmetric) for a sparse B (n x m)
   // with the last factorization: the Delassus matrix of the contacts (B = H_c^T).

@@ -73,20 +73,34 @@ StepStatus InverseDynamics::compute(const Model& model, const State& s, long k, 
     F = nodal_contact_forces(data_, data_.contact.lambda);
     Jc.resize(F.size(), nd);
   }
-  integrator::StepTangent t;
-  integrator::StateTangent r;
-  for (Eigen::Index j = 0; j < nd; ++j) {
-    t.lambda_a = options_.shared ? VecX(VecX::Ones(na)) : VecX(VecX::Unit(na, j));
-    if (!derivatives_->jvp(model, data_, data_.hat, prediction_, t, r)) {  // BDF2: at (x^, v^)
-      StepStatus f;
-      f.code = StepStatus::Code::solver_failed;
-      f.step = k;
-      f.detail = "control: the derivative of the step with respect to the actuation failed";
-      return f;
+  StepStatus failed;
+  failed.code = StepStatus::Code::solver_failed;
+  failed.step = k;
+  failed.detail = "control: the derivative of the step with respect to the actuation failed";
+  // The actuation directions: the unit vectors, or all ones (shared).
+  if (options_.shared)
+    directions_.setOnes(na, 1);
+  else
+    directions_.setIdentity(na, na);
+  if (!(model.contact.enabled && !data_.contact.contacts.empty())) {
+    // No contact in the record: all nd columns in one solve with nd right-hand sides
+    // (StepDerivatives::actuation_jvps), BDF2 at (x^, v^).
+    if (!derivatives_->actuation_jvps(model, data_, data_.hat, prediction_, directions_, dx_columns_)) return failed;
+    for (Eigen::Index j = 0; j < nd; ++j) {
+      column_ = dx_columns_.col(j);
+      Ja.col(j) = e.point().position(column_);  // W dx (p is linear in x)
     }
-    Ja.col(j) = e.point().position(r.x);  // W dx (p is linear in x)
-    if (contact)
-      Jc.col(j) = nodal_contact_forces(data_, derivatives_->contact_force_tangent());
+  } else {
+    // Contact: the tangent goes through the NCP's modes (the mode-fixed system, the
+    // contact forces' tangent for J_c), one jvp() per column.
+    integrator::StepTangent t;
+    integrator::StateTangent r;
+    for (Eigen::Index j = 0; j < nd; ++j) {
+      t.lambda_a = directions_.col(j);
+      if (!derivatives_->jvp(model, data_, data_.hat, prediction_, t, r)) return failed;  // BDF2: at (x^, v^)
+      Ja.col(j) = e.point().position(r.x);  // W dx (p is linear in x)
+      if (contact) Jc.col(j) = nodal_contact_forces(data_, derivatives_->contact_force_tangent());
+    }
   }
   info.contact_force_norm = F.size() ? F.norm() : contact_force_norm(model, data_);
   // The QP.

@@ -5,7 +5,8 @@
 //
 // At step k from state s with the previous actuation lambda:
 //   1. the step with lambda gives the free prediction x_f, and the effector's X_f;
-//   2. one JVP per actuator (the step's factorization) gives J_a = W dx_f/dlambda (W the
+//   2. the JVPs of the actuators (the step's factorization; without contact all in one
+//      solve with n_a right-hand sides) give J_a = W dx_f/dlambda (W the
 //      effector's barycentric rows, S the selected axes) and, with contact, the nodal
 //      contact forces' Jacobian J_c = P_body H_c^T dlambda_c/dlambda (P_body: the rows of
 //      the effector's body) with F the body's nodal contact forces, over the contacts
@@ -76,6 +77,8 @@ class InverseDynamics {
   Data data_;
   std::unique_ptr<integrator::StepDerivatives> derivatives_;
   State prediction_;
+  MatX directions_, dx_columns_;  // (n_a x nd) the actuation tangents, (3n x nd) their dx_f
+  VecX column_;                   // (3n) one column of dx_columns_
   VecX lo_, hi_;
   int body_begin_ = 0, body_nodes_ = 0;
 };
