@@ -71,8 +71,9 @@ struct NcpOptions {
   int derivative_dense_max_active = 400;
   // The same crossover for sets with sliding contacts (GMRES with the reduced
   // preconditioner on the operator; contact_step_derivatives.cpp): measured by
-  // tests/bench BM_MixedDerivative (docs/performance.md "The mixed derivative's crossover").
-  int derivative_mixed_dense_max_active = 400;
+  // tests/bench BM_MixedDerivative, the dense G_AA faster at 36 active contacts, the
+  // operator at 64 (docs/performance.md "The mixed derivative's crossover").
+  int derivative_mixed_dense_max_active = 40;
   // The scale L of the operator path's force rows and preconditioner shift: the largest
   // eigenvalue of G_AA by power iteration (mode_system.hpp power_iteration), stopped when
   // two successive estimates differ by at most derivative_scale_tolerance relative;
