@@ -451,10 +451,21 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
         // The implicit function theorem at the final equilibrium (static_solver_derivatives.hpp).
         auto td = Clock::now();
         integrator::StaticTheta st{theta->layout.parameters, theta->layout.actuation};
-        if (!integrator::static_sensitivities(model, data, state, st, static_jacobian)) {
+        // A ComputationError of the derivative (the contact derivative's iterations,
+        // contact_step_derivatives.cpp) is reported as the equilibrium's, with its load step.
+        std::string derivative_error;
+        bool derivative_ok = false;
+        try {
+          derivative_ok = integrator::static_sensitivities(model, data, state, st, static_jacobian);
+        } catch (const ComputationError& e) {
+          derivative_error = e.what();
+        }
+        if (!derivative_ok) {
           failure.code = StepStatus::Code::solver_failed;
           failure.step = steps_done;
-          failure.detail = "the derivative of the equilibrium failed (inverted element or tangent not positive definite)";
+          failure.detail = derivative_error.empty()
+                               ? "the derivative of the equilibrium failed (inverted element or tangent not positive definite)"
+                               : "the derivative of the equilibrium failed: " + derivative_error;
         }
         derivative_seconds += seconds_since(td);
       }
@@ -517,10 +528,21 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
         if (!failure.ok()) break;
         if (sensitivity) {
           auto td = Clock::now();
-          if (!sensitivity->advance(model, data, state, next)) {
+          // A ComputationError of the derivative (the contact derivative's iterations,
+          // contact_step_derivatives.cpp) is reported as the step's, with its number.
+          std::string derivative_error;
+          bool derivative_ok = false;
+          try {
+            derivative_ok = sensitivity->advance(model, data, state, next);
+          } catch (const ComputationError& e) {
+            derivative_error = e.what();
+          }
+          if (!derivative_ok) {
             failure.code = StepStatus::Code::solver_failed;
             failure.step = k;
-            failure.detail = "the derivative of the step failed (a linear solve did not succeed or gave non-finite values)";
+            failure.detail = derivative_error.empty()
+                                 ? "the derivative of the step failed (a linear solve did not succeed or gave non-finite values)"
+                                 : "the derivative of the step failed: " + derivative_error;
             break;
           }
           derivative_seconds += seconds_since(td);

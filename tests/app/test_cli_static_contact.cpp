@@ -117,4 +117,44 @@ TEST(CliStaticContact, FreeBodyWithoutContactIsRefused) {
   EXPECT_FALSE(fs::exists(dir / "out.h5"));
 }
 
+// A derivative whose contact mode-fixed system cannot be set up (the scale's power
+// iteration on G_AA does not converge, contact_step_derivatives.cpp; forced here by
+// contact.derivative_scale_iterations: 1, a cap under which no two estimates can be
+// compared, with the operator path at any size, derivative_dense_max_active: 0) is a
+// computation failure (docs/cli.md): exit 1, the reason on stderr prefixed as the
+// integrator's other failures, with its load step (static) or step (dynamic), and the
+// file finished as diverged, never a silent Jacobian.
+TEST(CliStaticContact, NonConvergingDerivativeScaleIsAnError) {
+  const std::string force = " --set contact.derivative_dense_max_active=0 --set contact.derivative_scale_iterations=1";
+  {
+    const fs::path dir = fresh_dir(kWork, "scale_static");
+    write_text(dir / "scene.yaml", kRestingBeam);
+    const CliRun r = run_cli("simulate scene.yaml -o out.h5 --quiet --jacobian young" + force, dir);
+    EXPECT_EQ(r.code, 1) << r.err;
+    EXPECT_NE(r.err.find("softdiff: error: load step 1: linear solver failed: the derivative of the equilibrium failed: "
+                         "the scale of the contact derivative's mode-fixed system: the power iteration on G_AA ("),
+              std::string::npos)
+        << r.err;
+    EXPECT_NE(r.err.find("did not converge in 1 products"), std::string::npos) << r.err;
+  }
+  {
+    // The same beam resting on the plane, one implicit Euler step.
+    std::string dynamic = kRestingBeam;
+    const std::string from = "  integrator: static\n  static: {tolerance: 1.0e-12, max_iterations: 100, load_steps: 1}\n";
+    ASSERT_NE(dynamic.find(from), std::string::npos);
+    dynamic.replace(dynamic.find(from), from.size(), "  integrator: implicit_euler\n  dt: 0.002\n  steps: 1\n");
+    const fs::path dir = fresh_dir(kWork, "scale_dynamic");
+    write_text(dir / "scene.yaml", dynamic);
+    // The sparse backend: no dense G is recorded, so the step's derivative forms G_AA.
+    const CliRun r = run_cli("simulate scene.yaml -o out.h5 --quiet --jacobian young --set contact.backend=sparse "
+                             "--set contact.dense_max_contacts=0" + force,
+                             dir);
+    EXPECT_EQ(r.code, 1) << r.err;
+    EXPECT_NE(r.err.find("softdiff: error: step 1: linear solver failed: the derivative of the step failed: the scale "
+                         "of the contact derivative's mode-fixed system: the power iteration on G_AA ("),
+              std::string::npos)
+        << r.err;
+  }
+}
+
 }  // namespace cli_static_contact

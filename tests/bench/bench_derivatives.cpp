@@ -14,6 +14,7 @@
 //     tape_MB. contact = 1: the beam pressed onto the plane as above (each step of the
 //     sweep recomputes the contact solve from the taped warm start and factorizes its
 //     NCP derivative).
+#include <softdiff/contact/contact_step_derivatives.hpp>
 #include <softdiff/data.hpp>
 #include <softdiff/diff/trajectory.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
@@ -138,5 +139,118 @@ BENCHMARK(BM_StepDerivatives)
     ->UseRealTime()
     ->MinTime(1.0);
 BENCHMARK(BM_Adjoint)->Args({6, 0})->Args({3, 1})->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
+
+// The mixed derivative's crossover (NcpOptions::derivative_mixed_dense_max_active;
+// docs/performance.md "The mixed derivative's crossover"): the contact derivative's
+// mode-fixed system with sliding contacts on the dense G_AA (3 na congruence solves and
+// an O(na^3) decomposition, then O(na^2) per right-hand side) against the operator
+// (the scale's power iteration, GMRES with the reduced preconditioner: one
+// factorization of B, then a few solves per right-hand side). A c x c x 1-element slab
+// (1 cm cells, (c + 1)^2 bottom vertices on the plane, mu 0.3) pressed 0.1 mm into the
+// plane, spreading radially (v_T = 0.02 m/s r / R): the rim slides, the middle sticks.
+// Per iteration: ContactStageDerivative::prepare and 2 jvps (the slab's --jacobian
+// young,friction), both paths on the same step. Reported as ratios to the floor, one
+// solve with the step's factorization (3n), measured in the same run: prepare, one jvp,
+// and the total (prepare + 2 jvps); the crossover is where dense_total / operator_total
+// passes 1.
+void BM_MixedDerivative(benchmark::State& st) {
+  const int cells = static_cast<int>(st.range(0));
+  const bool dense = st.range(1) == 0;
+  test::BodySpec spec;
+  spec.law = material::Law::neo_hookean;
+  spec.young = 5e4;
+  spec.poisson = 0.3;
+  spec.density = 1000;
+  spec.rayleigh_mass = 0.5;
+  spec.rayleigh_stiffness = 1e-3;
+  const double side = 0.01 * cells;
+  Model model = test::make_model(test::box_mesh(cells, cells, 1, side, side, 0.01), spec, Vec3(0, 0, -9.81), 2e-3, 1);
+  test::ContactSpec cs;
+  cs.mu = 0.3;
+  cs.margin = 2e-3;
+  cs.ncp.tolerance = 1e-12;
+  cs.ncp.max_iterations = 20000;
+  cs.ncp.backend = contact::NcpBackend::sparse;  // no dense G recorded: the derivative forms G_AA or uses the operator
+  cs.ncp.dense_max_contacts = 0;
+  cs.ncp.derivative_dense_max_active = dense ? 1 << 30 : 0;
+  cs.ncp.derivative_mixed_dense_max_active = dense ? 1 << 30 : 0;
+  test::enable_contact(model, {test::plane(Vec3(0, 0, 1), 0)}, cs);
+  State in = model.initial, out;
+  const Vec3 center(side / 2, side / 2, 0);
+  for (int i = 0; i < model.fem.num_nodes; ++i) {
+    Vec3 p = in.x.segment<3>(3 * i);
+    const Vec3 r(p.x() - center.x(), p.y() - center.y(), 0);
+    p.z() -= 1e-4;
+    in.x.segment<3>(3 * i) = p;
+    in.v.segment<3>(3 * i) = 0.02 * r / (side / 2) + Vec3(0, 0, -0.01);
+  }
+  Data data(model);
+  if (!integrator::implicit_euler_step(model, data, in, out, 1).ok()) {
+    st.SkipWithError("step failed");
+    return;
+  }
+  const auto& cd = data.contact;
+  int active = 0, sliding = 0;
+  for (const auto m : cd.modes) {
+    active += m != contact::Mode::breaking;
+    sliding += m == contact::Mode::sliding;
+  }
+  if (sliding == 0) {
+    st.SkipWithError("no sliding contact: not a mixed set");
+    return;
+  }
+  const double h = model.step.dt;
+  const int nc = cd.contacts.size();
+  const VecX b1 = random_vector(3 * nc, 1.0, 11), b2 = random_vector(3 * nc, 1.0, 12);
+  const VecX dmu = random_vector(nc, 0.2, 13);
+  // The floor: one solve with the step's factorization.
+  const VecX f = random_vector(3L * model.fem.num_nodes, 1.0, 14);
+  VecX fx;
+  double floor_s = 0;
+  long floor_n = 0;
+  {
+    const auto t0 = Clock::now();
+    do {
+      if (!data.solver->solve(f, fx)) st.SkipWithError("solve failed");
+      ++floor_n;
+    } while (since(t0) < 0.2);
+    floor_s = since(t0) / static_cast<double>(floor_n);
+  }
+  contact::ContactStageDerivative stage;
+  VecX d1, d2;
+  double prepare_s = 0, jvp_s = 0;
+  long count = 0;
+  for (auto _ : st) {
+    auto t0 = Clock::now();
+    if (!stage.prepare(model, cd, in.x, *data.solver, h, false, nullptr, nullptr, &data.A))
+      st.SkipWithError("prepare failed");
+    prepare_s += since(t0);
+    t0 = Clock::now();
+    stage.ncp().jvp(b1, dmu, d1);
+    stage.ncp().jvp(b2, VecX(), d2);
+    jvp_s += since(t0);
+    benchmark::DoNotOptimize(d1.data());
+    benchmark::DoNotOptimize(d2.data());
+    ++count;
+  }
+  if (stage.ncp().on_operator() == dense) st.SkipWithError("not on the requested path");
+  const double k = 1.0 / static_cast<double>(std::max<long>(count, 1));
+  st.counters["active"] = active;
+  st.counters["sliding"] = sliding;
+  st.counters["floor_ms"] = 1e3 * floor_s;
+  st.counters["prepare_ms"] = 1e3 * prepare_s * k;
+  st.counters["jvp_ms"] = 1e3 * jvp_s * k / 2;
+  st.counters["total_ms"] = 1e3 * (prepare_s + jvp_s) * k;
+  st.counters["prepare_floor"] = prepare_s * k / floor_s;
+  st.counters["jvp_floor"] = jvp_s * k / 2 / floor_s;
+  st.counters["total_floor"] = (prepare_s + jvp_s) * k / floor_s;
+}
+
+// Active counts about (c + 1)^2: 16, 36, 64, 121, 196, 400; second argument 0 dense, 1 operator.
+BENCHMARK(BM_MixedDerivative)
+    ->ArgsProduct({{3, 5, 7, 10, 13, 19}, {0, 1}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MinTime(0.5);
 
 }  // namespace

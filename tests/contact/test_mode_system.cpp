@@ -22,7 +22,9 @@
 
 #include <gtest/gtest.h>
 
+#include <Eigen/QR>
 #include <Eigen/SVD>
+#include <cmath>
 #include <cstdio>
 #include <limits>
 #include <random>
@@ -358,3 +360,54 @@ TEST(OperatorModeSystem, ReducedRedundantMixed) {
     EXPECT_LE(residual, tol * Jt.norm()) << transposed;
   }
 }
+
+// The scale's power iteration (mode_system.hpp power_iteration; docs/method.md "The
+// derivative's scale") against the closed form: G = Q diag(d) Q^T with Q a random
+// orthogonal matrix and d_k = 2^-k (k = 0..29), so lambda_max = 1 and the gap ratio
+// rho = lambda_2 / lambda_1 = 1/2. The estimates are Rayleigh quotients of the iterates:
+// lower bounds of lambda_max (to rounding, 1e-14), increasing. Asymptotically the error
+// e_k ~ C rho^(2k) and the change between successive estimates e_{k-1} - e_k ~ e_k
+// (rho^-2 - 1), so at the stopping rule (change <= tol) e <= tol rho^2 / (1 - rho^2) =
+// tol / 3; a factor 2 of margin for the pre-asymptotic iterations. Also: a cap of one
+// product cannot converge (two estimates are needed), and a failing product is reported.
+TEST(OperatorModeSystem, PowerIterationScale) {
+  const int n = 30;
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-1, 1);
+  MatX X(n, n);
+  for (int r = 0; r < n; ++r)
+    for (int c = 0; c < n; ++c) X(r, c) = u(rng);
+  const MatX Q = Eigen::HouseholderQR<MatX>(X).householderQ();
+  VecX d(n);
+  for (int k = 0; k < n; ++k) d[k] = std::pow(0.5, k);
+  const MatX G = Q * d.asDiagonal() * Q.transpose();
+  const OperatorModeSystem::Apply apply = [&](const VecX& y, VecX& o) {
+    o = G * y;
+    return true;
+  };
+  for (const double tol : {1e-2, 1e-3, 1e-6}) {
+    VecX y = VecX::Ones(n), Gy;
+    const PowerIteration p = power_iteration(apply, y, Gy, tol, 200);
+    const double error = (1 - p.value) / 1.0;
+    std::printf("tolerance %.0e: %d products, estimate %.15f, relative error %.2e (bound %.2e)\n", tol, p.iterations,
+                p.value, error, 2 * tol / 3);
+    EXPECT_TRUE(p.converged);
+    EXPECT_FALSE(p.failed);
+    EXPECT_GE(error, -1e-14);  // a lower bound
+    EXPECT_LE(error, 2 * tol / 3);
+  }
+  {
+    VecX y = VecX::Ones(n), Gy;
+    const PowerIteration p = power_iteration(apply, y, Gy, 1e-3, 1);
+    EXPECT_FALSE(p.converged);
+    EXPECT_FALSE(p.failed);
+    EXPECT_EQ(p.iterations, 1);
+  }
+  {
+    VecX y = VecX::Ones(n), Gy;
+    const PowerIteration p = power_iteration([](const VecX&, VecX&) { return false; }, y, Gy, 1e-3, 50);
+    EXPECT_TRUE(p.failed);
+    EXPECT_FALSE(p.converged);
+  }
+}
+

@@ -19,6 +19,7 @@
 // dx*/dtheta * scale, and the truncation error e^2 |x'''| ~ 1e-10 relative. The
 // tolerance 1e-5 keeps two orders of margin over the round-off estimate and catches any
 // missing term (a missing geometry or proximal term is 1e-2 or more).
+#include <softdiff/core/error.hpp>
 #include <softdiff/data.hpp>
 #include <softdiff/diff/parameters.hpp>
 #include <softdiff/integrator/static_solver.hpp>
@@ -30,6 +31,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <iostream>
 #include <numbers>
@@ -201,6 +203,74 @@ TEST(StaticContactDerivatives, ReverseModeIsTheTranspose) {
     for (Eigen::Index j = 0; j < expected.size(); ++j)
       EXPECT_NEAR(bar_theta[j], expected[j], 1e-10 * expected.cwiseAbs().maxCoeff()) << "parameter " << j;
   }
+}
+
+// Beyond 64 active contacts on the operator (contact_step_derivatives.cpp: the scale's
+// power iteration, never a dense G_AA; both crossovers 0): a 9 x 9 x 1-element slab
+// (0.09 x 0.09 x 0.01 m, nu = 0.45, no fixed node) resting on the plane under its
+// weight. The weight compresses it and the Poisson effect pushes it outwards: with mu =
+// 0.1 the rim slides (96 of the 100 contacts, 4 stick: a mixed set, GMRES with the
+// reduced preconditioner), with mu = 2 every contact sticks (PCG).
+Model slab(double mu, bool on_operator) {
+  test::BodySpec spec;
+  spec.young = 1e5;
+  spec.poisson = 0.45;
+  spec.density = 1000;
+  Model model = test::make_model(test::box_mesh(9, 9, 1, 0.09, 0.09, 0.01), spec, Vec3(0, 0, -kG));
+  set_static(model);
+  test::ContactSpec cs = contact_spec(mu);
+  cs.ncp.derivative_dense_max_active = on_operator ? 0 : 400;
+  cs.ncp.derivative_mixed_dense_max_active = on_operator ? 0 : 400;
+  test::enable_contact(model, {test::plane(Vec3(0, 0, 1), 0)}, cs);
+  return model;
+}
+
+// The mixed set. Central differences do not test it: where contacts slide, the static
+// derivative is that of the straight slip path, an approximation of the solver's path
+// (docs/method.md "Static equilibrium with contact"; measured here: young 1.05e-5,
+// friction 4.9e-3 relative against the differences, on both paths alike). The
+// reference is the dense G_AA path (crossovers 400; its own differences tests are the
+// file's cases above and test_step_derivatives_contact.cpp) on the same equilibrium:
+// the operator's Jacobian equals it to 1e-8 relative (GMRES stops at 1e-12 of the
+// scaled residual, times J's conditioning, about 1e2 to 1e3 on these slabs: 1e-9; a
+// factor 10 of margin). The operator path is the one taken: with the scale's power
+// iteration capped at one product the same derivative is a ComputationError (only that
+// path runs it).
+TEST(StaticContactDerivatives, MixedSetBeyond64OnTheOperator) {
+  const Model model = slab(0.1, true), dense = slab(0.1, false);
+  const std::vector<ParameterId> params = {{Parameter::young, 0}, {Parameter::friction, 0}};
+  Data data(model);
+  const Solution base = solve(model, data);
+  int active = 0, sliding = 0;
+  for (auto m : base.modes) {
+    active += m != contact::Mode::breaking;
+    sliding += m == contact::Mode::sliding;
+  }
+  std::cout << "[ slab ] " << base.contacts << " contacts: " << mode_counts(base.modes) << "\n";
+  ASSERT_GT(active, 64);
+  ASSERT_GT(sliding, 0);
+  ASSERT_LT(sliding, active);
+  MatX J_op, J_dense;
+  ASSERT_TRUE(integrator::static_sensitivities(model, data, base.x, {params, false}, J_op));
+  ASSERT_TRUE(integrator::static_sensitivities(dense, data, base.x, {params, false}, J_dense));
+  for (Eigen::Index j = 0; j < J_op.cols(); ++j) {
+    ASSERT_GT(J_dense.col(j).norm(), 0) << "column " << j;
+    const double d = (J_op.col(j) - J_dense.col(j)).norm() / J_dense.col(j).norm();
+    std::cout << "[ slab ] column " << j << ": operator against dense G_AA " << d << " relative\n";
+    EXPECT_LT(d, 1e-8) << "column " << j;
+  }
+  Model capped = model;
+  capped.contact.ncp.derivative_scale_max_iterations = 1;
+  MatX J;
+  EXPECT_THROW(integrator::static_sensitivities(capped, data, base.x, {params, false}, J), ComputationError);
+}
+
+// The same slab with every contact sticking (mu = 2; exact, so central differences
+// apply) on the operator: against the differences of the whole static solve with the
+// file's steps and tolerance (e = 1e-5 of the scale, solves to 1e-12, 1e-5 relative,
+// the same contacts and modes at theta +/- e, checked).
+TEST(StaticContactDerivatives, StickingSetBeyond64OnTheOperator) {
+  check(slab(2.0, true), {{Parameter::young, 0}, {Parameter::poisson, 0}}, "slab, sticking, on the operator");
 }
 
 }  // namespace static_contact_derivatives

@@ -110,6 +110,7 @@ Model build(Case c, const Params& p) {
     cs.ncp.polish_max_active = 0;
     cs.ncp.polish_at_scale_always = true;  // the polish on the operator even where ADMM converged
     cs.ncp.derivative_dense_max_active = 0;
+    cs.ncp.derivative_mixed_dense_max_active = 0;
   }
   std::vector<collision::Obstacle> obstacles;
   if (c == Case::sphere) {
@@ -397,7 +398,9 @@ void compare_paths(Case c) {
   p.operator_mode = true;  // derivative_dense_max_active 0 (and the polish on the operator)
   const Model model = build(c, p);
   Model dense_model = model;
+  // Both crossovers set explicitly: the dense G_AA for the 100 contacts, sticking or mixed.
   dense_model.contact.ncp.derivative_dense_max_active = 400;
+  dense_model.contact.ncp.derivative_mixed_dense_max_active = 400;
   const State in = start(model, c, p);
   Data data(model);
   State out;
@@ -426,7 +429,10 @@ void compare_paths(Case c) {
   MatX G;
   ASSERT_TRUE(data.solver->inverse_congruence(HtA, G));
   G *= model.step.dt;
-  const double L = G.diagonal().maxCoeff(), shift = contact::operator_shift_fraction * L;
+  // The operator path's scale L: the power iteration's lambda_max(G_AA) (docs/method.md
+  // "The derivative's scale"), a lower bound within its stopping rule of the eigenvalue
+  // (checked against the dense eigen-decomposition: see PowerIterationScale below).
+  const double L = d_op.ncp_derivative().scale(), shift = contact::operator_shift_fraction * L;
   const MatX M = (G + shift * MatX::Identity(3 * na, 3 * na)).inverse();
   // The path: the step's operator; every active contact sticking with its Woodbury
   // preconditioner (PCG), with sliding contacts GMRES with the reduced preconditioner.

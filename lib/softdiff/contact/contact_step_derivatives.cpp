@@ -3,8 +3,10 @@
 
 #include <softdiff/contact/sparse_delassus.hpp>
 #include <softdiff/core/assert.hpp>
+#include <softdiff/core/error.hpp>
 
 #include <algorithm>
+#include <sstream>
 #include <utility>
 
 namespace softdiff::contact {
@@ -71,24 +73,40 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
     const int na = static_cast<int>(active_ids_.size());
     bool all_sticking = true;
     for (int i : active_ids_) all_sticking = all_sticking && modes[static_cast<std::size_t>(i)] == Mode::sticking;
-    if (na > model.contact.ncp.derivative_dense_max_active &&
-        (all_sticking || A_upper || na <= operator_unpreconditioned_mixed_max_active)) {
+    const auto& ncp = model.contact.ncp;
+    const int dense_max = all_sticking ? ncp.derivative_dense_max_active : ncp.derivative_mixed_dense_max_active;
+    if (na > dense_max && (all_sticking || A_upper || na <= operator_unpreconditioned_mixed_max_active)) {
       // Beyond the crossover: the mode-fixed system on the operator (mode_system.hpp),
       // G_AA y = h H_A A^{-1} H_A^T y, one solve with `solver` per product (the caller
-      // keeps its factorization until the last jvp / vjp). L = max diag G_AA as on the
-      // dense path, from the diagonal 3x3 blocks (congruences of batches of contacts).
-      double L = 0;
-      constexpr int batch = 64;
-      std::vector<int> ids;
-      for (int a0 = 0; a0 < na; a0 += batch) {
-        ids.clear();
-        for (int a = a0; a < std::min(na, a0 + batch); ++a) ids.push_back(a);
-        select_contact_columns(Ht_active_, ids, Ht_batch_);
-        if (!solver.inverse_congruence(Ht_batch_, G_active_)) return false;
-        L = std::max(L, h * G_active_.diagonal().maxCoeff());
+      // keeps its factorization until the last jvp / vjp).
+      const auto G_AA = [this, &solver, h](const VecX& y, VecX& out) {
+        op_u_.noalias() = Ht_active_ * y;
+        const bool ok = solver.solve(op_u_, op_w_);
+        out.noalias() = h * (Ht_active_.transpose() * op_w_);
+        return ok;
+      };
+      // The scale L: lambda_max(G_AA) by power iteration (docs/method.md "The derivative's
+      // scale"), warm-started from the last system's iterate carried in the nodes' space
+      // (scale_w_ = A^{-1} H_A^T y of the last product: y_0 = H_A scale_w_ on this
+      // step's active set), else from a fixed start.
+      if (scale_w_.size() == Ht_active_.rows()) scale_y_.noalias() = Ht_active_.transpose() * scale_w_;
+      if (scale_y_.size() != 3 * na || !(scale_y_.norm() > 0) || !scale_y_.allFinite()) {
+        scale_y_.resize(3 * na);
+        for (int k = 0; k < 3 * na; ++k) scale_y_[k] = 1.0 + 0.01 * static_cast<double>(k % 7);
       }
-      G_active_.resize(0, 0);
-      L = std::max(L, 1e-300);
+      scale_ = power_iteration(G_AA, scale_y_, scale_gy_, ncp.derivative_scale_tolerance,
+                               ncp.derivative_scale_max_iterations);
+      if (scale_.failed) return false;
+      if (!scale_.converged) {
+        std::ostringstream m;
+        m.precision(3);
+        m << "the scale of the contact derivative's mode-fixed system: the power iteration on G_AA (" << na
+          << " active contacts) did not converge in " << scale_.iterations << " products (relative change "
+          << scale_.change << " > derivative_scale_tolerance " << ncp.derivative_scale_tolerance << ")";
+        throw ComputationError(m.str());
+      }
+      scale_w_ = op_w_;  // A^{-1} H_A^T y of the last product: the next system's start
+      const double L = std::max(scale_.value, 1e-300);
       integrator::LinearSolver* A = &solver;
       // The preconditioner (G_AA + c I)^{-1}: one factorization of B = A + (h/c) H_A^T H_A.
       OperatorModeSystem::Precondition M, reduce_apply;

@@ -58,6 +58,8 @@ class ContactStageDerivative {
                                      const std::vector<ParameterId>& parameters, const VecX& bar_mu, VecX& bar_p);
 
   const NcpDerivative& ncp() const { return ncp_; }
+  // The operator path's power iteration for the scale L (ncp().scale()) of the last prepare.
+  const PowerIteration& scale_iteration() const { return scale_; }
   // Contacts whose geometry derivative does not exist (taken as zero), and those whose
   // derivative is the randomized-smoothing estimate (model.contact.smoothing).
   int nondifferentiable_contacts() const { return nondifferentiable_; }
@@ -69,7 +71,9 @@ class ContactStageDerivative {
   std::vector<int> active_ids_;  // G_AA path: the active contacts,
   SparseMatrix Ht_active_;       //   their columns of H_c^T
   MatX G_active_;                //   and G_AA (dense path; a batch's block on the operator path)
-  SparseMatrix Ht_batch_;        // operator path: a batch of Ht_active_'s columns (the scale L)
+  PowerIteration scale_;         // operator path: the scale L's power iteration
+  VecX scale_y_, scale_gy_;      //   its (3 na) iterate and product
+  VecX scale_w_;                 //   (3n) A^{-1} H_A^T y of its last product: the next start
   VecX op_u_, op_w_;             // operator path: (3n) scratch of the products with G_AA
   SparseDelassus shifted_;       // operator path: (G_AA + c I)^{-1}, the preconditioner
   int nondifferentiable_ = 0, smoothed_ = 0;

@@ -358,4 +358,39 @@ bool OperatorModeSystem::solve_cgls(const VecX& r, VecX& x, bool transposed) con
   return converged;
 }
 
+PowerIteration power_iteration(const OperatorModeSystem::Apply& G, VecX& y, VecX& Gy, double tolerance,
+                               int max_iterations) {
+  PowerIteration p;
+  const double ny = y.norm();
+  if (!(ny > 0) || !std::isfinite(ny)) {
+    p.failed = true;
+    return p;
+  }
+  y /= ny;
+  double previous = 0;
+  for (int k = 0; k < max_iterations; ++k) {
+    if (!G(y, Gy)) {
+      p.failed = true;
+      return p;
+    }
+    ++p.iterations;
+    const double value = y.dot(Gy), n = Gy.norm();  // |y| = 1
+    if (!(n > 0) || !std::isfinite(n) || !std::isfinite(value)) {
+      p.failed = true;
+      return p;
+    }
+    y = Gy / n;
+    p.value = value;
+    if (k > 0) {
+      p.change = std::abs(value - previous) / value;
+      if (p.change <= tolerance) {
+        p.converged = true;
+        return p;
+      }
+    }
+    previous = value;
+  }
+  return p;
+}
+
 }  // namespace softdiff::contact

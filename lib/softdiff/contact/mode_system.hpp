@@ -166,4 +166,23 @@ class OperatorModeSystem {
   mutable int last_iterations_ = 0, total_iterations_ = 0, solves_ = 0, precond_solves_ = 0;
 };
 
+// The largest eigenvalue of a symmetric positive semi-definite operator G (3 na) by
+// power iteration (docs/method.md "The derivative's scale"): from y (in: the start,
+// nonzero; out: the last iterate, normalized), estimates lambda_k = y_k^T G y_k /
+// y_k^T y_k with y_{k+1} = G y_k / |G y_k|, one product each. For a positive
+// semi-definite G the estimates increase monotonically to lambda_max (the ratios of the
+// moments y_0^T G^j y_0 are non-decreasing), each a lower bound. Stops when two
+// successive estimates differ by at most `tolerance` relative (converged), or after
+// max_iterations products, or when a product fails or is zero or non-finite.
+// Allocation-free after the first call at a size (Gy: scratch of 3 na).
+struct PowerIteration {
+  double value = 0;     // the last estimate (a lower bound of lambda_max)
+  double change = 0;    // its relative change over the previous one
+  int iterations = 0;   // products with G
+  bool converged = false;
+  bool failed = false;  // a product failed (solve), or G y was zero or non-finite
+};
+PowerIteration power_iteration(const OperatorModeSystem::Apply& G, VecX& y, VecX& Gy, double tolerance,
+                               int max_iterations);
+
 }  // namespace softdiff::contact

@@ -66,10 +66,20 @@ struct NcpOptions {
   bool polish_at_scale_always = false;
   // The implicit derivative's mode-fixed system (ncp_derivatives.hpp) where no dense G
   // exists: on the dense G_AA of the active contacts up to this many of them, on the
-  // operator beyond (mode_system.hpp; docs/method.md "The mode-fixed system at scale")
-  // where every active contact sticks, and for sets with sliding contacts up to 64
-  // (contact_step_derivatives.cpp; larger mixed sets keep the dense G_AA).
+  // operator beyond (mode_system.hpp; docs/method.md "The mode-fixed system at scale"),
+  // where every active contact sticks (PCG).
   int derivative_dense_max_active = 400;
+  // The same crossover for sets with sliding contacts (GMRES with the reduced
+  // preconditioner on the operator; contact_step_derivatives.cpp): measured by
+  // tests/bench BM_MixedDerivative, the dense G_AA faster at 36 active contacts, the
+  // operator at 64 (docs/performance.md "The mixed derivative's crossover").
+  int derivative_mixed_dense_max_active = 40;
+  // The scale L of the operator path's force rows and preconditioner shift: the largest
+  // eigenvalue of G_AA by power iteration (mode_system.hpp power_iteration), stopped when
+  // two successive estimates differ by at most derivative_scale_tolerance relative;
+  // not within derivative_scale_max_iterations products: ComputationError.
+  double derivative_scale_tolerance = 1e-3;
+  int derivative_scale_max_iterations = 50;
   NcpBackend backend = NcpBackend::automatic;
   // The crossover (measured, docs/method.md "Contact at scale"): the dense G for up to
   // this many contacts (automatic backend); on the sparse path, a working set of at

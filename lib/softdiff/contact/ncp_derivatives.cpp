@@ -2,6 +2,7 @@
 #include <softdiff/contact/ncp_derivatives.hpp>
 
 #include <softdiff/core/assert.hpp>
+#include <softdiff/core/error.hpp>
 
 #include <Eigen/QR>
 #include <algorithm>
@@ -18,6 +19,7 @@ void NcpDerivative::compute(const MatX& G, const VecX& mu, const VecX& lambda, c
                   "NcpDerivative::compute: G does not match " + std::to_string(nc) + " contacts");
   set_active(mu, lambda, sigma, modes);
   const double L = std::max(G.diagonal().maxCoeff(), 1e-300);
+  scale_ = L;
   assemble(mu, lambda, sigma, modes, L, [&](int a, int b) { return G.block<3, 3>(3 * active_[a], 3 * active_[b]); });
 }
 
@@ -29,6 +31,7 @@ void NcpDerivative::compute_active(const MatX& G_AA, const VecX& mu, const VecX&
                   "NcpDerivative::compute_active: G_AA is not 3 na x 3 na for " + std::to_string(active_.size()) +
                       " active contacts");
   const double L = m > 0 ? std::max(G_AA.diagonal().maxCoeff(), 1e-300) : 1.0;
+  scale_ = L;
   assemble(mu, lambda, sigma, modes, L, [&](int a, int b) { return G_AA.block<3, 3>(3 * a, 3 * b); });
 }
 
@@ -49,6 +52,7 @@ void NcpDerivative::compute_operator(OperatorModeSystem::Apply G_AA, double L, c
   set_active(mu, lambda, sigma, modes);
   SOFTDIFF_DEMAND(L > 0 && std::isfinite(L), "NcpDerivative::compute_operator: the scale L must be positive");
   const int na = static_cast<int>(active_.size());
+  scale_ = L;
   degenerate_ = 0;
   rank_deficiency_ = 0;
   cholesky_ = false;
@@ -155,9 +159,10 @@ void NcpDerivative::jvp(const VecX& b, const VecX& dmu, VecX& dlambda) const {
   right_hand_side(b, dmu, rhs);
   VecX d;
   if (operator_) {
-    SOFTDIFF_DEMAND(op_.solve(rhs, d), "NcpDerivative::jvp: the mode-fixed system on the operator did not converge (CGLS, " +
-                                           std::to_string(op_.last_iterations()) + " iterations, " +
-                                           std::to_string(na) + " active contacts)");
+    if (!op_.solve(rhs, d))
+      throw ComputationError("the contact derivative's mode-fixed system on the operator did not converge (" +
+                             std::to_string(op_.last_iterations()) + " iterations, " + std::to_string(na) +
+                             " active contacts)");
     d = -d;
   } else {
     d = cholesky_ ? VecX(-llt_.solve(rhs)) : VecX(-cod_.solve(rhs));
@@ -176,9 +181,10 @@ void NcpDerivative::vjp(const VecX& bar_lambda, VecX& bar_b, VecX& bar_mu) const
   VecX y;
   if (operator_) {
     // (J^T)^+ la = (J^+)^T la: CGLS on J^T.
-    SOFTDIFF_DEMAND(op_.solve(la, y, true), "NcpDerivative::vjp: the transposed mode-fixed system on the operator did "
-                                            "not converge (CGLS, " + std::to_string(op_.last_iterations()) +
-                                                " iterations, " + std::to_string(na) + " active contacts)");
+    if (!op_.solve(la, y, true))
+      throw ComputationError("the contact derivative's transposed mode-fixed system on the operator did not converge (" +
+                             std::to_string(op_.last_iterations()) + " iterations, " + std::to_string(na) +
+                             " active contacts)");
     y = -y;
   } else if (cholesky_) {
     y = -llt_.solve(la);  // J symmetric

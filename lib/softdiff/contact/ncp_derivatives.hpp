@@ -42,8 +42,10 @@ class NcpDerivative {
   void compute_active(const MatX& G_AA, const VecX& mu, const VecX& lambda, const VecX& sigma,
                       const std::vector<Mode>& modes);
   // The same on the operator y -> G_AA y (3 na, the active contacts in increasing
-  // order): never forms G_AA; L is the scale of the force rows (the dense path's
-  // max diag G_AA, so that both paths solve the same system).
+  // order): never forms G_AA; L is the scale of the force rows (any positive value of
+  // G_AA's size: the rows are scaled, the solution of an invertible J is not; the
+  // operator path passes the power iteration's lambda_max(G_AA), docs/method.md "The
+  // derivative's scale").
   // M (optional): the preconditioner (G_AA + c I)^{-1} of mode_system.hpp;
   // reduce, reduce_apply (optional): the mixed sets' reduced preconditioner there.
   void compute_operator(OperatorModeSystem::Apply G_AA, double L, const VecX& mu, const VecX& lambda,
@@ -68,6 +70,10 @@ class NcpDerivative {
   int rank_deficiency() const { return rank_deficiency_; }
   int degenerate() const { return degenerate_; }
   int active() const { return static_cast<int>(active_.size()); }
+  // The scale L of the force rows (and of the operator path's preconditioner shift):
+  // max diag G_AA on the dense paths, the caller's on the operator path (there the power
+  // iteration's estimate of lambda_max(G_AA), contact_step_derivatives.cpp).
+  double scale() const { return scale_; }
 
  private:
   void set_active(const VecX& mu, const VecX& lambda, const VecX& sigma, const std::vector<Mode>& modes);
@@ -95,6 +101,7 @@ class NcpDerivative {
   bool operator_ = false;    // compute_operator(): solves by op_, no J_
   OperatorModeSystem op_;
   int rank_deficiency_ = 0, degenerate_ = 0;
+  double scale_ = 1;
 };
 
 }  // namespace softdiff::contact

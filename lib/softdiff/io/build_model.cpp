@@ -275,6 +275,10 @@ void build_contact(const SceneDesc& scene, Model& model) {
                          : c.backend == ContactDesc::Backend::sparse ? contact::NcpBackend::sparse
                                                                      : contact::NcpBackend::automatic;
   settings.ncp.dense_max_contacts = c.dense_max_contacts;
+  if (c.derivative_dense_max_active >= 0) settings.ncp.derivative_dense_max_active = c.derivative_dense_max_active;
+  if (c.derivative_mixed_dense_max_active >= 0)
+    settings.ncp.derivative_mixed_dense_max_active = c.derivative_mixed_dense_max_active;
+  if (c.derivative_scale_iterations >= 1) settings.ncp.derivative_scale_max_iterations = c.derivative_scale_iterations;
   settings.smoothing.samples = c.smoothing_samples;
   settings.smoothing.sigma = c.smoothing_sigma > 0 ? c.smoothing_sigma : 0.1 * c.margin;
   settings.smoothing.seed = static_cast<std::uint64_t>(c.smoothing_seed);

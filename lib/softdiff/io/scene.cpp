@@ -741,6 +741,12 @@ class Reader {
                   : backend->scalar == "sparse" ? ContactDesc::Backend::sparse
                                                 : ContactDesc::Backend::automatic;
     d.dense_max_contacts = static_cast<int>(integer(get(c, "dense_max_contacts"), d.dense_max_contacts));
+    d.derivative_dense_max_active =
+        static_cast<int>(integer(get(c, "derivative_dense_max_active"), d.derivative_dense_max_active));
+    d.derivative_mixed_dense_max_active =
+        static_cast<int>(integer(get(c, "derivative_mixed_dense_max_active"), d.derivative_mixed_dense_max_active));
+    d.derivative_scale_iterations =
+        static_cast<int>(integer(get(c, "derivative_scale_iterations"), d.derivative_scale_iterations));
     if (const Node* sm = get(c, "smoothing")) {
       d.smoothing_samples = static_cast<int>(integer(get(*sm, "samples"), d.smoothing_samples));
       d.smoothing_sigma = number(get(*sm, "sigma"), d.smoothing_sigma);

@@ -159,6 +159,9 @@ struct ContactDesc {
   bool polish_at_scale_always = false;  // extension: polish_at_scale: always (default: stalled)
   enum class Backend { automatic, dense, sparse } backend = Backend::automatic;  // extension
   int dense_max_contacts = 400;  // extension: the automatic backend's crossover
+  // extension: the derivative's crossovers (dense G_AA / operator) and its scale's power
+  // iteration cap (contact::NcpOptions; -1: NcpOptions' default)
+  int derivative_dense_max_active = -1, derivative_mixed_dense_max_active = -1, derivative_scale_iterations = -1;
   // extension: randomized smoothing of the collision-detection derivatives
   int smoothing_samples = 16;
   double smoothing_sigma = 0;    // 0: margin / 10

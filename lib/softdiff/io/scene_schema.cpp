@@ -99,6 +99,9 @@ SpecPtr contact() {
       key("polish_at_scale", choice({"stalled", "always"})),  // extension (docs/method.md "The mode-fixed system at scale")
       key("backend", choice({"auto", "dense", "sparse"})),  // extension (docs/method.md "Contact at scale")
       key("dense_max_contacts", integer(ge(0))),            // extension
+      key("derivative_dense_max_active", integer(ge(0))),   // extension (docs/method.md "The mode-fixed system at scale")
+      key("derivative_mixed_dense_max_active", integer(ge(0))),  // extension
+      key("derivative_scale_iterations", integer(ge(1))),   // extension (docs/method.md "The derivative's scale")
       key("smoothing", map({      // extension: collision-detection derivatives
                            key("samples", integer(ge(0), 1000000)),
                            key("sigma", number(gt(0))),
