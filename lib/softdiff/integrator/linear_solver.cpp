@@ -169,19 +169,7 @@ class CholmodSolver final : public LinearSolver {
     solve_factor_status_ = {};
     counters_.last_pcg_iterations = 0;
     const Eigen::Index n = B.rows(), k = B.cols();
-    cholmod_dense D;
-    D.nrow = n;
-    D.ncol = k;
-    D.nzmax = n * k;
-    D.d = n;
-    D.x = const_cast<double*>(B.data());
-    D.z = nullptr;
-    D.xtype = CHOLMOD_REAL;
-    D.dtype = CHOLMOD_DOUBLE;
-    use_planned_blas_threads();
-    const int ok = cholmod_solve2(CHOLMOD_A, factor_, &D, nullptr, &Xm_, nullptr, &Ym_, &Em_, &common_);
-    throw_if_out_of_memory("a solve with several right-hand sides", n);
-    SOFTDIFF_DEMAND(ok, "cholmod_solve2 failed (status " + std::to_string(common_.status) + ")");
+    solve_block(B.data(), n, k, Xm_, Ym_, Em_, "a solve with several right-hand sides");
     X = Eigen::Map<const MatX, 0, Eigen::OuterStride<>>(static_cast<const double*>(Xm_->x), n, k,
                                                         Eigen::OuterStride<>(static_cast<Eigen::Index>(Xm_->d)));
     return true;
@@ -195,20 +183,29 @@ class CholmodSolver final : public LinearSolver {
   // out = (L L^T)^{-1} b with the current numeric factor; X: the CHOLMOD workspace
   // that receives the solution (reused across calls, no allocation once sized).
   void solve_with_factor(const VecX& b, cholmod_dense*& X, const char* what, VecX& out) {
+    out = Eigen::Map<const VecX>(solve_block(b.data(), b.size(), 1, X, Y_, E_, what), b.size());
+  }
+
+  // A^{-1} times the n x k column-major block at b (leading dimension n) in one
+  // cholmod_solve2 call with the current numeric factor; X, Y, E: CHOLMOD workspaces
+  // reused across calls (no allocation once sized). Returns X's values (leading
+  // dimension X->d).
+  const double* solve_block(const double* b, Eigen::Index n, Eigen::Index k, cholmod_dense*& X,
+                            cholmod_dense*& Y, cholmod_dense*& E, const char* what) {
     cholmod_dense B;
-    B.nrow = b.size();
-    B.ncol = 1;
-    B.nzmax = b.size();
-    B.d = b.size();
-    B.x = const_cast<double*>(b.data());
+    B.nrow = n;
+    B.ncol = k;
+    B.nzmax = n * k;
+    B.d = n;
+    B.x = const_cast<double*>(b);
     B.z = nullptr;
     B.xtype = CHOLMOD_REAL;
     B.dtype = CHOLMOD_DOUBLE;
     use_planned_blas_threads();
-    const int ok = cholmod_solve2(CHOLMOD_A, factor_, &B, nullptr, &X, nullptr, &Y_, &E_, &common_);
-    throw_if_out_of_memory(what, b.size());
+    const int ok = cholmod_solve2(CHOLMOD_A, factor_, &B, nullptr, &X, nullptr, &Y, &E, &common_);
+    throw_if_out_of_memory(what, n);
     SOFTDIFF_DEMAND(ok, "cholmod_solve2 failed (status " + std::to_string(common_.status) + ")");
-    out = Eigen::Map<const VecX>(static_cast<const double*>(X->x), b.size());
+    return static_cast<const double*>(X->x);
   }
 
   // G = B^T A^{-1} B by blocks of columns: X = A^{-1} B_block with one supernodal
@@ -243,20 +240,8 @@ class CholmodSolver final : public LinearSolver {
       rhs.setZero();
       for (Eigen::Index j = 0; j < bs; ++j)
         for (SparseMatrix::InnerIterator it(B, c0 + j); it; ++it) rhs(it.row(), j) = it.value();
-      cholmod_dense D;
-      D.nrow = n;
-      D.ncol = bs;
-      D.nzmax = n * bs;
-      D.d = n;
-      D.x = block_.data();
-      D.z = nullptr;
-      D.xtype = CHOLMOD_REAL;
-      D.dtype = CHOLMOD_DOUBLE;
-      use_planned_blas_threads();
-      const int ok = cholmod_solve2(CHOLMOD_A, factor_, &D, nullptr, &Xb_, nullptr, &Yb_, &Eb_, &common_);
-      throw_if_out_of_memory("a solve", n);
-      SOFTDIFF_DEMAND(ok, "cholmod_solve2 failed (status " + std::to_string(common_.status) + ")");
-      const Eigen::Map<const MatX, 0, Eigen::OuterStride<>> X(static_cast<const double*>(Xb_->x), n, bs,
+      const double* x = solve_block(block_.data(), n, bs, Xb_, Yb_, Eb_, "a solve");
+      const Eigen::Map<const MatX, 0, Eigen::OuterStride<>> X(x, n, bs,
                                                                Eigen::OuterStride<>(static_cast<Eigen::Index>(Xb_->d)));
       // Rows 0 .. c0 + bs of G(:, block): the upper triangle and the diagonal block.
       G.block(0, c0, c0 + bs, bs).noalias() = Bt_.topRows(c0 + bs) * X;
