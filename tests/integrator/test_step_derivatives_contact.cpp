@@ -24,6 +24,7 @@
 #include <Eigen/SVD>
 #include <algorithm>
 #include <limits>
+#include <memory>
 #include <cstdio>
 #include <random>
 #include <string>
@@ -362,6 +363,69 @@ TEST(StepDerivativesContact, NewtonOperatorModeSystem) {
     p.backend = contact::NcpBackend::sparse;
     p.operator_mode = true;
     check(c, p);
+  }
+}
+
+// A solve that fails inside the contact derivative (a PCG with a kept factor that misses
+// its tolerance, an operator product that fails) makes jvp and vjp return false, which
+// the trajectory reports as the derivative's failure at its step (diff/trajectory.cpp);
+// it is not a programming error (it threw std::logic_error, "internal error", before).
+// The step's solver is wrapped after the forward step: the wrapper delegates everything
+// but the congruence (the sparse backend's record holds no G, so the derivative forms
+// G_AA with it) or, on the operator path, every solve (the power iteration's products).
+class FailingSolver : public integrator::LinearSolver {
+ public:
+  FailingSolver(std::unique_ptr<integrator::LinearSolver> inner, bool fail_solves)
+      : inner_(std::move(inner)), fail_solves_(fail_solves) {}
+  std::string name() const override { return inner_->name(); }
+  void analyze(const SparseMatrix& A) override { inner_->analyze(A); }
+  integrator::FactorStatus factorize(const SparseMatrix& A) override { return inner_->factorize(A); }
+  bool solve(const VecX& b, VecX& x) override { return !fail_solves_ && inner_->solve(b, x); }
+  bool inverse_congruence(const SparseMatrix&, MatX&) override { return false; }
+
+ private:
+  std::unique_ptr<integrator::LinearSolver> inner_;
+  bool fail_solves_;
+};
+
+TEST(StepDerivativesContact, AFailedSolveInTheContactDerivativeIsAFailedDerivative) {
+  for (const bool on_operator : {false, true}) {
+    SCOPED_TRACE(on_operator ? "operator path" : "dense G_AA");
+    Params p;
+    p.backend = contact::NcpBackend::sparse;
+    p.operator_mode = on_operator;
+    const Model model = build(Case::sticking, p);
+    const State in = start(model, Case::sticking, p);
+    Data data(model);
+    State out;
+    ASSERT_TRUE(integrator::implicit_euler_step(model, data, in, out, 1).ok());
+    ASSERT_GT(data.contact.contacts.size(), 0);
+    const Eigen::Index n = in.x.size();
+    StepTangent t;
+    t.x = VecX::Unit(n, 0);
+    {
+      // The same derivative with the step's own solver succeeds: the failure below is
+      // the wrapper's.
+      integrator::StepDerivatives ok(model, {});
+      StateTangent r;
+      EXPECT_TRUE(ok.jvp(model, data, in, out, t, r));
+    }
+    data.solver = std::make_unique<FailingSolver>(std::move(data.solver), on_operator);
+    integrator::StepDerivatives d(model, {});
+    StateTangent r;
+    bool jvp_ok = true;
+    EXPECT_NO_THROW(jvp_ok = d.jvp(model, data, in, out, t, r));
+    EXPECT_FALSE(jvp_ok);
+    if (!on_operator) {
+      // vjp: its first solve succeeds, then the contact derivative's congruence fails.
+      StateTangent w;
+      w.x = VecX::Ones(n);
+      w.v = VecX::Zero(n);
+      StepCotangent g;
+      bool vjp_ok = true;
+      EXPECT_NO_THROW(vjp_ok = d.vjp(model, data, in, out, w, g));
+      EXPECT_FALSE(vjp_ok);
+    }
   }
 }
 

@@ -81,9 +81,9 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
       // keeps its factorization until the last jvp / vjp).
       const auto G_AA = [this, &solver, h](const VecX& y, VecX& out) {
         op_u_.noalias() = Ht_active_ * y;
-        const bool ok = solver.solve(op_u_, op_w_);
+        if (!solver.solve(op_u_, op_w_)) return false;  // op_w_ is not defined then
         out.noalias() = h * (Ht_active_.transpose() * op_w_);
-        return ok;
+        return true;
       };
       // The scale L: lambda_max(G_AA) by power iteration (docs/method.md "The derivative's
       // scale"), warm-started from the last system's iterate carried in the nodes' space
@@ -131,9 +131,9 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
       ncp_.compute_operator(
           [this, A, h](const VecX& y, VecX& out) {
             op_u_.noalias() = Ht_active_ * y;
-            const bool ok = A->solve(op_u_, op_w_);
+            if (!A->solve(op_u_, op_w_)) return false;
             out.noalias() = h * (Ht_active_.transpose() * op_w_);
-            return ok;
+            return true;
           },
           L, cd.mu, cd.lambda, sigma, modes, std::move(M), std::move(reduce), std::move(reduce_apply));
     } else {

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <string>
 
 namespace softdiff::contact {
@@ -165,18 +166,24 @@ void SparseDelassus::set_frames(const std::vector<Mat3>& frames, const Eigen::Re
 
 bool SparseDelassus::apply(const Eigen::Ref<const VecX>& y, Eigen::Ref<VecX> out) {
   u_.noalias() = HtW_ * y;
-  const bool ok = A_solver_->solve(u_, w_);
-  failed_ = failed_ || !ok;
+  if (!A_solver_->solve(u_, w_)) {  // w_ is not defined then: out is NaN, not stale
+    failed_ = true;
+    out.setConstant(std::numeric_limits<double>::quiet_NaN());
+    return false;
+  }
   out.noalias() = h_ * (HtW_.transpose() * w_);
-  return ok;
+  return true;
 }
 
 bool SparseDelassus::apply_full(const Eigen::Ref<const VecX>& y, Eigen::Ref<VecX> out) {
   u_.noalias() = HtW_ * y;
-  const bool ok = A_solver_->solve(u_, w_);
-  failed_ = failed_ || !ok;
+  if (!A_solver_->solve(u_, w_)) {  // w_ is not defined then: out is NaN, not stale
+    failed_ = true;
+    out.setConstant(std::numeric_limits<double>::quiet_NaN());
+    return false;
+  }
   out.noalias() = h_ * (Ht_->transpose() * w_);
-  return ok;
+  return true;
 }
 
 bool SparseDelassus::dense(MatX& G) {

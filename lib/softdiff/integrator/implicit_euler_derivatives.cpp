@@ -147,18 +147,23 @@ bool StepDerivatives::parameter_column(const Model& model, const Data& data, con
   return false;
 }
 
-void StepDerivatives::prepare_contact(const Model& model, const Data& data, const State& in, const State& out,
+bool StepDerivatives::prepare_contact(const Model& model, const Data& data, const State& in, const State& out,
                                       LinearSolver& solver) {
-  if (contact_v_.size() == out.v.size() && contact_v_ == out.v) return;
+  if (contact_v_.size() == out.v.size() && contact_v_ == out.v) return true;
   // Newton (docs/method.md "Newton iterations with contact"): the record's G is that of
   // the last Newton factorization, one iterate before the converged v_f; the implicit
   // function theorem at v_f needs G with the converged tangent A_f (`solver`, this
   // object's factorization), so the record's G is not used and G_AA is formed with A_f.
   const SparseMatrix* A = is_newton(model) ? &newton_A_ : &data.A;  // the matrix `solver` factorized
-  SOFTDIFF_DEMAND(contact_.prepare(model, data.contact, in.x, solver, step_size(model, data), !is_newton(model),
-                                   nullptr, nullptr, A),
-                  "iterative linear solver did not reach its tolerance (contact derivative)");
+  // A failed solve (a PCG that misses its tolerance with a kept factor, an operator
+  // product that fails) is the derivative's failure, reported by the caller with its step
+  // (diff/trajectory.cpp), not a programming error.
+  contact_v_.resize(0);
+  if (!contact_.prepare(model, data.contact, in.x, solver, step_size(model, data), !is_newton(model), nullptr,
+                        nullptr, A))
+    return false;
   contact_v_ = out.v;
+  return true;
 }
 
 void StepDerivatives::add_contact_force_jvp(const Model& model, const Data& data, const VecX& dx, VecX& r) const {
@@ -251,7 +256,7 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
   }
   const bool contact = model.contact.enabled && !data.contact.contacts.empty();
   if (contact) {
-    prepare_contact(model, data, in, out, *solver);
+    if (!prepare_contact(model, data, in, out, *solver)) return false;
     if (d.x.size()) add_contact_force_jvp(model, data, dx, r_);  // h dH^T lambda
   }
   project(model, r_);
@@ -337,7 +342,7 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
     // Contact: lambda's cotangent h H A^{-1} v~, the NCP derivative's transpose gives
     // bar_b; b = H dv0 + ... adds z = H^T bar_b to dv0's cotangent, so the right-hand
     // side's cotangent is y + A^{-1} z.
-    prepare_contact(model, data, in, out, *solver);
+    if (!prepare_contact(model, data, in, out, *solver)) return false;
     bar_lambda_.noalias() = h * (data.contact.Ht.transpose() * y_);
     contact_.ncp().vjp(bar_lambda_, bar_b_, bar_mu_);
     tmp2_.noalias() = data.contact.Ht * bar_b_;

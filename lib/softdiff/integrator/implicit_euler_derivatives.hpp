@@ -139,7 +139,8 @@ class StepDerivatives {
   // (cached by v_f). Counts the contacts whose geometry is not differentiable (their
   // geometry derivative is taken as zero). solver: the step derivative's system
   // (system(): A, or A_f with Newton), whose G the mode-fixed NCP derivative takes.
-  void prepare_contact(const Model& model, const Data& data, const State& in, const State& out, LinearSolver& solver);
+  // Returns false if a solve failed (jvp and vjp then return false).
+  bool prepare_contact(const Model& model, const Data& data, const State& in, const State& out, LinearSolver& solver);
   // r += h sum_i dH_i[dx]^T lambda_i
   void add_contact_force_jvp(const Model& model, const Data& data, const VecX& dx, VecX& r) const;
   // b = dH[dx] v_f + H dv0 + (0, 0, dgap / h): the change of sigma at fixed lambda.
