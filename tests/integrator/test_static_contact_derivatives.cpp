@@ -205,8 +205,8 @@ TEST(StaticContactDerivatives, ReverseModeIsTheTranspose) {
   }
 }
 
-// Beyond 64 active contacts on the operator (contact_step_derivatives.cpp: the scale's
-// power iteration, never a dense G_AA; both crossovers 0): a 9 x 9 x 1-element slab
+// Beyond 64 active contacts on the operator (contact_step_derivatives.cpp: never a
+// dense G_AA; both crossovers 0): a 9 x 9 x 1-element slab
 // (0.09 x 0.09 x 0.01 m, nu = 0.45, no fixed node) resting on the plane under its
 // weight. The weight compresses it and the Poisson effect pushes it outwards: with mu =
 // 0.1 the rim slides (96 of the 100 contacts, 4 stick: a mixed set, GMRES with the
@@ -233,9 +233,9 @@ Model slab(double mu, bool on_operator) {
 // file's cases above and test_step_derivatives_contact.cpp) on the same equilibrium:
 // the operator's Jacobian equals it to 1e-8 relative (GMRES stops at 1e-12 of the
 // scaled residual, times J's conditioning, about 1e2 to 1e3 on these slabs: 1e-9; a
-// factor 10 of margin). The operator path is the one taken: with the scale's power
-// iteration capped at one product the same derivative is a ComputationError (only that
-// path runs it).
+// factor 10 of margin). The operator path is the one taken (both crossovers 0); its
+// scale L is the largest diagonal entry of G_AA over a sample of the active contacts
+// (docs/method.md "The derivative's scale").
 TEST(StaticContactDerivatives, MixedSetBeyond64OnTheOperator) {
   const Model model = slab(0.1, true), dense = slab(0.1, false);
   const std::vector<ParameterId> params = {{Parameter::young, 0}, {Parameter::friction, 0}};
@@ -259,10 +259,18 @@ TEST(StaticContactDerivatives, MixedSetBeyond64OnTheOperator) {
     std::cout << "[ slab ] column " << j << ": operator against dense G_AA " << d << " relative\n";
     EXPECT_LT(d, 1e-8) << "column " << j;
   }
-  Model capped = model;
+  // The sticking slab takes the operator too: its scale's power iteration (only that path
+  // runs it; the mixed set's scale is the sampled diagonal of G_AA) capped at one product
+  // makes the same derivative a ComputationError.
+  Model capped = slab(2.0, true);
   capped.contact.ncp.derivative_scale_max_iterations = 1;
+  Data capped_data(capped);
+  const Solution sticking = solve(capped, capped_data);
+  ASSERT_GT(sticking.contacts, 64);
+  for (auto m : sticking.modes) ASSERT_NE(m, contact::Mode::sliding);
   MatX J;
-  EXPECT_THROW(integrator::static_sensitivities(capped, data, base.x, {params, false}, J), ComputationError);
+  EXPECT_THROW(integrator::static_sensitivities(capped, capped_data, sticking.x, {params, false}, J),
+               ComputationError);
 }
 
 // The same slab with every contact sticking (mu = 2; exact, so central differences

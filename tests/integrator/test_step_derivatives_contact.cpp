@@ -9,6 +9,7 @@
 // Steps as in test_step_derivatives.cpp (positions 1e-6 of the element size,
 // velocities 1e-6 m/s, parameters 1e-5 of their value); the NCP is solved to 1e-14
 // (polished to round-off), so that the differences see the exact map: tolerance 1e-6.
+#include <softdiff/contact/contact_step_derivatives.hpp>
 #include <softdiff/contact/sparse_delassus.hpp>
 #include <softdiff/data.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
@@ -497,6 +498,20 @@ void compare_paths(Case c) {
   // "The derivative's scale"), a lower bound within its stopping rule of the eigenvalue
   // (checked against the dense eigen-decomposition: see PowerIterationScale below).
   const double L = d_op.ncp_derivative().scale(), shift = contact::operator_shift_fraction * L;
+  if (!sticking) {
+    // Mixed: L is G_AA's largest diagonal entry over the deterministic sample of at most
+    // scale_sample_contacts active contacts (evenly spaced in the active list), not
+    // lambda_max (a row scale that must match G's diagonal: docs/method.md "The
+    // derivative's scale"); the same entries of the dense G, to round-off.
+    const int ns = std::min(na, contact::ContactStageDerivative::scale_sample_contacts);
+    double sampled = 0;
+    for (int j = 0; j < ns; ++j) {
+      const int a = static_cast<int>((static_cast<long>(j) * na) / ns);
+      for (int k = 0; k < 3; ++k) sampled = std::max(sampled, G(3 * a + k, 3 * a + k));
+    }
+    EXPECT_NEAR(L, sampled, 1e-10 * sampled) << name_of(c);
+    EXPECT_LE(L, G.diagonal().maxCoeff() * (1 + 1e-10)) << name_of(c);
+  }
   const MatX M = (G + shift * MatX::Identity(3 * na, 3 * na)).inverse();
   // The path: the step's operator; every active contact sticking with its Woodbury
   // preconditioner (PCG), with sliding contacts GMRES with the reduced preconditioner.

@@ -58,8 +58,13 @@ class ContactStageDerivative {
                                      const std::vector<ParameterId>& parameters, const VecX& bar_mu, VecX& bar_p);
 
   const NcpDerivative& ncp() const { return ncp_; }
-  // The operator path's power iteration for the scale L (ncp().scale()) of the last prepare.
+  // The operator path's power iteration for the scale L (ncp().scale()) of the last
+  // prepare where every active contact sticks (default-constructed otherwise: then L is
+  // the sampled largest diagonal entry of G_AA).
   const PowerIteration& scale_iteration() const { return scale_; }
+  // How many active contacts the mixed path's scale samples (docs/method.md "The
+  // derivative's scale").
+  static constexpr int scale_sample_contacts = 32;
   // Contacts whose geometry derivative does not exist (taken as zero), and those whose
   // derivative is the randomized-smoothing estimate (model.contact.smoothing).
   int nondifferentiable_contacts() const { return nondifferentiable_; }
@@ -74,6 +79,8 @@ class ContactStageDerivative {
   PowerIteration scale_;         // operator path: the scale L's power iteration
   VecX scale_y_, scale_gy_;      //   its (3 na) iterate and product
   VecX scale_w_;                 //   (3n) A^{-1} H_A^T y of its last product: the next start
+  MatX sample_B_, sample_X_;     // mixed sets: (3n x 3 s) the sampled columns of H_A^T and A^{-1} times them
+  bool sampled_max_diagonal(integrator::LinearSolver& solver, double h, double& L);
   VecX op_u_, op_w_;             // operator path: (3n) scratch of the products with G_AA
   SparseDelassus shifted_;       // operator path: (G_AA + c I)^{-1}, the preconditioner
   int nondifferentiable_ = 0, smoothed_ = 0;

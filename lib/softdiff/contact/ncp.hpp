@@ -74,10 +74,12 @@ struct NcpOptions {
   // tests/bench BM_MixedDerivative, the dense G_AA faster at 36 active contacts, the
   // operator at 64 (docs/performance.md "The mixed derivative's crossover").
   int derivative_mixed_dense_max_active = 40;
-  // The scale L of the operator path's force rows and preconditioner shift: the largest
-  // eigenvalue of G_AA by power iteration (mode_system.hpp power_iteration), stopped when
-  // two successive estimates differ by at most derivative_scale_tolerance relative;
-  // not within derivative_scale_max_iterations products: ComputationError.
+  // The scale L of the operator path's preconditioner shift where every active contact
+  // sticks: the largest eigenvalue of G_AA by power iteration (mode_system.hpp
+  // power_iteration), stopped when two successive estimates differ by at most
+  // derivative_scale_tolerance relative; not within derivative_scale_max_iterations
+  // products: ComputationError. (Mixed sets: the sampled largest diagonal entry of G_AA,
+  // contact_step_derivatives.cpp.)
   double derivative_scale_tolerance = 1e-3;
   int derivative_scale_max_iterations = 50;
   NcpBackend backend = NcpBackend::automatic;
