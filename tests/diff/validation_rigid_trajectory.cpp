@@ -5,7 +5,7 @@
 // spinning about a non-principal axis (gyroscopic term), a hinge pendulum and a slider
 // that reaches its limit and rests on it, beside a small clamped soft beam; with respect
 // to the rigid initial states (x0, v0 restricted to rigid directions) and the rigid
-// bodies' mass and inertia. Soft parameters have zero rigid rows and rigid parameters
+// bodies' mass and inertia; and the adjoint against the forward mode. Soft parameters have zero rigid rows and rigid parameters
 // zero soft rows (no contact couples them).
 //
 // Steps: 1e-6 on initial states of size ~1 (m, rad, m/s, rad/s) and 1e-6 times a
@@ -22,6 +22,8 @@
 #include <support/model_builder.hpp>
 
 #include <gtest/gtest.h>
+
+#include <random>
 
 using namespace softdiff;
 
@@ -163,6 +165,51 @@ TEST(RigidTrajectory, JacobianRowsAgainstWholeRuns) {
     EXPECT_LE(scale * (av - fdv).norm(), tol * std::max(scale * fdv.norm(), 1.0))
         << what << "\nanalytic " << av.transpose() << "\nfd       " << fdv.transpose();
   }
+}
+
+// The adjoint (reverse sweep through the rigid bodies' step Jacobians) against the forward
+// sensitivities for l = a.x_T + b.v_T + c.(rigid rows of frame T) with random a, b, c,
+// every theta column: the same products in another order, so to round-off (1e-9 relative).
+TEST(RigidTrajectory, AdjointMatchesForward) {
+  const Model model = scene();
+  const Eigen::Index n3 = 3L * model.fem.num_nodes, nr = static_cast<Eigen::Index>(model.rigid.size());
+  diff::ThetaLayout theta;
+  theta.parameters.push_back({Parameter::young, 0});
+  theta.x0 = theta.v0 = true;  // every coordinate, soft and rigid
+  for (int r = 0; r < nr; ++r)
+    for (int k = 0; k < rigid::kRigidParameters; ++k) theta.rigid_parameters.push_back({r, k});
+  Data data(model);
+  State final;
+  MatX dx, dv;
+  ASSERT_TRUE(diff::forward_sensitivities(model, data, model.initial, kSteps, theta, final, dx, dv).ok());
+  std::mt19937 rng(2112);
+  std::normal_distribution<double> nd;
+  VecX a(n3), b(n3), c(12 * nr);
+  for (auto* v : {&a, &b, &c})
+    for (Eigen::Index i = 0; i < v->size(); ++i) (*v)[i] = nd(rng);
+  VecX forward = dx.topRows(n3).transpose() * a + dv.topRows(n3).transpose() * b;
+  for (Eigen::Index r = 0; r < nr; ++r)
+    forward += dx.middleRows(n3 + 6 * r, 6).transpose() * c.segment<6>(12 * r) +
+               dv.middleRows(n3 + 6 * r, 6).transpose() * c.segment<6>(12 * r + 6);
+
+  Data data2(model);
+  diff::Tape tape;
+  ASSERT_TRUE(diff::record(model, data2, model.initial, kSteps, tape).ok());
+  diff::AdjointResult result;
+  const auto loss = [&](long k, const State&, VecX& bx, VecX& bv) {
+    if (k != kSteps) return;
+    bx += a;
+    bv += b;
+  };
+  const auto rigid_loss = [&](long k, const State&, VecX& br) {
+    if (k == kSteps) br += c;
+  };
+  ASSERT_TRUE(diff::adjoint(model, data2, tape, theta, loss, result, rigid_loss).ok());
+  ASSERT_EQ(result.theta.size(), forward.size());
+  ASSERT_EQ(result.rigid0.size(), 12 * nr);
+  EXPECT_LE((result.theta - forward).norm(), 1e-9 * forward.norm());
+  // The rigid parameters' entries are not zero (the loss sees the rigid states).
+  EXPECT_GT(result.theta.tail(7 * nr).norm(), 0.0);
 }
 
 }  // namespace rigid_trajectory_test

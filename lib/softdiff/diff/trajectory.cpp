@@ -138,9 +138,19 @@ bool ForwardSensitivity::advance(const Model& model, const Data& data, const Sta
       previous_.x.resize(0);
       previous_.v.resize(0);
     }
-    if (!integrator::multistep_jvp(*step_, model, data, out, t_, previous_, r_)) return false;
-    next_dx_.col(c).head(n3) = r_.x;
-    next_dv_.col(c).head(n3) = r_.v;
+    // A column with no soft input (a rigid body's parameter or initial state while no
+    // contact couples the bodies) keeps zero soft rows: the step's JVP is linear, so its
+    // solve is skipped.
+    const bool soft_zero = c >= np + na && t_.x.isZero(0) && t_.v.isZero(0) &&
+                           (!multistep || (previous_.x.isZero(0) && previous_.v.isZero(0)));
+    if (soft_zero) {
+      next_dx_.col(c).head(n3).setZero();
+      next_dv_.col(c).head(n3).setZero();
+    } else {
+      if (!integrator::multistep_jvp(*step_, model, data, out, t_, previous_, r_)) return false;
+      next_dx_.col(c).head(n3) = r_.x;
+      next_dv_.col(c).head(n3) = r_.v;
+    }
     // The rigid rows: d out = J_state d in (+ J_params e_k for a rigid parameter column).
     for (Eigen::Index r = 0; r < nr; ++r) {
       const Eigen::Index row = n3 + 6 * r;
@@ -220,12 +230,20 @@ StepStatus record(const Model& model, Data& data, const State& initial, long ste
 }
 
 StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const ThetaLayout& theta,
-                   const LossCotangent& loss, AdjointResult& result) {
+                   const LossCotangent& loss, AdjointResult& result, const RigidLossCotangent& rigid_loss) {
   const long T = tape.steps();
   SOFTDIFF_DEMAND(T >= 0 && static_cast<long>(tape.lambda_a.size()) == T, "adjoint: the tape is inconsistent");
   const Eigen::Index n = num_dofs(model), np = theta.actuation_offset(), na = num_actuators(model);
-  SOFTDIFF_DEMAND(model.rigid.empty() || (!theta.x0 && !theta.v0 && theta.rigid_parameters.empty()),
-                  "adjoint: the reverse sweep over rigid states is not implemented (issue 21): forward sensitivities only");
+  const Eigen::Index nr = static_cast<Eigen::Index>(model.rigid.size());
+  const Eigen::Index rp0 = theta.rigid_parameter_offset(model);
+  for (const auto& p : theta.rigid_parameters)
+    SOFTDIFF_DEMAND(p.body >= 0 && p.body < nr && p.index >= 0 && p.index < rigid::kRigidParameters,
+                    "rigid parameter: no such body or index");
+  // The rigid bodies' cotangents (12 per body) and each step's Jacobian of one body.
+  VecX bar_rigid = VecX::Zero(12 * nr);
+  rigid::StepJacobian rigid_J;
+  rigid::Vec12 rigid_bar_in;
+  rigid::Vec7 rigid_bar_p;
   integrator::StepDerivatives derivatives(model, theta.parameters);
   result.theta = VecX::Zero(theta.size(model));
   result.lambda_a = MatX::Zero(na, T);
@@ -233,6 +251,7 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
   bar.x = VecX::Zero(n);
   bar.v = VecX::Zero(n);
   if (loss) loss(T, tape.frames[static_cast<std::size_t>(T)], bar.x, bar.v);
+  if (rigid_loss && nr) rigid_loss(T, tape.frames[static_cast<std::size_t>(T)], bar_rigid);
   integrator::StepCotangent cot;
   // BDF2: step s depends on frames s-1 and s-2; `pending` holds the cotangent of frame
   // s-1 that step s+1 sent back through its history (zero for implicit Euler).
@@ -264,16 +283,37 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
     bar.v = cot.v + pending.v;
     pending.x = bar_previous.x;
     pending.v = bar_previous.v;
+    // The rigid bodies: bar_in = J_state^T bar_out, bar_params += J_params^T bar_out.
+    for (Eigen::Index r = 0; r < nr; ++r) {
+      const auto i = static_cast<std::size_t>(r);
+      rigid::step_jacobian(model.rigid[i], in.rigid[i], out.rigid[i], data.rigid[i], model.step.dt, model.step.gravity,
+                           Vec3::Zero(), Vec3::Zero(), rigid_J);
+      rigid::step_vjp(rigid_J, bar_rigid.segment<12>(12 * r), rigid_bar_in, rigid_bar_p);
+      bar_rigid.segment<12>(12 * r) = rigid_bar_in;
+      for (std::size_t j = 0; j < theta.rigid_parameters.size(); ++j)
+        if (theta.rigid_parameters[j].body == r)
+          result.theta[rp0 + static_cast<Eigen::Index>(j)] += rigid_bar_p[theta.rigid_parameters[j].index];
+    }
     if (loss) loss(step - 1, in, bar.x, bar.v);
+    if (rigid_loss && nr) rigid_loss(step - 1, in, bar_rigid);
   }
   result.x0 = bar.x;
   result.v0 = bar.v;
+  result.rigid0 = bar_rigid;
+  // x0, v0 with rigid bodies: the soft coordinates, then 6 per rigid body.
+  VecX full_x(n + 6 * nr), full_v(n + 6 * nr);
+  full_x.head(n) = bar.x;
+  full_v.head(n) = bar.v;
+  for (Eigen::Index r = 0; r < nr; ++r) {
+    full_x.segment<6>(n + 6 * r) = bar_rigid.segment<6>(12 * r);
+    full_v.segment<6>(n + 6 * r) = bar_rigid.segment<6>(12 * r + 6);
+  }
   if (theta.x0)
     result.theta.segment(theta.x0_offset(model), basis_columns(true, theta.x0_basis, model)) =
-        theta.x0_basis.size() ? VecX(theta.x0_basis.transpose() * bar.x) : bar.x;
+        theta.x0_basis.size() ? VecX(theta.x0_basis.transpose() * full_x) : full_x;
   if (theta.v0)
     result.theta.segment(theta.v0_offset(model), basis_columns(true, theta.v0_basis, model)) =
-        theta.v0_basis.size() ? VecX(theta.v0_basis.transpose() * bar.v) : bar.v;
+        theta.v0_basis.size() ? VecX(theta.v0_basis.transpose() * full_v) : full_v;
   return {};
 }
 

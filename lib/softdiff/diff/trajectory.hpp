@@ -15,7 +15,7 @@
 // body (dx: position, rotation vector; dv: velocity, angular velocity): output.md's
 // /jacobians rows. The rigid rows are propagated by each body's 12 x 12 step Jacobian
 // (rigid/rigid_derivatives.hpp), decoupled from the soft bodies while no contact
-// couples them; forward mode only (adjoint() demands no rigid columns).
+// couples them; the adjoint maps their cotangents back by the transposes.
 // Per-step actuation values (the whole sequence lambda_a(t_1..t_T)) are inputs of the
 // reverse mode (adjoint()), which returns their gradient step by step.
 //
@@ -130,11 +130,16 @@ StepStatus record(const Model& model, Data& data, const State& initial, long ste
 // propagated back from the later frames, zero at k = T). For a loss of the final
 // state only, return early for k < T.
 using LossCotangent = std::function<void(long k, const State& s, VecX& bar_x, VecX& bar_v)>;
+// The same for the rigid bodies' states (issue 21): ADD dl/d(rigid state of frame k) into
+// bar_rigid (12 per rigid body in scene order: position, rotation vector in world axes,
+// velocity, angular velocity; the tangent of rigid/rigid_derivatives.hpp).
+using RigidLossCotangent = std::function<void(long k, const State& s, VecX& bar_rigid)>;
 
 struct AdjointResult {
   VecX theta;          // dl/d theta (theta.size())
   MatX lambda_a;       // (n_a x T) dl/d lambda_a of every step
   VecX x0, v0;         // dl/dx_0, dl/dv_0 (3n), whether or not theta includes them
+  VecX rigid0;         // dl/d(rigid initial states) (12 per rigid body, as RigidLossCotangent)
   // The largest |x|, |v| difference between a recomputed step and the tape's frame:
   // 0 when the sweep recomputes the recorded run bit for bit (it should).
   double recompute_mismatch = 0;
@@ -142,7 +147,10 @@ struct AdjointResult {
 
 // The reverse sweep over a recorded trajectory. Uses data as the workspace of the
 // recomputed steps.
+// With rigid bodies each step's VJP also maps the rigid cotangents back by the bodies'
+// step Jacobians (rigid/rigid_derivatives.hpp), adding the rigid parameters' gradients;
+// rigid_loss (optional) gives the loss's rigid cotangents.
 StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const ThetaLayout& theta,
-                   const LossCotangent& loss, AdjointResult& result);
+                   const LossCotangent& loss, AdjointResult& result, const RigidLossCotangent& rigid_loss = {});
 
 }  // namespace softdiff::diff
