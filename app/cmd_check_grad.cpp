@@ -14,6 +14,7 @@
 #include <softdiff/integrator/static_solver_derivatives.hpp>
 #include <softdiff/io/build_model.hpp>
 #include <softdiff/io/scene.hpp>
+#include <softdiff/rigid/rigid_derivatives.hpp>
 
 #include <softdiff/core/threads.hpp>
 
@@ -27,9 +28,34 @@ namespace softdiff::app {
 
 namespace {
 
-// x_N and v_N stacked (6n) after `steps` steps of `model` from `initial`; each step
-// (load step) advances `progress`.
-VecX run(const Model& model, const State& initial, long steps, Progress& progress) {
+// The rows of J for a state: x (3n), then per rigid body its position and the rotation
+// vector (world axes) of its orientation relative to `reference`'s, then v (3n), then per
+// rigid body its velocity and angular velocity. (Central differences of these rows are
+// the derivatives of the tangent rows forward sensitivities carry: the rotation vector
+// of exp(dtheta) q_ref relative to q_ref is dtheta.)
+VecX stack(const State& s, const State* reference) {
+  const Eigen::Index n3 = s.x.size(), nr = static_cast<Eigen::Index>(s.rigid.size());
+  VecX y(2 * (n3 + 6 * nr));
+  y.head(n3) = s.x;
+  y.segment(n3 + 6 * nr, n3) = s.v.size() ? s.v : VecX::Zero(n3);
+  for (Eigen::Index r = 0; r < nr; ++r) {
+    const auto& b = s.rigid[static_cast<std::size_t>(r)];
+    rigid::RigidState base = b;
+    base.orientation = reference ? reference->rigid[static_cast<std::size_t>(r)].orientation : b.orientation;
+    base.position.setZero();
+    base.velocity.setZero();
+    base.angular_velocity.setZero();
+    const rigid::Vec12 t = rigid::tangent_between(base, b);
+    y.segment<6>(n3 + 6 * r) = t.head<6>();
+    y.segment<6>(2 * n3 + 6 * nr + 6 * r) = t.tail<6>();
+  }
+  return y;
+}
+
+// x_N and v_N stacked (6n; with rigid bodies see stack()) after `steps` steps of `model`
+// from `initial`; each step (load step) advances `progress`. reference: the state whose
+// orientations the rigid rows are measured from (the analytic run's final state).
+VecX run(const Model& model, const State& initial, long steps, Progress& progress, const State* reference = nullptr) {
   Data data(model);
   State s = initial, next = initial;
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
@@ -38,7 +64,7 @@ VecX run(const Model& model, const State& initial, long steps, Progress& progres
     if (!st.ok()) throw ComputationError("a finite-difference run failed: " + describe(model, st));
     VecX y = VecX::Zero(2 * next.x.size());
     y.head(next.x.size()) = next.x;
-    return y;
+    return y;  // (no rigid bodies in a static scene)
   }
   State previous;  // BDF2's history
   for (long k = 1; k <= steps; ++k) {
@@ -49,6 +75,7 @@ VecX run(const Model& model, const State& initial, long steps, Progress& progres
     std::swap(s, next);
     progress.advance();
   }
+  if (!s.rigid.empty()) return stack(s, reference);
   VecX y(2 * s.x.size());
   y << s.x, s.v;
   return y;
@@ -67,9 +94,17 @@ double mean_edge_length(const Model& model) {
 }
 
 std::string row_name(const Model& model, Eigen::Index row) {
-  const Eigen::Index n3 = 3L * model.fem.num_nodes;
-  const bool velocity = row >= n3;
-  const Eigen::Index dof = velocity ? row - n3 : row;
+  const Eigen::Index n3 = 3L * model.fem.num_nodes, n6 = 6L * static_cast<Eigen::Index>(model.rigid.size());
+  const bool velocity = row >= n3 + n6;
+  if (velocity) row -= n3 + n6;
+  if (row >= n3) {  // a rigid body's row: position, rotation vector / velocity, angular velocity
+    static const char* x_rows[6] = {"x", "y", "z", "rx", "ry", "rz"};
+    static const char* v_rows[6] = {"vx", "vy", "vz", "wx", "wy", "wz"};
+    const Eigen::Index k = row - n3;
+    return std::string(velocity ? "v" : "x") + "[" + model.rigid[static_cast<std::size_t>(k / 6)].name + "]." +
+           (velocity ? v_rows : x_rows)[k % 6];
+  }
+  const Eigen::Index dof = row;
   const int node = static_cast<int>(dof / 3);
   std::string body = "?";
   int local = node;
@@ -93,7 +128,7 @@ void add_check_grad(CLI::App& app, CheckGradOptions& o) {
   app.add_option("scene", o.scene, "Scene file (YAML, docs/scene.md)")->required()->check(CLI::ExistingFile);
   app.add_option("--wrt", o.wrt,
                  "Blocks to check, comma-separated: young, poisson, density, rayleigh_mass, rayleigh_stiffness, "
-                 "actuation, x0, v0 (default: all that apply)");
+                 "actuation, x0, v0, mass, inertia (rigid bodies) (default: all that apply)");
   app.add_option("--steps", o.steps, "Steps of the checked trajectory")->capture_default_str()->check(positive_integer());
   app.add_option("--eps", o.eps,
                  "Relative finite-difference step (times each theta's scale, docs/cli.md)")
@@ -117,7 +152,6 @@ int run_check_grad(const CheckGradOptions& o) {
   io::BuildReport report;
   Model model = io::build_model(scene, &report);
   for (const auto& w : report.warnings) warn(w);
-  demand_no_rigid_bodies("check-grad", model);
   const bool is_static = model.step.integrator == IntegratorKind::static_equilibrium;
   // Finite differences of the equilibrium need it to round-off: the residual criterion
   // (static.tolerance), never the answer criterion's earlier stop (method.md).
@@ -129,20 +163,23 @@ int run_check_grad(const CheckGradOptions& o) {
     if (!model.actuation.empty()) wrt += ",actuation";
     if (model.contact.enabled) wrt += ",friction";
     if (!is_static) wrt += ",x0,v0";
+    if (!model.rigid.empty()) wrt += ",mass,inertia";
   }
   ThetaSelection sel = parse_theta("--wrt", wrt, model);
-  const Eigen::Index n3 = 3L * model.fem.num_nodes;
-  // x0 and v0: random directions (max entry 1), seeded.
+  const Eigen::Index n3 = 3L * model.fem.num_nodes, nr = static_cast<Eigen::Index>(model.rigid.size());
+  // x0 and v0: random directions (max entry 1), seeded; with rigid bodies they also move
+  // each rigid body's initial state (6 entries each: see stack()).
   std::mt19937 rng(20261201);
   std::uniform_real_distribution<double> u(-1, 1);
   auto directions = [&]() {
-    MatX D(n3, o.directions);
+    MatX D(n3 + 6 * nr, o.directions);
     for (Eigen::Index c = 0; c < D.cols(); ++c) {
-      for (Eigen::Index r = 0; r < n3; ++r) D(r, c) = u(rng);
+      for (Eigen::Index r = 0; r < D.rows(); ++r) D(r, c) = u(rng);
       D.col(c) /= D.col(c).cwiseAbs().maxCoeff();
     }
     return D;
   };
+  const Eigen::Index rigid_offset_all = sel.layout.rigid_parameter_offset(model);  // before the bases
   if (sel.layout.x0) sel.layout.x0_basis = directions();
   if (sel.layout.v0) sel.layout.v0_basis = directions();
   for (auto& g : sel.groups)
@@ -151,6 +188,8 @@ int run_check_grad(const CheckGradOptions& o) {
       g.size = o.directions;
       g.columns.clear();
       for (int k = 0; k < o.directions; ++k) g.columns.push_back(g.name + " direction " + std::to_string(k));
+    } else if (g.name == "mass" || g.name == "inertia") {  // after x0, v0: they moved with the bases
+      g.offset += sel.layout.rigid_parameter_offset(model) - rigid_offset_all;
     }
 
   // Progress on a terminal, in steps (load steps) over every run: the analytic one,
@@ -173,7 +212,7 @@ int run_check_grad(const CheckGradOptions& o) {
     if (!st.ok()) throw ComputationError("the analytic run failed: " + describe(model, st));
     progress.advance(o.steps);
   }
-  MatX J(2 * n3, dx.cols());
+  MatX J(2 * dx.rows(), dx.cols());
   J << dx, dv;
 
   // Finite differences, column by column.
@@ -181,10 +220,12 @@ int run_check_grad(const CheckGradOptions& o) {
   MatX J_fd(J.rows(), J.cols());
   // Round-off of each finite-difference column: the runs' outputs carry ~1e-14 of their
   // size (measured: cond(A) eps over a few steps), divided by the step 2e.
-  const double output_size = std::sqrt(final.x.squaredNorm() + final.v.squaredNorm());  // the analytic run's
+  const double output_size = stack(final, nullptr).norm();  // the analytic run's
   VecX noise(J.cols());
   const Eigen::Index np = sel.layout.actuation_offset();
   const Eigen::Index na = sel.layout.actuation ? static_cast<Eigen::Index>(model.actuation.actuators.size()) : 0;
+  const Eigen::Index rp0 = sel.layout.rigid_parameter_offset(model);
+  const State* ref = nr ? &final : nullptr;  // the rigid rows' orientations are measured from the analytic run's
   for (Eigen::Index c = 0; c < J.cols(); ++c) {
     Model mp = model, mm = model;
     State sp = model.initial, sm = model.initial;
@@ -206,8 +247,8 @@ int run_check_grad(const CheckGradOptions& o) {
         diff::set_parameter(mp, id, value + e);
         diff::set_parameter(m2, id, value + 2 * e);
         progress.set_total(progress.total() + run_steps);
-        J_fd.col(c) = (-3 * run(model, sp, o.steps, progress) + 4 * run(mp, sp, o.steps, progress) -
-                       run(m2, sp, o.steps, progress)) / (2 * e);
+        J_fd.col(c) = (-3 * run(model, sp, o.steps, progress, ref) + 4 * run(mp, sp, o.steps, progress, ref) -
+                       run(m2, sp, o.steps, progress, ref)) / (2 * e);
         noise[c] = 1e-14 * output_size / (2 * e);
         continue;
       }
@@ -221,6 +262,15 @@ int run_check_grad(const CheckGradOptions& o) {
       e = o.eps * scale;
       diff::offset_actuator(mp, a, e);
       diff::offset_actuator(mm, a, -e);
+    } else if (c >= rp0) {
+      // A rigid body's mass (scale: its value) or inertia component (scale: the trace / 3,
+      // the off-diagonal components being 0 or small): eps times it.
+      const auto& p = sel.layout.rigid_parameters[static_cast<std::size_t>(c - rp0)];
+      auto& body = model.rigid[static_cast<std::size_t>(p.body)];
+      const double value = rigid::get_parameter(body, p.index);
+      e = o.eps * (p.index == 0 ? std::abs(value) : body.inertia.trace() / 3);
+      rigid::set_parameter(mp.rigid[static_cast<std::size_t>(p.body)], p.index, value + e);
+      rigid::set_parameter(mm.rigid[static_cast<std::size_t>(p.body)], p.index, value - e);
     } else {
       const bool is_x = sel.layout.x0 && c < sel.layout.v0_offset(model);
       const Eigen::Index k = c - (is_x ? sel.layout.x0_offset(model) : sel.layout.v0_offset(model));
@@ -230,10 +280,19 @@ int run_check_grad(const CheckGradOptions& o) {
       // tenth of L per step (the first step is affine in v0, so only round-off limits
       // it). Measured on the shipped beam, finger and trunk (docs/cli.md).
       e = o.eps * (is_x ? 0.01 * edge : 0.1 * edge / h);
-      (is_x ? sp.x : sp.v) += e * d;
-      (is_x ? sm.x : sm.v) -= e * d;
+      // (Rigid bodies: the same steps on their 6 entries, a rotation by e dtheta in world axes.)
+      (is_x ? sp.x : sp.v) += e * d.head(n3);
+      (is_x ? sm.x : sm.v) -= e * d.head(n3);
+      for (Eigen::Index r = 0; r < nr; ++r) {
+        rigid::Vec12 t = rigid::Vec12::Zero();
+        t.segment<6>(is_x ? 0 : 6) = d.segment<6>(n3 + 6 * r);
+        auto& bp = sp.rigid[static_cast<std::size_t>(r)];
+        auto& bm = sm.rigid[static_cast<std::size_t>(r)];
+        bp = rigid::retract(bp, t, e);
+        bm = rigid::retract(bm, t, -e);
+      }
     }
-    J_fd.col(c) = (run(mp, sp, o.steps, progress) - run(mm, sm, o.steps, progress)) / (2 * e);
+    J_fd.col(c) = (run(mp, sp, o.steps, progress, ref) - run(mm, sm, o.steps, progress, ref)) / (2 * e);
     noise[c] = 1e-14 * output_size / (2 * e);
   }
 

@@ -84,6 +84,10 @@ std::string fmt_ms(double seconds, long steps) {
 std::string jacobian_units(const Model& model, const ThetaGroup& g) {
   if (g.name == "x0") return "1";
   if (g.name == "v0") return "s";
+  // Rigid parameters (issue 21): per kg, per kg m^2 (a rigid body's rotation rows: rad
+  // per the same, docs/output.md).
+  if (g.name == "mass") return "m/kg";
+  if (g.name == "inertia") return "1/(kg m)";
   if (g.name == "actuation") {
     std::vector<std::string> units;
     for (const auto& a : model.actuation.actuators) units.push_back(position_per(actuator_value_unit(a)));
@@ -110,7 +114,7 @@ void add_simulate(CLI::App& app, SimulateOptions& o) {
   app.add_option("--set", o.set, "Override a scene value: KEY=VALUE, e.g. bodies.beam.material.young=2e5 (repeatable)");
   app.add_option("--jacobian", o.jacobian,
                  "Write d x_T / d theta to /jacobians/<theta> for these theta (comma-separated: young, poisson, density, "
-                 "rayleigh_mass, rayleigh_stiffness, actuation, x0, v0), by forward sensitivities");
+                 "rayleigh_mass, rayleigh_stiffness, actuation, x0, v0; rigid bodies: mass, inertia), by forward sensitivities");
   app.add_option("--threads", o.threads, "OpenMP threads (default: all cores)")->check(CLI::NonNegativeNumber);
   app.add_flag("--strict", o.strict, "Treat a solver that does not reach its tolerance as an error (exit 1), and a body of implausible size or mass as bad input (exit 2)");
   app.add_flag("--quiet", o.quiet, "No progress bar, no summary");

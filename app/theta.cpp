@@ -13,7 +13,11 @@ namespace {
 
 
 void demand_differentiable(const std::string& option, const Model& model) {
-  demand_no_rigid_bodies(option, model);
+  // Issue 21, item 4: the rigid step is differentiated (forward mode) while no contact
+  // couples the rigid bodies; derivatives through contact with rigid bodies are not yet.
+  if (!model.rigid.empty() && model.contact.enabled)
+    throw InputError(option + ": derivatives of a scene with contact and rigid bodies are not supported yet (issue 21; "
+                              "rigid body '" + model.rigid.front().name + "')");
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
     for (const auto& b : model.fem.bodies)
       if (b.psd_projection)
@@ -43,7 +47,7 @@ void demand_no_rigid_bodies(const std::string& what, const Model& model) {
 
 ThetaSelection parse_theta(const std::string& option, const std::string& list, const Model& model) {
   const std::vector<std::string> names = split_list(list);
-  const std::string valid = "young, poisson, density, rayleigh_mass, rayleigh_stiffness, actuation, x0, v0";
+  const std::string valid = "young, poisson, density, rayleigh_mass, rayleigh_stiffness, actuation, x0, v0, mass, inertia";
   if (names.empty()) throw InputError(option + ": expected a comma-separated list of " + valid + "; got nothing");
   for (std::size_t i = 0; i < names.size(); ++i) {
     if (names[i].empty()) throw InputError(option + " " + list + ": empty name in the list (expected " + valid + ")");
@@ -66,6 +70,10 @@ ThetaSelection parse_theta(const std::string& option, const std::string& list, c
       sel.layout.x0 = true;
     } else if (n == "v0") {
       sel.layout.v0 = true;
+    } else if (n == "mass" || n == "inertia") {
+      // Rigid bodies' parameters (issue 21): mass, one column per rigid body; inertia, six
+      // per rigid body (body axes: xx, yy, zz, xy, xz, yz); their columns come last.
+      if (model.rigid.empty()) throw InputError(option + ": '" + n + "' needs rigid bodies, and this scene has none");
     } else if (const auto p = parse_parameter(n)) {
       if (*p == Parameter::friction) {
         // One column per contact pair rule (its coefficient).
@@ -81,6 +89,17 @@ ThetaSelection parse_theta(const std::string& option, const std::string& list, c
       throw InputError(option + " " + list + ": unknown name '" + n + "' (expected one of " + valid + ")");
     }
   }
+  const int nr = static_cast<int>(model.rigid.size());
+  std::vector<std::string> rigid_given;
+  for (const auto& n : names)
+    if (n == "mass" || n == "inertia") {
+      for (int r = 0; r < nr; ++r)
+        if (n == "mass")
+          sel.layout.rigid_parameters.push_back({r, 0});
+        else
+          for (int k = 1; k < rigid::kRigidParameters; ++k) sel.layout.rigid_parameters.push_back({r, k});
+      rigid_given.push_back(n);
+    }
   const Eigen::Index nb = static_cast<Eigen::Index>(model.fem.bodies.size());
   const Eigen::Index n3 = 3L * model.fem.num_nodes;
   for (const auto& n : names) {
@@ -92,8 +111,24 @@ ThetaSelection parse_theta(const std::string& option, const std::string& list, c
       for (const auto& a : model.actuation.actuators) g.columns.push_back("actuation[" + a.name + "]");
     } else if (n == "x0" || n == "v0") {
       g.offset = n == "x0" ? sel.layout.x0_offset(model) : sel.layout.v0_offset(model);
-      g.size = n3;
+      g.size = n3 + 6L * nr;
       for (Eigen::Index k = 0; k < n3; ++k) g.columns.push_back(n + "[" + std::to_string(k) + "]");
+      // Rigid bodies: position and rotation vector (x0), velocity and angular velocity (v0).
+      static const char* x_rows[6] = {"x", "y", "z", "rx", "ry", "rz"};
+      static const char* v_rows[6] = {"vx", "vy", "vz", "wx", "wy", "wz"};
+      for (const auto& r : model.rigid)
+        for (int k = 0; k < 6; ++k) g.columns.push_back(n + "[" + r.name + "]." + (n == "x0" ? x_rows : v_rows)[k]);
+    } else if (n == "mass" || n == "inertia") {
+      g.offset = sel.layout.rigid_parameter_offset(model);
+      for (const auto& before : rigid_given) {
+        if (before == n) break;
+        g.offset += before == "mass" ? nr : 6L * nr;
+      }
+      g.size = n == "mass" ? nr : 6L * nr;
+      const auto all = sel.layout.column_names(model);
+      const Eigen::Index first_rigid = static_cast<Eigen::Index>(all.size()) - static_cast<Eigen::Index>(sel.layout.rigid_parameters.size());
+      for (Eigen::Index k = 0; k < g.size; ++k)
+        g.columns.push_back(all[static_cast<std::size_t>(first_rigid + g.offset - sel.layout.rigid_parameter_offset(model) + k)]);
     } else {
       // The parameters' columns, in the order given: friction has one per pair rule.
       const auto columns_of = [&](const std::string& name) {

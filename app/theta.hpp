@@ -2,7 +2,9 @@
 // The theta lists of `simulate --jacobian` and `check-grad --wrt` (docs/cli.md):
 // comma-separated names among young, poisson, density, rayleigh_mass,
 // rayleigh_stiffness (one column per body, in body order), actuation (one column per
-// actuator: a constant offset of its value), x0, v0 (3 n_total columns each).
+// actuator: a constant offset of its value), x0, v0 (3 n_total columns each, then 6 per
+// rigid body), mass (one column per rigid body) and inertia (six per rigid body: xx, yy,
+// zz, xy, xz, yz in body axes), issue 21.
 #include <softdiff/diff/trajectory.hpp>
 #include <softdiff/model.hpp>
 
@@ -27,9 +29,10 @@ struct ThetaSelection {
 // actuators, or a scene whose step is not differentiated (newton_iterations > 1 with
 // psd_projection; a static scene with psd_projection, a pressure cavity or a rotation
 // servo; x0, v0 for a static scene), naming the option.
-// Issue 21, increment 1: the step of a scene with rigid bodies is not differentiated
-// yet. InputError "<what>: derivatives with rigid bodies are not supported yet (issue 21; ...)".
-// parse_theta calls it; commands that check other things first call it themselves.
+// Issue 21: the reverse mode (calibrate, control) does not cover rigid bodies yet.
+// InputError "<what>: derivatives with rigid bodies are not supported yet (issue 21; ...)".
+// calibrate and control call it; parse_theta refuses only a scene with contact and
+// rigid bodies (derivatives through contact with rigid bodies: a later increment).
 void demand_no_rigid_bodies(const std::string& what, const Model& model);
 
 ThetaSelection parse_theta(const std::string& option, const std::string& list, const Model& model);

@@ -176,10 +176,6 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null",
        "integrator 'static' with rigid bodies is not supported yet (issue 21"},
-      {"jacobian", beam_and_sphere(), "simulate scene.yaml -o out.h5 --jacobian young",
-       "--jacobian: derivatives with rigid bodies are not supported yet (issue 21; rigid body 'ball')"},
-      {"check_grad", beam_and_sphere(), "check-grad scene.yaml",
-       "check-grad: derivatives with rigid bodies are not supported yet (issue 21"},
       {"calibrate", beam_and_sphere(), "calibrate scene.yaml --param young --target target.h5 -o out.h5",
        "calibrate: derivatives with rigid bodies are not supported yet (issue 21"},
       {"control", beam_and_sphere(), "control scene.yaml --target 0,0,0 -o out.h5",

@@ -13,6 +13,8 @@ namespace {
 
 Eigen::Index num_actuators(const Model& model) { return static_cast<Eigen::Index>(model.actuation.actuators.size()); }
 Eigen::Index num_dofs(const Model& model) { return 3L * model.fem.num_nodes; }
+// Rows of a sensitivity (and columns of x0, v0): the soft coordinates, then 6 per rigid body.
+Eigen::Index num_rows(const Model& model) { return num_dofs(model) + 6L * static_cast<Eigen::Index>(model.rigid.size()); }
 
 StepStatus derivative_failed(long k) {
   StepStatus s;
@@ -26,7 +28,7 @@ StepStatus derivative_failed(long k) {
 
 namespace {
 Eigen::Index basis_columns(bool on, const MatX& basis, const Model& model) {
-  return !on ? 0 : basis.size() ? basis.cols() : num_dofs(model);
+  return !on ? 0 : basis.size() ? basis.cols() : num_rows(model);
 }
 void set_basis(MatX& block, const MatX& basis) {
   if (basis.size())
@@ -38,7 +40,8 @@ void set_basis(MatX& block, const MatX& basis) {
 
 Eigen::Index ThetaLayout::size(const Model& model) const {
   return static_cast<Eigen::Index>(parameters.size()) + (actuation ? num_actuators(model) : 0) +
-         basis_columns(x0, x0_basis, model) + basis_columns(v0, v0_basis, model);
+         basis_columns(x0, x0_basis, model) + basis_columns(v0, v0_basis, model) +
+         static_cast<Eigen::Index>(rigid_parameters.size());
 }
 
 Eigen::Index ThetaLayout::x0_offset(const Model& model) const {
@@ -47,6 +50,10 @@ Eigen::Index ThetaLayout::x0_offset(const Model& model) const {
 
 Eigen::Index ThetaLayout::v0_offset(const Model& model) const {
   return x0_offset(model) + basis_columns(x0, x0_basis, model);
+}
+
+Eigen::Index ThetaLayout::rigid_parameter_offset(const Model& model) const {
+  return v0_offset(model) + basis_columns(v0, v0_basis, model);
 }
 
 std::vector<std::string> ThetaLayout::column_names(const Model& model) const {
@@ -64,16 +71,27 @@ std::vector<std::string> ThetaLayout::column_names(const Model& model) const {
     for (const auto& a : model.actuation.actuators) names.push_back("actuation[" + a.name + "]");
   if (x0) names.emplace_back("x0");
   if (v0) names.emplace_back("v0");
+  for (const auto& p : rigid_parameters) {
+    const std::string full = rigid::rigid_parameter_name(p.index), body = model.rigid[static_cast<std::size_t>(p.body)].name;
+    const auto dot = full.find('.');
+    names.push_back(dot == std::string::npos ? full + "[" + body + "]"
+                                             : full.substr(0, dot) + "[" + body + "]" + full.substr(dot));
+  }
   return names;
 }
 
 ForwardSensitivity::ForwardSensitivity(const Model& model, ThetaLayout theta)
     : theta_(std::move(theta)), step_(std::make_unique<integrator::StepDerivatives>(model, theta_.parameters)) {
-  const Eigen::Index n = num_dofs(model), k = theta_.size(model);
+  const Eigen::Index n = num_rows(model), k = theta_.size(model);
+  rigid_jacobian_.resize(model.rigid.size());
+  for (const auto& p : theta_.rigid_parameters)
+    SOFTDIFF_DEMAND(p.body >= 0 && p.body < static_cast<int>(model.rigid.size()) && p.index >= 0 &&
+                        p.index < rigid::kRigidParameters,
+                    "rigid parameter: no such body or index");
   dx_ = MatX::Zero(n, k);
   dv_ = MatX::Zero(n, k);
   for (const MatX* basis : {&theta_.x0_basis, &theta_.v0_basis})
-    SOFTDIFF_DEMAND(basis->size() == 0 || basis->rows() == n, "x0/v0 basis: expected 3n rows");
+    SOFTDIFF_DEMAND(basis->size() == 0 || basis->rows() == n, "x0/v0 basis: expected 3n + 6 n_rigid rows");
   if (theta_.x0) {
     const Eigen::Index cols = basis_columns(true, theta_.x0_basis, model);
     MatX block(n, cols);
@@ -89,7 +107,14 @@ ForwardSensitivity::ForwardSensitivity(const Model& model, ThetaLayout theta)
 }
 
 bool ForwardSensitivity::advance(const Model& model, const Data& data, const State& in, const State& out) {
-  (void)in;  // the step's input as its derivative sees it is data.hat
+  // The soft step's input as its derivative sees it is data.hat; the rigid bodies' is in.rigid.
+  const Eigen::Index n3 = num_dofs(model), nr = static_cast<Eigen::Index>(model.rigid.size());
+  // Rigid bodies: each body's 12 x 12 (and 12 x 7) step Jacobian, once per step.
+  for (std::size_t r = 0; r < model.rigid.size(); ++r)
+    rigid::step_jacobian(model.rigid[r], in.rigid[r], out.rigid[r], data.rigid[r], model.step.dt, model.step.gravity,
+                         Vec3::Zero(), Vec3::Zero(), rigid_jacobian_[r]);
+  const Eigen::Index nrp = static_cast<Eigen::Index>(theta_.rigid_parameters.size());
+  const Eigen::Index rp0 = nrp ? theta_.rigid_parameter_offset(model) : 0;
   const Eigen::Index np = theta_.actuation_offset(), na = theta_.actuation ? num_actuators(model) : 0;
   // BDF2 (data.history_weight != 0): the step also depends on the previous state, whose
   // sensitivities are kept (one more pair of 3n x k matrices).
@@ -98,8 +123,8 @@ bool ForwardSensitivity::advance(const Model& model, const Data& data, const Sta
   next_dx_.resize(dx_.rows(), dx_.cols());
   next_dv_.resize(dv_.rows(), dv_.cols());
   for (Eigen::Index c = 0; c < dx_.cols(); ++c) {
-    t_.x = dx_.col(c);
-    t_.v = dv_.col(c);
+    t_.x = dx_.col(c).head(n3);
+    t_.v = dv_.col(c).head(n3);
     t_.p.resize(0);
     t_.lambda_a.resize(0);
     if (c < np)
@@ -107,15 +132,39 @@ bool ForwardSensitivity::advance(const Model& model, const Data& data, const Sta
     else if (c < np + na)
       t_.lambda_a = VecX::Unit(num_actuators(model), c - np);
     if (multistep) {
-      previous_.x = previous_dx_.col(c);
-      previous_.v = previous_dv_.col(c);
+      previous_.x = previous_dx_.col(c).head(n3);
+      previous_.v = previous_dv_.col(c).head(n3);
     } else {
       previous_.x.resize(0);
       previous_.v.resize(0);
     }
-    if (!integrator::multistep_jvp(*step_, model, data, out, t_, previous_, r_)) return false;
-    next_dx_.col(c) = r_.x;
-    next_dv_.col(c) = r_.v;
+    // A column with no soft input (a rigid body's parameter or initial state while no
+    // contact couples the bodies) keeps zero soft rows: the step's JVP is linear, so its
+    // solve is skipped.
+    const bool soft_zero = c >= np + na && t_.x.isZero(0) && t_.v.isZero(0) &&
+                           (!multistep || (previous_.x.isZero(0) && previous_.v.isZero(0)));
+    if (soft_zero) {
+      next_dx_.col(c).head(n3).setZero();
+      next_dv_.col(c).head(n3).setZero();
+    } else {
+      if (!integrator::multistep_jvp(*step_, model, data, out, t_, previous_, r_)) return false;
+      next_dx_.col(c).head(n3) = r_.x;
+      next_dv_.col(c).head(n3) = r_.v;
+    }
+    // The rigid rows: d out = J_state d in (+ J_params e_k for a rigid parameter column).
+    for (Eigen::Index r = 0; r < nr; ++r) {
+      const Eigen::Index row = n3 + 6 * r;
+      rigid::Vec12 d_in;
+      d_in << dx_.col(c).segment<6>(row), dv_.col(c).segment<6>(row);
+      const auto& J = rigid_jacobian_[static_cast<std::size_t>(r)];
+      rigid::Vec12 d_out = J.state * d_in;
+      if (c >= rp0 && c < rp0 + nrp) {
+        const auto& p = theta_.rigid_parameters[static_cast<std::size_t>(c - rp0)];
+        if (p.body == r) d_out += J.params.col(p.index);
+      }
+      next_dx_.col(c).segment<6>(row) = d_out.head<6>();
+      next_dv_.col(c).segment<6>(row) = d_out.tail<6>();
+    }
   }
   previous_dx_.swap(dx_);
   previous_dv_.swap(dv_);
@@ -181,10 +230,20 @@ StepStatus record(const Model& model, Data& data, const State& initial, long ste
 }
 
 StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const ThetaLayout& theta,
-                   const LossCotangent& loss, AdjointResult& result) {
+                   const LossCotangent& loss, AdjointResult& result, const RigidLossCotangent& rigid_loss) {
   const long T = tape.steps();
   SOFTDIFF_DEMAND(T >= 0 && static_cast<long>(tape.lambda_a.size()) == T, "adjoint: the tape is inconsistent");
   const Eigen::Index n = num_dofs(model), np = theta.actuation_offset(), na = num_actuators(model);
+  const Eigen::Index nr = static_cast<Eigen::Index>(model.rigid.size());
+  const Eigen::Index rp0 = theta.rigid_parameter_offset(model);
+  for (const auto& p : theta.rigid_parameters)
+    SOFTDIFF_DEMAND(p.body >= 0 && p.body < nr && p.index >= 0 && p.index < rigid::kRigidParameters,
+                    "rigid parameter: no such body or index");
+  // The rigid bodies' cotangents (12 per body) and each step's Jacobian of one body.
+  VecX bar_rigid = VecX::Zero(12 * nr);
+  rigid::StepJacobian rigid_J;
+  rigid::Vec12 rigid_bar_in;
+  rigid::Vec7 rigid_bar_p;
   integrator::StepDerivatives derivatives(model, theta.parameters);
   result.theta = VecX::Zero(theta.size(model));
   result.lambda_a = MatX::Zero(na, T);
@@ -192,6 +251,7 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
   bar.x = VecX::Zero(n);
   bar.v = VecX::Zero(n);
   if (loss) loss(T, tape.frames[static_cast<std::size_t>(T)], bar.x, bar.v);
+  if (rigid_loss && nr) rigid_loss(T, tape.frames[static_cast<std::size_t>(T)], bar_rigid);
   integrator::StepCotangent cot;
   // BDF2: step s depends on frames s-1 and s-2; `pending` holds the cotangent of frame
   // s-1 that step s+1 sent back through its history (zero for implicit Euler).
@@ -223,16 +283,37 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
     bar.v = cot.v + pending.v;
     pending.x = bar_previous.x;
     pending.v = bar_previous.v;
+    // The rigid bodies: bar_in = J_state^T bar_out, bar_params += J_params^T bar_out.
+    for (Eigen::Index r = 0; r < nr; ++r) {
+      const auto i = static_cast<std::size_t>(r);
+      rigid::step_jacobian(model.rigid[i], in.rigid[i], out.rigid[i], data.rigid[i], model.step.dt, model.step.gravity,
+                           Vec3::Zero(), Vec3::Zero(), rigid_J);
+      rigid::step_vjp(rigid_J, bar_rigid.segment<12>(12 * r), rigid_bar_in, rigid_bar_p);
+      bar_rigid.segment<12>(12 * r) = rigid_bar_in;
+      for (std::size_t j = 0; j < theta.rigid_parameters.size(); ++j)
+        if (theta.rigid_parameters[j].body == r)
+          result.theta[rp0 + static_cast<Eigen::Index>(j)] += rigid_bar_p[theta.rigid_parameters[j].index];
+    }
     if (loss) loss(step - 1, in, bar.x, bar.v);
+    if (rigid_loss && nr) rigid_loss(step - 1, in, bar_rigid);
   }
   result.x0 = bar.x;
   result.v0 = bar.v;
+  result.rigid0 = bar_rigid;
+  // x0, v0 with rigid bodies: the soft coordinates, then 6 per rigid body.
+  VecX full_x(n + 6 * nr), full_v(n + 6 * nr);
+  full_x.head(n) = bar.x;
+  full_v.head(n) = bar.v;
+  for (Eigen::Index r = 0; r < nr; ++r) {
+    full_x.segment<6>(n + 6 * r) = bar_rigid.segment<6>(12 * r);
+    full_v.segment<6>(n + 6 * r) = bar_rigid.segment<6>(12 * r + 6);
+  }
   if (theta.x0)
     result.theta.segment(theta.x0_offset(model), basis_columns(true, theta.x0_basis, model)) =
-        theta.x0_basis.size() ? VecX(theta.x0_basis.transpose() * bar.x) : bar.x;
+        theta.x0_basis.size() ? VecX(theta.x0_basis.transpose() * full_x) : full_x;
   if (theta.v0)
     result.theta.segment(theta.v0_offset(model), basis_columns(true, theta.v0_basis, model)) =
-        theta.v0_basis.size() ? VecX(theta.v0_basis.transpose() * bar.v) : bar.v;
+        theta.v0_basis.size() ? VecX(theta.v0_basis.transpose() * full_v) : full_v;
   return {};
 }
 

@@ -6,7 +6,16 @@
 //   1. parameters, in the order given (ParameterId: kind and body);
 //   2. if `actuation`: one column per actuator, a constant offset added to its value
 //      at every step (d/d lambda_a of a constant actuation);
-//   3. if `x0`: the initial positions (3n), 4. if `v0`: the initial velocities (3n).
+//   3. if `x0`: the initial positions (3n), 4. if `v0`: the initial velocities (3n);
+//      with rigid bodies (issue 21) each also has 6 columns per rigid body after them:
+//      x0 its position and the rotation vector (world axes) of an orientation change,
+//      v0 its velocity and angular velocity;
+//   5. rigid parameters (rigid_parameters: mass, inertia components of a rigid body).
+// With rigid bodies, the sensitivities' rows are 3n soft coordinates, then 6 per rigid
+// body (dx: position, rotation vector; dv: velocity, angular velocity): output.md's
+// /jacobians rows. The rigid rows are propagated by each body's 12 x 12 step Jacobian
+// (rigid/rigid_derivatives.hpp), decoupled from the soft bodies while no contact
+// couples them; the adjoint maps their cotangents back by the transposes.
 // Per-step actuation values (the whole sequence lambda_a(t_1..t_T)) are inputs of the
 // reverse mode (adjoint()), which returns their gradient step by step.
 //
@@ -26,6 +35,7 @@
 #include <softdiff/data.hpp>
 #include <softdiff/integrator/implicit_euler_derivatives.hpp>
 #include <softdiff/model.hpp>
+#include <softdiff/rigid/rigid_derivatives.hpp>
 
 #include <functional>
 #include <memory>
@@ -41,13 +51,17 @@ struct ThetaLayout {
   // Directions for x0 / v0 (3n x K): empty for all 3n coordinates (the identity),
   // else only these K directions are columns (e.g. random directions for a check).
   MatX x0_basis, v0_basis;
+  // Rigid body parameters (their columns come last; issue 21).
+  std::vector<rigid::RigidParameterId> rigid_parameters;
 
   Eigen::Index size(const Model& model) const;
   // Column offsets of each group (parameters first, at 0).
   Eigen::Index actuation_offset() const { return static_cast<Eigen::Index>(parameters.size()); }
   Eigen::Index x0_offset(const Model& model) const;
   Eigen::Index v0_offset(const Model& model) const;
-  // "young[beam]", "actuation[cable1]", "x0", ... one name per group, for reports.
+  Eigen::Index rigid_parameter_offset(const Model& model) const;
+  // "young[beam]", "actuation[cable1]", "x0", ... one name per group, for reports;
+  // then one per rigid parameter: "mass[key]", "inertia[key].xy".
   std::vector<std::string> column_names(const Model& model) const;
 };
 
@@ -61,7 +75,7 @@ class ForwardSensitivity {
   // Returns false if a derivative solve failed.
   bool advance(const Model& model, const Data& data, const State& in, const State& out);
   const ThetaLayout& theta() const { return theta_; }
-  const MatX& dx_dtheta() const { return dx_; }  // (3n x k) at the last state
+  const MatX& dx_dtheta() const { return dx_; }  // (3n + 6 n_rigid x k) at the last state
   const MatX& dv_dtheta() const { return dv_; }
   // The step derivative of the last advance() (its contact figures: rank deficiency of
   // the NCP derivative, non-differentiable contacts).
@@ -71,6 +85,7 @@ class ForwardSensitivity {
   ThetaLayout theta_;
   std::unique_ptr<integrator::StepDerivatives> step_;
   MatX dx_, dv_;
+  std::vector<rigid::StepJacobian> rigid_jacobian_;  // (model.rigid) of the last step
   MatX previous_dx_, previous_dv_;  // BDF2: the sensitivities of the previous state
   MatX next_dx_, next_dv_;          // workspace
   integrator::StepTangent t_;
@@ -115,11 +130,16 @@ StepStatus record(const Model& model, Data& data, const State& initial, long ste
 // propagated back from the later frames, zero at k = T). For a loss of the final
 // state only, return early for k < T.
 using LossCotangent = std::function<void(long k, const State& s, VecX& bar_x, VecX& bar_v)>;
+// The same for the rigid bodies' states (issue 21): ADD dl/d(rigid state of frame k) into
+// bar_rigid (12 per rigid body in scene order: position, rotation vector in world axes,
+// velocity, angular velocity; the tangent of rigid/rigid_derivatives.hpp).
+using RigidLossCotangent = std::function<void(long k, const State& s, VecX& bar_rigid)>;
 
 struct AdjointResult {
   VecX theta;          // dl/d theta (theta.size())
   MatX lambda_a;       // (n_a x T) dl/d lambda_a of every step
   VecX x0, v0;         // dl/dx_0, dl/dv_0 (3n), whether or not theta includes them
+  VecX rigid0;         // dl/d(rigid initial states) (12 per rigid body, as RigidLossCotangent)
   // The largest |x|, |v| difference between a recomputed step and the tape's frame:
   // 0 when the sweep recomputes the recorded run bit for bit (it should).
   double recompute_mismatch = 0;
@@ -127,7 +147,10 @@ struct AdjointResult {
 
 // The reverse sweep over a recorded trajectory. Uses data as the workspace of the
 // recomputed steps.
+// With rigid bodies each step's VJP also maps the rigid cotangents back by the bodies'
+// step Jacobians (rigid/rigid_derivatives.hpp), adding the rigid parameters' gradients;
+// rigid_loss (optional) gives the loss's rigid cotangents.
 StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const ThetaLayout& theta,
-                   const LossCotangent& loss, AdjointResult& result);
+                   const LossCotangent& loss, AdjointResult& result, const RigidLossCotangent& rigid_loss = {});
 
 }  // namespace softdiff::diff

@@ -1,0 +1,133 @@
+// Derivatives with rigid bodies on the command line (issue 21, item 4, without
+// contact): `check-grad` passes on a scene with a free spinning rigid body and a hinge
+// pendulum beside the clamped beam (every default block, the rigid ones included);
+// `simulate --jacobian` writes /jacobians rows for the rigid states (3 n_total + 6 per
+// rigid body) with the column names and units of docs/output.md; `mass`/`inertia`
+// without rigid bodies is refused with exit 2.
+#include <support/cli.hpp>
+#include <support/h5.hpp>
+
+#include <gtest/gtest.h>
+#include <hdf5.h>
+
+#include <filesystem>
+#include <string>
+
+using namespace softdiff::test;
+namespace fs = std::filesystem;
+
+namespace cli_rigid_derivatives_test {
+
+const fs::path kRoot = SOFTDIFF_SOURCE_DIR;
+const fs::path kWork = fs::path(SOFTDIFF_TEST_DATA_DIR) / "cli_rigid_derivatives";
+
+std::string beam() {
+  return "softdiff: 1\n"
+         "simulation: {dt: 0.01, steps: 3}\n"
+         "bodies:\n"
+         "  - name: beam\n"
+         "    mesh: " +
+         (kRoot / "meshes/beam.msh").string() +
+         "\n"
+         "    material: {young: 1.0e6, poisson: 0.45, density: 1070}\n"
+         "    damping: {rayleigh_mass: 0.5, rayleigh_stiffness: 0.001}\n"
+         "    fixed: [{group: clamp}]\n";
+}
+
+std::string rigid_scene() {
+  return beam() +
+         "  - name: spinner\n"
+         "    type: rigid\n"
+         "    shape: {type: box, half_extents: [0.02, 0.01, 0.005]}\n"
+         "    density: 1000\n"
+         "    position: [0.3, 0.1, 0]\n"
+         "    orientation: [0.9689124217106447, 0.24740395925452294, 0, 0]\n"
+         "    velocity: [0, 0.1, 0.5]\n"
+         "    angular_velocity: [1, 2, 8]\n"
+         "  - name: pendulum\n"
+         "    type: rigid\n"
+         "    shape: {type: box, half_extents: [0.005, 0.02, 0.005]}\n"
+         "    density: 1000\n"
+         "    position: [0.3, -0.1, 0]\n"
+         "    angular_velocity: [2, 0, 0]\n"
+         "    joint: {type: hinge, anchor: [0.3, -0.08, 0], axis: [1, 0, 0], limits: [-1, 1]}\n";
+}
+
+TEST(CliRigidDerivatives, CheckGradPasses) {
+  const fs::path dir = fresh_dir(kWork, "check_grad");
+  write_text(dir / "scene.yaml", rigid_scene());
+  const auto r = run_cli("check-grad scene.yaml --quiet", dir);
+  EXPECT_EQ(r.code, 0) << r.out << r.err;
+  // Every block is listed, the rigid ones included.
+  for (const char* block : {"young", "x0", "v0", "mass", "inertia"}) EXPECT_NE(r.out.find(block), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
+}
+
+// configs/hinged_key.yaml after 50 steps: the key rests on its lower limit (reached after
+// ~30 steps), so its state does not depend on its mass or inertia: the analytic blocks are
+// zero (the clamped coordinate has zero derivative) and so are the differences (to their
+// round-off), which check-grad counts as a match (relative error printed as 0).
+TEST(CliRigidDerivatives, CheckGradOnTheHingedKeyAtItsLimit) {
+  const fs::path dir = fresh_dir(kWork, "hinged_key_limit");
+  const auto r = run_cli("check-grad '" + (kRoot / "configs/hinged_key.yaml").string() +
+                             "' --quiet --steps 50 --wrt mass,inertia",
+                         dir);
+  EXPECT_EQ(r.code, 0) << r.out << r.err;
+  for (const char* block : {"mass", "inertia"}) {
+    const auto at = r.out.find(std::string("\n") + block);
+    ASSERT_NE(at, std::string::npos) << r.out;
+    EXPECT_NE(r.out.substr(at, 80).find("0.000e+00"), std::string::npos) << r.out;
+  }
+}
+
+TEST(CliRigidDerivatives, JacobianRowsForRigidStates) {
+  const fs::path dir = fresh_dir(kWork, "jacobian");
+  write_text(dir / "scene.yaml", rigid_scene());
+  const auto r = run_cli("simulate scene.yaml -o out.h5 --quiet --steps 1 --jacobian young,mass,inertia,v0", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const hid_t f = H5Fopen((dir / "out.h5").string().c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const auto x = h5_shape(f, "/bodies/beam/x");  // (T, n, 3)
+  ASSERT_EQ(x.size(), 3u);
+  const hsize_t rows = 3 * x[1] + 6 * 2;         // output.md: 3 n_total, then 6 per rigid body
+  auto expect_shape = [&](const std::string& name, hsize_t cols) {
+    const auto s = h5_shape(f, "/jacobians/" + name);
+    ASSERT_EQ(s.size(), 2u) << name;
+    EXPECT_EQ(s[0], rows) << name;
+    EXPECT_EQ(s[1], cols) << name;
+  };
+  expect_shape("young", 1);
+  expect_shape("mass", 2);
+  expect_shape("inertia", 12);
+  expect_shape("v0", rows);
+  EXPECT_EQ(h5_string_attribute(f, "/jacobians/mass", "theta"), "mass[spinner],mass[pendulum]");
+  EXPECT_NE(h5_string_attribute(f, "/jacobians/inertia", "theta").find("inertia[pendulum].yz"), std::string::npos);
+  EXPECT_EQ(h5_string_attribute(f, "/jacobians/mass", "units"), "m/kg");
+  // Row-major (rows x cols): young moves the beam, not the rigid bodies; the pendulum's
+  // rows depend on its mass (its inertia about the pin is not m r^2 alone), not the spinner's.
+  const auto young = h5_read(f, "/jacobians/young");
+  double soft = 0, rigid = 0;
+  for (hsize_t i = 0; i < rows; ++i) (i < rows - 12 ? soft : rigid) += young[i] * young[i];
+  EXPECT_GT(soft, 0.0);
+  EXPECT_EQ(rigid, 0.0);
+  const auto mass = h5_read(f, "/jacobians/mass");
+  double pendulum = 0, soft_mass = 0;
+  for (hsize_t i = 0; i < rows; ++i) {
+    if (i < rows - 12) soft_mass += std::abs(mass[2 * i]) + std::abs(mass[2 * i + 1]);
+    if (i >= rows - 6) pendulum += std::abs(mass[2 * i + 1]);
+  }
+  EXPECT_EQ(soft_mass, 0.0);
+  EXPECT_GT(pendulum, 0.0);
+  H5Fclose(f);
+}
+
+TEST(CliRigidDerivatives, RigidParametersNeedRigidBodies) {
+  const fs::path dir = fresh_dir(kWork, "no_rigid");
+  write_text(dir / "scene.yaml", beam());
+  const auto r = run_cli("simulate scene.yaml -o out.h5 --jacobian young,mass", dir);
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_NE(r.err.find("--jacobian: 'mass' needs rigid bodies, and this scene has none"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dir / "out.h5"));
+}
+
+}  // namespace cli_rigid_derivatives_test
