@@ -262,6 +262,23 @@ TEST(CliQuadratic, CheckGradPassesOnTheQuadraticBeam) {
   EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
 }
 
+// The static solve's line search at round-off (static_solver.cpp: Pi's round-off is
+// that of its terms). With OpenBLAS's Haswell kernels (forced here; any AVX2 CPU runs
+// them), the quadratic beam with poisson 0.449955 (check-grad's step below 0.45) reaches
+// load step 3 at a relative residual of 4e-8, where the strain energy (5.4e-3) and the
+// load's work (4.8e-3) cancel to Pi = 6.6e-4: a tolerance relative to Pi took the full
+// Newton step's round-off increase (3e-17) for a failure, and Newton stalled at 1.04e-8
+// for 50 iterations (exit 1). It converges now, as with the default kernels.
+TEST(CliQuadratic, StaticNewtonConvergesWhereTheEnergyCancels) {
+  if (!__builtin_cpu_supports("avx2")) GTEST_SKIP() << "OpenBLAS's Haswell kernels need AVX2";
+  const fs::path dir = dir_for("energy_cancels");
+  const std::string cmd = "cd '" + dir.string() + "' && OPENBLAS_CORETYPE=Haswell '" SOFTDIFF_CLI "' simulate '" +
+                          (kRoot / "configs/beam_cantilever_p2.yaml").string() +
+                          "' -o out.h5 --quiet --set bodies.beam.material.poisson=0.449955 >out.txt 2>err.txt";
+  EXPECT_EQ(std::system(cmd.c_str()), 0) << read_text(dir / "err.txt");
+  EXPECT_TRUE(fs::exists(dir / "out.h5"));
+}
+
 // Calibration on the quadratic beam works unchanged: young recovered from markers at
 // four nodes (vertices or mid-edge nodes of the 10-node tets: their quadratic
 // embedding is that node alone, where the 4-vertex embedding would give the

@@ -269,8 +269,18 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       // direction when K is positive definite: dPi/dalpha = -(f + P).dx < 0. With
       // actuators: backtracking on the residual norm.
       t0 = Clock::now();
-      const double pi0 = data.fem.energy - factor * fem.gravity_force.dot(out.x) +
-                         (actuated && conservative ? model.actuation.potential(out.x, data.lambda_a) : 0.0);
+      const double load_work = factor * fem.gravity_force.dot(out.x);
+      const double actuation_potential =
+          actuated && conservative ? model.actuation.potential(out.x, data.lambda_a) : 0.0;
+      const double pi0 = data.fem.energy - load_work + actuation_potential;
+      // The round-off of Pi is that of its terms, not of their sum: near an equilibrium
+      // the strain energy and the load's work nearly cancel (the quadratic beam of
+      // configs/beam_cantilever_p2.yaml at load step 3: E 5.4e-3, P.x 4.8e-3, Pi 6.6e-4),
+      // and a Newton step whose exact decrease is below that round-off (1e-18 there) reads
+      // as an increase of 3e-17 to 9e-17, which a tolerance relative to Pi (7e-18) took
+      // for a failure: the search then halved the step down to 1e-7 and Newton stalled at
+      // a relative residual of 1e-8 (seen with OpenBLAS's Haswell kernels).
+      const double pi_roundoff = 1e-14 * (std::abs(data.fem.energy) + std::abs(load_work) + std::abs(actuation_potential));
       const double slope = -residual.dot(dx);
       const double r0 = residual.norm();
       double alpha = 1;
@@ -289,7 +299,7 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
           if (!fem::evaluate(fem, trial, {true, false, false}, data.fem)) continue;  // inverted: shorter step
           const double pi = data.fem.energy - factor * fem.gravity_force.dot(trial) +
                             (actuated ? model.actuation.potential(trial, data.lambda_a) : 0.0);
-          if (pi <= pi0 + 1e-4 * alpha * slope || std::abs(pi - pi0) <= 1e-14 * std::abs(pi0)) {
+          if (pi <= pi0 + 1e-4 * alpha * slope || std::abs(pi - pi0) <= pi_roundoff) {
             accepted = true;
             break;
           }
