@@ -8,11 +8,11 @@
 //  3. a free rigidified region of a clamped beam is the limit of the same region made
 //     stiff (its elements' stiffness x 1e2 .. 1e6), the difference falling with the
 //     stiffness;
-//  4. a whole free body rigidified falls exactly as implicit Euler's free fall (closed
-//     form), keeps its shape to round-off;
-//  5. a whole body rigidified and attached to a torque servo about its long axis spins
-//     up as I omega_n = n h tau (closed form: constant torque about a principal axis),
-//     with zero linear momentum.
+//  4. a whole free body rigidified falls as implicit Euler's free fall (closed form),
+//     to a round-off bound, keeping its shape;
+//  5. a whole body rigidified and attached to a torque servo about its long axis: its
+//     first step's angular momentum is h tau e_x, its axial angular momentum n h tau
+//     (closed forms), with zero linear momentum and its shape kept.
 #include <softdiff/data.hpp>
 #include <softdiff/fem/assembly.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
@@ -268,8 +268,8 @@ TEST(RigidifyValidation, WholeBodyFallsAsARigidBody) {
 TEST(RigidifyValidation, ServoSpinsTheWholeBodyAsTheTorqueSays) {
   // The whole beam rigidified, attached to a torque servo on all its nodes about its
   // long axis x through its centre (0.1, 0.01, 0.01): by the node grid's symmetry the
-  // servo field has no resultant (and the centroid stays put), and its moment about the
-  // axis is exactly tau (servo.hpp). Closed forms: the first step from rest gives
+  // servo field has no resultant (and the centroid, on the axis, stays put), and its
+  // moment about the axis is exactly tau in any pose (servo.hpp). Closed forms: the first step from rest gives
   // omega_1 = h tau I^{-1} e_x (I the part's lumped inertia tensor: the lumped masses of
   // the alternating tetrahedra are not symmetric, so e_x is not quite principal), and
   // the angular momentum about the axis grows as L_n . e_x = n h tau.
