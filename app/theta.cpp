@@ -40,6 +40,9 @@ void demand_differentiable(const std::string& option, const Model& model) {
 }  // namespace
 
 void demand_no_rigid_bodies(const std::string& what, const Model& model) {
+  if (!model.rigidify.empty())  // (rigidified parts of soft bodies: issue 21 item 2)
+    throw InputError(what + ": derivatives with rigidified parts are not supported yet (issue 21; " +
+                     model.rigidify.parts.front().name + ")");
   if (!model.rigid.empty())
     throw InputError(what + ": derivatives with rigid bodies are not supported yet (issue 21; rigid body '" +
                      model.rigid.front().name + "')");

@@ -121,6 +121,7 @@ struct Data {
                                       // tangent was shifted (A + tau I: A not positive definite)
   ContactData contact;              // contact stage (model.contact.enabled)
   std::vector<rigid::StepInfo> rigid;  // (model.rigid) the last step of each rigid body: limit, joint reaction
+  integrator::RigidifyData rigidify;  // (model.rigidify) the step's reduced-mapping workspace
   StepTimings timings;              // of the last step
   long factorizations = 0;          // count over the run
 };

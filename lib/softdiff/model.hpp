@@ -8,6 +8,7 @@
 #include <softdiff/core/types.hpp>
 #include <softdiff/fem/fem_model.hpp>
 #include <softdiff/integrator/linear_solver.hpp>
+#include <softdiff/integrator/rigidify.hpp>
 #include <softdiff/rigid/rigid_body.hpp>
 
 #include <string>
@@ -71,6 +72,10 @@ struct Model {
   // Rigid bodies (issue 21, scene.md `type: rigid`), in scene order: each its own
   // 6-DoF system, stepped after the soft bodies by rigid::step (no contact yet).
   std::vector<rigid::RigidBody> rigid;
+  // Rigidified parts of soft bodies (issue 21 item 2, scene.md `rigidify`): free or
+  // servo-attached parts, stepped by the reduced mapping of integrator/rigidify.hpp.
+  // Empty (the default): nothing of it runs.
+  integrator::RigidifyModel rigidify;
   State initial;  // x = rest positions, v = initial velocities (0 on fixed dofs); rigid: the scene's
 
   // True when the system matrix A does not depend on the state: every body uses

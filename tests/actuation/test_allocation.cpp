@@ -8,7 +8,16 @@
 #include <softdiff/actuation/pressure.hpp>
 #include <softdiff/actuation/servo.hpp>
 
+#include <softdiff/data.hpp>
+#include <softdiff/integrator/implicit_euler.hpp>
+#include <softdiff/integrator/rigidify.hpp>
+#include <softdiff/io/build_model.hpp>
+#include <softdiff/io/scene.hpp>
+#include <support/cli.hpp>
+
 #include "helpers.hpp"
+
+#include <filesystem>
 
 #include <cstdlib>
 #include <gtest/gtest.h>
@@ -175,4 +184,39 @@ TEST(Allocation, QuadraticActuatorEvaluationsAreAllocationFree) {
   EXPECT_TRUE(std::isfinite(sink + f.sum() + H.sum() + out.sum()));
   EXPECT_GT(values.norm(), 0);
   EXPECT_EQ(r.status, LocateStatus::inside);
+}
+
+// Rigidified parts (integrator/rigidify.hpp): after the first step has sized the
+// workspace, the Schur complement (prepare), the reduced solve and the exact placement
+// allocate nothing. The clamped beam with its tip region rigidified and attached to a
+// torque servo.
+TEST(Allocation, RigidifiedPartsStepIsAllocationFree) {
+  const std::filesystem::path dir = std::filesystem::path(SOFTDIFF_TEST_DATA_DIR) / "allocation_rigidify";
+  test::write_text(dir / "scene.yaml",
+                   "softdiff: 1\nsimulation: {dt: 0.01, steps: 3}\nbodies:\n  - name: beam\n    mesh: " +
+                       (std::filesystem::path(SOFTDIFF_SOURCE_DIR) / "meshes/beam.msh").string() +
+                       "\n    material: {young: 1.0e6, poisson: 0.45, density: 1070}\n    fixed: [{group: clamp}]\n"
+                       "    rigidify: [{box: [0.15, -1, -1, 1, 1, 1], attach: turn}]\n    actuators:\n"
+                       "      - {name: turn, type: servo, nodes: {group: tip}, axis: [1, 0, 0], center: [0.2, 0.01, "
+                       "0.01], force: 0.001}\n");
+  const Model model = io::build_model(io::load_scene(dir / "scene.yaml"));
+  ASSERT_EQ(model.rigidify.size(), 1);
+  Data data(model);
+  State a = model.initial, b = model.initial;
+  ASSERT_TRUE(integrator::implicit_euler_step(model, data, a, b, 1).ok());  // sizes the workspace
+  std::swap(a, b);
+  ASSERT_TRUE(integrator::implicit_euler_step(model, data, a, b, 2).ok());  // the factor and rhs of step 2
+  const double h = model.step.dt;
+  VecX v = VecX::Zero(a.v.size());
+  Count count;
+  const StepStatus s = integrator::prepare_rigidified(model, data, a.x, h, 2);
+  const bool solved = integrator::solve_rigidified(model, data, data.rhs, v);
+  b.v = a.v + v;
+  integrator::place_rigidified(model, data, a, b, h);
+  const long n = count.stop();
+  EXPECT_EQ(n, 0);
+  EXPECT_TRUE(s.ok());
+  EXPECT_TRUE(solved);
+  EXPECT_TRUE(b.x.allFinite());
+  std::filesystem::remove_all(dir);
 }

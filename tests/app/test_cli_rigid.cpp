@@ -184,12 +184,6 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
        "softdiff: 1\nsimulation: {dt: 0.01, steps: 3}\nbodies:\n  - {name: ball, type: rigid, shape: {type: sphere, "
        "radius: 0.01}, density: 1000}\n",
        "simulate scene.yaml -o out.h5", "bodies[0]: a scene of rigid bodies only is not supported yet (issue 21)"},
-      {"rigidify",
-       "softdiff: 1\nsimulation: {dt: 0.01, steps: 3}\nbodies:\n  - name: beam\n    mesh: " +
-           (kRigidRoot / "meshes/beam.msh").string() +
-           "\n    material: {young: 1.0e6, poisson: 0.45, density: 1070}\n    rigidify: [{group: clamp, attach: "
-           "free}]\n",
-       "simulate scene.yaml -o out.h5", "bodies[0].rigidify: not supported yet (planned: issue 21"},
       {"missing_mesh", beam_and_sphere("", "", "{type: mesh, mesh: nope.msh}"),
        "simulate scene.yaml -o out.h5", "bodies[1].shape.mesh: mesh file not found"},
       {"open_mesh", beam_and_sphere("", "", "{type: mesh, mesh: open.stl}"),

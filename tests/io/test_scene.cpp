@@ -944,8 +944,13 @@ TEST_F(Scene, RigidBodiesRefuseWhatIsNotSupportedYet) {
   expect_error(rigid_edit("  dt: 0.01\n", "  integrator: bdf2\n  dt: 0.01\n"), ":3:3: simulation.integrator: integrator 'bdf2' with rigid bodies is not supported yet (issue 21; "
                "bodies[1] is rigid): use implicit_euler");
   EXPECT_NO_THROW(load(kRigid + "contact: {enabled: false}\n"));
-  expect_error(edit("    material:", "    rigidify: [{group: hub, attach: free}]\n    material:"),
-               ":8:5: bodies[0].rigidify: not supported yet (planned: issue 21, rigidified parts of a soft body)");
+  // rigidify (issue 21 item 2): read here, its nodes resolved by build_model.
+  const SceneDesc r = load(edit("    material:", "    rigidify: [{group: hub, attach: free}, {box: [0, 0, 0, 1, 1, 1]}]\n    material:"));
+  ASSERT_EQ(r.bodies[0].rigidify.size(), 2u);
+  EXPECT_EQ(r.bodies[0].rigidify[0].nodes.group, "hub");
+  EXPECT_EQ(r.bodies[0].rigidify[0].attach, "free");
+  EXPECT_EQ(r.bodies[0].rigidify[1].attach, "free");  // the default
+  EXPECT_EQ(r.bodies[0].rigidify[1].nodes.kind, FixedDesc::Kind::box);
 }
 
 }  // namespace

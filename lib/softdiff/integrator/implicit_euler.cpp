@@ -233,13 +233,17 @@ StepStatus stage(const Model& model, Data& data, const State& in, State& out, lo
     status = factorize(model, data, step_index);
     if (status.ok() && data.keep_linearization) data.linearized_x = in.x;
   }
+  // Rigidified parts (integrator/rigidify.hpp): the Schur complement of the parts'
+  // 6 m dofs on this step's factor (also when the factor is kept: T moves with x_i).
+  const bool rigidified = !model.rigidify.empty();
+  if (status.ok() && rigidified) status = prepare_rigidified(model, data, in.x, h, step_index);
   data.timings.factorization += seconds_since(t0);
   if (!status.ok()) return status;
 
   t0 = Clock::now();
   // data.dv holds the previous step's dv: with a kept factor (factor reuse) PCG starts
   // from it, the answer of a smooth trajectory's neighbour step.
-  if (!data.solver->solve_from(data.rhs, data.dv)) {
+  if (!(rigidified ? solve_rigidified(model, data, data.rhs, data.dv) : data.solver->solve_from(data.rhs, data.dv))) {
     status.step = step_index;
     const FactorStatus& f = data.solver->solve_factor_status();
     if (!f.ok) {
@@ -398,6 +402,7 @@ StepStatus stage(const Model& model, Data& data, const State& in, State& out, lo
 
   t0 = Clock::now();
   out.x = in.x + h * out.v;
+  if (rigidified) place_rigidified(model, data, in, out, h);  // the parts' exact rigid motion
   out.t = t_next;
   status = check_state(model, out, step_index);
   data.timings.other += seconds_since(t0);

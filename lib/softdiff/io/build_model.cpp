@@ -1,5 +1,6 @@
 #include <softdiff/io/build_model.hpp>
 
+#include <softdiff/core/assert.hpp>
 #include <softdiff/core/error.hpp>
 #include <softdiff/io/gmsh_msh.hpp>
 #include <softdiff/io/plausibility.hpp>
@@ -7,6 +8,7 @@
 #include <softdiff/collision/obstacle.hpp>
 #include <softdiff/rigid/rigid_body.hpp>
 
+#include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
@@ -93,6 +95,110 @@ void resolve_fixed(const BodyDesc& body, const mesh::TetMesh& m, std::vector<uns
     for (int i : select_nodes(f, body.name, m, by_file_index))
       for (int c = 0; c < 3; ++c)
         if (f.axes[c]) fixed_local[3 * i + c] = 1;
+}
+
+// Rigidified parts of one body (scene.md `rigidify`): the local nodes of each free or
+// servo-attached part (`parts`, with the entry index), attach: fixed parts marked in
+// fixed_local. Errors: a node in two parts, a node in a part and in `fixed`, a part
+// whose nodes are on one line (no rotation would move them: its reduced matrix would be
+// singular), an attach that is neither free, fixed nor one of the body's servos.
+struct PendingPart {
+  std::size_t body = 0, entry = 0;
+  std::vector<int> nodes;  // local, sorted
+};
+
+void resolve_rigidify(const BodyDesc& body, std::size_t body_index, const mesh::TetMesh& m,
+                      std::vector<unsigned char>& fixed_local, std::vector<PendingPart>& parts) {
+  if (body.rigidify.empty()) return;
+  std::unordered_map<long, int> by_file_index;
+  std::vector<int> owner(static_cast<std::size_t>(m.num_nodes()), -1);
+  std::vector<std::vector<int>> selected;
+  for (std::size_t k = 0; k < body.rigidify.size(); ++k) {
+    const RigidifyDesc& rd = body.rigidify[k];
+    std::vector<int> nodes = select_nodes(rd.nodes, body.name, m, by_file_index);
+    std::sort(nodes.begin(), nodes.end());
+    nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
+    for (int i : nodes) {
+      const std::string node = "node " + std::to_string(m.file_index[static_cast<std::size_t>(i)]);
+      if (owner[static_cast<std::size_t>(i)] >= 0)
+        fail(rd.where, node + " of body '" + body.name + "' is also in rigidify[" +
+                           std::to_string(owner[static_cast<std::size_t>(i)]) +
+                           "]: a node belongs to at most one rigidified part (merge the two selections)");
+      for (int c = 0; c < 3; ++c)
+        if (fixed_local[static_cast<std::size_t>(3 * i + c)])
+          fail(rd.where, node + " of body '" + body.name +
+                             "' is also fixed (bodies[].fixed): a node is either fixed or in a rigidified part (use "
+                             "attach: fixed to hold the part)");
+      owner[static_cast<std::size_t>(i)] = static_cast<int>(k);
+    }
+    // Nodes on one line (or fewer than three): a rotation about that line moves none.
+    Vec3 mean = Vec3::Zero();
+    for (int i : nodes) mean += m.X.col(i);
+    mean /= static_cast<double>(nodes.size());
+    Mat3 cov = Mat3::Zero();
+    for (int i : nodes) cov += (m.X.col(i) - mean) * (m.X.col(i) - mean).transpose();
+    const Vec3 ev = Eigen::SelfAdjointEigenSolver<Mat3>(cov).eigenvalues();  // ascending
+    if (nodes.size() < 3 || !(ev[1] > 1e-12 * ev[2]))
+      fail(rd.where, "the part's " + std::to_string(nodes.size()) + " node(s) of body '" + body.name +
+                         "' lie on one line: a rigidified part needs three nodes not on a line");
+    if (rd.attach != "free" && rd.attach != "fixed") {
+      const ActuatorDesc* servo = nullptr;
+      std::string servos;
+      for (const auto& a : body.actuators) {
+        if (a.kind != ActuatorDesc::Kind::servo) continue;
+        servos += (servos.empty() ? "'" : ", '") + a.name + "'";
+        if (a.name == rd.attach) servo = &a;
+      }
+      if (!servo)
+        fail(rd.attach_where, "'" + rd.attach + "' is neither free, fixed nor a servo of body '" + body.name + "' (" +
+                                  (servos.empty() ? std::string("it has no servo") : "its servos: " + servos) + ")");
+    }
+    selected.push_back(std::move(nodes));
+  }
+  for (std::size_t k = 0; k < body.rigidify.size(); ++k) {
+    if (body.rigidify[k].attach == "fixed") {
+      for (int i : selected[k])
+        for (int c = 0; c < 3; ++c) fixed_local[static_cast<std::size_t>(3 * i + c)] = 1;
+    } else {
+      parts.push_back({body_index, k, std::move(selected[k])});
+    }
+  }
+}
+
+// The model's rigidified parts (after build_fem_model and build_actuation): global
+// nodes, masses, the attached servo (whose nodes must all be in the part: its whole
+// force then acts on the part, as the wrench P^T f), the coupling entries.
+void build_rigidified_parts(const SceneDesc& scene, const std::vector<PendingPart>& pending,
+                            const std::vector<unsigned char>& fixed, Model& model) {
+  auto& fem = model.fem;
+  for (const PendingPart& pp : pending) {
+    const BodyDesc& bd = scene.bodies[pp.body];
+    const RigidifyDesc& rd = bd.rigidify[pp.entry];
+    const auto& b = fem.bodies[pp.body];
+    integrator::RigidifiedPart part;
+    part.name = "body '" + bd.name + "' rigidify[" + std::to_string(pp.entry) + "]";
+    part.body = static_cast<int>(pp.body);
+    for (int i : pp.nodes) {
+      part.nodes.push_back(b.node_begin + i);
+      part.mass += fem.mass_diagonal[3 * (b.node_begin + i)];
+    }
+    if (rd.attach != "free") {
+      const auto& acts = model.actuation.actuators;
+      for (std::size_t a = 0; a < acts.size(); ++a)
+        if (acts[a].body == part.body && acts[a].name == rd.attach) part.servo = static_cast<int>(a);
+      SOFTDIFF_DEMAND(part.servo >= 0, "rigidify: attached servo not found");
+      const auto& servo = std::get<actuation::Servo>(acts[static_cast<std::size_t>(part.servo)].kind);
+      for (int i : servo.nodes())
+        if (!std::binary_search(part.nodes.begin(), part.nodes.end(), i))
+          fail(rd.attach_where, "servo '" + rd.attach + "' acts on node " +
+                                    std::to_string(b.mesh.file_index[static_cast<std::size_t>(i - b.node_begin)]) +
+                                    ", outside the part: an attached servo's nodes must all be in the part");
+    }
+    model.rigidify.parts.push_back(std::move(part));
+  }
+  fem.fixed = fixed;
+  fem.num_fixed_dofs = std::count(fixed.begin(), fixed.end(), 1);
+  integrator::build_rigidify(fem, model.rigidify);
 }
 
 std::string format_mm(double metres) {
@@ -398,6 +504,7 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
   }
   std::vector<fem::BodyModel> bodies;
   std::vector<unsigned char> fixed;
+  std::vector<PendingPart> pending_parts;  // free and servo-attached rigidified parts
   std::vector<Vec3> initial_velocity;
   for (const auto& bd : scene.bodies) {
     fem::BodyModel b;
@@ -435,6 +542,7 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
     b.mass_kind = bd.mass == MassKind::consistent ? fem::MassKind::consistent : fem::MassKind::lumped;
     std::vector<unsigned char> fixed_local(3 * b.mesh.num_nodes(), 0);
     resolve_fixed(bd, b.mesh, fixed_local);
+    resolve_rigidify(bd, bodies.size(), b.mesh, fixed_local, pending_parts);
     // A body in a contact pair with an obstacle or another body may rest on it (the
     // static solver's proximal term, docs/method.md "Static equilibrium").
     const auto& cdesc = scene.contact;
@@ -464,8 +572,16 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
   // dynamic step (the paper's, actuation at x_i) would just carry their fill-in
   // (+34% nonzeros in the Trunk's Cholesky factor).
   const bool is_static = sim.integrator == Integrator::static_equilibrium;
-  fem::build_fem_model(std::move(bodies), fixed, sim.gravity, model.fem,
+  // Rigidified parts: their dofs get identity rows in the factorized matrix like fixed
+  // dofs (the pattern's fixed_* lists), fem.fixed stays the fixed dofs alone.
+  std::vector<unsigned char> fixed_or_rigid = fixed;
+  for (const PendingPart& pp : pending_parts)
+    for (int i : pp.nodes)
+      for (int c = 0; c < 3; ++c)
+        fixed_or_rigid[static_cast<std::size_t>(3 * (bodies[pp.body].node_begin + i) + c)] = 1;
+  fem::build_fem_model(std::move(bodies), fixed_or_rigid, sim.gravity, model.fem,
                        is_static ? model.actuation.stiffness_cliques() : std::vector<std::vector<int>>{});
+  if (!pending_parts.empty()) build_rigidified_parts(scene, pending_parts, fixed, model);
 
   build_contact(scene, model);
 

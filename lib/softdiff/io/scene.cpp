@@ -163,6 +163,7 @@ class Reader {
     }
     read_obstacles(root, scene);
     check_rigid_support(root, scene);
+    check_rigidify_support(root, scene);
     read_contact(root, scene);
     read_output(root, scene.output);
     check_factor_reuse(root, scene);
@@ -313,6 +314,39 @@ class Reader {
       ctx_.fail(contact->key_mark, "contact",
                 "contact with rigid bodies is not supported yet (issue 21; " + first +
                     " is rigid): remove the section or set enabled: false");
+  }
+
+  // Rigidified parts (issue 21 item 2): the linearized implicit Euler step without
+  // contact, factor reuse or derivatives (those are refused by the commands).
+  void check_rigidify_support(const Node& root, const SceneDesc& scene) const {
+    const BodyDesc* first = nullptr;
+    for (const auto& b : scene.bodies)
+      if (!b.rigidify.empty() && !first) first = &b;
+    if (!first) return;
+    const std::string part = first->rigidify.front().where.path;
+    if (scene.simulation.integrator != Integrator::implicit_euler) {
+      const Entry* integrator = root.get("simulation")->find("integrator");
+      ctx_.fail(integrator->key_mark, "simulation.integrator",
+                "integrator '" + integrator->value.scalar + "' with rigidified parts is not supported yet (issue 21; " +
+                    part + "): use implicit_euler");
+    }
+    if (scene.simulation.newton_iterations > 1) {
+      const Entry* it = root.get("simulation")->find("newton_iterations");
+      ctx_.fail(it->key_mark, "simulation.newton_iterations",
+                "newton_iterations > 1 with rigidified parts is not supported yet (issue 21; " + part +
+                    "): use newton_iterations: 1");
+    }
+    const Entry* contact = root.find("contact");
+    if (contact && !contact->value.is_null() && boolean(get(contact->value, "enabled"), true))
+      ctx_.fail(contact->key_mark, "contact",
+                "contact with rigidified parts is not supported yet (issue 21; " + part +
+                    "): remove the section or set enabled: false");
+    if (scene.linear_solver.factor_reuse) {
+      const Entry* key = root.get("linear_solver")->find("factor_reuse");
+      ctx_.fail(key->key_mark, "linear_solver.factor_reuse",
+                "factor_reuse: pcg with rigidified parts is not supported yet (issue 21; " + part +
+                    "): use factor_reuse: off");
+    }
   }
 
   RigidBodyDesc read_rigid_body(const Node& body, const std::string& path) const {
@@ -506,6 +540,9 @@ class Reader {
     if (const Node* actuators = get(body, "actuators"))
       for (std::size_t i = 0; i < actuators->items.size(); ++i)
         d.actuators.push_back(read_actuator(actuators->items[i], yaml::index_path(path + ".actuators", i)));
+    if (const Node* rigidify = get(body, "rigidify"))
+      for (std::size_t i = 0; i < rigidify->items.size(); ++i)
+        d.rigidify.push_back(read_rigidify(rigidify->items[i], yaml::index_path(path + ".rigidify", i)));
     if (const Node* effectors = get(body, "effectors"))
       for (std::size_t i = 0; i < effectors->items.size(); ++i) {
         const Node& e = effectors->items[i];
@@ -617,6 +654,20 @@ class Reader {
       a.limits = std::array<double, 2>{lo, hi};
     }
     return a;
+  }
+
+  // A rigidify entry: {group} or {box} (as `fixed`, without nodes/axes) and attach.
+  RigidifyDesc read_rigidify(const Node& item, const std::string& path) const {
+    RigidifyDesc r;
+    r.where = ctx_.where(item.mark, path);
+    if (!item.find("group") && !item.find("box")) ctx_.fail(item.mark, path, "needs one of 'group', 'box'");
+    r.nodes = read_fixed(item, path);
+    r.attach_where = r.where;
+    if (const Entry* attach = item.find("attach")) {
+      r.attach = attach->value.scalar;
+      r.attach_where = where(*attach, path + ".attach");
+    }
+    return r;
   }
 
   FixedDesc read_fixed(const Node& item, const std::string& path) const {

@@ -52,6 +52,15 @@ struct ActuatorDesc {
   Where where;
 };
 
+// A rigidified part of a soft body (scene.md `rigidify`, issue 21 item 2): the nodes
+// of `nodes` ({group} or {box}) move as one rigid body; attach is "free", "fixed" or
+// the name of one of the body's servo actuators.
+struct RigidifyDesc {
+  FixedDesc nodes;                     // box or group (axes unused)
+  std::string attach = "free";
+  Where where, attach_where;
+};
+
 struct EffectorDesc {
   std::string name;
   Vec3 point = Vec3::Zero();           // world coordinates
@@ -84,6 +93,7 @@ struct BodyDesc {
   Vec3 initial_velocity = Vec3::Zero();
   std::vector<ActuatorDesc> actuators;
   std::vector<EffectorDesc> effectors;
+  std::vector<RigidifyDesc> rigidify;
   Where where;
 };
 

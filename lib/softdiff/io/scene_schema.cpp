@@ -133,8 +133,7 @@ SpecPtr soft_body() {
       key("initial_velocity", vec3()),
       key("actuators", list(actuator(), "a list", 0, false, "actuator")),
       key("effectors", list(effector(), "a list", 0, false, "effector")),
-      planned(key("rigidify", list(map({key("group", text(true)), key("box", box6()), key("attach", text(true))}))),
-              "issue 21, rigidified parts of a soft body"),
+      key("rigidify", list(map({key("group", text(true)), key("box", box6()), key("attach", text(true))}))),
   });
 }
 

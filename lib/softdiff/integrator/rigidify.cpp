@@ -1,0 +1,193 @@
+// Rigidified parts of soft bodies: see rigidify.hpp and docs/method.md "Rigidified parts".
+#include <softdiff/integrator/rigidify.hpp>
+
+#include <softdiff/core/assert.hpp>
+#include <softdiff/data.hpp>
+#include <softdiff/model.hpp>
+
+#include <Eigen/Geometry>
+#include <cmath>
+
+namespace softdiff::integrator {
+
+void build_rigidify(const fem::FemModel& fem, RigidifyModel& r) {
+  r.dof_part.clear();
+  r.rigid_free.clear();
+  r.rigid_rigid.clear();
+  if (r.parts.empty()) return;
+  const int ndof = 3 * fem.num_nodes;
+  r.dof_part.assign(static_cast<std::size_t>(ndof), -1);
+  for (int p = 0; p < r.size(); ++p)
+    for (int i : r.parts[static_cast<std::size_t>(p)].nodes)
+      for (int c = 0; c < 3; ++c) r.dof_part[static_cast<std::size_t>(3 * i + c)] = p;
+  const SparseMatrix& s = fem.pattern.structure;
+  const int* outer = s.outerIndexPtr();
+  const int* inner = s.innerIndexPtr();
+  for (int col = 0; col < ndof; ++col)
+    for (int k = outer[col]; k < outer[col + 1]; ++k) {
+      const int row = inner[k];
+      const bool rr = r.dof_part[static_cast<std::size_t>(row)] >= 0, rc = r.dof_part[static_cast<std::size_t>(col)] >= 0;
+      if (!rr && !rc) continue;
+      if (rr && rc) {
+        r.rigid_rigid.push_back({k, row, col});
+        continue;
+      }
+      const int other = rr ? col : row;
+      if (fem.fixed[static_cast<std::size_t>(other)]) continue;
+      r.rigid_free.push_back({k, rr ? row : col, other});
+    }
+}
+
+Vec3 part_centre(const Model& model, const RigidifiedPart& part, const VecX& x) {
+  Vec3 c = Vec3::Zero();
+  double m = 0;
+  for (int i : part.nodes) {
+    const double mi = model.fem.mass_diagonal[3 * i];
+    c += mi * x.segment<3>(3 * i);
+    m += mi;
+  }
+  return c / m;
+}
+
+Eigen::Matrix<double, 6, 1> part_velocity(const Model& model, const RigidifiedPart& part, const VecX& x,
+                                          const Vec3& c, const VecX& v) {
+  Eigen::Matrix<double, 6, 6> N = Eigen::Matrix<double, 6, 6>::Zero();
+  Eigen::Matrix<double, 6, 1> f = Eigen::Matrix<double, 6, 1>::Zero();
+  for (int i : part.nodes) {
+    const double mi = model.fem.mass_diagonal[3 * i];
+    const Vec3 r = x.segment<3>(3 * i) - c;
+    for (int k = 0; k < 3; ++k) {
+      const Eigen::Matrix<double, 1, 6> t = rigid_row(r, k);
+      N.noalias() += mi * t.transpose() * t;
+      f.noalias() += (mi * v[3 * i + k]) * t.transpose();
+    }
+  }
+  return N.ldlt().solve(f);
+}
+
+StepStatus prepare_rigidified(const Model& model, Data& data, const VecX& x, double h, long step_index) {
+  SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler && model.step.newton_iterations == 1 &&
+                      !model.contact.enabled && !model.solver.factor_reuse,
+                  "rigidified parts: the linearized implicit Euler step only, without contact or factor reuse (issue 21)");
+  const auto& fem = model.fem;
+  const RigidifyModel& rm = model.rigidify;
+  RigidifyData& w = data.rigidify;
+  const int n = 3 * fem.num_nodes, m6 = 6 * rm.size();
+  if (w.C.rows() != n || w.C.cols() != m6) {  // first use: size the workspace
+    w.C.resize(n, m6);
+    w.Y.resize(n, m6);
+    w.S.resize(m6, m6);
+    w.S_factor = Eigen::LLT<MatX>(m6);
+    w.b_soft.resize(n);
+    w.y.resize(n);
+    w.g.resize(m6);
+    w.u.resize(m6);
+    w.centre.resize(rm.parts.size());
+  }
+  w.x = x;
+  for (std::size_t p = 0; p < rm.parts.size(); ++p) w.centre[p] = part_centre(model, rm.parts[p], x);
+
+  // A's coupling values: A = (1 + h alpha) M + (h beta + h^2) K (linearized step: the
+  // damping's K is the step's K), with the part's body coefficients (the pattern
+  // couples no two bodies).
+  const double* M = fem.mass_values.data();
+  const double* K = data.fem.K_values.data();
+  auto value = [&](int k, int part) {
+    const auto& b = fem.bodies[static_cast<std::size_t>(rm.parts[static_cast<std::size_t>(part)].body)];
+    return (1 + h * b.rayleigh_mass) * M[k] + (h * b.rayleigh_stiffness + h * h) * K[k];
+  };
+  auto row_of = [&](int dof, int part) {
+    return rigid_row(x.segment<3>(3 * (dof / 3)) - w.centre[static_cast<std::size_t>(part)], dof % 3);
+  };
+  w.C.setZero();
+  w.S.setZero();
+  for (const auto& e : rm.rigid_free) {
+    const int p = rm.dof_part[static_cast<std::size_t>(e.rigid)];
+    w.C.block<1, 6>(e.other, 6 * p).noalias() += value(e.value, p) * row_of(e.rigid, p);
+  }
+  for (const auto& e : rm.rigid_rigid) {
+    const int p = rm.dof_part[static_cast<std::size_t>(e.rigid)], q = rm.dof_part[static_cast<std::size_t>(e.other)];
+    const double a = value(e.value, p);
+    const Eigen::Matrix<double, 1, 6> tp = row_of(e.rigid, p), tq = row_of(e.other, q);
+    w.S.block<6, 6>(6 * p, 6 * q).noalias() += a * tp.transpose() * tq;
+    if (e.rigid != e.other) w.S.block<6, 6>(6 * q, 6 * p).noalias() += a * tq.transpose() * tp;
+  }
+  StepStatus status;
+  // Y = A_ff^{-1} C: one solve with 6m right-hand sides on the step's factor.
+  if (!data.solver->solve(w.C, w.Y)) {
+    status.code = StepStatus::Code::solver_failed;
+    status.step = step_index;
+    status.detail = "the linear solver failed on the rigidified parts' coupling columns";
+    return status;
+  }
+  w.S.noalias() -= w.C.transpose() * w.Y;
+  for (int j = 0; j < m6; ++j)  // symmetric to round-off: average in place (no temporary)
+    for (int i = 0; i < j; ++i) w.S(i, j) = w.S(j, i) = 0.5 * (w.S(i, j) + w.S(j, i));
+  w.S_factor.compute(w.S);
+  if (w.S_factor.info() != Eigen::Success) {
+    status.code = StepStatus::Code::not_positive_definite;
+    status.step = step_index;
+    status.detail = "the rigidified parts' reduced matrix (Schur complement, " + std::to_string(m6) + " x " +
+                    std::to_string(m6) + ") is not positive definite";
+  }
+  return status;
+}
+
+bool solve_rigidified(const Model& model, Data& data, const VecX& b, VecX& v) {
+  const RigidifyModel& rm = model.rigidify;
+  RigidifyData& w = data.rigidify;
+  w.b_soft = b;
+  for (const auto& part : rm.parts)
+    for (int i : part.nodes) w.b_soft.segment<3>(3 * i).setZero();
+  if (!data.solver->solve(w.b_soft, w.y)) return false;
+  w.g.noalias() = -w.C.transpose() * w.y;
+  for (int p = 0; p < rm.size(); ++p) {
+    const auto& part = rm.parts[static_cast<std::size_t>(p)];
+    for (int i : part.nodes) {
+      const Vec3 r = w.x.segment<3>(3 * i) - w.centre[static_cast<std::size_t>(p)];
+      for (int c = 0; c < 3; ++c) w.g.segment<6>(6 * p).noalias() += b[3 * i + c] * rigid_row(r, c).transpose();
+    }
+  }
+  w.u = w.g;
+  w.S_factor.solveInPlace(w.u);
+  v = w.y;
+  v.noalias() -= w.Y * w.u;
+  for (int p = 0; p < rm.size(); ++p) {
+    const auto& part = rm.parts[static_cast<std::size_t>(p)];
+    const Eigen::Matrix<double, 6, 1> up = w.u.segment<6>(6 * p);
+    for (int i : part.nodes) {
+      const Vec3 r = w.x.segment<3>(3 * i) - w.centre[static_cast<std::size_t>(p)];
+      v.segment<3>(3 * i) = up.head<3>() + up.tail<3>().cross(r);
+    }
+  }
+  return true;
+}
+
+void place_rigidified(const Model& model, Data& data, const State& in, State& out, double h) {
+  const RigidifyModel& rm = model.rigidify;
+  RigidifyData& w = data.rigidify;
+  for (int p = 0; p < rm.size(); ++p) {
+    const auto& part = rm.parts[static_cast<std::size_t>(p)];
+    const Vec3& c = w.centre[static_cast<std::size_t>(p)];
+    const Eigen::Matrix<double, 6, 1> u = part_velocity(model, part, in.x, c, out.v);
+    const Vec3 vp = u.head<3>(), omega = u.tail<3>();
+    const double angle = h * omega.norm();
+    const Mat3 R = angle > 0 ? Eigen::AngleAxisd(angle, omega / omega.norm()).toRotationMatrix() : Mat3::Identity();
+    const Vec3 c_next = c + h * vp;
+    // The angular momentum the solve gave, L = I_n omega (I_n about c at x_i), is kept
+    // at the new pose: omega' = I_{n+1}^{-1} L, I_{n+1} = R I_n R^T (method.md).
+    Mat3 I = Mat3::Zero();
+    for (int i : part.nodes) {
+      const Vec3 r = in.x.segment<3>(3 * i) - c;
+      I += model.fem.mass_diagonal[3 * i] * (r.squaredNorm() * Mat3::Identity() - r * r.transpose());
+    }
+    const Vec3 omega_next = R * I.ldlt().solve(R.transpose() * (I * omega));
+    for (int i : part.nodes) {
+      const Vec3 r = R * (in.x.segment<3>(3 * i) - c);
+      out.x.segment<3>(3 * i) = c_next + r;
+      out.v.segment<3>(3 * i) = vp + omega_next.cross(r);
+    }
+  }
+}
+
+}  // namespace softdiff::integrator

@@ -1,0 +1,118 @@
+#pragma once
+// Rigidified parts of soft bodies (issue 21 item 2, scene.md `rigidify`, docs/method.md
+// "Rigidified parts"): the selected nodes of a soft body move as one rigid body, by a
+// reduced mapping, not by stiff elements.
+//
+// Reduced velocities: the dofs of the soft (neither fixed nor rigidified) nodes, then 6
+// per part, u_p = (v_p, omega_p), world axes. Node i of part p moves with
+//     v_i = v_p + omega_p x (x_i - c_p) = T_i u_p,   T_i = [I, -[x_i - c_p]x]  (3 x 6),
+// c_p the part's lumped-mass centroid at x_i (the step's start). With P the map from
+// reduced to full velocities, the step solves (P^T A P) u = P^T b, v = P u.
+//
+// The factorized matrix is the soft system's A with the rigidified dofs given identity
+// rows (the pattern's fixed_* lists include them: one pattern, one symbolic analysis,
+// the step's one factorization, A_ff below). The 6 m part dofs are eliminated by the
+// Schur complement
+//     C = A_fr T (3n x 6m, rows of the soft dofs next to a part),  Y = A_ff^{-1} C (one
+//     solve with 6m right-hand sides on the step's factor),
+//     S = T^T A_rr T - C^T Y   (6m x 6m, dense, Cholesky),
+// the coupling values A_fr, A_rr computed from M and K at precomputed value indices
+// (the assembled A has them zeroed). Every solve is then one solve with the factor:
+//     y = A_ff^{-1} b_f,  u = S^{-1} (T^T b_r - C^T y),  v_f = y - Y u,  v_r = T u,
+// i.e. v = P (P^T A P)^{-1} P^T b exactly, in full coordinates.
+//
+// Positions are placed exactly (place_rigidified): with u = (v_p, omega) the part's
+// velocity at the end of the step,
+//     x_i' = c_p + h v_p + R (x_i - c_p),  R = exp(h [omega]x),
+//     v_i' = v_p + omega' x (x_i' - c_p'),  omega' = I'^{-1} I omega,  I' = R I R^T,
+// c_p' = c_p + h v_p, I the part's lumped inertia about c_p at x_i, instead of x_i + h v_i:
+// distances inside the part are kept to round-off whatever the rotation, and the
+// angular momentum of the solve is kept at the new pose.
+//
+// attach: fixed parts are fixed dofs (io::build_model); free and servo-attached parts
+// are RigidifiedPart. Unsupported with parts (the scene reader refuses them, issue 21):
+// contact, bdf2, static, newton_iterations > 1, factor reuse, derivatives.
+#include <softdiff/core/types.hpp>
+#include <softdiff/fem/fem_model.hpp>
+
+#include <Eigen/Cholesky>
+#include <string>
+#include <vector>
+
+namespace softdiff {
+struct Model;
+struct Data;
+struct State;
+struct StepStatus;
+}  // namespace softdiff
+
+namespace softdiff::integrator {
+
+struct RigidifiedPart {
+  std::string name;         // "body 'b' rigidify[k]" (messages)
+  int body = 0;             // soft body index
+  std::vector<int> nodes;   // global node indices, sorted, distinct
+  int servo = -1;           // attach: <servo>: the actuator index in model.actuation; -1 free
+  double mass = 0;          // sum of the nodes' lumped masses (fem.mass_diagonal)
+};
+
+struct RigidifyModel {
+  std::vector<RigidifiedPart> parts;  // free or servo-attached; empty: nothing of this runs
+  std::vector<int> dof_part;          // (3n when parts exist) part of each dof, -1 if not rigidified
+  // Entries of the system pattern's upper triangle that couple a rigidified dof: `value`
+  // the value index, `rigid` the rigidified dof, `other` the other dof (free for
+  // rigid_free; rigidified, possibly equal to `rigid`, for rigid_rigid). Entries with a
+  // fixed dof are left out (a fixed dof does not move).
+  struct Entry {
+    int value = 0, rigid = 0, other = 0;
+  };
+  std::vector<Entry> rigid_free, rigid_rigid;
+  bool empty() const { return parts.empty(); }
+  int size() const { return static_cast<int>(parts.size()); }
+};
+
+// The per-step workspace (sized on first use; no allocation afterwards).
+struct RigidifyData {
+  MatX C, Y;                    // (3n, 6m)
+  MatX S;                       // (6m, 6m)
+  Eigen::LLT<MatX> S_factor;
+  VecX b_soft, y, g, u;         // (3n), (3n), (6m), (6m)
+  std::vector<Vec3> centre;     // (m) c_p at the step's start
+  VecX x;                       // (3n) the step's start x_i (T's arms)
+};
+
+// Fills r.dof_part and the coupling entries from the pattern (io::build_model, after
+// fem::build_fem_model was given the parts' dofs as fixed and fem.fixed was restored).
+void build_rigidify(const fem::FemModel& fem, RigidifyModel& r);
+
+// The row of T for dof c of a node at arm r from the centre: v_c = row . (v_p, omega).
+inline Eigen::Matrix<double, 1, 6> rigid_row(const Vec3& r, int c) {
+  Eigen::Matrix<double, 1, 6> t = Eigen::Matrix<double, 1, 6>::Zero();
+  t[c] = 1;
+  // -[r]x row c: omega x r = -r x omega
+  if (c == 0) { t[4] = r.z(); t[5] = -r.y(); }
+  if (c == 1) { t[3] = -r.z(); t[5] = r.x(); }
+  if (c == 2) { t[3] = r.y(); t[4] = -r.x(); }
+  return t;
+}
+
+// After the step's A (at x, step size h) is assembled and factorized: the centres, C,
+// Y and S's Cholesky factor. S not positive definite: a not_positive_definite status.
+StepStatus prepare_rigidified(const Model& model, Data& data, const VecX& x, double h, long step_index);
+
+// v = P (P^T A P)^{-1} P^T b with the prepared factors. b is projected (zero on the
+// fixed dofs). Returns false if the linear solver failed (an iterative one).
+bool solve_rigidified(const Model& model, Data& data, const VecX& b, VecX& v);
+
+// The exact placement: out.x, out.v of the parts' nodes from in.x and out.v (the
+// rigid velocity field the solve gave), see above.
+void place_rigidified(const Model& model, Data& data, const State& in, State& out, double h);
+
+// The part's (v_p, omega) from a nodal velocity field at positions x, about centre c:
+// the lumped-mass least-squares fit (exact for a rigid field).
+Eigen::Matrix<double, 6, 1> part_velocity(const Model& model, const RigidifiedPart& part, const VecX& x,
+                                          const Vec3& c, const VecX& v);
+// The part's lumped-mass centroid at x.
+Vec3 part_centre(const Model& model, const RigidifiedPart& part, const VecX& x);
+
+}  // namespace softdiff::integrator

@@ -1,0 +1,165 @@
+// Rigidified parts of soft bodies on the command line (issue 21 item 2, scene.md
+// `rigidify`): a scene with a free part runs and keeps the part's shape in the output;
+// bad selections are input errors (exit 2, a message, no output file); what is not
+// supported yet with rigidified parts is refused naming issue 21 (exit 2, no output).
+#include <support/cli.hpp>
+#include <support/h5.hpp>
+
+#include <gtest/gtest.h>
+#include <hdf5.h>
+
+#include <cmath>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+using namespace softdiff::test;
+namespace fs = std::filesystem;
+
+namespace {
+
+const fs::path kRigidifyRoot = SOFTDIFF_SOURCE_DIR;
+const fs::path kRigidifyWork = fs::path(SOFTDIFF_TEST_DATA_DIR) / "cli_rigidify";
+
+// The shipped beam, clamped, with `body_extra` appended to the body and `top_extra` to
+// the file.
+std::string beam(const std::string& body_extra, const std::string& top_extra = "") {
+  return "softdiff: 1\n"
+         "simulation: {dt: 0.01, steps: 5}\n"
+         "bodies:\n"
+         "  - name: beam\n"
+         "    mesh: " +
+         (kRigidifyRoot / "meshes/beam.msh").string() +
+         "\n"
+         "    material: {young: 1.0e6, poisson: 0.45, density: 1070}\n"
+         "    fixed: [{group: clamp}]\n" +
+         body_extra + top_extra;
+}
+
+const std::string kTip = "    rigidify: [{box: [0.15, -1, -1, 1, 1, 1], attach: free}]\n";
+const std::string kTipServo = "    rigidify: [{box: [0.15, -1, -1, 1, 1, 1], attach: turn}]\n";
+const std::string kServo =
+    "    actuators:\n"
+    "      - {name: turn, type: servo, nodes: {group: tip}, axis: [1, 0, 0], center: [0.2, 0.01, 0.01], "
+    "force: 0.001}\n";
+
+void expect_no_output(const fs::path& dir) {
+  for (const auto& entry : fs::directory_iterator(dir)) {
+    const std::string ext = entry.path().extension().string();
+    EXPECT_TRUE(ext == ".yaml" || ext == ".txt") << entry.path();  // (.txt: run_cli's stdout, stderr)
+  }
+}
+
+TEST(Cli, RigidifiedTipKeepsItsShape) {
+  for (const bool servo : {false, true}) {
+  SCOPED_TRACE(servo ? "attached to a servo" : "free");
+  const fs::path dir = fresh_dir(kRigidifyWork, servo ? "tip_servo" : "tip");
+  write_text(dir / "scene.yaml", beam(servo ? kTipServo + kServo : kTip));
+  const auto r = run_cli("simulate scene.yaml -o out.h5 --quiet", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const hid_t f = H5Fopen((dir / "out.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const std::vector<double> rest = h5_read(f, "/bodies/beam/rest");
+  const std::vector<hsize_t> shape = h5_shape(f, "/bodies/beam/x");
+  const std::vector<double> x = h5_read(f, "/bodies/beam/x");
+  H5Fclose(f);
+  ASSERT_EQ(shape.size(), 3u);
+  const std::size_t n = shape[1], last = (shape[0] - 1) * n * 3;
+  // The part's nodes (x >= 0.15): pairwise distances kept (to round-off of the exact
+  // placement, 1e-12 m on 0.05 m), while the tip moved by millimetres.
+  std::vector<std::size_t> part;
+  for (std::size_t i = 0; i < n; ++i)
+    if (rest[3 * i] >= 0.15 - 1e-9) part.push_back(i);
+  ASSERT_EQ(part.size(), 275u);
+  double moved = 0, worst = 0;
+  for (std::size_t a : part) {
+    moved = std::max(moved, std::abs(x[last + 3 * a + 2] - rest[3 * a + 2]));
+    for (std::size_t b : {part.front(), part.back(), part[part.size() / 2]}) {
+      double d0 = 0, d1 = 0;
+      for (int c = 0; c < 3; ++c) {
+        d0 += std::pow(rest[3 * a + c] - rest[3 * b + c], 2);
+        d1 += std::pow(x[last + 3 * a + c] - x[last + 3 * b + c], 2);
+      }
+      worst = std::max(worst, std::abs(std::sqrt(d1) - std::sqrt(d0)));
+    }
+  }
+  EXPECT_GT(moved, 1e-4);
+  EXPECT_LT(worst, 1e-12);
+  }
+}
+
+TEST(Cli, RigidifyBadInputIsAnError) {
+  struct Case {
+    std::string name, scene, message;
+  };
+  const std::vector<Case> cases = {
+      {"unknown_group", beam("    rigidify: [{group: hub}]\n"), "has no physical group 'hub'"},
+      {"empty_box", beam("    rigidify: [{box: [1, 1, 1, 2, 2, 2]}]\n"), "box selects no node of body 'beam'"},
+      {"no_selection", beam("    rigidify: [{attach: free}]\n"), "bodies[0].rigidify[0]: needs one of 'group', 'box'"},
+      {"unknown_servo", beam("    rigidify: [{group: tip, attach: motor}]\n"),
+       "bodies[0].rigidify[0].attach: 'motor' is neither free, fixed nor a servo of body 'beam' (it has no servo)"},
+      {"not_a_servo",
+       beam("    rigidify: [{group: tip, attach: pull}]\n    actuators:\n      - {name: pull, type: cable, points: [[0.19, "
+            "0.01, 0.01], [0.01, 0.01, 0.01]], force: 0}\n"),
+       "'pull' is neither free, fixed nor a servo of body 'beam'"},
+      {"servo_outside",
+       beam(std::string("    rigidify: [{box: [0.19, -1, -1, 1, 1, 1], attach: turn}]\n") +
+            "    actuators:\n      - {name: turn, type: servo, nodes: {box: [0.15, -1, -1, 1, 1, 1]}, axis: [1, 0, 0], "
+            "center: [0.2, 0.01, 0.01], force: 0.001}\n"),
+       "attach: servo 'turn' acts on node"},
+      {"two_parts", beam("    rigidify: [{group: tip}, {box: [0.19, -1, -1, 1, 1, 1]}]\n"),
+       "is also in rigidify[0]: a node belongs to at most one rigidified part"},
+      {"fixed_overlap", beam("    rigidify: [{box: [-1, -1, -1, 0.01, 1, 1]}]\n"),
+       "is also fixed (bodies[].fixed): a node is either fixed or in a rigidified part"},
+      {"collinear", beam("    rigidify: [{box: [0.05, -1, -1, 1, 0, 0]}]\n"), "lie on one line"},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const fs::path dir = fresh_dir(kRigidifyWork, "bad_" + c.name);
+    write_text(dir / "scene.yaml", c.scene);
+    const auto r = run_cli("simulate scene.yaml -o out.h5", dir);
+    EXPECT_EQ(r.code, 2) << r.err;
+    EXPECT_NE(r.err.find(c.message), std::string::npos) << r.err;
+    expect_no_output(dir);
+  }
+}
+
+TEST(Cli, RigidifyRefusesWhatIsNotSupportedYet) {
+  struct Case {
+    std::string name, scene, args, message;
+  };
+  const std::string plane = "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.1}]\n";
+  const std::vector<Case> cases = {
+      {"contact", beam(kTip, plane + "contact: {friction: 0.3}\n"), "simulate scene.yaml -o out.h5",
+       "contact: contact with rigidified parts is not supported yet (issue 21; bodies[0].rigidify[0])"},
+      {"bdf2", beam(kTip), "simulate scene.yaml -o out.h5 --set simulation.integrator=bdf2",
+       "simulation.integrator: integrator 'bdf2' with rigidified parts is not supported yet (issue 21"},
+      {"static", beam(kTip),
+       "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
+       "simulation.steps=null",
+       "integrator 'static' with rigidified parts is not supported yet (issue 21"},
+      {"newton", beam(kTip), "simulate scene.yaml -o out.h5 --set simulation.newton_iterations=3",
+       "newton_iterations > 1 with rigidified parts is not supported yet (issue 21"},
+      {"pcg", beam(kTip, "linear_solver: {type: cholmod, factor_reuse: pcg}\n"), "simulate scene.yaml -o out.h5",
+       "factor_reuse: pcg with rigidified parts is not supported yet (issue 21"},
+      {"jacobian", beam(kTip), "simulate scene.yaml -o out.h5 --jacobian young",
+       "--jacobian: derivatives with rigidified parts are not supported yet (issue 21; body 'beam' rigidify[0])"},
+      {"check_grad", beam(kTip), "check-grad scene.yaml",
+       "check-grad: derivatives with rigidified parts are not supported yet (issue 21"},
+      {"calibrate", beam(kTip), "calibrate scene.yaml --param young --target target.h5 -o out.h5",
+       "calibrate: derivatives with rigidified parts are not supported yet (issue 21"},
+      {"control", beam(kTip), "control scene.yaml --target 0,0,0 -o out.h5",
+       "control: derivatives with rigidified parts are not supported yet (issue 21"},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const fs::path dir = fresh_dir(kRigidifyWork, "refuse_" + c.name);
+    write_text(dir / "scene.yaml", c.scene);
+    const auto r = run_cli(c.args, dir);
+    EXPECT_EQ(r.code, 2) << r.err;
+    EXPECT_NE(r.err.find(c.message), std::string::npos) << r.err;
+    expect_no_output(dir);
+  }
+}
+
+}  // namespace

@@ -1,0 +1,334 @@
+// Rigidified parts of soft bodies (issue 21 item 2, integrator/rigidify.hpp) against
+// independent references and closed forms (docs/method.md "Rigidified parts" quotes
+// the figures printed here; run build/tests/validation_rigid --gtest_filter='Rigidify*'):
+//  1. attach: fixed is the same beam with those nodes fixed (to round-off);
+//  2. the Schur-complement solve equals an independent sparse solve of the reduced
+//     system (P^T A P) u = P^T b (Eigen's SimplicialLDLT on the explicitly formed
+//     P^T A P): the algebra of the elimination;
+//  3. a free rigidified region of a clamped beam is the limit of the same region made
+//     stiff (its elements' stiffness x 1e2 .. 1e6), the difference falling with the
+//     stiffness;
+//  4. a whole free body rigidified falls as implicit Euler's free fall (closed form),
+//     to a round-off bound, keeping its shape;
+//  5. a whole body rigidified and attached to a torque servo about its long axis: its
+//     first step's angular momentum is h tau e_x, its axial angular momentum n h tau
+//     (closed forms), with zero linear momentum and its shape kept.
+#include <softdiff/data.hpp>
+#include <softdiff/fem/assembly.hpp>
+#include <softdiff/integrator/implicit_euler.hpp>
+#include <softdiff/integrator/rigidify.hpp>
+#include <softdiff/io/build_model.hpp>
+#include <softdiff/io/scene.hpp>
+#include <support/cli.hpp>
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <Eigen/SparseCholesky>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <iostream>
+#include <string>
+#include <vector>
+
+using namespace softdiff;
+namespace fs = std::filesystem;
+
+namespace rigidify_validation {
+
+const fs::path kRoot = SOFTDIFF_SOURCE_DIR;
+
+// The shipped beam (0.2 x 0.02 x 0.02 m, 4 elements across, 1025 nodes), no damping.
+// `body_extra` is appended to the body, `gravity` the simulation's.
+std::string beam_scene(const std::string& body_extra, const std::string& gravity = "[0, 0, -9.81]",
+                       const std::string& material = "{law: corotational, young: 1.0e6, poisson: 0.45, density: 1070}") {
+  return "softdiff: 1\n"
+         "simulation: {dt: 0.01, steps: 10, gravity: " +
+         gravity +
+         "}\n"
+         "bodies:\n"
+         "  - name: beam\n"
+         "    mesh: " +
+         (kRoot / "meshes/beam.msh").string() +
+         "\n"
+         "    material: " +
+         material + "\n" + body_extra;
+}
+
+Model load(const std::string& name, const std::string& text) {
+  const fs::path dir = fs::path(SOFTDIFF_TEST_DATA_DIR) / ("validation_rigidify_" + std::to_string(::getpid())) / name;
+  fs::remove_all(dir);
+  test::write_text(dir / "scene.yaml", text);
+  Model model = io::build_model(io::load_scene(dir / "scene.yaml"));
+  fs::remove_all(dir);
+  return model;
+}
+
+// Runs `steps` steps from the model's initial state; returns the final state.
+State run(const Model& model, int steps, Data* data_out = nullptr) {
+  Data data(model);
+  State a = model.initial, b = model.initial;
+  for (int k = 1; k <= steps; ++k) {
+    const StepStatus s = integrator::implicit_euler_step(model, data, a, b, k);
+    EXPECT_TRUE(s.ok()) << describe(model, s);
+    std::swap(a, b);
+  }
+  if (data_out) *data_out = std::move(data);
+  return a;
+}
+
+TEST(RigidifyValidation, FixedAttachIsFixedNodes) {
+  const Model fixed = load("fixed", beam_scene("    fixed: [{group: clamp}]\n"));
+  const Model part = load("part", beam_scene("    rigidify: [{group: clamp, attach: fixed}]\n"));
+  EXPECT_TRUE(part.rigidify.empty());  // attach: fixed parts are fixed dofs
+  EXPECT_EQ(part.fem.num_fixed_dofs, fixed.fem.num_fixed_dofs);
+  const State a = run(fixed, 20), b = run(part, 20);
+  // The same model: the same arithmetic. Round-off (1e-15 of the 7 cm sag) allowed in
+  // case a future reader orders the dofs differently.
+  const double sag = (a.x - fixed.initial.x).cwiseAbs().maxCoeff();
+  EXPECT_GT(sag, 1e-3);
+  EXPECT_LE((a.x - b.x).cwiseAbs().maxCoeff(), 1e-15 * sag);
+  EXPECT_LE((a.v - b.v).cwiseAbs().maxCoeff(), 1e-13 * a.v.cwiseAbs().maxCoeff());
+}
+
+// The clamped beam with its tip region x >= 0.15 m rigidified (free).
+const std::string kTipPart = "    fixed: [{group: clamp}]\n    rigidify: [{box: [0.15, -1, -1, 1, 1, 1], attach: free}]\n";
+
+TEST(RigidifyValidation, SchurSolveIsTheReducedSystem) {
+  const Model model = load("schur", beam_scene(kTipPart));
+  ASSERT_EQ(model.rigidify.size(), 1);
+  const auto& part = model.rigidify.parts[0];
+  EXPECT_EQ(part.nodes.size(), 25u * 11u);  // 5 x 5 nodes per layer, layers at x = 0.15 .. 0.2
+  // Steps to a bent, moving state, then one more step checked against the reference.
+  Data data(model);
+  State a = model.initial, b = model.initial;
+  for (int k = 1; k <= 6; ++k) {
+    ASSERT_TRUE(integrator::implicit_euler_step(model, data, a, b, k).ok());
+    std::swap(a, b);
+  }
+  ASSERT_TRUE(integrator::implicit_euler_step(model, data, a, b, 7).ok());
+  const double h = model.step.dt;
+  const auto& fem = model.fem;
+  const int n = 3 * fem.num_nodes;
+  // The full (unprojected) A = (1 + h alpha) M + (h beta + h^2) K(x_i) from the pattern's
+  // upper triangle, symmetric.
+  std::vector<Eigen::Triplet<double>> t;
+  const SparseMatrix& s = fem.pattern.structure;
+  for (int col = 0; col < n; ++col)
+    for (int k = s.outerIndexPtr()[col]; k < s.outerIndexPtr()[col + 1]; ++k) {
+      const int row = s.innerIndexPtr()[k];
+      const double v = fem.mass_values[k] + h * h * data.fem.K_values[k];
+      t.emplace_back(row, col, v);
+      if (row != col) t.emplace_back(col, row, v);
+    }
+  SparseMatrix A(n, n);
+  A.setFromTriplets(t.begin(), t.end());
+  // P: free dofs (not fixed, not in the part) then (v_p, omega) about the centroid.
+  const Vec3 c = integrator::part_centre(model, part, a.x);
+  std::vector<int> red(n, -1);
+  int nf = 0;
+  for (int d = 0; d < n; ++d)
+    if (!fem.fixed[d] && model.rigidify.dof_part[d] < 0) red[d] = nf++;
+  t.clear();
+  for (int d = 0; d < n; ++d) {
+    if (red[d] >= 0) t.emplace_back(d, red[d], 1.0);
+    if (model.rigidify.dof_part[d] < 0) continue;
+    const auto row = integrator::rigid_row(a.x.segment<3>(3 * (d / 3)) - c, d % 3);
+    for (int j = 0; j < 6; ++j)
+      if (row[j] != 0) t.emplace_back(d, nf + j, row[j]);
+  }
+  SparseMatrix P(n, nf + 6);
+  P.setFromTriplets(t.begin(), t.end());
+  const SparseMatrix PtAP = P.transpose() * A * P;
+  Eigen::SimplicialLDLT<SparseMatrix> ldlt(PtAP);
+  ASSERT_EQ(ldlt.info(), Eigen::Success);
+  const VecX u = ldlt.solve(P.transpose() * data.rhs);  // data.rhs: this step's b (zero on fixed dofs)
+  const VecX dv_ref = P * u;
+  // The step's v = v_i + dv on the soft dofs (unchanged by the placement); the part's
+  // velocity fitted at the end pose equals v_i's part velocity + the reference's.
+  const VecX v_ref = a.v + dv_ref;
+  double err = 0;
+  for (int d = 0; d < n; ++d)
+    if (red[d] >= 0) err = std::max(err, std::abs(b.v[d] - v_ref[d]));
+  const double scale = v_ref.cwiseAbs().maxCoeff();
+  // Two direct solves of one SPD system (condition ~1e6 here): 1e-9 relative leaves
+  // orders of margin over their round-off, and any missing coupling term fails it by
+  // far more.
+  EXPECT_LE(err, 1e-9 * scale) << "scale " << scale;
+  // The part: its linear and angular momentum (about the centroid) after the step equal
+  // the reference's at x_i (the placement keeps both: rigidify.hpp).
+  auto momentum = [&](const VecX& x, const VecX& v) {
+    const Vec3 cc = integrator::part_centre(model, part, x);
+    Eigen::Matrix<double, 6, 1> m6 = Eigen::Matrix<double, 6, 1>::Zero();
+    for (int i : part.nodes) {
+      const double mi = fem.mass_diagonal[3 * i];
+      m6.head<3>() += mi * v.segment<3>(3 * i);
+      m6.tail<3>() += mi * Vec3(x.segment<3>(3 * i) - cc).cross(Vec3(v.segment<3>(3 * i)));
+    }
+    return m6;
+  };
+  const Eigen::Matrix<double, 6, 1> p_step = momentum(b.x, b.v), p_ref = momentum(a.x, v_ref);
+  EXPECT_LE((p_step - p_ref).head<3>().norm(), 1e-9 * p_ref.head<3>().norm());
+  EXPECT_LE((p_step - p_ref).tail<3>().norm(), 1e-9 * p_ref.tail<3>().norm());
+  std::cout << "[rigidify] reduced solve vs SimplicialLDLT of P^T A P: soft max |dv| error " << err << " (scale "
+            << scale << "), part momentum error " << (p_step - p_ref).head<3>().norm() / p_ref.head<3>().norm()
+            << ", angular momentum error " << (p_step - p_ref).tail<3>().norm() / p_ref.tail<3>().norm() << " (relative)\n";
+}
+
+// The clamped beam under gravity `g`, its tip region rigidified, against the same
+// region made stiff: the elements with all four nodes in the region get their
+// stiffness (and internal forces) scaled, through rest_volume, after build_model
+// (their mass was computed at build). Returns max |x_stiff - x_rigid| after `steps`
+// for each factor, and the tip displacement.
+std::vector<double> stiff_against_rigid(const std::string& g, const std::vector<double>& factors, int steps,
+                                        double& tip) {
+  const Model rigid = load("rigid", beam_scene(kTipPart, g));
+  const State r = run(rigid, steps);
+  std::vector<unsigned char> in_part(rigid.fem.num_nodes, 0);
+  for (int i : rigid.rigidify.parts[0].nodes) in_part[i] = 1;
+  tip = (r.x - rigid.initial.x).cwiseAbs().maxCoeff();
+  std::vector<double> diffs;
+  for (double stiffen : factors) {
+    Model soft = load("soft", beam_scene("    fixed: [{group: clamp}]\n", g));
+    int stiffened = 0;
+    for (int e = 0; e < soft.fem.num_tets; ++e) {
+      bool inside = true;
+      for (int k = 0; k < 4; ++k) inside = inside && in_part[soft.fem.tets(k, e)];
+      if (inside) {
+        soft.fem.rest_volume[e] *= stiffen;
+        ++stiffened;
+      }
+    }
+    EXPECT_GT(stiffened, 0);
+    const State s = run(soft, steps);
+    diffs.push_back((s.x - r.x).cwiseAbs().maxCoeff());
+    std::cout << "[rigidify] g " << g << ", region stiffness x" << stiffen << ": max |x_stiff - x_rigid| "
+              << diffs.back() << " m (tip displacement " << tip << " m, 20 steps of 10 ms)\n";
+  }
+  return diffs;
+}
+
+TEST(RigidifyValidation, StiffRegionConvergesToTheRigidPart) {
+  // Small loads (g / 1e4: the tip moves by 5 um): the stiff region's deformation, and
+  // its difference to the rigid part, fall like 1 / stiffness, ~10x per factor 10.
+  // Asserted: at least 5x per factor 10 from x10 to x1000, and below 2e-5 of the tip
+  // displacement at x1000. Beyond (x1e4 .. x1e6), and at full gravity, the stiff
+  // region departs again: the linearized step moves its nodes along straight lines
+  // (x + h v), which stretches a rotating region by ~(h omega)^2 r, and the stiff
+  // elements turn that stretch into forces proportional to their stiffness (method.md
+  // "Rigidified parts": the reason for the reduced mapping). Those figures are printed.
+  double tip = 0;
+  const std::vector<double> small = stiff_against_rigid("[0, 0, -9.81e-4]", {1e1, 1e2, 1e3, 1e4, 1e5, 1e6}, 20, tip);
+  EXPECT_GT(tip, 1e-6);
+  EXPECT_LT(small[1], 0.2 * small[0]);
+  EXPECT_LT(small[2], 0.2 * small[1]);
+  EXPECT_LT(small[2], 2e-5 * tip);
+  double tip_full = 0;
+  stiff_against_rigid("[0, 0, -9.81]", {1e2, 1e4, 1e6}, 20, tip_full);
+}
+
+TEST(RigidifyValidation, WholeBodyFallsAsARigidBody) {
+  const Model model = load("fall", beam_scene("    initial_velocity: [0.5, -0.2, 2]\n    rigidify: [{group: beam}]\n"));
+  ASSERT_EQ(model.rigidify.size(), 1);
+  const auto& part = model.rigidify.parts[0];
+  ASSERT_EQ(static_cast<int>(part.nodes.size()), model.fem.num_nodes);
+  Data data(model);
+  State a = model.initial, b = model.initial;
+  const Vec3 c0 = integrator::part_centre(model, part, a.x), v0(0.5, -0.2, 2), g(0, 0, -9.81);
+  const double h = model.step.dt;
+  double centre_error = 0, node_error = 0;
+  for (int n = 1; n <= 50; ++n) {
+    ASSERT_TRUE(integrator::implicit_euler_step(model, data, a, b, n).ok());
+    std::swap(a, b);
+    // Implicit Euler's free fall: c_n = c_0 + n h v_0 + h^2 g n (n + 1) / 2.
+    const Vec3 c = c0 + n * h * v0 + h * h * g * (n * (n + 1) / 2.0);
+    centre_error = std::max(centre_error, (integrator::part_centre(model, part, a.x) - c).norm());
+    // Every node translated alike (no rotation, no deformation).
+    for (int i = 0; i < model.fem.num_nodes; ++i)
+      node_error = std::max(node_error, (a.x.segment<3>(3 * i) - model.initial.x.segment<3>(3 * i) - (c - c0)).norm());
+  }
+  // Round-off: the part's reduced matrix T^T (M + h^2 K) T holds h^2 K T, which
+  // vanishes on rigid motions only to round-off of ||h^2 K|| (kappa = max h^2 K_ii /
+  // min m_i, ~1e4 here): each step's velocity carries ~eps kappa |v| of error, the
+  // position ~eps kappa times the path. Asserted at 10 eps kappa path.
+  double kmax = 0, mmin = 1e300;
+  for (int d = 0; d < 3 * model.fem.num_nodes; ++d) {
+    kmax = std::max(kmax, h * h * std::abs(data.fem.K_values[model.fem.pattern.diagonal[d]]));
+    mmin = std::min(mmin, model.fem.mass_diagonal[d]);
+  }
+  const double kappa = kmax / mmin, path = (integrator::part_centre(model, part, a.x) - c0).norm();
+  const double tol = 10 * 2.2e-16 * kappa * path;
+  EXPECT_LT(centre_error, tol);
+  EXPECT_LT(node_error, tol);
+  std::cout << "[rigidify] free fall, 50 steps: centroid error " << centre_error << " m, node error " << node_error
+            << " m (kappa " << kappa << ", path " << path << " m, bound 10 eps kappa path " << tol << " m)\n";
+}
+
+TEST(RigidifyValidation, ServoSpinsTheWholeBodyAsTheTorqueSays) {
+  // The whole beam rigidified, attached to a torque servo on all its nodes about its
+  // long axis x through its centre (0.1, 0.01, 0.01): by the node grid's symmetry the
+  // servo field has no resultant (and the centroid, on the axis, stays put), and its
+  // moment about the axis is exactly tau in any pose (servo.hpp). Closed forms: the first step from rest gives
+  // omega_1 = h tau I^{-1} e_x (I the part's lumped inertia tensor: the lumped masses of
+  // the alternating tetrahedra are not symmetric, so e_x is not quite principal), and
+  // the angular momentum about the axis grows as L_n . e_x = n h tau.
+  const double tau = 2e-4;
+  const Model model = load("servo", beam_scene("    rigidify: [{group: beam, attach: twist}]\n"
+                                               "    actuators:\n"
+                                               "      - {name: twist, type: servo, nodes: {group: beam}, axis: [1, 0, 0], "
+                                               "center: [0.1, 0.01, 0.01], force: " +
+                                                   std::to_string(tau) + "}\n",
+                                               "[0, 0, 0]"));
+  ASSERT_EQ(model.rigidify.size(), 1);
+  const auto& part = model.rigidify.parts[0];
+  EXPECT_EQ(part.servo, 0);
+  auto inertia = [&](const VecX& x, const Vec3& c) {
+    Mat3 I = Mat3::Zero();
+    for (int i : part.nodes) {
+      const Vec3 r = x.segment<3>(3 * i) - c;
+      I += model.fem.mass_diagonal[3 * i] * (r.squaredNorm() * Mat3::Identity() - r * r.transpose());
+    }
+    return I;
+  };
+  auto momentum = [&](const State& st, const Vec3& c) {
+    Vec3 L = Vec3::Zero();
+    for (int i : part.nodes)
+      L += model.fem.mass_diagonal[3 * i] * Vec3(st.x.segment<3>(3 * i) - c).cross(Vec3(st.v.segment<3>(3 * i)));
+    return L;
+  };
+  const Vec3 c0 = integrator::part_centre(model, part, model.initial.x);
+  const Mat3 I0 = inertia(model.initial.x, c0);
+  Data data(model);
+  State a = model.initial, b = model.initial;
+  const double h = model.step.dt;
+  double angle = 0, shape = 0, off_axis = 0;
+  for (int n = 1; n <= 30; ++n) {
+    ASSERT_TRUE(integrator::implicit_euler_step(model, data, a, b, n).ok());
+    std::swap(a, b);
+    const Vec3 c = integrator::part_centre(model, part, a.x);
+    const auto u = integrator::part_velocity(model, part, a.x, c, a.v);
+    const Vec3 L = momentum(a, c);
+    if (n == 1) {
+      // 1e-9 relative: the solve's round-off against a closed form (h^2 K of the
+      // rigidly moved elements annihilates the rotation to ~1e-13 of I).
+      EXPECT_LT((L - h * tau * Vec3::UnitX()).norm(), 1e-9 * h * tau);
+      const Vec3 omega1 = h * tau * I0.inverse().col(0);
+      std::cout << "[rigidify] servo: first step I_0 omega at x_0 " << (I0 * omega1).transpose() << " = h tau e_x, L_1 "
+                << L.transpose() << "\n";
+    }
+    ASSERT_NEAR(L.x(), n * h * tau, 1e-9 * n * h * tau) << "step " << n;
+    ASSERT_LT(u.head<3>().norm(), 1e-9 * u.tail<3>().norm() * 0.01) << "step " << n;  // no resultant force
+    ASSERT_LT((c - c0).norm(), 1e-13) << "step " << n;
+    off_axis = std::max(off_axis, L.tail<2>().norm() / L.norm());
+    angle += h * u[3];
+    for (int i : part.nodes)
+      shape = std::max(shape, std::abs((a.x.segment<3>(3 * i) - c).norm() - (model.initial.x.segment<3>(3 * i) - c0).norm()));
+  }
+  // Rigid placement: every node's distance to the centre kept to round-off.
+  EXPECT_LT(shape, 1e-15);
+  std::cout << "[rigidify] servo: after 30 steps angle " << angle << " rad, L_x = n h tau to 1e-9, off-axis |L_yz|/|L| "
+            << off_axis << ", node distance change " << shape << " m\n";
+}
+
+}  // namespace rigidify_validation
