@@ -13,6 +13,9 @@ namespace {
 
 
 void demand_differentiable(const std::string& option, const Model& model) {
+  if (!model.rigidify.empty())  // (rigidified parts of soft bodies: issue 21 item 2)
+    throw InputError(option + ": derivatives with rigidified parts are not supported yet (issue 21; " +
+                     model.rigidify.parts.front().name + ")");
   // Issue 21, item 4: the rigid step is differentiated (forward mode) while no contact
   // couples the rigid bodies; derivatives through contact with rigid bodies are not yet.
   if (!model.rigid.empty() && model.contact.enabled)
