@@ -174,6 +174,8 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
       cd.sparse.set_mass(model.fem.mass_diagonal);
     else
       cd.sparse.clear_mass();
+  } else if (with_rigid && cd.Ht.nonZeros() == 0) {
+    cd.G.setZero(3 * nc, 3 * nc);  // only rigid bodies move in these contacts: no soft block
   } else {
     if (!data.solver->inverse_congruence(cd.Ht, cd.G)) {
       status.code = StepStatus::Code::solver_failed;
@@ -222,7 +224,9 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   // The correction: v_f = v_free + h A^{-1} H^T lambda.
   t0 = Clock::now();
   cd.rhs.noalias() = h * (cd.Ht * cd.lambda);
-  if (!data.solver->solve(cd.rhs, cd.correction)) {
+  if (with_rigid && cd.Ht.nonZeros() == 0) {
+    cd.correction.setZero();  // no soft dof in any contact (rigid bodies only)
+  } else if (!data.solver->solve(cd.rhs, cd.correction)) {
     status.code = StepStatus::Code::solver_failed;
     status.detail = "iterative linear solver did not reach its tolerance (contact correction)";
     return status;
