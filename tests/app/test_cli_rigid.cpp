@@ -210,10 +210,10 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
   const std::string plane = "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.1}]\n";
   const std::vector<Case> cases = {
       {"contact_hinge",
-       beam_and_sphere("    joint: {type: hinge, anchor: [0.1, 0.1, 0.05], axis: [0, 1, 0]}\n",
+       beam_and_sphere("    joint: {type: hinge, anchor: [0.1, 0.1, 0.05], axis: [0, 1, 0], limits: [-0.1, 0.1]}\n",
                        plane + "contact: {friction: 0.3}\n"),
        "simulate scene.yaml -o out.h5",
-       "contact with a rigid body on a hinge or slider joint is not supported yet (issue 21"},
+       "contact with a rigid body whose joint has limits is not supported yet (issue 21"},
       {"contact_newton", beam_and_sphere("", plane + "contact: {friction: 0.3}\n"),
        "simulate scene.yaml -o out.h5 --set simulation.newton_iterations=2",
        "contact with rigid bodies and simulation.newton_iterations > 1 is not supported yet (issue 21; bodies[1] is "

@@ -941,8 +941,8 @@ TEST_F(Scene, RigidBodiesRefuseWhatIsNotSupportedYet) {
   // Contact with rigid bodies (docs/method.md "Rigid bodies in contact"): a hinge or
   // slider body, newton_iterations > 1, the sparse backend and a rigid self-pair are refused.
   expect_error(kRigid + "contact: {friction: 0.5}\n",
-               ":18:5: bodies[1].joint: contact with a rigid body on a hinge or slider joint is not supported yet (issue "
-               "21; free and fixed rigid bodies take part in contact): set contact.enabled: false");
+               ":18:5: bodies[1].joint: contact with a rigid body whose joint has limits is not supported yet (issue 21; "
+               "the limit as a row of the contact solve): remove the limits or set contact.enabled: false");
   const std::string free_key = rigid_edit(
       "    joint:\n      type: hinge\n      anchor: [0.1, -0.06, -0.006]\n      axis: [2, 0, 0]\n      limits: [-0.1, 0.2]\n",
       "");

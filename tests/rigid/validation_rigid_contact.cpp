@@ -221,4 +221,80 @@ TEST(RigidContactValidation, CubeRestsOnASoftSlab) {
   EXPECT_LT(e.angular_velocity.norm(), 1e-3);
 }
 
+// A bar (0.2 x 0.04 x 0.02 m) on a hinge about y through its left end's mid-height,
+// its right end resting on a frictionless support (a box obstacle under x = 0.2): the
+// moment balance about the hinge gives a support reaction of m g / 2 (weight at lever
+// 0.1 m, reaction at 0.2 m), on the two right bottom corners; the bar stays level.
+// And a block on a vertical slider resting on a plane: reaction = weight.
+TEST(RigidContactValidation, HingedBarAndSliderRestOnSupports) {
+  Model model = anchored(1e-3);
+  rigid::RigidState bar;
+  bar.position = Vec3(0.1, 0, 0.01);
+  test::add_rigid_body(model, "bar", test::box_shape(Vec3(0.1, 0.02, 0.01)), 800, bar, 0.01, rigid::Joint::Kind::hinge);
+  // add_rigid_body initialized the joint before its anchor/axis were set: set and redo.
+  model.rigid[0].joint.anchor = Vec3(0, 0, 0.01);
+  model.rigid[0].joint.axis = Vec3::UnitY();
+  rigid::initialize(model.rigid[0], bar);
+  rigid::RigidState block;
+  block.position = Vec3(1, 0, 0.02);
+  test::add_rigid_body(model, "block", test::box_shape(Vec3(0.02, 0.02, 0.02)), 500, block, 0.01, rigid::Joint::Kind::slider);
+  model.rigid[1].joint.anchor = block.position;
+  model.rigid[1].joint.axis = Vec3::UnitZ();
+  rigid::initialize(model.rigid[1], block);
+  test::enable_rigid_contact(
+      model, {test::box(Vec3(0.2, 0, -0.01), Vec3(0.01, 0.05, 0.01), "support"), test::plane(Vec3::UnitZ(), 0, "floor")},
+      {{"bar", "support", 0.0}, {"block", "floor", 0.0}}, 1e-3, tight());
+  Data data(model);
+  const State end = run(model, data, 100);
+  int bar_contacts = 0, block_contacts = 0;
+  const Vec3 f_bar = force_on_rigid(model, data, 1, &bar_contacts);
+  const Vec3 f_block = force_on_rigid(model, data, 2, &block_contacts);
+  const double w_bar = model.rigid[0].mass * g0, w_block = model.rigid[1].mass * g0;
+  std::cout << "hinged bar on a support: reaction " << f_bar.z() << " N (m g / 2 = " << w_bar / 2 << "), contacts "
+            << bar_contacts << ", angle " << rigid::joint_coordinate(model.rigid[0], end.rigid[0])
+            << " rad; slider block: reaction " << f_block.z() << " N (weight " << w_block << "), contacts "
+            << block_contacts << ", travel " << rigid::joint_coordinate(model.rigid[1], end.rigid[1]) << " m\n";
+  EXPECT_EQ(bar_contacts, 2);
+  EXPECT_NEAR(f_bar.z(), w_bar / 2, 1e-7 * w_bar);
+  EXPECT_LT(std::abs(rigid::joint_coordinate(model.rigid[0], end.rigid[0])), 1e-9);
+  EXPECT_EQ(block_contacts, 4);
+  EXPECT_NEAR(f_block.z(), w_block, 1e-7 * w_block);
+  EXPECT_LT(std::abs(rigid::joint_coordinate(model.rigid[1], end.rigid[1])), 1e-9);
+}
+
+// The same hinged bar released 2 mm above its support (the support's top at z = -2 mm):
+// it turns about the hinge, lands and rests at the angle where its corner touches,
+// -0.2 sin(t) - 0.01 cos(t) = -0.012, t = 0.0100 rad (solved below), with the reaction
+// from the moments about the hinge (the weight's lever 0.1 cos t, the corner's
+// 0.2 cos t - 0.01 sin t): m g / 2 (1 + 5.0e-4).
+TEST(RigidContactValidation, HingedBarFallsOntoItsSupport) {
+  Model model = anchored(1e-3);
+  rigid::RigidState bar;
+  bar.position = Vec3(0.1, 0, 0.01);
+  test::add_rigid_body(model, "bar", test::box_shape(Vec3(0.1, 0.02, 0.01)), 800, bar, 0.01, rigid::Joint::Kind::hinge);
+  model.rigid[0].joint.anchor = Vec3(0, 0, 0.01);
+  model.rigid[0].joint.axis = Vec3::UnitY();
+  rigid::initialize(model.rigid[0], bar);
+  test::enable_rigid_contact(model, {test::box(Vec3(0.2, 0, -0.012), Vec3(0.01, 0.05, 0.01), "support")},
+                             {{"bar", "support", 0.0}}, 1e-3, tight());
+  // Rayleigh-free and inelastic contact: the landing stops the bar within a step.
+  Data data(model);
+  const State end = run(model, data, 400);
+  double t = 0.01;  // Newton on -0.2 sin t - 0.01 cos t + 0.012 = 0
+  for (int k = 0; k < 20; ++k) t -= (-0.2 * std::sin(t) - 0.01 * std::cos(t) + 0.012) / (-0.2 * std::cos(t) + 0.01 * std::sin(t));
+  const double angle = rigid::joint_coordinate(model.rigid[0], end.rigid[0]);
+  int count = 0;
+  const Vec3 f = force_on_rigid(model, data, 1, &count);
+  const double w = model.rigid[0].mass * g0;
+  std::cout << "hinged bar falling 2 mm: angle " << angle << " rad (contact angle " << t << "), rate "
+            << end.rigid[0].angular_velocity.norm() << " rad/s, reaction " << f.norm() << " N (closed form "
+            << w * 0.1 * std::cos(t) / (0.2 * std::cos(t) - 0.01 * std::sin(t)) << ")\n";
+  EXPECT_NEAR(angle, t, 1e-6);  // rests on the corner: the gap closes to the NCP's tolerance
+  EXPECT_LT(end.rigid[0].angular_velocity.norm(), 1e-8);
+  EXPECT_EQ(count, 2);
+  // Moments about the hinge at angle t: N (0.2 cos t - 0.01 sin t) = m g 0.1 cos t.
+  const double N = w * 0.1 * std::cos(t) / (0.2 * std::cos(t) - 0.01 * std::sin(t));
+  EXPECT_NEAR(f.norm(), N, 1e-6 * w);
+}
+
 }  // namespace rigid_contact_validation

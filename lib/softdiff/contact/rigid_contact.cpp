@@ -48,8 +48,8 @@ void begin_rigid_contact(const Model& model, Data& data, const std::vector<rigid
       rd.W[r].setZero();
       continue;
     }
-    SOFTDIFF_DEMAND(body.joint.kind == rigid::Joint::Kind::free,
-                    "begin_rigid_contact: rigid body '" + body.name + "': only free and fixed bodies take part in contact");
+    SOFTDIFF_DEMAND(!body.joint.limits, "begin_rigid_contact: rigid body '" + body.name +
+                                            "': a joint with limits does not take part in contact");
     // W_r = A_r^{-1} with A_r = diag(m I, I_w(q_free)), I_w(q_free) = R I R^T at the free
     // step's end orientation: the symmetric linearization of the angular update (an
     // impulse changes the end momentum I_w(q_{n+1}) omega_{n+1}). step_matrix's angular
@@ -57,11 +57,27 @@ void begin_rigid_contact(const Model& model, Data& data, const std::vector<rigid
     // O(h |omega|) otherwise (the gyroscopic term); it is not symmetric, and the NCP
     // solvers need a symmetric G (ADMM factors G + rho I by Cholesky). docs/method.md
     // "Rigid bodies in contact".
-    (void)in;
     const Mat3 R = free[r].orientation.toRotationMatrix();
-    rd.W[r].setZero();
-    rd.W[r].topLeftCorner<3, 3>() = Mat3::Identity() / body.mass;
-    rd.W[r].bottomRightCorner<3, 3>() = R * body.inertia.inverse() * R.transpose();
+    if (body.joint.kind == rigid::Joint::Kind::free) {
+      rd.W[r].setZero();
+      rd.W[r].topLeftCorner<3, 3>() = Mat3::Identity() / body.mass;
+      rd.W[r].bottomRightCorner<3, 3>() = R * body.inertia.inverse() * R.transpose();
+      continue;
+    }
+    // Hinge, slider: the motion (v, omega) = T cdot with T = joint_motion_basis at the
+    // start of the step (where the pseudo-nodes are posed), so W_r = T a^{-1} T^T with
+    // a = T^T A_r T (the joint's inertia I_a: m for a slider, n.I_w n + m |n x r|^2 for
+    // a hinge), and u_free = T cdot_free, cdot_free the free step's joint rate.
+    rigid::Mat6 A = rigid::Mat6::Zero();
+    A.topLeftCorner<3, 3>() = body.mass * Mat3::Identity();
+    A.bottomRightCorner<3, 3>() = R * body.inertia * R.transpose();
+    const rigid::Vec6 T = rigid::joint_motion_basis(body, in[r]).col(0);
+    const double a = T.dot(A * T);
+    rd.W[r] = T * T.transpose() / a;
+    const Vec3 n = body.joint.axis;
+    const double rate = body.joint.kind == rigid::Joint::Kind::hinge ? n.dot(free[r].angular_velocity)
+                                                                    : n.dot(free[r].velocity);
+    rd.u_free.segment<6>(6 * r) = rate * T;
   }
   rd.u = rd.u_free;
 }
@@ -154,10 +170,32 @@ StepStatus end_rigid_contact(const Model& model, Data& data, std::vector<rigid::
     const Eigen::Index o = 6 * static_cast<Eigen::Index>(r);
     const auto& s = rd.in[r];
     auto& e = out[r];
-    e.velocity = rd.u.segment<3>(o);
-    e.angular_velocity = rd.u.segment<3>(o + 3);
-    e.position = s.position + h * e.velocity;
-    e.orientation = (rigid::quaternion_exp(h * e.angular_velocity) * s.orientation).normalized();
+    const auto& body = model.rigid[r];
+    const Vec3 n = body.joint.axis;
+    switch (body.joint.kind) {
+      case rigid::Joint::Kind::hinge: {  // along the joint exactly, as rigid::step
+        const double delta = h * n.dot(rd.u.segment<3>(o + 3));
+        const Eigen::Quaterniond dq(Eigen::AngleAxisd(delta, n));
+        e.orientation = (dq * s.orientation).normalized();
+        e.position = body.joint.anchor + dq * (s.position - body.joint.anchor);
+        e.angular_velocity = delta / h * n;
+        e.velocity = e.angular_velocity.cross(e.position - body.joint.anchor);
+        break;
+      }
+      case rigid::Joint::Kind::slider: {
+        const double rate = n.dot(rd.u.segment<3>(o));
+        e.position = s.position + h * rate * n;
+        e.orientation = s.orientation;
+        e.velocity = rate * n;
+        e.angular_velocity.setZero();
+        break;
+      }
+      default:
+        e.velocity = rd.u.segment<3>(o);
+        e.angular_velocity = rd.u.segment<3>(o + 3);
+        e.position = s.position + h * e.velocity;
+        e.orientation = (rigid::quaternion_exp(h * e.angular_velocity) * s.orientation).normalized();
+    }
     if (!(e.position.allFinite() && e.orientation.coeffs().allFinite() && e.velocity.allFinite() &&
           e.angular_velocity.allFinite())) {
       status.code = StepStatus::Code::non_finite;

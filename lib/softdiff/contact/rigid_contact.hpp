@@ -11,11 +11,12 @@
 //   - Delassus: G = h H_s A_s^{-1} H_s^T + h sum_r H_r W_r H_r^T with
 //     W_r = A_r^{-1}, A_r = diag(m I, I_w(q_free)) (the symmetric linearization of the
 //     free step's velocity update; rigid::step_matrix's angular block at omega = 0),
-//     W_r = 0 for a body on a fixed joint;
+//     W_r = 0 for a body on a fixed joint (joints: below);
 //   - correction u_r = u_r,free + h W_r H_r^T lambda, and the pose integrated with it as
 //     rigid::step does (p + h v, exp(h [omega]) q).
-// Free and fixed bodies only: the scene reader refuses hinge and slider joints with
-// contact (issue 21).
+// Hinge and slider bodies: W_r = T a^{-1} T^T, a = T^T A_r T, T the joint's motion basis
+// at the start of the step, u_free = T cdot_free; the pose moves along the joint. A joint
+// with limits is refused with contact (issue 21).
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
 

@@ -311,9 +311,9 @@ class Reader {
     }
   }
 
-  // Rigid bodies in contact (docs/method.md "Rigid bodies in contact"): free and fixed
-  // bodies, implicit Euler with one Newton iteration, the dense NCP backend. The rest is
-  // refused (issue 21).
+  // Rigid bodies in contact (docs/method.md "Rigid bodies in contact"): free, fixed,
+  // hinge and slider bodies (joints without limits), implicit Euler with one Newton
+  // iteration, the dense NCP backend. The rest is refused (issue 21).
   void check_rigid_contact(const Node& root, const SceneDesc& scene) const {
     if (scene.rigid_bodies.empty() || !scene.contact.enabled) return;
     const std::string first = scene.rigid_bodies.front().where.path;
@@ -327,9 +327,10 @@ class Reader {
                 "backend: sparse with rigid bodies is not supported yet (issue 21; " + first +
                     " is rigid): use dense or auto (rigid contact always uses the dense backend)");
     for (const auto& rb : scene.rigid_bodies)
-      if (rb.joint && (rb.joint->kind == JointDesc::Kind::hinge || rb.joint->kind == JointDesc::Kind::slider))
-        throw InputError(rb.joint->where.str() + ": contact with a rigid body on a hinge or slider joint is not supported yet "
-                         "(issue 21; free and fixed rigid bodies take part in contact): set contact.enabled: false");
+      if (rb.joint && rb.joint->limits)
+        throw InputError(rb.joint->where.str() + ": contact with a rigid body whose joint has limits is not supported yet "
+                         "(issue 21; the limit as a row of the contact solve): remove the limits or set contact.enabled: "
+                         "false");
     for (const auto& p : scene.contact.pairs)
       if (p.first == p.second &&
           std::any_of(scene.rigid_bodies.begin(), scene.rigid_bodies.end(), [&](const auto& rb) { return rb.name == p.first; }))
