@@ -165,4 +165,57 @@ TEST(RigidContact, DelassusBlockMatchesExplicitProduct) {
   EXPECT_LT((sigma - (G * lambda + g)).norm(), 1e-12 * (G * lambda + g).norm());
 }
 
+// A hinge body: u_free = T cdot_free and W = T a^{-1} T^T (begin_rigid_contact), so
+// H u_free is the contact velocity of the pseudo-nodes turning about the hinge:
+// C^T (d/dt of anchor + exp(t cdot n)(x_k - anchor)), by central differences (e = 1e-5:
+// truncation e^2 cdot^2 |r| ~ 1e-10, tolerance 1e-8 m/s); and G = h (H T)(H T)^T / a with
+// a = T^T diag(m I, I_w) T written out.
+TEST(RigidContact, HingeBodyMovesAboutItsAxis) {
+  rigid::RigidState s = tumbling_state();
+  s.velocity.setZero();
+  s.angular_velocity.setZero();
+  Model model = anchor_and_box(s);
+  auto& body = model.rigid[0];
+  body.joint.kind = rigid::Joint::Kind::hinge;
+  body.joint.anchor = s.position + Vec3(0.03, -0.01, 0.02);
+  body.joint.axis = Vec3(1, 2, 2).normalized();
+  rigid::RigidState spun = s;
+  const double rate = 1.5;
+  spun.angular_velocity = rate * body.joint.axis;
+  spun.velocity = spun.angular_velocity.cross(s.position - body.joint.anchor);
+  rigid::initialize(body, spun);
+  const std::vector<rigid::RigidState> in{body.reference};
+  std::vector<rigid::RigidState> free(1);
+  const double h = model.step.dt;
+  rigid::step(body, in[0], h, model.step.gravity, Vec3::Zero(), Vec3::Zero(), free[0]);
+  Data data(model);
+  contact::begin_rigid_contact(model, data, in, free);
+  const collision::ContactSet set = three_contacts(model);
+  contact::rigid_jacobian_transpose(model, set, in, data.contact.rigid.Ht);
+  MatX G = MatX::Zero(9, 9);
+  VecX g = VecX::Zero(9);
+  contact::add_rigid_delassus(model, data, h, G, g);
+  const double cdot = body.joint.axis.dot(free[0].angular_velocity);
+  const double e = 1e-5;
+  auto vertex_at = [&](int j, double t) {
+    const Eigen::AngleAxisd turn(t * cdot, body.joint.axis);
+    const Vec3 x = in[0].position + in[0].orientation * body.surface.vertices.col(j);
+    return Vec3(body.joint.anchor + turn * (x - body.joint.anchor));
+  };
+  Eigen::Matrix<double, 9, 1> HT;  // H T: contact velocity per unit joint rate
+  for (int i = 0; i < 3; ++i) {
+    const auto& c = set.contacts[i];
+    const int j = c.nodes[0] - model.contact.rigid_node_begin[0];
+    const Vec3 fd = (vertex_at(j, e) - vertex_at(j, -e)) / (2 * e);
+    EXPECT_LT((g.segment<3>(3 * i) - c.frame.transpose() * fd).norm(), 1e-8) << "contact " << i;
+    const Vec3 x = in[0].position + in[0].orientation * body.surface.vertices.col(j);
+    HT.segment<3>(3 * i) = c.frame.transpose() * body.joint.axis.cross(x - body.joint.anchor);
+  }
+  const Mat3 R = free[0].orientation.toRotationMatrix();
+  const Vec3 n = body.joint.axis, r = in[0].position - body.joint.anchor;
+  const double a = body.mass * n.cross(r).squaredNorm() + n.dot(R * body.inertia * R.transpose() * n);
+  const MatX G_explicit = h * HT * HT.transpose() / a;
+  EXPECT_LT((G - G_explicit).norm(), 1e-12 * G_explicit.norm());
+}
+
 }  // namespace rigid_contact_unit
