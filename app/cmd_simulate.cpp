@@ -364,8 +364,11 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
   // produced the frame, C_i lambda_i = lambda_t1 t1 + lambda_t2 t2 + lambda_n n on the
   // first side, spread over the contact's nodes with its weights (barycentric on the
   // first side, minus barycentric on the second: the reaction), i.e. H_c^T lambda_c
-  // without the projection of fixed nodes. Zero at frame 0.
-  VecX nodal_contact_force = VecX::Zero(model.contact.enabled ? 3L * model.fem.num_nodes : 0);
+  // without the projection of fixed nodes. Zero at frame 0. With rigid bodies, their
+  // surface vertices follow the soft nodes (the contact stage's pseudo-nodes, in the
+  // order of x_out): /bodies/<rigid>/contact_force is the force on each vertex.
+  VecX nodal_contact_force =
+      VecX::Zero(!model.contact.enabled ? 0 : model.rigid.empty() ? 3L * model.fem.num_nodes : x_out.size());
   auto compute_nodal_contact_force = [&](bool first) {
     nodal_contact_force.setZero();
     if (first) return;
@@ -385,7 +388,8 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
       writer.append_frame(st.t, st.x, &st.v, step_seconds, model.contact.enabled ? &nodal_contact_force : nullptr);
     } else {
       pose_rigid_surfaces(st);
-      writer.append_frame(st.t, x_out, wo.write_v ? &v_out : nullptr, step_seconds, nullptr);  // (no contact with rigid bodies)
+      writer.append_frame(st.t, x_out, wo.write_v ? &v_out : nullptr, step_seconds,
+                          model.contact.enabled ? &nodal_contact_force : nullptr);
       for (std::size_t r = 0; r < model.rigid.size(); ++r) {
         const auto& rs = st.rigid[r];
         const double q[4] = {rs.orientation.w(), rs.orientation.x(), rs.orientation.y(), rs.orientation.z()};

@@ -69,6 +69,15 @@ struct ContactData {
   // Warm start: the previous step's contacts (by key) and forces.
   std::vector<std::pair<collision::Contact::Key, int>> previous_keys;  // sorted (key, index into previous_lambda)
   VecX previous_lambda;
+  // Rigid bodies in the contact stage (contact/rigid_contact.hpp; model.contact.with_rigid()).
+  struct Rigid {
+    VecX x, v_previous, v_free;            // (3 (n + pseudo-nodes)) extended positions/velocities for detection
+    std::vector<rigid::RigidState> in;     // (R) poses and velocities at the start of the step
+    VecX u_free, u;                        // (6R) (v, omega) per body, world: after the free step; corrected
+    std::vector<rigid::Mat6> W;            // (R) T (T^T A_r T)^{-1} T^T: velocity change per impulse (0: fixed)
+    MatX Ht;                               // (6R, 3nc) the rigid bodies' rows of H_c^T
+    MatX WHt;                              // (6, 3nc) scratch
+  } rigid;
 };
 
 struct Data {

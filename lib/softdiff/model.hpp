@@ -60,6 +60,14 @@ struct ContactSettings {
   // feature pair is not unique (collision/contact_derivatives.hpp); sigma is resolved
   // from the scene (default: a tenth of the detection margin).
   collision::SmoothingOptions smoothing;
+  // Rigid bodies in contact (docs/method.md "Rigid bodies in contact"): each rigid
+  // body's surface vertices are pseudo-nodes numbered after the soft nodes (detection
+  // runs on the extended positions); rigid_node_begin[r] is body r's first pseudo-node,
+  // rigid_node_body[k - n] the body of pseudo-node k (n soft nodes). Empty without
+  // rigid bodies (or without contact).
+  std::vector<int> rigid_node_begin;
+  std::vector<int> rigid_node_body;
+  bool with_rigid() const { return !rigid_node_begin.empty(); }
 };
 
 struct Model {
@@ -70,7 +78,8 @@ struct Model {
   integrator::SolverOptions solver;
   ContactSettings contact;
   // Rigid bodies (issue 21, scene.md `type: rigid`), in scene order: each its own
-  // 6-DoF system, stepped after the soft bodies by rigid::step (no contact yet).
+  // 6-DoF system, stepped by rigid::step; with contact, they enter the contact stage's
+  // NCP with the soft bodies (contact/rigid_contact.hpp).
   std::vector<rigid::RigidBody> rigid;
   // Rigidified parts of soft bodies (issue 21 item 2, scene.md `rigidify`): free or
   // servo-attached parts, stepped by the reduced mapping of integrator/rigidify.hpp.

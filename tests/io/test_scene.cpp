@@ -938,9 +938,29 @@ TEST_F(Scene, RigidBodyErrors) {
 }
 
 TEST_F(Scene, RigidBodiesRefuseWhatIsNotSupportedYet) {
+  // Contact with rigid bodies (docs/method.md "Rigid bodies in contact"): a hinge or
+  // slider body, newton_iterations > 1, the sparse backend and a rigid self-pair are refused.
   expect_error(kRigid + "contact: {friction: 0.5}\n",
-               ":23:1: contact: contact with rigid bodies is not supported yet (issue 21; bodies[1] is rigid): remove the "
-               "section or set enabled: false");
+               ":18:5: bodies[1].joint: contact with a rigid body whose joint has limits is not supported yet (issue 21; "
+               "the limit as a row of the contact solve): remove the limits or set contact.enabled: false");
+  const std::string free_key = rigid_edit(
+      "    joint:\n      type: hinge\n      anchor: [0.1, -0.06, -0.006]\n      axis: [2, 0, 0]\n      limits: [-0.1, 0.2]\n",
+      "");
+  auto expect_message = [&](const std::string& text, const std::string& part) {
+    const std::string message = error(text, {});
+    EXPECT_NE(message.find(part), std::string::npos) << message;
+  };
+  expect_message(edit("  dt: 0.01\n", "  dt: 0.01\n  newton_iterations: 2\n", free_key) + "contact: {friction: 0.5}\n",
+                 "contact: contact with rigid bodies and simulation.newton_iterations > 1 is not supported yet (issue "
+                 "21; bodies[1] is rigid): use newton_iterations: 1");
+  expect_message(free_key + "contact: {friction: 0.5, backend: sparse}\n",
+                 "contact.backend: backend: sparse with rigid bodies is not supported yet (issue 21; bodies[1] is rigid)");
+  expect_message(free_key + "contact: {pairs: [[key, key, 0.5]]}\n", "a rigid body has no self-contact ('key')");
+  // Accepted: a free rigid body in contact, named on either side of a pair.
+  const SceneDesc ok = load(free_key + "contact: {pairs: [[key, beam, 0.4]]}\n");
+  ASSERT_EQ(ok.contact.pairs.size(), 1u);
+  EXPECT_EQ(ok.contact.pairs[0].first, "key");
+  EXPECT_EQ(load(free_key + "contact: {pairs: [[beam, key, 0.4]]}\n").contact.pairs[0].second, "key");
   expect_error(rigid_edit("  dt: 0.01\n", "  integrator: bdf2\n  dt: 0.01\n"), ":3:3: simulation.integrator: integrator 'bdf2' with rigid bodies is not supported yet (issue 21; "
                "bodies[1] is rigid): use implicit_euler");
   EXPECT_NO_THROW(load(kRigid + "contact: {enabled: false}\n"));

@@ -1,5 +1,6 @@
 #include <softdiff/contact/contact_step.hpp>
 
+#include <softdiff/contact/rigid_contact.hpp>
 #include <softdiff/core/timer.hpp>
 
 #include <algorithm>
@@ -24,12 +25,19 @@ void drop_inert_contacts(const Model& model, double h, double margin, const VecX
   const auto& fixed = model.fem.fixed;
   const double base = model.contact.detection.margin;
   const bool widened = margin > base;
+  const int n = model.fem.num_nodes;
+  // A rigid body's pseudo-node (k >= n) moves unless the body is on a fixed joint.
+  auto node_fixed = [&](int k) {
+    if (k >= n)
+      return model.rigid[static_cast<std::size_t>(model.contact.rigid_node_body[static_cast<std::size_t>(k - n)])]
+                 .joint.kind == rigid::Joint::Kind::fixed;
+    return fixed[3 * k] && fixed[3 * k + 1] && fixed[3 * k + 2];
+  };
   list.erase(std::remove_if(list.begin(), list.end(),
                             [&](const collision::Contact& c) {
                               bool movable = false;
                               for (int k = 0; k < c.count && !movable; ++k)
-                                movable = c.weights[k] != 0 && !(fixed[3 * c.nodes[k]] && fixed[3 * c.nodes[k] + 1] &&
-                                                                 fixed[3 * c.nodes[k] + 2]);
+                                movable = c.weights[k] != 0 && !node_fixed(c.nodes[k]);
                               if (!movable) return true;
                               if (!widened) return false;
                               if (c.kind != collision::ContactKind::vertex_obstacle && c.gap <= -base) return true;
@@ -66,6 +74,7 @@ void contact_jacobian_transpose(const Model& model, const collision::ContactSet&
         for (int b = a; b > 0 && c.nodes[order[b]] < c.nodes[order[b - 1]]; --b) std::swap(order[b], order[b - 1]);
       for (int q = 0; q < c.count; ++q) {
         const int k = order[q];
+        if (c.nodes[k] >= model.fem.num_nodes) continue;  // a rigid body's pseudo-node: rigid_contact.hpp
         for (int d = 0; d < 3; ++d) {
           const int dof = 3 * c.nodes[k] + d;
           const double value = c.weights[k] * axis[d];
@@ -100,13 +109,30 @@ void detect_contacts(const Model& model, Data& data, const VecX& x, const VecX& 
   for (Eigen::Index k = 0; k + 2 < v.size(); k += 3)
     speed = std::max({speed, free_motion_widens ? v.segment<3>(k).squaredNorm() : 0.0,
                       v_previous.segment<3>(k).squaredNorm()});
+  if (model.contact.with_rigid()) {
+    // Rigid bodies: detection on the extended positions (their surface vertices as
+    // pseudo-nodes after the soft nodes), the margin widened by their motion too.
+    extend_for_detection(model, data, x, v_previous, v);
+    const auto& rd = cd.rigid;
+    for (Eigen::Index k = x.size(); k + 2 < rd.x.size(); k += 3)
+      speed = std::max({speed, free_motion_widens ? rd.v_free.segment<3>(k).squaredNorm() : 0.0,
+                        rd.v_previous.segment<3>(k).squaredNorm()});
+  }
   const double margin = std::max(model.contact.detection.margin, 2 * h * std::sqrt(speed));
   cd.margin = margin;
-  cd.stats = cd.detector->detect(x, cd.contacts, margin);
-  drop_inert_contacts(model, h, margin, v_previous, free_motion_widens ? v : v_previous, cd.contacts.contacts);
+  if (model.contact.with_rigid()) {
+    cd.stats = cd.detector->detect(cd.rigid.x, cd.contacts, margin);
+    drop_inert_contacts(model, h, margin, cd.rigid.v_previous, free_motion_widens ? cd.rigid.v_free : cd.rigid.v_previous,
+                        cd.contacts.contacts);
+  } else {
+    cd.stats = cd.detector->detect(x, cd.contacts, margin);
+    drop_inert_contacts(model, h, margin, v_previous, free_motion_widens ? v : v_previous, cd.contacts.contacts);
+  }
   data.timings.detection += seconds_since(t0);
   t0 = Clock::now();
   if (cd.contacts.size() > 0) contact_jacobian_transpose(model, cd.contacts, cd.Ht);
+  if (cd.contacts.size() > 0 && model.contact.with_rigid())
+    rigid_jacobian_transpose(model, cd.contacts, cd.rigid.in, cd.rigid.Ht);
   cd.mu.resize(cd.contacts.size());
   for (int i = 0; i < cd.contacts.size(); ++i) cd.mu[i] = cd.contacts.contacts[i].mu;
   data.timings.delassus += seconds_since(t0);
@@ -133,8 +159,12 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   // g = H v_free + phi / h on normal rows.
   auto t0 = Clock::now();
   const auto& ncp = model.contact.ncp;
-  const bool sparse = ncp.backend == NcpBackend::sparse ||
-                      (ncp.backend == NcpBackend::automatic && nc > ncp.dense_max_contacts);
+  // With rigid bodies the dense backend always (docs/method.md "Rigid bodies in
+  // contact": the sparse operator has no rigid block; the scene reader refuses
+  // backend: sparse with them).
+  const bool with_rigid = model.contact.with_rigid();
+  const bool sparse = !with_rigid && (ncp.backend == NcpBackend::sparse ||
+                                      (ncp.backend == NcpBackend::automatic && nc > ncp.dense_max_contacts));
   if (sparse) {
     cd.G.resize(0, 0);
     cd.sparse.bind(*data.solver, data.A, cd.Ht, h, model.solver);
@@ -144,6 +174,8 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
       cd.sparse.set_mass(model.fem.mass_diagonal);
     else
       cd.sparse.clear_mass();
+  } else if (with_rigid && cd.Ht.nonZeros() == 0) {
+    cd.G.setZero(3 * nc, 3 * nc);  // only rigid bodies move in these contacts: no soft block
   } else {
     if (!data.solver->inverse_congruence(cd.Ht, cd.G)) {
       status.code = StepStatus::Code::solver_failed;
@@ -153,6 +185,7 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
     cd.G *= h;
   }
   cd.g.noalias() = cd.Ht.transpose() * v;
+  if (with_rigid) add_rigid_delassus(model, data, h, cd.G, cd.g);  // + h H_r W_r H_r^T, + H_r u_free
   for (int i = 0; i < nc; ++i) cd.g[3 * i + 2] += cd.contacts.contacts[i].gap / h;
   data.timings.delassus += seconds_since(t0);
 
@@ -191,7 +224,9 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   // The correction: v_f = v_free + h A^{-1} H^T lambda.
   t0 = Clock::now();
   cd.rhs.noalias() = h * (cd.Ht * cd.lambda);
-  if (!data.solver->solve(cd.rhs, cd.correction)) {
+  if (with_rigid && cd.Ht.nonZeros() == 0) {
+    cd.correction.setZero();  // no soft dof in any contact (rigid bodies only)
+  } else if (!data.solver->solve(cd.rhs, cd.correction)) {
     status.code = StepStatus::Code::solver_failed;
     status.detail = "iterative linear solver did not reach its tolerance (contact correction)";
     return status;
@@ -199,6 +234,7 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   v += cd.correction;
   for (int k = 0; k < v.size(); ++k)
     if (model.fem.fixed[k]) v[k] = 0;
+  if (with_rigid) correct_rigid_velocities(model, data, h, cd.lambda);
 
   cd.previous_keys.resize(static_cast<std::size_t>(nc));
   for (int i = 0; i < nc; ++i) cd.previous_keys[i] = {cd.contacts.contacts[i].key(), i};

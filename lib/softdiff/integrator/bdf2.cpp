@@ -1,6 +1,7 @@
 // BDF2: see bdf2.hpp.
 #include <softdiff/integrator/bdf2.hpp>
 
+#include <softdiff/contact/rigid_contact.hpp>
 #include <softdiff/core/assert.hpp>
 #include <softdiff/core/timer.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
@@ -34,8 +35,32 @@ StepStatus bdf2_step(const Model& model, Data& data, const State& in, const Stat
   return status;
 }
 
+namespace {
+// Rigid bodies in contact (docs/method.md "Rigid bodies in contact"): the rigid free
+// step (rigid::step without contact), then the soft step whose contact stage solves the
+// one NCP on the soft and rigid velocities, then the rigid poses integrated with the
+// corrected velocities. Implicit Euler with one Newton iteration only (the scene reader
+// refuses the rest).
+StepStatus time_step_rigid_contact(const Model& model, Data& data, const State& in, State& out, long step_index,
+                                   const VecX* lambda_a) {
+  SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler && model.step.newton_iterations == 1,
+                  "time_step: rigid bodies in contact need implicit_euler with newton_iterations 1");
+  const auto t0 = Clock::now();
+  const StepStatus free = step_rigid_bodies(model, data, in, out, step_index);
+  if (!free.ok()) return free;
+  contact::begin_rigid_contact(model, data, in.rigid, out.rigid);
+  const double rigid_seconds = seconds_since(t0);
+  const StepStatus soft = implicit_euler_step(model, data, in, out, step_index, lambda_a);  // resets the timings
+  data.timings.other += rigid_seconds;
+  if (!(soft.ok() || soft.code == StepStatus::Code::not_converged)) return soft;
+  const StepStatus rigid = contact::end_rigid_contact(model, data, out.rigid, data.h, step_index);
+  return rigid.ok() ? soft : rigid;
+}
+}  // namespace
+
 StepStatus time_step(const Model& model, Data& data, const State& in, const State* previous, State& out,
                      long step_index, const VecX* lambda_a) {
+  if (model.contact.with_rigid()) return time_step_rigid_contact(model, data, in, out, step_index, lambda_a);
   const StepStatus soft = model.step.integrator == IntegratorKind::bdf2
                               ? bdf2_step(model, data, in, previous, out, step_index, lambda_a)
                               : implicit_euler_step(model, data, in, out, step_index, lambda_a);

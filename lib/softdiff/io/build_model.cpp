@@ -6,6 +6,7 @@
 #include <softdiff/io/plausibility.hpp>
 #include <softdiff/actuation/embedding.hpp>
 #include <softdiff/collision/obstacle.hpp>
+#include <softdiff/contact/rigid_contact.hpp>
 #include <softdiff/rigid/rigid_body.hpp>
 
 #include <Eigen/Eigenvalues>
@@ -355,6 +356,10 @@ void build_contact(const SceneDesc& scene, Model& model) {
     det.surfaces.push_back(std::move(s));
     det.names.push_back(b.name);
   }
+  // Rigid bodies (docs/method.md "Rigid bodies in contact"): their surface vertices are
+  // pseudo-nodes after the soft nodes; names are soft bodies, rigid bodies, obstacles.
+  const int num_soft = static_cast<int>(model.fem.bodies.size());
+  contact::add_rigid_surfaces(model);
   for (const auto& od : scene.obstacles) {
     det.obstacles.push_back(build_obstacle(od));
     det.names.push_back(od.name);
@@ -362,13 +367,19 @@ void build_contact(const SceneDesc& scene, Model& model) {
   auto index_of = [&](const std::string& name) {
     return static_cast<int>(std::find(det.names.begin(), det.names.end(), name) - det.names.begin());
   };
-  const int num_bodies = static_cast<int>(model.fem.bodies.size());
-  if (c.pairs.empty())
-    for (int b = 0; b < num_bodies; ++b)
+  const int num_bodies = static_cast<int>(det.surfaces.size());  // soft and rigid
+  if (c.pairs.empty()) {
+    for (int b = 0; b < num_soft; ++b)
       for (int o = 0; o < static_cast<int>(scene.obstacles.size()); ++o) det.pairs.push_back({b, num_bodies + o, c.friction});
+    // scene.md: every soft body with every rigid body, every rigid body with every obstacle.
+    for (int b = 0; b < num_soft; ++b)
+      for (int r = num_soft; r < num_bodies; ++r) det.pairs.push_back({b, r, c.friction});
+    for (int r = num_soft; r < num_bodies; ++r)
+      for (int o = 0; o < static_cast<int>(scene.obstacles.size()); ++o) det.pairs.push_back({r, num_bodies + o, c.friction});
+  }
   for (const auto& p : c.pairs) det.pairs.push_back({index_of(p.first), index_of(p.second), p.mu});
   if (c.self_collision)
-    for (int b = 0; b < num_bodies; ++b) {
+    for (int b = 0; b < num_soft; ++b) {
       const bool listed = std::any_of(det.pairs.begin(), det.pairs.end(), [&](const auto& r) { return r.a == b && r.b == b; });
       if (!listed) det.pairs.push_back({b, b, c.friction});
     }
@@ -583,6 +594,11 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
                        is_static ? model.actuation.stiffness_cliques() : std::vector<std::vector<int>>{});
   if (!pending_parts.empty()) build_rigidified_parts(scene, pending_parts, fixed, model);
 
+  for (const auto& rd : scene.rigid_bodies) {  // before build_contact: their surfaces join detection
+    rigid::RigidState initial;
+    model.rigid.push_back(build_rigid_body(rd, initial));
+    model.initial.rigid.push_back(initial);
+  }
   build_contact(scene, model);
 
   const int ndof = 3 * model.fem.num_nodes;
@@ -595,11 +611,6 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
   }
   for (int k = 0; k < ndof; ++k)
     if (model.fem.fixed[k]) model.initial.v[k] = 0;
-  for (const auto& rd : scene.rigid_bodies) {
-    rigid::RigidState initial;
-    model.rigid.push_back(build_rigid_body(rd, initial));
-    model.initial.rigid.push_back(initial);
-  }
   if (report) {
     std::vector<std::string> implausible;
     check_plausibility(scene, model, implausible, report->warnings);

@@ -165,6 +165,7 @@ class Reader {
     check_rigid_support(root, scene);
     check_rigidify_support(root, scene);
     read_contact(root, scene);
+    check_rigid_contact(root, scene);
     read_output(root, scene.output);
     check_factor_reuse(root, scene);
   }
@@ -309,11 +310,32 @@ class Reader {
                 "integrator '" + integrator->value.scalar + "' with rigid bodies is not supported yet (issue 21; " +
                     first + " is rigid): use implicit_euler");
     }
+  }
+
+  // Rigid bodies in contact (docs/method.md "Rigid bodies in contact"): free, fixed,
+  // hinge and slider bodies (joints without limits), implicit Euler with one Newton
+  // iteration, the dense NCP backend. The rest is refused (issue 21).
+  void check_rigid_contact(const Node& root, const SceneDesc& scene) const {
+    if (scene.rigid_bodies.empty() || !scene.contact.enabled) return;
+    const std::string first = scene.rigid_bodies.front().where.path;
     const Entry* contact = root.find("contact");
-    if (contact && !contact->value.is_null() && boolean(get(contact->value, "enabled"), true))
+    if (scene.simulation.newton_iterations > 1)
       ctx_.fail(contact->key_mark, "contact",
-                "contact with rigid bodies is not supported yet (issue 21; " + first +
-                    " is rigid): remove the section or set enabled: false");
+                "contact with rigid bodies and simulation.newton_iterations > 1 is not supported yet (issue 21; " +
+                    first + " is rigid): use newton_iterations: 1");
+    if (scene.contact.backend == ContactDesc::Backend::sparse)
+      ctx_.fail(contact->key_mark, "contact.backend",
+                "backend: sparse with rigid bodies is not supported yet (issue 21; " + first +
+                    " is rigid): use dense or auto (rigid contact always uses the dense backend)");
+    for (const auto& rb : scene.rigid_bodies)
+      if (rb.joint && rb.joint->limits)
+        throw InputError(rb.joint->where.str() + ": contact with a rigid body whose joint has limits is not supported yet "
+                         "(issue 21; the limit as a row of the contact solve): remove the limits or set contact.enabled: "
+                         "false");
+    for (const auto& p : scene.contact.pairs)
+      if (p.first == p.second &&
+          std::any_of(scene.rigid_bodies.begin(), scene.rigid_bodies.end(), [&](const auto& rb) { return rb.name == p.first; }))
+        throw InputError(p.where.str() + ": a rigid body has no self-contact ('" + p.first + "')");
   }
 
   // Rigidified parts (issue 21 item 2): the linearized implicit Euler step without
@@ -803,8 +825,10 @@ class Reader {
       d.smoothing_sigma = number(get(*sm, "sigma"), d.smoothing_sigma);
       d.smoothing_seed = integer(get(*sm, "seed"), d.smoothing_seed);
     }
-    auto is_body = [&](const std::string& n) {
-      return std::any_of(scene.bodies.begin(), scene.bodies.end(), [&](const BodyDesc& b) { return b.name == n; });
+    auto is_body = [&](const std::string& n) {  // soft or rigid (scene.md: rigid bodies in contact pairs)
+      return std::any_of(scene.bodies.begin(), scene.bodies.end(), [&](const BodyDesc& b) { return b.name == n; }) ||
+             std::any_of(scene.rigid_bodies.begin(), scene.rigid_bodies.end(),
+                         [&](const RigidBodyDesc& b) { return b.name == n; });
     };
     auto is_obstacle = [&](const std::string& n) {
       return std::any_of(scene.obstacles.begin(), scene.obstacles.end(), [&](const ObstacleDesc& o) { return o.name == n; });

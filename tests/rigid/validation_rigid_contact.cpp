@@ -1,0 +1,300 @@
+// Rigid bodies in contact against closed forms (docs/method.md "Rigid bodies in contact"
+// quotes the figures printed here; run build/tests/validation_rigid
+// --gtest_filter='RigidContactValidation*'):
+//  - a rigid block on an incline (a plane obstacle): sticks below tan(angle) = mu, slides
+//    above with acceleration g (sin a - mu cos a) (exact for implicit Euler with a
+//    constant force: v_n = n h a), no penetration, does not tip;
+//  - a rigid box resting flat on a plane: the reaction equals the weight, carried by its
+//    four bottom corners (the manifold), no rotation;
+//  - a rigid cube resting on a soft slab: the reaction equals the weight at rest, no
+//    penetration beyond the contact solve's tolerance.
+#include <softdiff/data.hpp>
+#include <softdiff/integrator/bdf2.hpp>
+#include <support/meshes.hpp>
+#include <support/rigid_contact.hpp>
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <iostream>
+#include <numbers>
+
+using namespace softdiff;
+
+namespace rigid_contact_validation {
+
+constexpr double pi = std::numbers::pi;
+constexpr double g0 = 9.81;
+
+// A soft anchor far away with every node fixed: the step needs a soft body (build_model
+// refuses a scene of rigid bodies only); it takes part in no contact pair.
+Model anchored(double h) {
+  test::BodySpec spec;
+  spec.fixed = [](const Vec3&) { return true; };
+  mesh::TetMesh m = test::box_mesh(1, 1, 1, 0.01, 0.01, 0.01);
+  for (Eigen::Index i = 0; i < m.X.cols(); ++i) m.X.col(i) += Vec3(5, 5, 5);
+  return test::make_model(m, spec, Vec3(0, 0, -g0), h);
+}
+
+contact::NcpOptions tight() {
+  contact::NcpOptions o;
+  o.tolerance = 1e-10;
+  o.max_iterations = 5000;
+  return o;
+}
+
+// Runs `steps` steps from model.initial; returns the last state (asserts every step ok).
+State run(const Model& model, Data& data, long steps) {
+  State a = model.initial, b;
+  for (long n = 1; n <= steps; ++n) {
+    const StepStatus st = integrator::time_step(model, data, a, nullptr, b, n);
+    EXPECT_TRUE(st.ok()) << describe(model, st);
+    if (!st.ok()) break;
+    EXPECT_TRUE(data.contact.result.converged)
+        << "step " << n << ": residual " << data.contact.result.residuals.max() << " after " << data.contact.result.iterations
+        << " iterations, " << data.contact.contacts.size() << " contacts, polished " << data.contact.result.polished;
+    std::swap(a, b);
+  }
+  return a;
+}
+
+// Sum of the world contact forces of the last step on the rigid body (the first side
+// when the body is side a, the reaction otherwise), and the number of contacts.
+Vec3 force_on_rigid(const Model& model, const Data& data, int side, int* count = nullptr) {
+  Vec3 f = Vec3::Zero();
+  int k = 0;
+  for (int i = 0; i < data.contact.contacts.size(); ++i) {
+    const auto& c = data.contact.contacts.contacts[static_cast<std::size_t>(i)];
+    const Vec3 w = c.frame * data.contact.lambda.segment<3>(3 * i);
+    if (c.side_a == side) f += w, ++k;
+    else if (c.side_b == side) f -= w, ++k;
+  }
+  (void)model;
+  if (count) *count = k;
+  return f;
+}
+
+// The block: 0.1 x 0.06 x 0.04 m, rotated by the incline's angle a about y so that its
+// bottom face lies on the plane through the origin with normal n = (sin a, 0, cos a);
+// downslope direction d = (cos a, 0, -sin a).
+struct Incline {
+  Model model;
+  Vec3 n, d;
+};
+Incline incline(double a, double mu, double h) {
+  Incline in{anchored(h), Vec3(std::sin(a), 0, std::cos(a)), Vec3(std::cos(a), 0, -std::sin(a))};
+  const Vec3 half(0.05, 0.03, 0.02);
+  rigid::RigidState s;
+  s.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(a, Vec3::UnitY()));
+  s.position = half.z() * in.n;
+  test::add_rigid_body(in.model, "block", test::box_shape(half), 1000, s);
+  collision::Obstacle ramp = test::plane(in.n, 0, "ramp");
+  test::enable_rigid_contact(in.model, {ramp}, {{"block", "ramp", mu}}, 1e-3, tight());
+  return in;
+}
+
+// Sliding: tan 30 deg = 0.577 > mu = 0.3. With the Coulomb force at its limit every
+// step, the block's acceleration is the constant a_s = g (sin a - mu cos a) and implicit
+// Euler is exact for it: v_n = n h a_s, s_n = h^2 a_s n (n + 1) / 2. Tolerances: the NCP
+// tolerance 1e-10 (scaled residuals) bounds the force error per step to ~1e-10 of the
+// weight, so 1e-7 relative after 200 steps is far above the accumulation; tipping and
+// penetration: exact zero in exact arithmetic, round-off-scale bounds.
+TEST(RigidContactValidation, BlockSlidesDownAnInclineAtTheClosedFormAcceleration) {
+  const double a = pi / 6, mu = 0.3, h = 1e-3;
+  const long steps = 200;
+  Incline in = incline(a, mu, h);
+  Data data(in.model);
+  const State end = run(in.model, data, steps);
+  const double acc = g0 * (std::sin(a) - mu * std::cos(a));
+  const auto& s = end.rigid[0];
+  const double v = s.velocity.dot(in.d), travel = (s.position - in.model.initial.rigid[0].position).dot(in.d);
+  std::cout << "incline 30 deg, mu 0.3: v " << v << " (relative error " << v / (steps * h * acc) - 1 << "), travel "
+            << travel << " (relative error " << travel / (h * h * acc * steps * (steps + 1) / 2) - 1 << "), omega "
+            << s.angular_velocity.norm()
+            << ", normal drift " << (s.position - in.model.initial.rigid[0].position).dot(in.n) << "\n";
+  EXPECT_NEAR(v, steps * h * acc, 1e-7 * steps * h * acc);
+  EXPECT_NEAR(travel, h * h * acc * steps * (steps + 1) / 2, 1e-7 * h * h * acc * steps * (steps + 1) / 2);
+  EXPECT_LT(std::abs(s.velocity.dot(in.n)), 1e-9);
+  EXPECT_LT(std::abs((s.position - in.model.initial.rigid[0].position).dot(in.n)), 1e-9);  // no penetration, no lift
+  EXPECT_LT(s.angular_velocity.norm(), 1e-8);                                               // does not tip
+  EXPECT_LT(s.orientation.angularDistance(in.model.initial.rigid[0].orientation), 1e-9);
+  int count = 0;
+  const Vec3 f = force_on_rigid(in.model, data, 1, &count);
+  EXPECT_EQ(count, 4);  // the bottom face's four corners
+  const double weight = in.model.rigid[0].mass * g0;
+  EXPECT_NEAR(f.dot(in.n), weight * std::cos(a), 1e-7 * weight);
+  EXPECT_NEAR(-f.dot(in.d), mu * weight * std::cos(a), 1e-7 * weight);  // friction up the slope, at mu N
+}
+
+// Sticking: tan 20 deg = 0.364 < mu = 0.5: the block stays put; the friction force
+// balances the slope's pull m g sin a exactly.
+TEST(RigidContactValidation, BlockSticksOnAnInclineBelowTheFrictionAngle) {
+  const double a = pi / 9, mu = 0.5, h = 1e-3;
+  Incline in = incline(a, mu, h);
+  Data data(in.model);
+  const State end = run(in.model, data, 200);
+  const auto& s = end.rigid[0];
+  const double drift = (s.position - in.model.initial.rigid[0].position).norm();
+  std::cout << "incline 20 deg, mu 0.5: drift " << drift << " m, speed " << s.velocity.norm() << " m/s\n";
+  EXPECT_LT(drift, 1e-9);
+  EXPECT_LT(s.velocity.norm(), 1e-8);
+  EXPECT_LT(s.angular_velocity.norm(), 1e-8);
+  const Vec3 f = force_on_rigid(in.model, data, 1);
+  const double weight = in.model.rigid[0].mass * g0;
+  EXPECT_NEAR(f.dot(in.n), weight * std::cos(a), 1e-7 * weight);
+  EXPECT_NEAR(-f.dot(in.d), weight * std::sin(a), 1e-7 * weight);
+}
+
+// A box resting flat on a plane (released at zero gap): the reaction is the weight,
+// carried by the four bottom corners (each a share of it: the manifold, not one
+// point), and it does not turn.
+TEST(RigidContactValidation, BoxRestsFlatOnItsFourCorners) {
+  Model model = anchored(1e-3);
+  rigid::RigidState s;
+  s.position = Vec3(0.2, -0.1, 0.02);
+  test::add_rigid_body(model, "box", test::box_shape(Vec3(0.05, 0.03, 0.02)), 700, s);
+  test::enable_rigid_contact(model, {test::plane(Vec3::UnitZ(), 0)}, {{"box", "floor", 0.5}}, 1e-3, tight());
+  Data data(model);
+  const State end = run(model, data, 100);
+  const auto& e = end.rigid[0];
+  int count = 0;
+  const Vec3 f = force_on_rigid(model, data, 1, &count);
+  const double weight = model.rigid[0].mass * g0;
+  std::cout << "box on a plane: reaction " << f.transpose() << " N, weight " << weight << " N, contacts " << count
+            << ", omega " << e.angular_velocity.norm() << " rad/s, height " << e.position.z() << "\n";
+  ASSERT_EQ(count, 4);
+  EXPECT_NEAR(f.z(), weight, 1e-8 * weight);
+  EXPECT_LT(f.head<2>().norm(), 1e-8 * weight);
+  for (int i = 0; i < 4; ++i) {
+    const double share = data.contact.lambda[3 * i + 2];
+    EXPECT_GT(share, 0.1 * weight) << "corner " << i;  // every corner carries a share
+  }
+  EXPECT_LT(e.angular_velocity.norm(), 1e-10);
+  EXPECT_LT(e.velocity.norm(), 1e-10);
+  EXPECT_NEAR(e.position.z(), 0.02, 1e-10);
+}
+
+// A rigid cube (40 mm, 500 kg/m^3: 32 g) on a soft slab (0.12 x 0.12 x 0.01 m, E = 50 kPa,
+// bottom fixed, damped), released at zero gap: after 0.3 s it is at rest on the slab
+// (speed below 1e-8 m/s), the reaction equals the weight and no contact penetrates
+// beyond the solve's tolerance (the gap after a step is g + h sigma_n >= -h * tol).
+TEST(RigidContactValidation, CubeRestsOnASoftSlab) {
+  test::BodySpec spec;
+  spec.young = 5e4;
+  spec.poisson = 0.4;
+  spec.density = 1000;
+  spec.rayleigh_mass = 20;
+  spec.rayleigh_stiffness = 0.01;
+  spec.fixed = [](const Vec3& p) { return p.z() < 1e-9; };
+  const mesh::TetMesh m = test::box_mesh(8, 8, 2, 0.12, 0.12, 0.01);
+  const double h = 2e-3;
+  Model model = test::make_model(m, spec, Vec3(0, 0, -g0), h);
+  rigid::RigidState s;
+  s.position = Vec3(0.06, 0.06, 0.01 + 0.02);
+  test::add_rigid_body(model, "cube", test::box_shape(Vec3(0.02, 0.02, 0.02)), 500, s);
+  // The default NCP tolerance (1e-8): at 1e-10 ADMM and the polish stall near 2e-9 on
+  // steps 4-5 (35 contacts on the cube's face: G has rank 6 + the slab's, the manifold
+  // is redundant), while the figures checked here need far less.
+  test::enable_rigid_contact(model, {}, {{"body", "cube", 0.5}}, 1e-3, contact::NcpOptions{});
+  Data data(model);
+  const State end = run(model, data, 150);
+  const auto& e = end.rigid[0];
+  int count = 0;
+  const Vec3 f = force_on_rigid(model, data, 1, &count);
+  const double weight = model.rigid[0].mass * g0;
+  double min_gap = 1;
+  // The gaps at the end state: detection at the final positions.
+  data.contact.rigid.in = end.rigid;
+  contact::extend_for_detection(model, data, end.x, end.v, end.v);
+  collision::ContactSet after;
+  data.contact.detector->detect(data.contact.rigid.x, after, 1e-3);
+  for (const auto& c : after.contacts) min_gap = std::min(min_gap, c.gap);
+  std::cout << "cube on a soft slab: reaction " << f.transpose() << " N, weight " << weight << " N, contacts " << count
+            << ", speed " << e.velocity.norm() << " m/s, sink " << 0.03 - e.position.z() << " m, min gap " << min_gap
+            << " m\n";
+  EXPECT_GT(count, 4);
+  EXPECT_LT(e.velocity.norm(), 1e-8);
+  // At rest to 1e-8 m/s: the reaction differs from the weight by the momentum change of
+  // the last step, m |dv| / h <= 0.032 * 2e-8 / 2e-3 = 3.2e-7 N, 1e-6 of the weight.
+  EXPECT_NEAR(f.z(), weight, 1e-6 * weight);
+  EXPECT_GT(min_gap, -1e-8);
+  EXPECT_LT(e.angular_velocity.norm(), 1e-3);
+}
+
+// A bar (0.2 x 0.04 x 0.02 m) on a hinge about y through its left end's mid-height,
+// its right end resting on a frictionless support (a box obstacle under x = 0.2): the
+// moment balance about the hinge gives a support reaction of m g / 2 (weight at lever
+// 0.1 m, reaction at 0.2 m), on the two right bottom corners; the bar stays level.
+// And a block on a vertical slider resting on a plane: reaction = weight.
+TEST(RigidContactValidation, HingedBarAndSliderRestOnSupports) {
+  Model model = anchored(1e-3);
+  rigid::RigidState bar;
+  bar.position = Vec3(0.1, 0, 0.01);
+  test::add_rigid_body(model, "bar", test::box_shape(Vec3(0.1, 0.02, 0.01)), 800, bar, 0.01, rigid::Joint::Kind::hinge);
+  // add_rigid_body initialized the joint before its anchor/axis were set: set and redo.
+  model.rigid[0].joint.anchor = Vec3(0, 0, 0.01);
+  model.rigid[0].joint.axis = Vec3::UnitY();
+  rigid::initialize(model.rigid[0], bar);
+  rigid::RigidState block;
+  block.position = Vec3(1, 0, 0.02);
+  test::add_rigid_body(model, "block", test::box_shape(Vec3(0.02, 0.02, 0.02)), 500, block, 0.01, rigid::Joint::Kind::slider);
+  model.rigid[1].joint.anchor = block.position;
+  model.rigid[1].joint.axis = Vec3::UnitZ();
+  rigid::initialize(model.rigid[1], block);
+  test::enable_rigid_contact(
+      model, {test::box(Vec3(0.2, 0, -0.01), Vec3(0.01, 0.05, 0.01), "support"), test::plane(Vec3::UnitZ(), 0, "floor")},
+      {{"bar", "support", 0.0}, {"block", "floor", 0.0}}, 1e-3, tight());
+  Data data(model);
+  const State end = run(model, data, 100);
+  int bar_contacts = 0, block_contacts = 0;
+  const Vec3 f_bar = force_on_rigid(model, data, 1, &bar_contacts);
+  const Vec3 f_block = force_on_rigid(model, data, 2, &block_contacts);
+  const double w_bar = model.rigid[0].mass * g0, w_block = model.rigid[1].mass * g0;
+  std::cout << "hinged bar on a support: reaction " << f_bar.z() << " N (m g / 2 = " << w_bar / 2 << "), contacts "
+            << bar_contacts << ", angle " << rigid::joint_coordinate(model.rigid[0], end.rigid[0])
+            << " rad; slider block: reaction " << f_block.z() << " N (weight " << w_block << "), contacts "
+            << block_contacts << ", travel " << rigid::joint_coordinate(model.rigid[1], end.rigid[1]) << " m\n";
+  EXPECT_EQ(bar_contacts, 2);
+  EXPECT_NEAR(f_bar.z(), w_bar / 2, 1e-7 * w_bar);
+  EXPECT_LT(std::abs(rigid::joint_coordinate(model.rigid[0], end.rigid[0])), 1e-9);
+  EXPECT_EQ(block_contacts, 4);
+  EXPECT_NEAR(f_block.z(), w_block, 1e-7 * w_block);
+  EXPECT_LT(std::abs(rigid::joint_coordinate(model.rigid[1], end.rigid[1])), 1e-9);
+}
+
+// The same hinged bar released 2 mm above its support (the support's top at z = -2 mm):
+// it turns about the hinge, lands and rests at the angle where its corner touches,
+// -0.2 sin(t) - 0.01 cos(t) = -0.012, t = 0.0100 rad (solved below), with the reaction
+// from the moments about the hinge (the weight's lever 0.1 cos t, the corner's
+// 0.2 cos t - 0.01 sin t): m g / 2 (1 + 5.0e-4).
+TEST(RigidContactValidation, HingedBarFallsOntoItsSupport) {
+  Model model = anchored(1e-3);
+  rigid::RigidState bar;
+  bar.position = Vec3(0.1, 0, 0.01);
+  test::add_rigid_body(model, "bar", test::box_shape(Vec3(0.1, 0.02, 0.01)), 800, bar, 0.01, rigid::Joint::Kind::hinge);
+  model.rigid[0].joint.anchor = Vec3(0, 0, 0.01);
+  model.rigid[0].joint.axis = Vec3::UnitY();
+  rigid::initialize(model.rigid[0], bar);
+  test::enable_rigid_contact(model, {test::box(Vec3(0.2, 0, -0.012), Vec3(0.01, 0.05, 0.01), "support")},
+                             {{"bar", "support", 0.0}}, 1e-3, tight());
+  // Rayleigh-free and inelastic contact: the landing stops the bar within a step.
+  Data data(model);
+  const State end = run(model, data, 400);
+  double t = 0.01;  // Newton on -0.2 sin t - 0.01 cos t + 0.012 = 0
+  for (int k = 0; k < 20; ++k) t -= (-0.2 * std::sin(t) - 0.01 * std::cos(t) + 0.012) / (-0.2 * std::cos(t) + 0.01 * std::sin(t));
+  const double angle = rigid::joint_coordinate(model.rigid[0], end.rigid[0]);
+  int count = 0;
+  const Vec3 f = force_on_rigid(model, data, 1, &count);
+  const double w = model.rigid[0].mass * g0;
+  std::cout << "hinged bar falling 2 mm: angle " << angle << " rad (contact angle " << t << "), rate "
+            << end.rigid[0].angular_velocity.norm() << " rad/s, reaction " << f.norm() << " N (closed form "
+            << w * 0.1 * std::cos(t) / (0.2 * std::cos(t) - 0.01 * std::sin(t)) << ")\n";
+  EXPECT_NEAR(angle, t, 1e-6);  // rests on the corner: the gap closes to the NCP's tolerance
+  EXPECT_LT(end.rigid[0].angular_velocity.norm(), 1e-8);
+  EXPECT_EQ(count, 2);
+  // Moments about the hinge at angle t: N (0.2 cos t - 0.01 sin t) = m g 0.1 cos t.
+  const double N = w * 0.1 * std::cos(t) / (0.2 * std::cos(t) - 0.01 * std::sin(t));
+  EXPECT_NEAR(f.norm(), N, 1e-6 * w);
+}
+
+}  // namespace rigid_contact_validation
