@@ -13,9 +13,7 @@ namespace {
 
 
 void demand_differentiable(const std::string& option, const Model& model) {
-  if (!model.rigidify.empty())  // (rigidified parts of soft bodies: issue 21 item 2)
-    throw InputError(option + ": derivatives with rigidified parts are not supported yet (issue 21; " +
-                     model.rigidify.parts.front().name + ")");
+  demand_no_rigidified_parts(option, model);
   // Issue 21, item 4: the rigid step is differentiated (forward mode) while no contact
   // couples the rigid bodies; derivatives through contact with rigid bodies are not yet.
   if (!model.rigid.empty() && model.contact.enabled)
@@ -42,10 +40,14 @@ void demand_differentiable(const std::string& option, const Model& model) {
 
 }  // namespace
 
-void demand_no_rigid_bodies(const std::string& what, const Model& model) {
+void demand_no_rigidified_parts(const std::string& what, const Model& model) {
   if (!model.rigidify.empty())  // (rigidified parts of soft bodies: issue 21 item 2)
     throw InputError(what + ": derivatives with rigidified parts are not supported yet (issue 21; " +
                      model.rigidify.parts.front().name + ")");
+}
+
+void demand_no_rigid_bodies(const std::string& what, const Model& model) {
+  demand_no_rigidified_parts(what, model);
   if (!model.rigid.empty())
     throw InputError(what + ": derivatives with rigid bodies are not supported yet (issue 21; rigid body '" +
                      model.rigid.front().name + "')");

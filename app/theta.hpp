@@ -34,6 +34,9 @@ struct ThetaSelection {
 // calibrate and control call it; parse_theta refuses only a scene with contact and
 // rigid bodies (derivatives through contact with rigid bodies: a later increment).
 void demand_no_rigid_bodies(const std::string& what, const Model& model);
+// Throws InputError (exit 2) naming issue 21 if the model has rigidified parts (no
+// derivative of them yet); `what` names the command or option.
+void demand_no_rigidified_parts(const std::string& what, const Model& model);
 
 ThetaSelection parse_theta(const std::string& option, const std::string& list, const Model& model);
 
