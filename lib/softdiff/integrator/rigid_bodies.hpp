@@ -2,10 +2,11 @@
 // The rigid bodies' part of a time step (issue 21, increment 1): each rigid body of
 // the model is its own small implicit system (rigid/rigid_body.hpp: implicit Euler on
 // the velocities, the exponential map on the orientation, joints and limits exact),
-// stepped after the soft bodies with the same h under the scene's gravity and no
-// external wrench. Without contact the two are independent, so the order does not
-// matter. integrator::time_step calls it when the model has rigid bodies (and only
-// then: a scene without them pays nothing).
+// stepped with the same h under the scene's gravity and no external wrench.
+// integrator::time_step calls it when the model has rigid bodies (and only then: a
+// scene without them pays nothing): without contact after the soft step (the two are
+// independent, so the order does not matter); with contact first, as the free step of
+// the one contact solve (bdf2.cpp time_step_rigid_contact, contact/rigid_contact.hpp).
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
 
