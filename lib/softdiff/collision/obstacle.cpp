@@ -20,6 +20,7 @@
 // sign is that of (p - q) . N, N the angle-weighted pseudo-normal of the nearest
 // feature (Baerentzen & Aanaes 2005), exact for closed, consistently oriented surfaces.
 #include <softdiff/collision/distance.hpp>
+#include <softdiff/core/format.hpp>
 #include <softdiff/collision/obstacle.hpp>
 #include <softdiff/core/error.hpp>
 #include <softdiff/io/gmsh_msh.hpp>
@@ -59,12 +60,7 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
   throw InputError("obstacle '" + o.name + "': " + message);
 }
 
-std::string num(double v) {
-  std::ostringstream s;
-  s.precision(17);
-  s << v;
-  return s.str();
-}
+std::string num(double v) { return format_number(v, 17); }
 
 Vec3 unit_or(const Vec3& v, const Vec3& fallback) {
   const double n = v.norm();

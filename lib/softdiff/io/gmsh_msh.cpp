@@ -14,6 +14,7 @@
 // only computed when an error is reported, so the hot loops do not track them.
 // Numbers are parsed with std::from_chars straight from the buffer.
 #include <softdiff/io/gmsh_msh.hpp>
+#include <softdiff/core/format.hpp>
 
 #include <softdiff/core/error.hpp>
 #include <softdiff/fem/tet10.hpp>
@@ -33,7 +34,6 @@
 #include <limits>
 #include <map>
 #include <memory>
-#include <sstream>
 #include <string>
 #include <string_view>
 #include <utility>
@@ -215,12 +215,7 @@ struct RawMesh {
 inline bool is_blank(char c) { return c == ' ' || c == '\t' || c == '\r'; }
 inline bool is_space(char c) { return is_blank(c) || c == '\n' || c == '\f' || c == '\v'; }
 
-std::string num(double v) {
-  std::ostringstream s;
-  s.precision(6);
-  s << v;
-  return s.str();
-}
+std::string num(double v) { return format_number(v, 6); }
 
 // ---------------------------------------------------------------------------
 

@@ -2,6 +2,7 @@
 // joints to the world in their own coordinate with exact limits (docs/method.md
 // "Rigid bodies").
 #include <softdiff/core/error.hpp>
+#include <softdiff/core/format.hpp>
 #include <softdiff/rigid/joint_equation.hpp>
 #include <softdiff/rigid/rigid_body.hpp>
 #include <softdiff/rigid/rotation.hpp>
@@ -12,7 +13,6 @@
 #include <cmath>
 #include <limits>
 #include <numbers>
-#include <sstream>
 #include <stdexcept>
 
 namespace softdiff::rigid {
@@ -20,12 +20,7 @@ namespace {
 
 constexpr double pi = std::numbers::pi;
 
-std::string num(double x) {
-  std::ostringstream s;
-  s.precision(9);
-  s << x;
-  return s.str();
-}
+std::string num(double x) { return format_number(x, 9); }
 
 std::string who(const RigidBody& b) { return "rigid body '" + b.name + "'"; }
 

@@ -1,11 +1,11 @@
 // Rigid shapes: mass properties (closed forms; the divergence theorem for meshes) and
 // closed, outward tessellations (docs/method.md "Rigid bodies").
 #include <softdiff/rigid/rigid_body.hpp>
+#include <softdiff/core/format.hpp>
 
 #include <algorithm>
 #include <cmath>
 #include <numbers>
-#include <sstream>
 #include <stdexcept>
 #include <utility>
 #include <vector>
@@ -15,12 +15,7 @@ namespace {
 
 constexpr double pi = std::numbers::pi;
 
-std::string num(double x) {
-  std::ostringstream s;
-  s.precision(6);
-  s << x;
-  return s.str();
-}
+std::string num(double x) { return format_number(x, 6); }
 
 void require_positive(const char* what, double value) {
   if (!(value > 0) || !std::isfinite(value))
