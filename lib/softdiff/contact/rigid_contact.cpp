@@ -70,7 +70,7 @@ void begin_rigid_contact(const Model& model, Data& data, const std::vector<rigid
     // a hinge), and u_free = T cdot_free, cdot_free the free step's joint rate.
     rigid::Mat6 A = rigid::Mat6::Zero();
     A.topLeftCorner<3, 3>() = body.mass * Mat3::Identity();
-    A.bottomRightCorner<3, 3>() = R * body.inertia * R.transpose();
+    A.bottomRightCorner<3, 3>() = rigid::world_inertia(body, free[r].orientation);
     const rigid::Vec6 T = rigid::joint_motion_basis(body, in[r]).col(0);
     const double a = T.dot(A * T);
     rd.W[r] = T * T.transpose() / a;
@@ -196,8 +196,7 @@ StepStatus end_rigid_contact(const Model& model, Data& data, std::vector<rigid::
         e.position = s.position + h * e.velocity;
         e.orientation = (rigid::quaternion_exp(h * e.angular_velocity) * s.orientation).normalized();
     }
-    if (!(e.position.allFinite() && e.orientation.coeffs().allFinite() && e.velocity.allFinite() &&
-          e.angular_velocity.allFinite())) {
+    if (!rigid::finite(e)) {
       status.code = StepStatus::Code::non_finite;
       status.step = step_index;
       status.detail = "rigid body '" + model.rigid[r].name + "' has a non-finite pose or velocity after the contact stage";

@@ -21,9 +21,7 @@ StepStatus step_rigid_bodies(const Model& model, Data& data, const State& in, St
   StepStatus status;
   for (std::size_t r = 0; r < n; ++r) {
     data.rigid[r] = rigid::step(model.rigid[r], in.rigid[r], model.step.dt, model.step.gravity, zero, zero, out.rigid[r]);
-    const rigid::RigidState& s = out.rigid[r];
-    if (!(s.position.allFinite() && s.orientation.coeffs().allFinite() && s.velocity.allFinite() &&
-          s.angular_velocity.allFinite())) {
+    if (!rigid::finite(out.rigid[r])) {
       status.code = StepStatus::Code::non_finite;
       status.step = step_index;
       status.detail = "rigid body '" + model.rigid[r].name + "' has a non-finite pose or velocity after the step";

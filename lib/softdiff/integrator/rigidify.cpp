@@ -1,5 +1,6 @@
 // Rigidified parts of soft bodies: see rigidify.hpp and docs/method.md "Rigidified parts".
 #include <softdiff/integrator/rigidify.hpp>
+#include <softdiff/rigid/rotation.hpp>
 
 #include <softdiff/core/assert.hpp>
 #include <softdiff/data.hpp>
@@ -145,7 +146,9 @@ bool solve_rigidified(const Model& model, Data& data, const VecX& b, VecX& v) {
     const auto& part = rm.parts[static_cast<std::size_t>(p)];
     for (int i : part.nodes) {
       const Vec3 r = w.x.segment<3>(3 * i) - w.centre[static_cast<std::size_t>(p)];
-      for (int c = 0; c < 3; ++c) w.g.segment<6>(6 * p).noalias() += b[3 * i + c] * rigid_row(r, c).transpose();
+      const Vec3 bi = b.segment<3>(3 * i);  // T_i^T b_i = (b_i, r x b_i)
+      w.g.segment<3>(6 * p) += bi;
+      w.g.segment<3>(6 * p + 3) += r.cross(bi);
     }
   }
   w.u = w.g;
@@ -171,8 +174,7 @@ void place_rigidified(const Model& model, Data& data, const State& in, State& ou
     const Vec3& c = w.centre[static_cast<std::size_t>(p)];
     const Eigen::Matrix<double, 6, 1> u = part_velocity(model, part, in.x, c, out.v);
     const Vec3 vp = u.head<3>(), omega = u.tail<3>();
-    const double angle = h * omega.norm();
-    const Mat3 R = angle > 0 ? Eigen::AngleAxisd(angle, omega / omega.norm()).toRotationMatrix() : Mat3::Identity();
+    const Mat3 R = rigid::quaternion_exp(h * omega).toRotationMatrix();
     const Vec3 c_next = c + h * vp;
     // The angular momentum the solve gave, L = I_n omega (I_n about c at x_i), is kept
     // at the new pose: omega' = I_{n+1}^{-1} L, I_{n+1} = R I_n R^T (method.md).

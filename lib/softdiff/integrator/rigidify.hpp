@@ -53,7 +53,6 @@ struct RigidifiedPart {
   int body = 0;             // soft body index
   std::vector<int> nodes;   // global node indices, sorted, distinct
   int servo = -1;           // attach: <servo>: the actuator index in model.actuation; -1 free
-  double mass = 0;          // sum of the nodes' lumped masses (fem.mass_diagonal)
 };
 
 struct RigidifyModel {

@@ -179,10 +179,7 @@ void build_rigidified_parts(const SceneDesc& scene, const std::vector<PendingPar
     integrator::RigidifiedPart part;
     part.name = "body '" + bd.name + "' rigidify[" + std::to_string(pp.entry) + "]";
     part.body = static_cast<int>(pp.body);
-    for (int i : pp.nodes) {
-      part.nodes.push_back(b.node_begin + i);
-      part.mass += fem.mass_diagonal[3 * (b.node_begin + i)];
-    }
+    for (int i : pp.nodes) part.nodes.push_back(b.node_begin + i);
     if (rd.attach != "free") {
       const auto& acts = model.actuation.actuators;
       for (std::size_t a = 0; a < acts.size(); ++a)

@@ -34,16 +34,6 @@ const char* joint_name(Joint::Kind k) {
   return "?";
 }
 
-bool finite(const RigidState& s) {
-  return s.position.allFinite() && s.orientation.coeffs().allFinite() && s.velocity.allFinite() &&
-         s.angular_velocity.allFinite();
-}
-
-// I_w = R I R^T.
-Mat3 world_inertia(const RigidBody& b, const Eigen::Quaterniond& q) {
-  const Mat3 R = q.toRotationMatrix();
-  return R * b.inertia * R.transpose();
-}
 
 // The centre of the window the hinge angle is wrapped into: the middle of its limits.
 double angle_window_centre(const Joint& j) { return j.limits ? 0.5 * (j.limits->first + j.limits->second) : 0.0; }
@@ -331,6 +321,17 @@ Eigen::Matrix<double, 6, Eigen::Dynamic> joint_motion_basis(const RigidBody& bod
       break;
   }
   return T;
+}
+
+bool finite(const RigidState& s) {
+  return s.position.allFinite() && s.orientation.coeffs().allFinite() && s.velocity.allFinite() &&
+         s.angular_velocity.allFinite();
+}
+
+// I_w = R I R^T.
+Mat3 world_inertia(const RigidBody& b, const Eigen::Quaterniond& q) {
+  const Mat3 R = q.toRotationMatrix();
+  return R * b.inertia * R.transpose();
 }
 
 }  // namespace softdiff::rigid

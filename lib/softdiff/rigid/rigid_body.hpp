@@ -95,6 +95,11 @@ struct StepInfo {
 StepInfo step(const RigidBody& body, const RigidState& in, double h, const Vec3& gravity,
               const Vec3& force, const Vec3& torque, RigidState& out);
 
+// Every entry of the state finite (pose, orientation, velocities).
+bool finite(const RigidState& s);
+// The inertia about the centre of mass in world axes at orientation q: R I R^T.
+Mat3 world_inertia(const RigidBody& b, const Eigen::Quaterniond& q);
+
 // The body's surface vertices in world coordinates for a state (output, XDMF).
 Mat3X world_vertices(const RigidBody& body, const RigidState& state);
 

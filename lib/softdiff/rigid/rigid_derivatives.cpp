@@ -1,6 +1,7 @@
 // Derivatives of the rigid step: see rigid_derivatives.hpp and docs/method.md
 // "Derivatives", "Rigid bodies".
 #include <softdiff/rigid/rigid_derivatives.hpp>
+#include <softdiff/rigid/joint_equation.hpp>
 #include <softdiff/rigid/rotation.hpp>
 
 #include <Eigen/Eigenvalues>
@@ -119,12 +120,12 @@ void step_jacobian(const RigidBody& body, const RigidState& in, const RigidState
         gp(0) = -h * h * n.dot(force) / (m * m);
       } else {
         // g(delta) = I_a (delta/h - cdot) - h (Q0 + c1 cos delta - c2 sin delta) = 0.
-        const Vec3 r_perp = (I3 - n * n.transpose()) * (in.position - body.joint.anchor);
         const Mat3 Pn = I3 - n * n.transpose();
+        const Vec3 r_perp = Pn * (in.position - body.joint.anchor);
         const double I_a = n.dot(A * n) + m * r_perp.squaredNorm();
         const double cdot = n.dot(in.angular_velocity);
         const double c1 = F.dot(n.cross(r_perp)), c2 = F.dot(r_perp);
-        const double dg = I_a / h + h * (c1 * std::sin(delta) + c2 * std::cos(delta));
+        const double dg = JointEquation{I_a, cdot, 0, c1, c2, h}.dg(delta);  // (Q0 does not enter dg)
         const double g_Ia = delta / h - cdot, g_cdot = -I_a, g_c1 = -h * std::cos(delta), g_c2 = h * std::sin(delta);
         // dI_a = 2 m r_perp.dp + 2 ((A n) x n).dtheta + |r_perp|^2 dm + n.(R dI R^T) n;
         // dcdot = n.domega; dc1 = (Pn (F x n)).dp + g.(n x r_perp) dm; dc2 = (Pn F).dp + g.r_perp dm.
