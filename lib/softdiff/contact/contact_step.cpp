@@ -163,7 +163,11 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   // contact": the sparse operator has no rigid block; the scene reader refuses
   // backend: sparse with them).
   const bool with_rigid = model.contact.with_rigid();
-  const bool sparse = !with_rigid && (ncp.backend == NcpBackend::sparse ||
+  // Rigidified parts of soft bodies (integrator/rigidify.hpp): G and the correction
+  // through the reduced solve, on the dense backend (the scene reader refuses
+  // backend: sparse with them).
+  const bool rigidified = !model.rigidify.empty();
+  const bool sparse = !with_rigid && !rigidified && (ncp.backend == NcpBackend::sparse ||
                                       (ncp.backend == NcpBackend::automatic && nc > ncp.dense_max_contacts));
   if (sparse) {
     cd.G.resize(0, 0);
@@ -174,6 +178,13 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
       cd.sparse.set_mass(model.fem.mass_diagonal);
     else
       cd.sparse.clear_mass();
+  } else if (rigidified) {
+    if (!integrator::rigidified_congruence(model, data, cd.Ht, cd.G)) {
+      status.code = StepStatus::Code::solver_failed;
+      status.detail = "iterative linear solver did not reach its tolerance (Delassus matrix)";
+      return status;
+    }
+    cd.G *= h;
   } else if (with_rigid && cd.Ht.nonZeros() == 0) {
     cd.G.setZero(3 * nc, 3 * nc);  // only rigid bodies move in these contacts: no soft block
   } else {
@@ -224,7 +235,13 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   // The correction: v_f = v_free + h A^{-1} H^T lambda.
   t0 = Clock::now();
   cd.rhs.noalias() = h * (cd.Ht * cd.lambda);
-  if (with_rigid && cd.Ht.nonZeros() == 0) {
+  if (rigidified) {
+    if (!integrator::solve_rigidified(model, data, cd.rhs, cd.correction)) {
+      status.code = StepStatus::Code::solver_failed;
+      status.detail = "iterative linear solver did not reach its tolerance (contact correction)";
+      return status;
+    }
+  } else if (with_rigid && cd.Ht.nonZeros() == 0) {
     cd.correction.setZero();  // no soft dof in any contact (rigid bodies only)
   } else if (!data.solver->solve(cd.rhs, cd.correction)) {
     status.code = StepStatus::Code::solver_failed;

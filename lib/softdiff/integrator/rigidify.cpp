@@ -50,9 +50,13 @@ Vec3 part_centre(const Model& model, const RigidifiedPart& part, const VecX& x) 
   return c / m;
 }
 
-Eigen::Matrix<double, 6, 1> part_velocity(const Model& model, const RigidifiedPart& part, const VecX& x,
-                                          const Vec3& c, const VecX& v) {
-  Eigen::Matrix<double, 6, 6> N = Eigen::Matrix<double, 6, 6>::Zero();
+namespace {
+// The lumped-mass fit of a nodal velocity field by a rigid one about c: N u = f with
+// N = sum_i m_i T_i^T T_i = [[m I, m [c_m - c]x^T], [., I_c]] (I_c the part's lumped
+// inertia about c, its lower right block) and f = sum_i m_i T_i^T v_i.
+Eigen::Matrix<double, 6, 1> fit(const Model& model, const RigidifiedPart& part, const VecX& x, const Vec3& c,
+                                const VecX& v, Eigen::Matrix<double, 6, 6>& N) {
+  N.setZero();
   Eigen::Matrix<double, 6, 1> f = Eigen::Matrix<double, 6, 1>::Zero();
   for (int i : part.nodes) {
     const double mi = model.fem.mass_diagonal[3 * i];
@@ -65,11 +69,18 @@ Eigen::Matrix<double, 6, 1> part_velocity(const Model& model, const RigidifiedPa
   }
   return N.ldlt().solve(f);
 }
+}  // namespace
+
+Eigen::Matrix<double, 6, 1> part_velocity(const Model& model, const RigidifiedPart& part, const VecX& x,
+                                          const Vec3& c, const VecX& v) {
+  Eigen::Matrix<double, 6, 6> N;
+  return fit(model, part, x, c, v, N);
+}
 
 StepStatus prepare_rigidified(const Model& model, Data& data, const VecX& x, double h, long step_index) {
   SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler && model.step.newton_iterations == 1 &&
-                      !model.contact.enabled && !model.solver.factor_reuse,
-                  "rigidified parts: the linearized implicit Euler step only, without contact or factor reuse (issue 21)");
+                      !model.solver.factor_reuse,
+                  "rigidified parts: the linearized implicit Euler step only, without factor reuse (issue 21)");
   const auto& fem = model.fem;
   const RigidifyModel& rm = model.rigidify;
   RigidifyData& w = data.rigidify;
@@ -166,23 +177,49 @@ bool solve_rigidified(const Model& model, Data& data, const VecX& b, VecX& v) {
   return true;
 }
 
+bool rigidified_congruence(const Model& model, Data& data, const SparseMatrix& Ht, MatX& G) {
+  const RigidifyModel& rm = model.rigidify;
+  RigidifyData& w = data.rigidify;
+  const int ncols = static_cast<int>(Ht.cols()), m6 = 6 * rm.size();
+  // H_f^T: the soft dofs' rows (the factor has identity rows on the parts' dofs).
+  w.Ht_soft = Ht;
+  w.Ht_soft.prune([&](Eigen::Index row, Eigen::Index, double) { return rm.dof_part[static_cast<std::size_t>(row)] < 0; });
+  if (w.Ht_soft.nonZeros() > 0) {
+    if (!data.solver->inverse_congruence(w.Ht_soft, G)) return false;
+  } else {
+    G.setZero(ncols, ncols);
+  }
+  // W = T^T H_r^T - Y^T H_f^T (6m x 3nc).
+  w.W.resize(m6, ncols);
+  w.W.noalias() = -(w.Y.transpose() * w.Ht_soft);
+  for (int col = 0; col < ncols; ++col)
+    for (SparseMatrix::InnerIterator it(Ht, col); it; ++it) {
+      const int dof = static_cast<int>(it.row()), p = rm.dof_part[static_cast<std::size_t>(dof)];
+      if (p < 0) continue;
+      const Vec3 r = w.x.segment<3>(3 * (dof / 3)) - w.centre[static_cast<std::size_t>(p)];
+      w.W.block<6, 1>(6 * p, col).noalias() += it.value() * rigid_row(r, dof % 3).transpose();
+    }
+  w.SW = w.W;
+  w.S_factor.solveInPlace(w.SW);
+  G.noalias() += w.W.transpose() * w.SW;
+  return true;
+}
+
 void place_rigidified(const Model& model, Data& data, const State& in, State& out, double h) {
   const RigidifyModel& rm = model.rigidify;
   RigidifyData& w = data.rigidify;
   for (int p = 0; p < rm.size(); ++p) {
     const auto& part = rm.parts[static_cast<std::size_t>(p)];
     const Vec3& c = w.centre[static_cast<std::size_t>(p)];
-    const Eigen::Matrix<double, 6, 1> u = part_velocity(model, part, in.x, c, out.v);
+    Eigen::Matrix<double, 6, 6> N;
+    const Eigen::Matrix<double, 6, 1> u = fit(model, part, in.x, c, out.v, N);
     const Vec3 vp = u.head<3>(), omega = u.tail<3>();
     const Mat3 R = rigid::quaternion_exp(h * omega).toRotationMatrix();
     const Vec3 c_next = c + h * vp;
-    // The angular momentum the solve gave, L = I_n omega (I_n about c at x_i), is kept
-    // at the new pose: omega' = I_{n+1}^{-1} L, I_{n+1} = R I_n R^T (method.md).
-    Mat3 I = Mat3::Zero();
-    for (int i : part.nodes) {
-      const Vec3 r = in.x.segment<3>(3 * i) - c;
-      I += model.fem.mass_diagonal[3 * i] * (r.squaredNorm() * Mat3::Identity() - r * r.transpose());
-    }
+    // The angular momentum the solve gave, L = I_n omega (I_n about c at x_i: the fit's
+    // lower right block), is kept at the new pose: omega' = I_{n+1}^{-1} L,
+    // I_{n+1} = R I_n R^T (method.md).
+    const Mat3 I = N.bottomRightCorner<3, 3>();
     const Vec3 omega_next = R * I.ldlt().solve(R.transpose() * (I * omega));
     for (int i : part.nodes) {
       const Vec3 r = R * (in.x.segment<3>(3 * i) - c);

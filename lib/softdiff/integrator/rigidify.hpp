@@ -29,11 +29,16 @@
 // distances inside the part are kept to round-off whatever the rotation, and the
 // angular momentum of the solve is kept at the new pose.
 //
+// Contact: G and the correction through the same reduced solve (rigidified_congruence,
+// solve_rigidified; contact/contact_step.cpp), dense backend only.
+//
 // attach: fixed parts are fixed dofs (io::build_model); free and servo-attached parts
 // are RigidifiedPart. Unsupported with parts (the scene reader refuses them, issue 21):
-// contact, bdf2, static, newton_iterations > 1, factor reuse, derivatives.
+// contact on the sparse backend, bdf2, static, newton_iterations > 1, factor reuse,
+// derivatives.
 #include <softdiff/core/types.hpp>
 #include <softdiff/fem/fem_model.hpp>
+#include <softdiff/rigid/rotation.hpp>
 
 #include <Eigen/Cholesky>
 #include <string>
@@ -78,6 +83,10 @@ struct RigidifyData {
   VecX b_soft, y, g, u;         // (3n), (3n), (6m), (6m)
   std::vector<Vec3> centre;     // (m) c_p at the step's start
   VecX x;                       // (3n) the step's start x_i (T's arms)
+  // Contact (rigidified_congruence): H_f^T (H_c^T without the parts' rows), W = E^T H_c^T
+  // (6m x 3nc) and S^{-1} W.
+  SparseMatrix Ht_soft;
+  MatX W, SW;
 };
 
 // Fills r.dof_part and the coupling entries from the pattern (io::build_model, after
@@ -88,10 +97,7 @@ void build_rigidify(const fem::FemModel& fem, RigidifyModel& r);
 inline Eigen::Matrix<double, 1, 6> rigid_row(const Vec3& r, int c) {
   Eigen::Matrix<double, 1, 6> t = Eigen::Matrix<double, 1, 6>::Zero();
   t[c] = 1;
-  // -[r]x row c: omega x r = -r x omega
-  if (c == 0) { t[4] = r.z(); t[5] = -r.y(); }
-  if (c == 1) { t[3] = -r.z(); t[5] = r.x(); }
-  if (c == 2) { t[3] = r.y(); t[4] = -r.x(); }
+  t.tail<3>() = -rigid::hat(r).row(c);  // omega x r = -[r]x omega
   return t;
 }
 
@@ -102,6 +108,14 @@ StepStatus prepare_rigidified(const Model& model, Data& data, const VecX& x, dou
 // v = P (P^T A P)^{-1} P^T b with the prepared factors. b is projected (zero on the
 // fixed dofs). Returns false if the linear solver failed (an iterative one).
 bool solve_rigidified(const Model& model, Data& data, const VecX& b, VecX& v);
+
+// The contact stage's Delassus matrix with parts (docs/method.md "Rigidified parts",
+// "Contact"): G = H A_red^{-1} H^T (without the factor h) for H^T = Ht (3n x 3nc), with
+// A_red^{-1} = P (P^T A P)^{-1} P^T = Z + E S^{-1} E^T, Z = A_ff^{-1} on the soft dofs,
+// E = [-Y; T]: G = H_f Z H_f^T + W^T S^{-1} W, W = E^T H^T = T^T H_r^T - Y^T H_f^T, H_f
+// the soft dofs' rows. One multi-right-hand-side congruence on the step's factor (as
+// without parts) plus a rank-6m correction. Returns false if the linear solver failed.
+bool rigidified_congruence(const Model& model, Data& data, const SparseMatrix& Ht, MatX& G);
 
 // The exact placement: out.x, out.v of the parts' nodes from in.x and out.v (the
 // rigid velocity field the solve gave), see above.

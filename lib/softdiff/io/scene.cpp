@@ -163,9 +163,9 @@ class Reader {
     }
     read_obstacles(root, scene);
     check_rigid_support(root, scene);
-    check_rigidify_support(root, scene);
     read_contact(root, scene);
     check_rigid_contact(root, scene);
+    check_rigidify_support(root, scene);  // (after read_contact: it reads the backend)
     read_output(root, scene.output);
     check_factor_reuse(root, scene);
   }
@@ -338,8 +338,9 @@ class Reader {
         throw InputError(p.where.str() + ": a rigid body has no self-contact ('" + p.first + "')");
   }
 
-  // Rigidified parts (issue 21 item 2): the linearized implicit Euler step without
-  // contact, factor reuse or derivatives (those are refused by the commands).
+  // Rigidified parts (issue 21 item 2): the linearized implicit Euler step, contact on
+  // the dense backend, without factor reuse or derivatives (those are refused by the
+  // commands).
   void check_rigidify_support(const Node& root, const SceneDesc& scene) const {
     const BodyDesc* first = nullptr;
     for (const auto& b : scene.bodies)
@@ -358,11 +359,13 @@ class Reader {
                 "newton_iterations > 1 with rigidified parts is not supported yet (issue 21; " + part +
                     "): use newton_iterations: 1");
     }
-    const Entry* contact = root.find("contact");
-    if (contact && !contact->value.is_null() && boolean(get(contact->value, "enabled"), true))
-      ctx_.fail(contact->key_mark, "contact",
-                "contact with rigidified parts is not supported yet (issue 21; " + part +
-                    "): remove the section or set enabled: false");
+    // Contact: the dense backend only (docs/method.md "Rigidified parts").
+    if (scene.contact.enabled && scene.contact.backend == ContactDesc::Backend::sparse) {
+      const Entry* contact = root.find("contact");
+      ctx_.fail(contact->key_mark, "contact.backend",
+                "backend: sparse with rigidified parts is not supported yet (issue 21; " + part +
+                    "): use dense or auto (contact with rigidified parts always uses the dense backend)");
+    }
     if (scene.linear_solver.factor_reuse) {
       const Entry* key = root.get("linear_solver")->find("factor_reuse");
       ctx_.fail(key->key_mark, "linear_solver.factor_reuse",
