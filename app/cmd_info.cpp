@@ -31,6 +31,18 @@ const char* shape_name(const rigid::Shape& s) {
   }
   return "?";
 }
+// A rigidified part's lumped mass and centroid at the initial state (info).
+struct RigidifiedSummary {
+  double mass = 0;
+  Vec3 centroid = Vec3::Zero();
+};
+RigidifiedSummary summarize(const Model& model, const integrator::RigidifiedPart& p) {
+  RigidifiedSummary s;
+  for (int i : p.nodes) s.mass += model.fem.mass_diagonal[3 * i];
+  s.centroid = integrator::part_centre(model, p, model.initial.x);
+  return s;
+}
+
 const char* joint_name(const rigid::Joint& j) {
   switch (j.kind) {
     case rigid::Joint::Kind::free: return "free";
@@ -168,6 +180,20 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
       j.end_object().end_object();
     }
     j.end_array();
+    // Rigidified parts (free or servo-attached; attach: fixed parts are fixed nodes).
+    j.begin_array("rigidified_parts");
+    for (const auto& p : model.rigidify.parts) {
+      const RigidifiedSummary s = summarize(model, p);
+      j.begin_object()
+          .value("name", p.name)
+          .value("body", fem.bodies[p.body].name)
+          .value("nodes", static_cast<long>(p.nodes.size()))
+          .value("mass", s.mass)
+          .value("centroid", v3(s.centroid))
+          .value("attach", p.servo < 0 ? std::string("free") : model.actuation.actuators[p.servo].name)
+          .end_object();
+    }
+    j.end_array();
     j.begin_array("actuators");
     for (const auto& a : model.actuation.actuators) {
       j.begin_object().value("name", a.name).value("type", a.kind_name()).value("body", fem.bodies[a.body].name);
@@ -230,6 +256,12 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
       std::printf(", limits [%g, %g] %s", r.joint.limits->first, r.joint.limits->second,
                   r.joint.kind == rigid::Joint::Kind::hinge ? "rad" : "m");
     std::printf("\n");
+  }
+  for (const auto& p : model.rigidify.parts) {
+    const RigidifiedSummary s = summarize(model, p);
+    std::printf("rigidified  %s: %zu nodes, mass %.4g kg, centroid [%.6g, %.6g, %.6g], attach %s\n", p.name.c_str(),
+                p.nodes.size(), s.mass, s.centroid.x(), s.centroid.y(), s.centroid.z(),
+                p.servo < 0 ? "free" : ("servo '" + model.actuation.actuators[p.servo].name + "'").c_str());
   }
   for (const auto& a : model.actuation.actuators) {
     std::string line = "actuator    " + a.name + ": " + a.kind_name() + " on " + fem.bodies[a.body].name + ", " +

@@ -88,14 +88,19 @@ TEST(Cli, RigidifiedTipKeepsItsShape) {
   }
 }
 
-// The clamped beam's rigidified tip falls onto a plane 0.3 mm below it: the run
+// The clamped beam's rigidified tip falls onto a plane 0.3 mm below it, with the
+// linearized step, with Newton (5 iterations, contact per iteration) and with BDF2: the run
 // succeeds, the tip lands (some of its nodes touch the plane) without going through it
 // (beyond 1e-9 m: the contact solve's tolerance), and keeps its shape.
 TEST(Cli, RigidifiedTipLandsOnAPlane) {
-  const fs::path dir = fresh_dir(kRigidifyWork, "tip_contact");
+  const std::vector<std::string> variants = {"simulation.newton_iterations=1", "simulation.newton_iterations=5",
+                                             "simulation.integrator=bdf2"};
+  for (std::size_t variant = 0; variant < variants.size(); ++variant) {
+  SCOPED_TRACE(variants[variant]);
+  const fs::path dir = fresh_dir(kRigidifyWork, "tip_contact_" + std::to_string(variant));
   write_text(dir / "scene.yaml", beam(kTip, "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.0003}]\n"
                                             "contact: {friction: 0.3}\n"));
-  const auto r = run_cli("simulate scene.yaml -o out.h5 --quiet --set simulation.steps=10", dir);
+  const auto r = run_cli("simulate scene.yaml -o out.h5 --quiet --set simulation.steps=4 --set " + variants[variant], dir);
   ASSERT_EQ(r.code, 0) << r.err;
   const hid_t f = H5Fopen((dir / "out.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
   ASSERT_GE(f, 0);
@@ -122,6 +127,28 @@ TEST(Cli, RigidifiedTipLandsOnAPlane) {
   EXPECT_GT(lowest, -0.0003 - 1e-9);
   EXPECT_LT(lowest, -0.0003 + 1e-6);  // it landed
   EXPECT_LT(worst, 1e-12);
+  }
+}
+
+// info lists the free and servo-attached parts (attach: fixed parts are fixed nodes).
+TEST(Cli, InfoListsRigidifiedParts) {
+  const fs::path dir = fresh_dir(kRigidifyWork, "info");
+  write_text(dir / "scene.yaml", beam(kTipServo + kServo));
+  auto r = run_cli("info scene.yaml", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("rigidified  body 'beam' rigidify[0]: 275 nodes, mass "), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("attach servo 'turn'"), std::string::npos) << r.out;
+  r = run_cli("info scene.yaml --json", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("\"rigidified_parts\":[{\"name\":\"body 'beam' rigidify[0]\",\"body\":\"beam\",\"nodes\":275"),
+            std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("\"attach\":\"turn\""), std::string::npos) << r.out;
+  write_text(dir / "scene.yaml", beam(kTip));
+  r = run_cli("info scene.yaml", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("rigidify[0]: 275 nodes"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("attach free"), std::string::npos) << r.out;
 }
 
 TEST(Cli, RigidifyBadInputIsAnError) {
@@ -168,14 +195,10 @@ TEST(Cli, RigidifyRefusesWhatIsNotSupportedYet) {
   const std::vector<Case> cases = {
       {"sparse_contact", beam(kTip, plane + "contact: {friction: 0.3, backend: sparse}\n"), "simulate scene.yaml -o out.h5",
        "contact.backend: backend: sparse with rigidified parts is not supported yet (issue 21; bodies[0].rigidify[0])"},
-      {"bdf2", beam(kTip), "simulate scene.yaml -o out.h5 --set simulation.integrator=bdf2",
-       "simulation.integrator: integrator 'bdf2' with rigidified parts is not supported yet (issue 21"},
       {"static", beam(kTip),
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null",
        "integrator 'static' with rigidified parts is not supported yet (issue 21"},
-      {"newton", beam(kTip), "simulate scene.yaml -o out.h5 --set simulation.newton_iterations=3",
-       "newton_iterations > 1 with rigidified parts is not supported yet (issue 21"},
       {"pcg", beam(kTip, "linear_solver: {type: cholmod, factor_reuse: pcg}\n"), "simulate scene.yaml -o out.h5",
        "factor_reuse: pcg with rigidified parts is not supported yet (issue 21"},
       {"jacobian", beam(kTip), "simulate scene.yaml -o out.h5 --jacobian young",

@@ -281,6 +281,9 @@ StepStatus stage(const Model& model, Data& data, const State& in, State& out, lo
     // Reference: ||R(0)|| = ||M v_i + h (P + f(x_i))|| (f(x_i) is still in data.fem).
     data.v_iter.setZero();
     newton_residual(model, data, h, data.Mvi, data.v_iter, data.rhs);
+    // Rigidified parts: the residual of the reduced equations P^T R = 0, as nodal forces
+    // (integrator/rigidify.hpp project_rigidified_residual), here and below.
+    if (rigidified) project_rigidified_residual(model, data, data.rhs);
     const double r0 = data.rhs.norm();
     data.timings.other += seconds_since(t0);
     double r = 0, r_accepted = std::numeric_limits<double>::infinity();
@@ -310,6 +313,15 @@ StepStatus stage(const Model& model, Data& data, const State& in, State& out, lo
     const bool with_contact = model.contact.enabled && cd.contacts.size() > 0;
     VecX contact_force = VecX::Zero(with_contact ? out.v.size() : 0);
     if (with_contact) contact_force.noalias() = h * (cd.Ht * cd.lambda);
+    if (with_contact && rigidified) project_rigidified_residual(model, data, contact_force);
+    // ||f_int|| of the scale below, without the internal forces inside the parts.
+    auto internal_norm = [&] {
+      if (!rigidified) return projected_norm(model, data.fem.f_int);
+      data.rigidify.f = data.fem.f_int;
+      project(model, data.rigidify.f);
+      project_rigidified_residual(model, data, data.rigidify.f);
+      return data.rigidify.f.norm();
+    };
     double phi_plain_accepted = 0;  // Phi(v_k) of the accepted iterate (without the contact work)
     // Line search: R is the gradient of the incremental potential Phi (see
     // incremental_potential). An iterate that inverts an element, or raises both Phi
@@ -329,6 +341,7 @@ StepStatus stage(const Model& model, Data& data, const State& in, State& out, lo
       double phi_plain = 0;
       if (valid) {
         newton_residual(model, data, h, data.Mvi, out.v, data.rhs);
+        if (rigidified) project_rigidified_residual(model, data, data.rhs);
         phi_plain = incremental_potential(model, data, h, out.v);
         if (with_contact) {
           r = (data.rhs + contact_force).norm();
@@ -360,7 +373,7 @@ StepStatus stage(const Model& model, Data& data, const State& in, State& out, lo
       halvings = 0;
       // With contact the contact forces join the scale (as f_int: a resting body's
       // f_int balances its weight and the contact forces).
-      const double scale = std::max({r0, load_scale, h * projected_norm(model, data.fem.f_int),
+      const double scale = std::max({r0, load_scale, h * internal_norm(),
                                      with_contact ? contact_force.norm() : 0.0});
       newton_converged = r <= model.step.newton_tolerance * scale || small_update;
       if (with_contact) newton_converged = newton_converged && full_step && cd.result.converged;
@@ -373,10 +386,15 @@ StepStatus stage(const Model& model, Data& data, const State& in, State& out, lo
       data.timings.assembly += seconds_since(t0);
       t0 = Clock::now();
       status = factorize(model, data, step_index);
+      // Rigidified parts: the Schur complement on this iteration's factor (T at x_i).
+      if (status.ok() && rigidified) status = prepare_rigidified(model, data, in.x, h, step_index, &data.K_i_values);
       data.timings.factorization += seconds_since(t0);
       if (!status.ok()) return status;
       t0 = Clock::now();
-      data.solver->solve(data.rhs, data.dv);
+      if (rigidified)
+        solve_rigidified(model, data, data.rhs, data.dv);
+      else
+        data.solver->solve(data.rhs, data.dv);
       data.v_iter = out.v;
       out.v += data.dv;
       project(model, out.v);
@@ -390,6 +408,7 @@ StepStatus stage(const Model& model, Data& data, const State& in, State& out, lo
         t0 = Clock::now();
         data.dv = out.v - data.v_iter;
         contact_force.noalias() = h * (cd.Ht * cd.lambda);
+        if (rigidified) project_rigidified_residual(model, data, contact_force);
         phi_accepted = phi_plain_accepted - contact_force.dot(data.v_iter);
         r_accepted = (data.rhs + contact_force).norm();
         data.timings.other += seconds_since(t0);

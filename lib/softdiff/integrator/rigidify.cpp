@@ -7,6 +7,7 @@
 #include <softdiff/model.hpp>
 
 #include <Eigen/Geometry>
+#include <Eigen/SVD>
 #include <cmath>
 
 namespace softdiff::integrator {
@@ -77,10 +78,10 @@ Eigen::Matrix<double, 6, 1> part_velocity(const Model& model, const RigidifiedPa
   return fit(model, part, x, c, v, N);
 }
 
-StepStatus prepare_rigidified(const Model& model, Data& data, const VecX& x, double h, long step_index) {
-  SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler && model.step.newton_iterations == 1 &&
-                      !model.solver.factor_reuse,
-                  "rigidified parts: the linearized implicit Euler step only, without factor reuse (issue 21)");
+StepStatus prepare_rigidified(const Model& model, Data& data, const VecX& x, double h, long step_index,
+                              const VecX* K_damping) {
+  SOFTDIFF_DEMAND(model.step.integrator != IntegratorKind::static_equilibrium && !model.solver.factor_reuse,
+                  "rigidified parts: the dynamic steps only, without factor reuse (issue 21)");
   const auto& fem = model.fem;
   const RigidifyModel& rm = model.rigidify;
   RigidifyData& w = data.rigidify;
@@ -99,14 +100,14 @@ StepStatus prepare_rigidified(const Model& model, Data& data, const VecX& x, dou
   w.x = x;
   for (std::size_t p = 0; p < rm.parts.size(); ++p) w.centre[p] = part_centre(model, rm.parts[p], x);
 
-  // A's coupling values: A = (1 + h alpha) M + (h beta + h^2) K (linearized step: the
-  // damping's K is the step's K), with the part's body coefficients (the pattern
-  // couples no two bodies).
+  // A's coupling values: A = (1 + h alpha) M + h beta K_d + h^2 K (the linearized step:
+  // K_d = K), with the part's body coefficients (the pattern couples no two bodies).
   const double* M = fem.mass_values.data();
   const double* K = data.fem.K_values.data();
+  const double* Kd = K_damping ? K_damping->data() : K;
   auto value = [&](int k, int part) {
     const auto& b = fem.bodies[static_cast<std::size_t>(rm.parts[static_cast<std::size_t>(part)].body)];
-    return (1 + h * b.rayleigh_mass) * M[k] + (h * b.rayleigh_stiffness + h * h) * K[k];
+    return (1 + h * b.rayleigh_mass) * M[k] + h * b.rayleigh_stiffness * Kd[k] + h * h * K[k];
   };
   auto row_of = [&](int dof, int part) {
     return rigid_row(x.segment<3>(3 * (dof / 3)) - w.centre[static_cast<std::size_t>(part)], dof % 3);
@@ -175,6 +176,49 @@ bool solve_rigidified(const Model& model, Data& data, const VecX& b, VecX& v) {
     }
   }
   return true;
+}
+
+void project_rigidified_residual(const Model& model, Data& data, VecX& r) {
+  const RigidifyModel& rm = model.rigidify;
+  const RigidifyData& w = data.rigidify;
+  for (int p = 0; p < rm.size(); ++p) {
+    const auto& part = rm.parts[static_cast<std::size_t>(p)];
+    const Vec3& c = w.centre[static_cast<std::size_t>(p)];
+    Eigen::Matrix<double, 6, 6> N = Eigen::Matrix<double, 6, 6>::Zero();
+    Eigen::Matrix<double, 6, 1> g = Eigen::Matrix<double, 6, 1>::Zero();
+    for (int i : part.nodes) {
+      const double mi = model.fem.mass_diagonal[3 * i];
+      const Vec3 a = w.x.segment<3>(3 * i) - c;
+      for (int k = 0; k < 3; ++k) {
+        const Eigen::Matrix<double, 1, 6> t = rigid_row(a, k);
+        N.noalias() += mi * t.transpose() * t;
+        g.noalias() += r[3 * i + k] * t.transpose();
+      }
+    }
+    const Eigen::Matrix<double, 6, 1> u = N.ldlt().solve(g);
+    for (int i : part.nodes) {
+      const Vec3 a = w.x.segment<3>(3 * i) - c;
+      r.segment<3>(3 * i) = model.fem.mass_diagonal[3 * i] * (u.head<3>() + u.tail<3>().cross(a));
+    }
+  }
+}
+
+void rigidify_extrapolated_pose(const Model& model, const VecX& x, const VecX& x_previous, VecX& x_hat) {
+  for (const auto& part : model.rigidify.parts) {
+    const Vec3 c = part_centre(model, part, x), c_prev = part_centre(model, part, x_previous);
+    Mat3 H = Mat3::Zero();  // sum m a b^T, a at x_{n-1}, b at x_n: b = R a
+    for (int i : part.nodes)
+      H.noalias() += model.fem.mass_diagonal[3 * i] * (x_previous.segment<3>(3 * i) - c_prev) *
+                     (x.segment<3>(3 * i) - c).transpose();
+    const Eigen::JacobiSVD<Mat3> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    Mat3 D = Mat3::Identity();
+    D(2, 2) = (svd.matrixV() * svd.matrixU().transpose()).determinant() < 0 ? -1 : 1;
+    const Mat3 R = svd.matrixV() * D * svd.matrixU().transpose();
+    const Eigen::AngleAxisd aa(R);
+    const Mat3 E = Eigen::AngleAxisd(aa.angle() / 3, aa.axis()).toRotationMatrix();
+    const Vec3 c_hat = (4.0 / 3.0) * c - (1.0 / 3.0) * c_prev;
+    for (int i : part.nodes) x_hat.segment<3>(3 * i) = c_hat + E * (x.segment<3>(3 * i) - c);
+  }
 }
 
 bool rigidified_congruence(const Model& model, Data& data, const SparseMatrix& Ht, MatX& G) {

@@ -33,9 +33,12 @@
 // solve_rigidified; contact/contact_step.cpp), dense backend only.
 //
 // attach: fixed parts are fixed dofs (io::build_model); free and servo-attached parts
-// are RigidifiedPart. Unsupported with parts (the scene reader refuses them, issue 21):
-// contact on the sparse backend, bdf2, static, newton_iterations > 1, factor reuse,
-// derivatives.
+// are RigidifiedPart. Newton (newton_iterations > 1): the Galerkin-projected nonlinear
+// equations P^T R(P u) = 0 with T at x_i (the iterates x_i + h P u; the end pose is
+// placed exactly as above). BDF2: the stage from the extrapolated state with the
+// parts' extrapolated pose made rigid (rigidify_extrapolated_pose). Unsupported with
+// parts (the scene reader refuses them, issue 21): contact on the sparse backend,
+// static, factor reuse, derivatives.
 #include <softdiff/core/types.hpp>
 #include <softdiff/fem/fem_model.hpp>
 #include <softdiff/rigid/rotation.hpp>
@@ -87,6 +90,7 @@ struct RigidifyData {
   // (6m x 3nc) and S^{-1} W.
   SparseMatrix Ht_soft;
   MatX W, SW;
+  VecX f;                       // (3n) Newton: scratch of the projected internal forces
 };
 
 // Fills r.dof_part and the coupling entries from the pattern (io::build_model, after
@@ -103,7 +107,18 @@ inline Eigen::Matrix<double, 1, 6> rigid_row(const Vec3& r, int c) {
 
 // After the step's A (at x, step size h) is assembled and factorized: the centres, C,
 // Y and S's Cholesky factor. S not positive definite: a not_positive_definite status.
-StepStatus prepare_rigidified(const Model& model, Data& data, const VecX& x, double h, long step_index);
+// A = (1 + h alpha) M + h beta K_damping + h^2 K, K = data.fem.K_values, K_damping the
+// same unless given (Newton: the damping's K frozen at x_i). The arms of T are x's.
+StepStatus prepare_rigidified(const Model& model, Data& data, const VecX& x, double h, long step_index,
+                              const VecX* K_damping = nullptr);
+
+// Newton with parts: replaces the parts' rows of a residual (force) r by its M-weighted
+// projection on the parts' rigid motions, r_p <- M_p T_p N_p^{-1} T_p^T r_p,
+// N_p = T_p^T M_p T_p (the prepared T): the resultant and moment are kept (T^T r, what
+// the reduced step solves for), the internal forces between the part's nodes, which do
+// no work on its rigid motions, drop out, and norms of r measure what the reduced
+// system leaves unbalanced, in newtons.
+void project_rigidified_residual(const Model& model, Data& data, VecX& r);
 
 // v = P (P^T A P)^{-1} P^T b with the prepared factors. b is projected (zero on the
 // fixed dofs). Returns false if the linear solver failed (an iterative one).
@@ -120,6 +135,15 @@ bool rigidified_congruence(const Model& model, Data& data, const SparseMatrix& H
 // The exact placement: out.x, out.v of the parts' nodes from in.x and out.v (the
 // rigid velocity field the solve gave), see above.
 void place_rigidified(const Model& model, Data& data, const State& in, State& out, double h);
+
+// BDF2 (integrator/bdf2.cpp): the extrapolated positions x^ = 4/3 x_n - 1/3 x_{n-1}
+// of a rotating part are not a rigid pose (a blend of two rotations shrinks it by
+// O(angle^2)), and the placement would carry that into the part. x_hat's part nodes
+// are replaced by the rigid pose with the same extrapolation of the centroid and of
+// the rotation, x^_i = c^ + exp(1/3 log R) (x_{n,i} - c_n), c^ = 4/3 c_n - 1/3 c_{n-1},
+// R the part's rotation from x_{n-1} to x_n (the polar factor of the mass-weighted
+// cross-covariance, exact for rigid poses).
+void rigidify_extrapolated_pose(const Model& model, const VecX& x, const VecX& x_previous, VecX& x_hat);
 
 // The part's (v_p, omega) from a nodal velocity field at positions x, about centre c:
 // the lumped-mass least-squares fit (exact for a rigid field).

@@ -338,8 +338,8 @@ class Reader {
         throw InputError(p.where.str() + ": a rigid body has no self-contact ('" + p.first + "')");
   }
 
-  // Rigidified parts (issue 21 item 2): the linearized implicit Euler step, contact on
-  // the dense backend, without factor reuse or derivatives (those are refused by the
+  // Rigidified parts (issue 21 item 2): implicit Euler (Newton too) and BDF2, contact
+  // on the dense backend, without factor reuse or derivatives (those are refused by the
   // commands).
   void check_rigidify_support(const Node& root, const SceneDesc& scene) const {
     const BodyDesc* first = nullptr;
@@ -347,17 +347,11 @@ class Reader {
       if (!b.rigidify.empty() && !first) first = &b;
     if (!first) return;
     const std::string part = first->rigidify.front().where.path;
-    if (scene.simulation.integrator != Integrator::implicit_euler) {
+    if (scene.simulation.integrator == Integrator::static_equilibrium) {
       const Entry* integrator = root.get("simulation")->find("integrator");
       ctx_.fail(integrator->key_mark, "simulation.integrator",
                 "integrator '" + integrator->value.scalar + "' with rigidified parts is not supported yet (issue 21; " +
-                    part + "): use implicit_euler");
-    }
-    if (scene.simulation.newton_iterations > 1) {
-      const Entry* it = root.get("simulation")->find("newton_iterations");
-      ctx_.fail(it->key_mark, "simulation.newton_iterations",
-                "newton_iterations > 1 with rigidified parts is not supported yet (issue 21; " + part +
-                    "): use newton_iterations: 1");
+                    part + "): use implicit_euler or bdf2");
     }
     // Contact: the dense backend only (docs/method.md "Rigidified parts").
     if (scene.contact.enabled && scene.contact.backend == ContactDesc::Backend::sparse) {
