@@ -341,12 +341,14 @@ class Reader {
   // Rigidified parts (issue 21 item 2): implicit Euler (Newton too) and BDF2, contact
   // on the dense backend, without factor reuse or derivatives (those are refused by the
   // commands).
+  // attach: fixed parts are fixed nodes (io::build_model): nothing to check for them.
   void check_rigidify_support(const Node& root, const SceneDesc& scene) const {
-    const BodyDesc* first = nullptr;
+    const RigidifyDesc* first = nullptr;
     for (const auto& b : scene.bodies)
-      if (!b.rigidify.empty() && !first) first = &b;
+      for (const auto& r : b.rigidify)
+        if (r.attach != "fixed" && !first) first = &r;
     if (!first) return;
-    const std::string part = first->rigidify.front().where.path;
+    const std::string part = first->where.path;
     if (scene.simulation.integrator == Integrator::static_equilibrium) {
       const Entry* integrator = root.get("simulation")->find("integrator");
       ctx_.fail(integrator->key_mark, "simulation.integrator",
