@@ -18,6 +18,8 @@
 //     bar with a rigidified middle block resting on a plane: the reaction equals the
 //     weight, the block's nodes stay rigid (pairwise distances to round-off), no
 //     penetration beyond the contact solve's tolerance;
+//     A rigid cube resting on the block as well: the floor carries both weights, the
+//     block carries the cube's (rigid bodies and rigidified parts in one NCP);
 //  7. Newton (newton_iterations > 1): the converged step equals an independent Newton
 //     on the explicitly reduced equations P^T R(P u) = 0 (Eigen's SimplicialLDLT on
 //     P^T J P);
@@ -508,6 +510,81 @@ TEST(RigidifyValidation, BarWithARigidBlockRestsOnAPlane) {
   // Normal rows: sigma_n = H_n v + phi / h >= -tol: after the step the gap is at least
   // -h tol (scaled residuals: a few 1e-10 m/s here), far below 1e-9 m.
   EXPECT_GT(min_z, -1e-9);
+}
+
+// The bar with its rigid block on the plane and a rigid cube (20 mm, 500 kg/m^3: 4 g)
+// released on the block's top face: rigid bodies (their 6x6 Delassus blocks) and the
+// part (the rank-6m correction) in the one NCP. After 200 steps of 5 ms at rest: the
+// floor's reaction is the bar's and the cube's weight, the cube's contacts carry its
+// weight, and the block's shape is kept.
+TEST(RigidifyValidation, RigidCubeRestsOnTheRigidBlock) {
+  const fs::path dir = fs::path(SOFTDIFF_TEST_DATA_DIR) / ("validation_rigidify_" + std::to_string(::getpid())) / "cube";
+  fs::remove_all(dir);
+  test::write_text(dir / "bar.msh", bar_msh());
+  test::write_text(dir / "scene.yaml",
+                   "softdiff: 1\n"
+                   "simulation: {dt: 0.005, steps: 10}\n"
+                   "bodies:\n"
+                   "  - name: bar\n"
+                   "    mesh: bar.msh\n"
+                   "    material: {law: corotational, young: 2.0e4, poisson: 0.4, density: 1000}\n"
+                   "    damping: {rayleigh_mass: 20, rayleigh_stiffness: 0.01}\n"
+                   "    rigidify: [{box: [0.07, -1, -1, 0.13, 1, 1]}]\n"
+                   "  - name: cube\n"
+                   "    type: rigid\n"
+                   "    shape: {type: box, half_extents: [0.01, 0.01, 0.01]}\n"
+                   "    density: 500\n"
+                   "    position: [0.1, 0.02, 0.03]\n"
+                   "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: 0}]\n"
+                   "contact: {tolerance: 1.0e-10, max_iterations: 5000, pairs: [[bar, floor, 0.5], [bar, cube, 0.5]]}\n");
+  const Model model = io::build_model(io::load_scene(dir / "scene.yaml"));
+  fs::remove_all(dir);
+  ASSERT_EQ(model.rigidify.size(), 1);
+  ASSERT_EQ(model.rigid.size(), 1u);
+  const auto& part = model.rigidify.parts[0];
+  Data data(model);
+  State a = model.initial, b = model.initial;
+  for (int k = 1; k <= 200; ++k) {
+    const StepStatus st = integrator::time_step(model, data, a, nullptr, b, k);
+    ASSERT_TRUE(st.ok()) << describe(model, st);
+    ASSERT_TRUE(data.contact.result.converged) << "step " << k;
+    std::swap(a, b);
+  }
+  double bar_mass = 0, shape = 0, speed = 0;
+  for (int i = 0; i < model.fem.num_nodes; ++i) {
+    bar_mass += model.fem.mass_diagonal[3 * i];
+    speed = std::max(speed, a.v.segment<3>(3 * i).norm());
+  }
+  for (std::size_t p = 0; p < part.nodes.size(); ++p)
+    for (std::size_t q = 0; q < p; ++q) {
+      const int i = part.nodes[p], j = part.nodes[q];
+      shape = std::max(shape, std::abs((a.x.segment<3>(3 * i) - a.x.segment<3>(3 * j)).norm() -
+                                       (model.initial.x.segment<3>(3 * i) - model.initial.x.segment<3>(3 * j)).norm()));
+    }
+  // Contact names: bar 0, cube 1, floor 2; frame * lambda is the force on side A.
+  Vec3 floor = Vec3::Zero(), on_cube = Vec3::Zero();
+  int floor_contacts = 0, cube_contacts = 0;
+  for (int i = 0; i < data.contact.contacts.size(); ++i) {
+    const auto& c = data.contact.contacts.contacts[i];
+    const Vec3 f = c.frame * data.contact.lambda.segment<3>(3 * i);
+    if (c.side_b == 2) floor += f, ++floor_contacts;
+    if (c.side_a == 1) on_cube += f, ++cube_contacts;
+    if (c.side_b == 1) on_cube -= f, ++cube_contacts;
+  }
+  const double g = 9.81, w_bar = bar_mass * g, w_cube = model.rigid[0].mass * g;
+  const auto& cube = a.rigid[0];
+  std::cout << "[rigidify] rigid cube on the rigid block of a bar on a plane, 200 steps of 5 ms: floor reaction "
+            << floor.transpose() << " N (weights " << w_bar << " + " << w_cube << " N, " << floor_contacts
+            << " contacts), on the cube " << on_cube.transpose() << " N (" << cube_contacts << " contacts), cube speed "
+            << cube.velocity.norm() << " m/s, bar speed " << speed << " m/s, block distance change " << shape << " m\n";
+  EXPECT_GT(cube_contacts, 0);
+  EXPECT_LT(speed, 1e-7);
+  EXPECT_LT(cube.velocity.norm(), 1e-7);
+  // At rest to 1e-7 m/s: momentum change of the last step at most (0.16 + 0.004) kg *
+  // 1e-7 / 5e-3 s = 3.3e-6 N, ~2e-6 of the weights.
+  EXPECT_NEAR(floor.z(), w_bar + w_cube, 5e-6 * (w_bar + w_cube));
+  EXPECT_NEAR(on_cube.z(), w_cube, 5e-6 * (w_bar + w_cube));
+  EXPECT_LT(shape, 1e-15);
 }
 
 // ---- Newton with rigidified parts ----
