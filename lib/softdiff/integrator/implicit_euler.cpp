@@ -293,7 +293,13 @@ StepStatus stage(const Model& model, Data& data, const State& in, State& out, lo
     // ||R(0)|| is small and ||R|| stops at its round-off floor, set by the forces that
     // cancel in R (f_int sums element forces much larger than their sum), not by R(0)
     // (docs/method.md).
-    const double load_scale = h * projected_norm(model, fem.gravity_force + data.f_act);
+    double load_scale = h * projected_norm(model, fem.gravity_force + data.f_act);
+    if (rigidified) {  // the loads on the parts as the reduced step sees them (their resultant and moment)
+      data.rigidify.f = fem.gravity_force + data.f_act;
+      project(model, data.rigidify.f);
+      project_rigidified_residual(model, data, data.rigidify.f);
+      load_scale = h * data.rigidify.f.norm();
+    }
     bool small_update = false;
     newton_converged = false;
     // Contact (docs/method.md "Newton iterations with contact"): the contacts, H_c and
