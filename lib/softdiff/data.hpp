@@ -76,7 +76,11 @@ struct ContactData {
     VecX u_free, u;                        // (6R) (v, omega) per body, world: after the free step; corrected
     std::vector<rigid::Mat6> W;            // (R) T (T^T A_r T)^{-1} T^T: velocity change per impulse (0: fixed)
     MatX Ht;                               // (6R, 3nc) the rigid bodies' rows of H_c^T
-    MatX WHt;                              // (6, 3nc) scratch
+    std::vector<rigid::Mat6> L;            // (R) W = L L^T; its first rank columns (6 free, 1 joint, 0 fixed)
+    std::vector<int> rank;                 // (R) L's nonzero columns
+    MatX Kt;                               // (k, 3nc) L^T H_r^T of the bodies in contact (sparse backend)
+    std::vector<int> dofs;                 // scratch: the contact rows of one body (add_rigid_delassus)
+    MatX Kc, Gc;                           // scratch: L^T H_r^T on those rows, its h K^T K
   } rigid;
 };
 

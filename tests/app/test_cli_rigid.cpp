@@ -218,8 +218,6 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
        "simulate scene.yaml -o out.h5 --set simulation.newton_iterations=2",
        "contact with rigid bodies and simulation.newton_iterations > 1 is not supported yet (issue 21; bodies[1] is "
        "rigid)"},
-      {"contact_sparse", beam_and_sphere("", plane + "contact: {friction: 0.3, backend: sparse}\n"),
-       "simulate scene.yaml -o out.h5", "backend: sparse with rigid bodies is not supported yet (issue 21"},
       {"contact_rigid_self", beam_and_sphere("", plane + "contact: {pairs: [[ball, ball, 0.3]]}\n"),
        "simulate scene.yaml -o out.h5", "a rigid body has no self-contact ('ball')"},
       {"bdf2", beam_and_sphere(), "simulate scene.yaml -o out.h5 --set simulation.integrator=bdf2",

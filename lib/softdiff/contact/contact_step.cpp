@@ -159,12 +159,11 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   // g = H v_free + phi / h on normal rows.
   auto t0 = Clock::now();
   const auto& ncp = model.contact.ncp;
-  // With rigid bodies the dense backend always (docs/method.md "Rigid bodies in
-  // contact": the sparse operator has no rigid block; the scene reader refuses
-  // backend: sparse with them).
+  // With rigid bodies, either backend: the operator takes their rows h K K^T
+  // (SparseDelassus::set_rigid; docs/method.md "Rigid bodies in contact", Backends).
   const bool with_rigid = model.contact.with_rigid();
-  const bool sparse = !with_rigid && (ncp.backend == NcpBackend::sparse ||
-                                      (ncp.backend == NcpBackend::automatic && nc > ncp.dense_max_contacts));
+  const bool sparse = ncp.backend == NcpBackend::sparse ||
+                      (ncp.backend == NcpBackend::automatic && nc > ncp.dense_max_contacts);
   if (sparse) {
     cd.G.resize(0, 0);
     cd.sparse.bind(*data.solver, data.A, cd.Ht, h, model.solver);
@@ -185,7 +184,12 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
     cd.G *= h;
   }
   cd.g.noalias() = cd.Ht.transpose() * v;
-  if (with_rigid) add_rigid_delassus(model, data, h, cd.G, cd.g);  // + h H_r W_r H_r^T, + H_r u_free
+  if (with_rigid && sparse) {
+    rigid_delassus_rows(model, data, cd.rigid.Kt, cd.g);  // + H_r u_free
+    cd.sparse.set_rigid(cd.rigid.Kt);                     // + h H_r W_r H_r^T = h Kt^T Kt
+  } else if (with_rigid) {
+    add_rigid_delassus(model, data, h, cd.G, cd.g);  // + h H_r W_r H_r^T, + H_r u_free
+  }
   for (int i = 0; i < nc; ++i) cd.g[3 * i + 2] += cd.contacts.contacts[i].gap / h;
   data.timings.delassus += seconds_since(t0);
 
