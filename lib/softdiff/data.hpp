@@ -52,7 +52,8 @@ struct ContactData {
   std::unique_ptr<collision::CollisionDetector> detector;  // built once (model.contact.enabled)
   collision::ContactSet contacts;   // (nc) detected at x_i, with frames, gaps, features
   collision::DetectionStats stats;
-  double margin = 0;                // detection margin of the step: max(margin, 2 h max|v|)
+  double margin = 0;                // detection margin of the step: the largest of surface_margin
+  std::vector<double> surface_margin;  // per detection surface: max(margin, 2 h max|v| over its vertices)
   SparseMatrix Ht;                  // (3n, 3nc) H_c^T, projected (no fixed dof)
   MatX G;                           // (3nc, 3nc) Delassus h H_c A^{-1} H_c^T (dense backend; empty on the sparse one)
   contact::SparseDelassus sparse;   // the same as an operator (sparse backend, NcpResult::sparse)
