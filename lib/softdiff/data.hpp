@@ -52,7 +52,8 @@ struct ContactData {
   std::unique_ptr<collision::CollisionDetector> detector;  // built once (model.contact.enabled)
   collision::ContactSet contacts;   // (nc) detected at x_i, with frames, gaps, features
   collision::DetectionStats stats;
-  double margin = 0;                // detection margin of the step: max(margin, 2 h max|v|)
+  double margin = 0;                // detection margin of the step: the largest of surface_margin
+  std::vector<double> surface_margin;  // per detection surface: max(margin, 2 h max|v| over its vertices)
   SparseMatrix Ht;                  // (3n, 3nc) H_c^T, projected (no fixed dof)
   MatX G;                           // (3nc, 3nc) Delassus h H_c A^{-1} H_c^T (dense backend; empty on the sparse one)
   contact::SparseDelassus sparse;   // the same as an operator (sparse backend, NcpResult::sparse)
@@ -76,7 +77,11 @@ struct ContactData {
     VecX u_free, u;                        // (6R) (v, omega) per body, world: after the free step; corrected
     std::vector<rigid::Mat6> W;            // (R) T (T^T A_r T)^{-1} T^T: velocity change per impulse (0: fixed)
     MatX Ht;                               // (6R, 3nc) the rigid bodies' rows of H_c^T
-    MatX WHt;                              // (6, 3nc) scratch
+    std::vector<rigid::Mat6> L;            // (R) W = L L^T; its first rank columns (6 free, 1 joint, 0 fixed)
+    std::vector<int> rank;                 // (R) L's nonzero columns
+    MatX Kt;                               // (k, 3nc) L^T H_r^T of the bodies in contact (sparse backend)
+    std::vector<int> dofs;                 // scratch: the contact rows of one body (add_rigid_delassus)
+    MatX Kc, Gc;                           // scratch: L^T H_r^T on those rows, its h K^T K
   } rigid;
 };
 

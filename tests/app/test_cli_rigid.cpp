@@ -165,40 +165,45 @@ TEST(Cli, InfoListsRigidBodies) {
 // docs/method.md "Rigid bodies in contact"): it runs, the contact names list the rigid
 // body after the soft one, the sphere's contacts are rows of /contact, and its vertices'
 // contact forces (/bodies/ball/contact_force) carry its weight.
+// On both contact backends (`backend: sparse`: the operator with the rigid rows,
+// SparseDelassus::set_rigid), with the same assertions.
 TEST(Cli, RigidBodyRestsOnTheFloorThroughContact) {
-  const fs::path dir = softdiff::test::fresh_dir(kRigidWork, "contact");
-  // The sphere's lowest tessellation vertex is its pole at z = -0.01 (radius 0.01 about
-  // z = 0): the floor at offset -0.01 touches it.
-  write_text(dir / "scene.yaml",
-             beam_and_sphere("", "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.01}]\n"
-                                 "contact: {friction: 0.3, pairs: [[ball, floor, 0.3]]}\n"
-                                 "output: {fields: [x, contact]}\n"));
-  const auto r = run_cli("simulate scene.yaml -o out.h5", dir);
-  ASSERT_EQ(r.code, 0) << r.err;
-  const std::string file = (dir / "out.h5").string();
-  const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-  ASSERT_GE(f, 0);
-  const std::vector<hsize_t> shape = h5_shape(f, "/bodies/ball/contact_force");
-  ASSERT_EQ(shape.size(), 3u);
-  EXPECT_EQ(shape[0], 4u);  // frames 0..3
-  const std::vector<double> force = h5_read(f, "/bodies/ball/contact_force");
-  const std::vector<double> pairs = h5_read(f, "/contact/pair");
-  const std::vector<double> position = h5_read(f, "/bodies/ball/position");
-  H5Fclose(f);
-  // The last frame's vertex forces sum to the weight m g, m = 1000 kg/m^3 x 4/3 pi
-  // 0.01^3 (the exact sphere's mass): the sphere starts at rest touching the floor, so
-  // every step's contact force cancels exactly the free step's fall (to the NCP
-  // tolerance, 1e-8 relative).
-  const std::size_t nv = shape[1];
-  double fz = 0;
-  for (std::size_t k = 0; k < nv; ++k) fz += force[3 * (3 * nv) + 3 * k + 2];
-  const double weight = 1000 * 4.0 / 3.0 * M_PI * 1e-6 * 9.81;
-  EXPECT_NEAR(fz, weight, 1e-6 * weight);
-  EXPECT_NEAR(position[3 * 3 + 2], 0.0, 1e-9);  // z of the centre after 3 steps: resting
-  ASSERT_FALSE(pairs.empty());
-  for (std::size_t i = 0; i < pairs.size(); i += 2) {
-    EXPECT_EQ(pairs[i], 1.0);      // names: beam, ball, floor
-    EXPECT_EQ(pairs[i + 1], 2.0);
+  for (const std::string backend : {"dense", "sparse"}) {
+    SCOPED_TRACE("backend " + backend);
+    const fs::path dir = softdiff::test::fresh_dir(kRigidWork, "contact_" + backend);
+    // The sphere's lowest tessellation vertex is its pole at z = -0.01 (radius 0.01 about
+    // z = 0): the floor at offset -0.01 touches it.
+    write_text(dir / "scene.yaml",
+               beam_and_sphere("", "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.01}]\n"
+                                   "contact: {friction: 0.3, backend: " + backend + ", pairs: [[ball, floor, 0.3]]}\n"
+                                   "output: {fields: [x, contact]}\n"));
+    const auto r = run_cli("simulate scene.yaml -o out.h5", dir);
+    ASSERT_EQ(r.code, 0) << r.err;
+    const std::string file = (dir / "out.h5").string();
+    const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+    ASSERT_GE(f, 0);
+    const std::vector<hsize_t> shape = h5_shape(f, "/bodies/ball/contact_force");
+    ASSERT_EQ(shape.size(), 3u);
+    EXPECT_EQ(shape[0], 4u);  // frames 0..3
+    const std::vector<double> force = h5_read(f, "/bodies/ball/contact_force");
+    const std::vector<double> pairs = h5_read(f, "/contact/pair");
+    const std::vector<double> position = h5_read(f, "/bodies/ball/position");
+    H5Fclose(f);
+    // The last frame's vertex forces sum to the weight m g, m = 1000 kg/m^3 x 4/3 pi
+    // 0.01^3 (the exact sphere's mass): the sphere starts at rest touching the floor, so
+    // every step's contact force cancels exactly the free step's fall (to the NCP
+    // tolerance, 1e-8 relative).
+    const std::size_t nv = shape[1];
+    double fz = 0;
+    for (std::size_t k = 0; k < nv; ++k) fz += force[3 * (3 * nv) + 3 * k + 2];
+    const double weight = 1000 * 4.0 / 3.0 * M_PI * 1e-6 * 9.81;
+    EXPECT_NEAR(fz, weight, 1e-6 * weight);
+    EXPECT_NEAR(position[3 * 3 + 2], 0.0, 1e-9);  // z of the centre after 3 steps: resting
+    ASSERT_FALSE(pairs.empty());
+    for (std::size_t i = 0; i < pairs.size(); i += 2) {
+      EXPECT_EQ(pairs[i], 1.0);      // names: beam, ball, floor
+      EXPECT_EQ(pairs[i + 1], 2.0);
+    }
   }
 }
 
@@ -218,8 +223,6 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
        "simulate scene.yaml -o out.h5 --set simulation.newton_iterations=2",
        "contact with rigid bodies and simulation.newton_iterations > 1 is not supported yet (issue 21; bodies[1] is "
        "rigid)"},
-      {"contact_sparse", beam_and_sphere("", plane + "contact: {friction: 0.3, backend: sparse}\n"),
-       "simulate scene.yaml -o out.h5", "backend: sparse with rigid bodies is not supported yet (issue 21"},
       {"contact_rigid_self", beam_and_sphere("", plane + "contact: {pairs: [[ball, ball, 0.3]]}\n"),
        "simulate scene.yaml -o out.h5", "a rigid body has no self-contact ('ball')"},
       {"bdf2", beam_and_sphere(), "simulate scene.yaml -o out.h5 --set simulation.integrator=bdf2",

@@ -382,6 +382,50 @@ TEST(Detection, SelfContactOfAU) {
   EXPECT_GT(ee, 0);
 }
 
+// A margin per surface (CollisionDetector::detect with surface_margin; the contact step
+// widens each surface's margin by its own motion): a U's self pair uses its own margin, a
+// pair of boxes the larger of theirs (the broad phase inflates surface k by m_k - mu / 2,
+// detection.hpp), a box against the floor its own. Equal margins give exactly the
+// scalar margin's contacts. Gaps: the U's inner gap 5e-4, the boxes' 4e-4, box a above
+// the floor by 3e-4; margins 2e-4 (below every gap) or 1e-3 (above).
+TEST(Detection, MarginPerSurface) {
+  Scene s = u_shape(1, 5e-4);
+  s.add(test::box_mesh(3, 3, 1, 0.3, 0.3, 0.1), Vec3(3, 0, 0), "a");
+  s.add(test::box_mesh(3, 3, 1, 0.3, 0.3, 0.1), Vec3(3.013, 0.021, 0.1 + 4e-4), "b");
+  CollisionDetector det(model_of(s, {floor_plane(-3e-4)}, {{0, 0, 0.1}, {1, 2, 0.2}, {1, 3, 0.3}}, 1e-3));
+  ContactSet scalar, per;
+  det.detect(s.x(), scalar, 1e-3);
+  det.detect(s.x(), per, std::vector<double>{1e-3, 1e-3, 1e-3});
+  ASSERT_EQ(per.size(), scalar.size());
+  for (int i = 0; i < per.size(); ++i) EXPECT_EQ(key(per.contacts[i]), key(scalar.contacts[i])) << "contact " << i;
+  auto count = [](const ContactSet& cs, int a, int b) {
+    int k = 0;
+    for (const auto& c : cs.contacts) k += (c.side_a == a && c.side_b == b) || (c.side_a == b && c.side_b == a);
+    return k;
+  };
+  const int self = count(scalar, 0, 0), boxes = count(scalar, 1, 2), floor = count(scalar, 1, 3);
+  EXPECT_EQ(self, 8);
+  EXPECT_GT(boxes, 18);
+  EXPECT_EQ(floor, 16);  // box a's bottom nodes (4 x 4)
+  const double lo = 2e-4, hi = 1e-3;
+  // A slow U and a slow box a against a fast box b: no self contact, the boxes' pair by
+  // b's margin (the same contacts as with hi everywhere), nothing on the floor.
+  det.detect(s.x(), per, std::vector<double>{lo, lo, hi});
+  EXPECT_EQ(count(per, 0, 0), 0);
+  EXPECT_EQ(count(per, 1, 2), boxes);
+  EXPECT_EQ(count(per, 1, 3), 0);
+  // Box a fast: the floor's contacts and the boxes' pair.
+  det.detect(s.x(), per, std::vector<double>{lo, hi, lo});
+  EXPECT_EQ(count(per, 0, 0), 0);
+  EXPECT_EQ(count(per, 1, 2), boxes);
+  EXPECT_EQ(count(per, 1, 3), floor);
+  // The U fast, the boxes slow: only the U's self contacts.
+  det.detect(s.x(), per, std::vector<double>{hi, lo, lo});
+  EXPECT_EQ(count(per, 0, 0), self);
+  EXPECT_EQ(count(per, 1, 2), 0);
+  EXPECT_EQ(count(per, 1, 3), 0);
+}
+
 TEST(Detection, NoSelfContactOnUndeformedSurfaces) {
   // Flat, fine surface with a margin of 0.3 edge lengths: the one-ring rule removes
   // every adjacent pair; the rest are farther than the margin.

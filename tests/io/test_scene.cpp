@@ -939,7 +939,7 @@ TEST_F(Scene, RigidBodyErrors) {
 
 TEST_F(Scene, RigidBodiesRefuseWhatIsNotSupportedYet) {
   // Contact with rigid bodies (docs/method.md "Rigid bodies in contact"): a hinge or
-  // slider body, newton_iterations > 1, the sparse backend and a rigid self-pair are refused.
+  // slider body with limits, newton_iterations > 1 and a rigid self-pair are refused.
   expect_error(kRigid + "contact: {friction: 0.5}\n",
                ":18:5: bodies[1].joint: contact with a rigid body whose joint has limits is not supported yet (issue 21; "
                "the limit as a row of the contact solve): remove the limits or set contact.enabled: false");
@@ -953,8 +953,8 @@ TEST_F(Scene, RigidBodiesRefuseWhatIsNotSupportedYet) {
   expect_message(edit("  dt: 0.01\n", "  dt: 0.01\n  newton_iterations: 2\n", free_key) + "contact: {friction: 0.5}\n",
                  "contact: contact with rigid bodies and simulation.newton_iterations > 1 is not supported yet (issue "
                  "21; bodies[1] is rigid): use newton_iterations: 1");
-  expect_message(free_key + "contact: {friction: 0.5, backend: sparse}\n",
-                 "contact.backend: backend: sparse with rigid bodies is not supported yet (issue 21; bodies[1] is rigid)");
+  // The sparse backend takes rigid bodies (SparseDelassus::set_rigid): accepted.
+  EXPECT_EQ(load(free_key + "contact: {friction: 0.5, backend: sparse}\n").contact.backend, ContactDesc::Backend::sparse);
   expect_message(free_key + "contact: {pairs: [[key, key, 0.5]]}\n", "a rigid body has no self-contact ('key')");
   // Accepted: a free rigid body in contact, named on either side of a pair.
   const SceneDesc ok = load(free_key + "contact: {pairs: [[key, beam, 0.4]]}\n");

@@ -1,9 +1,12 @@
 // Rigid bodies in the contact stage (contact/rigid_contact.hpp; docs/method.md "Rigid
 // bodies in contact"): the lever-arm Jacobian by central differences of a contact
 // point's velocity, the rigid Delassus block against an explicit h H A^{-1} H^T, the
-// correction against the NCP's sigma, and the pseudo-node layout.
+// correction against the NCP's sigma, and the pseudo-node layout; the sparse backend's
+// operator with the rigid rows (SparseDelassus::set_rigid) against the dense G.
 #include <softdiff/contact/rigid_contact.hpp>
+#include <softdiff/contact/sparse_delassus.hpp>
 #include <softdiff/data.hpp>
+#include <softdiff/integrator/bdf2.hpp>
 #include <softdiff/rigid/rotation.hpp>
 #include <support/meshes.hpp>
 #include <support/rigid_contact.hpp>
@@ -216,6 +219,201 @@ TEST(RigidContact, HingeBodyMovesAboutItsAxis) {
   const double a = body.mass * n.cross(r).squaredNorm() + n.dot(R * body.inertia * R.transpose() * n);
   const MatX G_explicit = h * HT * HT.transpose() / a;
   EXPECT_LT((G - G_explicit).norm(), 1e-12 * G_explicit.norm());
+}
+
+// The sparse backend's operator with rigid bodies (SparseDelassus::set_rigid, the rows
+// Kt = L^T H_r^T of rigid_delassus_rows) against the dense G of the same step, formed
+// independently: h H_s^T A^{-1} H_s (inverse_congruence on the step's factor) plus
+// h H_r^T W_r H_r over every contact column (not add_rigid_delassus's restriction to the
+// body's contacts, which the dense backend's own G, also compared, uses). Scenes: a free
+// cube on a soft slab (soft and rigid columns), the same cube and a hinged bar on
+// obstacles only (no soft dof in any contact: the operator's soft part is 0). Every
+// operation ADMM, the working set, the polish and the preconditioners use: G y, G_:W y,
+// dense G_WW, (G_WW + c D)^{-1} with and without a scale D, the rotated-rows shifted solve
+// of set_frames, the compliance estimate's rigid part, the largest eigenvalue. Exact
+// algebra (Woodbury), so the tolerance is round-off: 1e-10 relative (G's condition number
+// on these sets is < 1e4 after the shift c = 1e-2 |G|, 1e-12 per operation).
+struct SparseCase {
+  Model model;
+  Data data;
+  explicit SparseCase(Model m) : model(std::move(m)), data(model) {}
+};
+
+// Runs `steps` dense-backend steps; the last one's contact problem stays in data.
+void run_dense(SparseCase& c, int steps) {
+  State a = c.model.initial, b;
+  for (int n = 1; n <= steps; ++n) {
+    ASSERT_TRUE(integrator::time_step(c.model, c.data, a, nullptr, b, n).ok());
+    std::swap(a, b);
+  }
+}
+
+void expect_sparse_matches_dense(SparseCase& c, bool soft_columns) {
+  auto& cd = c.data.contact;
+  const int nc = cd.contacts.size();
+  ASSERT_GT(nc, 3);
+  EXPECT_EQ(soft_columns, cd.Ht.nonZeros() > 0);
+  const double h = c.model.step.dt;
+  // The reference G.
+  MatX G;
+  if (soft_columns) {
+    ASSERT_TRUE(c.data.solver->inverse_congruence(cd.Ht, G));
+    G *= h;
+  } else {
+    G.setZero(3 * nc, 3 * nc);
+  }
+  const auto& rd = cd.rigid;
+  for (std::size_t r = 0; r < c.model.rigid.size(); ++r) {
+    const MatX B = rd.Ht.middleRows<6>(6 * static_cast<Eigen::Index>(r));
+    G += h * B.transpose() * rd.W[r] * B;
+  }
+  const double scale = G.norm();
+  EXPECT_LT((cd.G - G).norm(), 1e-12 * scale);  // the dense backend's G (add_rigid_delassus restricted)
+  contact::SparseDelassus S;
+  S.bind(*c.data.solver, c.data.A, cd.Ht, h, c.model.solver);
+  S.set_mass(c.model.fem.mass_diagonal);
+  MatX Kt;
+  VecX g = VecX::Zero(3 * nc), g_dense = VecX::Zero(3 * nc);
+  contact::rigid_delassus_rows(c.model, c.data, Kt, g);
+  MatX unused = MatX::Zero(3 * nc, 3 * nc);
+  contact::add_rigid_delassus(c.model, c.data, h, unused, g_dense);
+  EXPECT_LT((g - g_dense).norm(), 1e-14 * std::max(g.norm(), 1e-300));
+  S.set_rigid(Kt);
+  EXPECT_GT(S.rigid_rows(), 0);
+  std::mt19937 rng(3);
+  std::normal_distribution<double> N;
+  VecX y(3 * nc), out(3 * nc);
+  for (auto& v : y) v = N(rng);
+  ASSERT_TRUE(S.apply(y, out));
+  EXPECT_LT((out - G * y).norm(), 1e-10 * scale * y.norm());
+  MatX D;
+  ASSERT_TRUE(S.dense(D));
+  EXPECT_LT((D - G).norm(), 1e-10 * scale);
+  // The compliance estimate's rigid part is G_ii's exactly: with the soft part subtracted
+  // (the same estimate without set_rigid), d_i = h tr(H_r,i W H_r,i^T) / 3.
+  VecX d(nc), d_soft(nc);
+  S.contact_compliance(d);
+  contact::SparseDelassus S_soft;
+  S_soft.bind(*c.data.solver, c.data.A, cd.Ht, h, c.model.solver);
+  S_soft.set_mass(c.model.fem.mass_diagonal);
+  S_soft.contact_compliance(d_soft);
+  for (int i = 0; i < nc; ++i) {
+    double rigid_part = 0;
+    for (std::size_t r = 0; r < c.model.rigid.size(); ++r) {
+      const MatX B = rd.Ht.block(6 * static_cast<Eigen::Index>(r), 3 * i, 6, 3);
+      rigid_part += h * (B.transpose() * rd.W[r] * B).trace() / 3;
+    }
+    EXPECT_NEAR(d[i] - d_soft[i], rigid_part, 1e-12 * scale) << "contact " << i;
+  }
+  // A subset W (every other contact): G_:W y, G_WW, the shifted solves.
+  std::vector<int> W;
+  for (int i = 0; i < nc; i += 2) W.push_back(i);
+  const Eigen::Index m = 3 * static_cast<Eigen::Index>(W.size());
+  std::vector<int> dofs;
+  for (int i : W)
+    for (int k = 0; k < 3; ++k) dofs.push_back(3 * i + k);
+  const MatX G_WW = G(dofs, dofs);
+  const MatX G_W = G(Eigen::all, dofs);
+  S.restrict_to(W);
+  VecX yw(m), ow(m), full(3 * nc);
+  for (auto& v : yw) v = N(rng);
+  ASSERT_TRUE(S.apply(yw, ow));
+  EXPECT_LT((ow - G_WW * yw).norm(), 1e-10 * scale * yw.norm());
+  ASSERT_TRUE(S.apply_full(yw, full));
+  EXPECT_LT((full - G_W * yw).norm(), 1e-10 * scale * yw.norm());
+  ASSERT_TRUE(S.dense(D));
+  EXPECT_LT((D - G_WW).norm(), 1e-10 * scale);
+  const double cshift = 1e-2 * scale;
+  ASSERT_TRUE(S.factorize_shifted(cshift));
+  VecX r = yw;
+  ASSERT_TRUE(S.solve_shifted(r));
+  MatX shifted = G_WW;
+  shifted.diagonal().array() += cshift;
+  EXPECT_LT((shifted * r - yw).norm(), 1e-10 * yw.norm());
+  // With a per-contact scale D: (G_WW + c D)^{-1}.
+  VecX dw(static_cast<Eigen::Index>(W.size()));
+  for (auto& v : dw) v = 0.5 + std::abs(N(rng));
+  S.set_scale(dw);
+  ASSERT_TRUE(S.factorize_shifted(cshift));
+  r = yw;
+  ASSERT_TRUE(S.solve_shifted(r));
+  shifted = G_WW;
+  for (Eigen::Index b = 0; b < dw.size(); ++b) shifted.diagonal().segment<3>(3 * b).array() += cshift * dw[b];
+  EXPECT_LT((shifted * r - yw).norm(), 1e-10 * yw.norm());
+  // The largest eigenvalue of D^-1/2 G_WW D^-1/2 (power iteration: to 1e-3, many steps).
+  VecX dsi(m);
+  for (Eigen::Index b = 0; b < dw.size(); ++b) dsi.segment<3>(3 * b).setConstant(1 / std::sqrt(dw[b]));
+  const MatX Gs = dsi.asDiagonal() * G_WW * dsi.asDiagonal();
+  const double lmax = Eigen::SelfAdjointEigenSolver<MatX>(Gs).eigenvalues().maxCoeff();
+  EXPECT_NEAR(S.largest_eigenvalue(500), lmax, 1e-3 * lmax);
+  // Rotated, weighted rows (set_frames, c = 1): s (I + h H~ A^-1 H~^T + h K~ K~^T)^{-1} s,
+  // H~ = diag(s) R H_W, i.e. s (I + diag(s) R G_WW R^T diag(s))^{-1} s.
+  std::vector<Mat3> frames;
+  VecX sw(m);
+  MatX Rot = MatX::Zero(m, m);
+  for (std::size_t b = 0; b < W.size(); ++b) {
+    frames.push_back(Eigen::Quaterniond::UnitRandom().toRotationMatrix());
+    Rot.block<3, 3>(3 * static_cast<Eigen::Index>(b), 3 * static_cast<Eigen::Index>(b)) = frames.back();
+    for (int k = 0; k < 3; ++k) sw[3 * static_cast<Eigen::Index>(b) + k] = (k == 1 && b % 3 == 0) ? 0.0 : 1 / std::sqrt(scale) * (1 + std::abs(N(rng)));
+  }
+  S.set_frames(frames, sw);
+  ASSERT_TRUE(S.factorize_shifted(1.0));
+  r = yw;
+  ASSERT_TRUE(S.solve_shifted(r));
+  MatX I_plus = sw.asDiagonal() * Rot * G_WW * Rot.transpose() * sw.asDiagonal();
+  I_plus.diagonal().array() += 1;
+  const VecX expected = sw.asDiagonal() * I_plus.ldlt().solve(sw.asDiagonal() * yw);
+  EXPECT_LT((r - expected).norm(), 1e-10 * expected.norm());
+}
+
+Model cube_on_slab() {
+  // A free cube (40 mm), slightly tilted, resting on a soft slab: soft and rigid columns.
+  test::BodySpec spec;
+  spec.young = 5e4;
+  spec.poisson = 0.4;
+  spec.density = 1000;
+  spec.fixed = [](const Vec3& p) { return p.z() < 1e-9; };
+  Model model = test::make_model(test::box_mesh(6, 6, 2, 0.12, 0.12, 0.01), spec, Vec3(0, 0, -9.81), 2e-3);
+  rigid::RigidState s;
+  s.position = Vec3(0.06, 0.06, 0.03);
+  s.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(0.02, Vec3(1, 1, 0).normalized()));
+  test::add_rigid_body(model, "cube", test::box_shape(Vec3(0.02, 0.02, 0.02)), 500, s);
+  contact::NcpOptions dense;
+  dense.backend = contact::NcpBackend::dense;
+  test::enable_rigid_contact(model, {}, {{"body", "cube", 0.5}}, 1e-3, dense);
+  return model;
+}
+
+Model box_and_hinged_bar_on_obstacles() {
+  // A free tilted box and a hinged bar on a plane and a box obstacle: no soft dof in any contact.
+  rigid::RigidState s;
+  s.position = Vec3(0.1, -0.2, 0.019);
+  s.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(0.01, Vec3(1, 2, 0).normalized()));
+  Model model = anchor_and_box(s);
+  rigid::RigidState bar;
+  bar.position = Vec3(1.1, 0, 0.01);
+  test::add_rigid_body(model, "bar", test::box_shape(Vec3(0.1, 0.02, 0.01)), 800, bar, 0.01, rigid::Joint::Kind::hinge);
+  model.rigid[1].joint.anchor = Vec3(1.0, 0, 0.01);
+  model.rigid[1].joint.axis = Vec3::UnitY();
+  rigid::initialize(model.rigid[1], bar);
+  contact::NcpOptions dense;
+  dense.backend = contact::NcpBackend::dense;
+  test::enable_rigid_contact(model,
+                             {test::plane(Vec3::UnitZ(), 0), test::box(Vec3(1.2, 0, -0.01), Vec3(0.01, 0.05, 0.01), "support")},
+                             {{"box", "floor", 0.5}, {"bar", "support", 0.0}}, 1e-3, dense);
+  return model;
+}
+
+TEST(RigidContact, SparseOperatorWithRigidRowsMatchesDenseG) {
+  SparseCase c(cube_on_slab());
+  run_dense(c, 3);
+  expect_sparse_matches_dense(c, true);
+}
+
+TEST(RigidContact, SparseOperatorWithRigidRowsOnObstaclesOnly) {
+  SparseCase c(box_and_hinged_bar_on_obstacles());
+  run_dense(c, 2);
+  expect_sparse_matches_dense(c, false);
 }
 
 }  // namespace rigid_contact_unit

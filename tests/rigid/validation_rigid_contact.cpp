@@ -8,6 +8,10 @@
 //    four bottom corners (the manifold), no rotation;
 //  - a rigid cube resting on a soft slab: the reaction equals the weight at rest, no
 //    penetration beyond the contact solve's tolerance.
+// Each runs on three contact backends (the same closed forms, the same tolerances): the
+// dense G; `sparse` (SparseDelassus with the rigid rows, its small working sets solved on
+// their dense G_W); `operator` (sparse with dense_max_contacts = 0: ADMM on the operator,
+// its Woodbury shifted solves with the rigid rows, the polish on the operator's G_AA).
 #include <softdiff/data.hpp>
 #include <softdiff/integrator/bdf2.hpp>
 #include <support/meshes.hpp>
@@ -18,6 +22,7 @@
 #include <cmath>
 #include <iostream>
 #include <numbers>
+#include <string>
 
 using namespace softdiff;
 
@@ -25,6 +30,23 @@ namespace rigid_contact_validation {
 
 constexpr double pi = std::numbers::pi;
 constexpr double g0 = 9.81;
+
+enum class Backend { dense, sparse, op };
+Backend backend = Backend::dense;  // the running test's parameter (RigidContactValidation::SetUp)
+
+// o on the running test's backend.
+contact::NcpOptions on_backend(contact::NcpOptions o) {
+  o.backend = backend == Backend::dense ? contact::NcpBackend::dense : contact::NcpBackend::sparse;
+  if (backend == Backend::op) o.dense_max_contacts = 0;
+  return o;
+}
+
+std::string backend_name(Backend b) { return b == Backend::dense ? "dense" : b == Backend::sparse ? "sparse" : "operator"; }
+
+class RigidContactValidation : public ::testing::TestWithParam<Backend> {
+ protected:
+  void SetUp() override { backend = GetParam(); }
+};
 
 // A soft anchor far away with every node fixed: the step needs a soft body (build_model
 // refuses a scene of rigid bodies only); it takes part in no contact pair.
@@ -40,7 +62,7 @@ contact::NcpOptions tight() {
   contact::NcpOptions o;
   o.tolerance = 1e-10;
   o.max_iterations = 5000;
-  return o;
+  return on_backend(o);
 }
 
 // Runs `steps` steps from model.initial; returns the last state (asserts every step ok).
@@ -53,6 +75,9 @@ State run(const Model& model, Data& data, long steps) {
     EXPECT_TRUE(data.contact.result.converged)
         << "step " << n << ": residual " << data.contact.result.residuals.max() << " after " << data.contact.result.iterations
         << " iterations, " << data.contact.contacts.size() << " contacts, polished " << data.contact.result.polished;
+    if (data.contact.contacts.size() > 0) {
+      EXPECT_EQ(data.contact.result.sparse, backend != Backend::dense) << "step " << n;
+    }
     std::swap(a, b);
   }
   return a;
@@ -99,7 +124,7 @@ Incline incline(double a, double mu, double h) {
 // tolerance 1e-10 (scaled residuals) bounds the force error per step to ~1e-10 of the
 // weight, so 1e-7 relative after 200 steps is far above the accumulation; tipping and
 // penetration: exact zero in exact arithmetic, round-off-scale bounds.
-TEST(RigidContactValidation, BlockSlidesDownAnInclineAtTheClosedFormAcceleration) {
+TEST_P(RigidContactValidation, BlockSlidesDownAnInclineAtTheClosedFormAcceleration) {
   const double a = pi / 6, mu = 0.3, h = 1e-3;
   const long steps = 200;
   Incline in = incline(a, mu, h);
@@ -108,7 +133,7 @@ TEST(RigidContactValidation, BlockSlidesDownAnInclineAtTheClosedFormAcceleration
   const double acc = g0 * (std::sin(a) - mu * std::cos(a));
   const auto& s = end.rigid[0];
   const double v = s.velocity.dot(in.d), travel = (s.position - in.model.initial.rigid[0].position).dot(in.d);
-  std::cout << "incline 30 deg, mu 0.3: v " << v << " (relative error " << v / (steps * h * acc) - 1 << "), travel "
+  std::cout << backend_name(backend) << ": " << "incline 30 deg, mu 0.3: v " << v << " (relative error " << v / (steps * h * acc) - 1 << "), travel "
             << travel << " (relative error " << travel / (h * h * acc * steps * (steps + 1) / 2) - 1 << "), omega "
             << s.angular_velocity.norm()
             << ", normal drift " << (s.position - in.model.initial.rigid[0].position).dot(in.n) << "\n";
@@ -128,14 +153,14 @@ TEST(RigidContactValidation, BlockSlidesDownAnInclineAtTheClosedFormAcceleration
 
 // Sticking: tan 20 deg = 0.364 < mu = 0.5: the block stays put; the friction force
 // balances the slope's pull m g sin a exactly.
-TEST(RigidContactValidation, BlockSticksOnAnInclineBelowTheFrictionAngle) {
+TEST_P(RigidContactValidation, BlockSticksOnAnInclineBelowTheFrictionAngle) {
   const double a = pi / 9, mu = 0.5, h = 1e-3;
   Incline in = incline(a, mu, h);
   Data data(in.model);
   const State end = run(in.model, data, 200);
   const auto& s = end.rigid[0];
   const double drift = (s.position - in.model.initial.rigid[0].position).norm();
-  std::cout << "incline 20 deg, mu 0.5: drift " << drift << " m, speed " << s.velocity.norm() << " m/s\n";
+  std::cout << backend_name(backend) << ": " << "incline 20 deg, mu 0.5: drift " << drift << " m, speed " << s.velocity.norm() << " m/s\n";
   EXPECT_LT(drift, 1e-9);
   EXPECT_LT(s.velocity.norm(), 1e-8);
   EXPECT_LT(s.angular_velocity.norm(), 1e-8);
@@ -148,7 +173,7 @@ TEST(RigidContactValidation, BlockSticksOnAnInclineBelowTheFrictionAngle) {
 // A box resting flat on a plane (released at zero gap): the reaction is the weight,
 // carried by the four bottom corners (each a share of it: the manifold, not one
 // point), and it does not turn.
-TEST(RigidContactValidation, BoxRestsFlatOnItsFourCorners) {
+TEST_P(RigidContactValidation, BoxRestsFlatOnItsFourCorners) {
   Model model = anchored(1e-3);
   rigid::RigidState s;
   s.position = Vec3(0.2, -0.1, 0.02);
@@ -160,7 +185,7 @@ TEST(RigidContactValidation, BoxRestsFlatOnItsFourCorners) {
   int count = 0;
   const Vec3 f = force_on_rigid(model, data, 1, &count);
   const double weight = model.rigid[0].mass * g0;
-  std::cout << "box on a plane: reaction " << f.transpose() << " N, weight " << weight << " N, contacts " << count
+  std::cout << backend_name(backend) << ": " << "box on a plane: reaction " << f.transpose() << " N, weight " << weight << " N, contacts " << count
             << ", omega " << e.angular_velocity.norm() << " rad/s, height " << e.position.z() << "\n";
   ASSERT_EQ(count, 4);
   EXPECT_NEAR(f.z(), weight, 1e-8 * weight);
@@ -178,7 +203,7 @@ TEST(RigidContactValidation, BoxRestsFlatOnItsFourCorners) {
 // bottom fixed, damped), released at zero gap: after 0.3 s it is at rest on the slab
 // (speed below 1e-8 m/s), the reaction equals the weight and no contact penetrates
 // beyond the solve's tolerance (the gap after a step is g + h sigma_n >= -h * tol).
-TEST(RigidContactValidation, CubeRestsOnASoftSlab) {
+TEST_P(RigidContactValidation, CubeRestsOnASoftSlab) {
   test::BodySpec spec;
   spec.young = 5e4;
   spec.poisson = 0.4;
@@ -195,7 +220,7 @@ TEST(RigidContactValidation, CubeRestsOnASoftSlab) {
   // The default NCP tolerance (1e-8): at 1e-10 ADMM and the polish stall near 2e-9 on
   // steps 4-5 (35 contacts on the cube's face: G has rank 6 + the slab's, the manifold
   // is redundant), while the figures checked here need far less.
-  test::enable_rigid_contact(model, {}, {{"body", "cube", 0.5}}, 1e-3, contact::NcpOptions{});
+  test::enable_rigid_contact(model, {}, {{"body", "cube", 0.5}}, 1e-3, on_backend(contact::NcpOptions{}));
   Data data(model);
   const State end = run(model, data, 150);
   const auto& e = end.rigid[0];
@@ -209,7 +234,7 @@ TEST(RigidContactValidation, CubeRestsOnASoftSlab) {
   collision::ContactSet after;
   data.contact.detector->detect(data.contact.rigid.x, after, 1e-3);
   for (const auto& c : after.contacts) min_gap = std::min(min_gap, c.gap);
-  std::cout << "cube on a soft slab: reaction " << f.transpose() << " N, weight " << weight << " N, contacts " << count
+  std::cout << backend_name(backend) << ": " << "cube on a soft slab: reaction " << f.transpose() << " N, weight " << weight << " N, contacts " << count
             << ", speed " << e.velocity.norm() << " m/s, sink " << 0.03 - e.position.z() << " m, min gap " << min_gap
             << " m\n";
   EXPECT_GT(count, 4);
@@ -226,7 +251,7 @@ TEST(RigidContactValidation, CubeRestsOnASoftSlab) {
 // moment balance about the hinge gives a support reaction of m g / 2 (weight at lever
 // 0.1 m, reaction at 0.2 m), on the two right bottom corners; the bar stays level.
 // And a block on a vertical slider resting on a plane: reaction = weight.
-TEST(RigidContactValidation, HingedBarAndSliderRestOnSupports) {
+TEST_P(RigidContactValidation, HingedBarAndSliderRestOnSupports) {
   Model model = anchored(1e-3);
   rigid::RigidState bar;
   bar.position = Vec3(0.1, 0, 0.01);
@@ -250,7 +275,7 @@ TEST(RigidContactValidation, HingedBarAndSliderRestOnSupports) {
   const Vec3 f_bar = force_on_rigid(model, data, 1, &bar_contacts);
   const Vec3 f_block = force_on_rigid(model, data, 2, &block_contacts);
   const double w_bar = model.rigid[0].mass * g0, w_block = model.rigid[1].mass * g0;
-  std::cout << "hinged bar on a support: reaction " << f_bar.z() << " N (m g / 2 = " << w_bar / 2 << "), contacts "
+  std::cout << backend_name(backend) << ": " << "hinged bar on a support: reaction " << f_bar.z() << " N (m g / 2 = " << w_bar / 2 << "), contacts "
             << bar_contacts << ", angle " << rigid::joint_coordinate(model.rigid[0], end.rigid[0])
             << " rad; slider block: reaction " << f_block.z() << " N (weight " << w_block << "), contacts "
             << block_contacts << ", travel " << rigid::joint_coordinate(model.rigid[1], end.rigid[1]) << " m\n";
@@ -267,7 +292,7 @@ TEST(RigidContactValidation, HingedBarAndSliderRestOnSupports) {
 // -0.2 sin(t) - 0.01 cos(t) = -0.012, t = 0.0100 rad (solved below), with the reaction
 // from the moments about the hinge (the weight's lever 0.1 cos t, the corner's
 // 0.2 cos t - 0.01 sin t): m g / 2 (1 + 5.0e-4).
-TEST(RigidContactValidation, HingedBarFallsOntoItsSupport) {
+TEST_P(RigidContactValidation, HingedBarFallsOntoItsSupport) {
   Model model = anchored(1e-3);
   rigid::RigidState bar;
   bar.position = Vec3(0.1, 0, 0.01);
@@ -286,7 +311,7 @@ TEST(RigidContactValidation, HingedBarFallsOntoItsSupport) {
   int count = 0;
   const Vec3 f = force_on_rigid(model, data, 1, &count);
   const double w = model.rigid[0].mass * g0;
-  std::cout << "hinged bar falling 2 mm: angle " << angle << " rad (contact angle " << t << "), rate "
+  std::cout << backend_name(backend) << ": " << "hinged bar falling 2 mm: angle " << angle << " rad (contact angle " << t << "), rate "
             << end.rigid[0].angular_velocity.norm() << " rad/s, reaction " << f.norm() << " N (closed form "
             << w * 0.1 * std::cos(t) / (0.2 * std::cos(t) - 0.01 * std::sin(t)) << ")\n";
   EXPECT_NEAR(angle, t, 1e-6);  // rests on the corner: the gap closes to the NCP's tolerance
@@ -296,5 +321,8 @@ TEST(RigidContactValidation, HingedBarFallsOntoItsSupport) {
   const double N = w * 0.1 * std::cos(t) / (0.2 * std::cos(t) - 0.01 * std::sin(t));
   EXPECT_NEAR(f.norm(), N, 1e-6 * w);
 }
+
+INSTANTIATE_TEST_SUITE_P(, RigidContactValidation, ::testing::Values(Backend::dense, Backend::sparse, Backend::op),
+                         [](const ::testing::TestParamInfo<Backend>& p) { return backend_name(p.param); });
 
 }  // namespace rigid_contact_validation

@@ -182,10 +182,11 @@ Vec3 unit_or(const Vec3& v, const Vec3& fallback) {
 
 struct CollisionDetector::Impl {
   DetectionModel model;
-  double margin = 0;  // of the current detect() call (model.margin unless widened)
+  double margin = 0;  // of the current pair rule in run() (model.margin unless widened)
   int num_bodies = 0;
   int max_node = -1;  // largest node index on any surface (x must have 3 (max_node + 1) entries)
   std::vector<SurfaceData> surf;
+  std::vector<double> surface_margin;  // (surfaces) per call; margin is the current pair's
   std::shared_ptr<fcl::CollisionGeometryd> dummy;
   // Reused buffers.
   std::vector<VtCandidate> vt;
@@ -194,7 +195,8 @@ struct CollisionDetector::Impl {
   std::vector<char> drop;
 
   explicit Impl(const DetectionModel& m);
-  void update_surface(SurfaceData& s, const VecX& x);
+  void update_surface(SurfaceData& s, const VecX& x, double inflate);
+  DetectionStats run(const VecX& x, ContactSet& out);  // with surface_margin set
   Vec3 vertex_normal(const SurfaceData& s, const VecX& x, int w) const;
   Vec3 edge_normal(const SurfaceData& s, int e) const;
   bool is_flat(const SurfaceData& s, int e) const;  // the edge's two faces are (nearly) coplanar
@@ -313,9 +315,8 @@ CollisionDetector::Impl::Impl(const DetectionModel& m) : model(m) {
   }
 }
 
-void CollisionDetector::Impl::update_surface(SurfaceData& s, const VecX& x) {
+void CollisionDetector::Impl::update_surface(SurfaceData& s, const VecX& x, double inflate) {
   const auto& T = s.surface->triangles;
-  const double inflate = 0.5 * margin;
   for (int t = 0; t < s.num_tri; ++t) {
     const Vec3 a = x.segment<3>(3 * T(0, t)), b = x.segment<3>(3 * T(1, t)), c = x.segment<3>(3 * T(2, t));
     s.face_normal[t] = unit_or((b - a).cross(c - a), Vec3::Zero());
@@ -616,19 +617,42 @@ DetectionStats CollisionDetector::detect(const VecX& x, ContactSet& out) { retur
 DetectionStats CollisionDetector::detect(const VecX& x, ContactSet& out, double margin) {
   SOFTDIFF_DEMAND(margin > 0 && std::isfinite(margin), "the detection margin must be > 0 and finite");
   Impl& im = *impl_;
-  im.margin = margin;
-  SOFTDIFF_DEMAND(x.size() >= 3 * (static_cast<Eigen::Index>(im.max_node) + 1),
+  im.surface_margin.assign(im.surf.size(), margin);
+  return im.run(x, out);
+}
+
+DetectionStats CollisionDetector::detect(const VecX& x, ContactSet& out, const std::vector<double>& surface_margin) {
+  Impl& im = *impl_;
+  SOFTDIFF_DEMAND(surface_margin.size() == im.surf.size(),
+                  "expected " + std::to_string(im.surf.size()) + " surface margins, got " +
+                      std::to_string(surface_margin.size()));
+  for (double m : surface_margin)
+    SOFTDIFF_DEMAND(m > 0 && std::isfinite(m), "the detection margin must be > 0 and finite");
+  im.surface_margin = surface_margin;  // same size every call: no allocation after the first
+  return im.run(x, out);
+}
+
+DetectionStats CollisionDetector::Impl::run(const VecX& x, ContactSet& out) {
+  SOFTDIFF_DEMAND(x.size() >= 3 * (static_cast<Eigen::Index>(max_node) + 1),
                   "x has " + std::to_string(x.size()) + " entries, the surfaces need " +
-                      std::to_string(3 * (im.max_node + 1)));
+                      std::to_string(3 * (max_node + 1)));
   out.clear();
   DetectionStats stats;
-  for (auto& s : im.surf)
-    if (s.broad) im.update_surface(s, x);
-  for (const PairRule& rule : im.model.pairs) {
-    if (rule.b >= im.num_bodies)
-      im.vertex_obstacle(rule, x, out, stats);
-    else
-      im.soft_soft(rule, x, out, stats);
+  // Broad phase: surface k's boxes inflated by m_k - mu / 2 (detection.hpp).
+  double mu = std::numeric_limits<double>::infinity();
+  for (std::size_t k = 0; k < surf.size(); ++k)
+    if (surf[k].broad) mu = std::min(mu, surface_margin[k]);
+  for (std::size_t k = 0; k < surf.size(); ++k)
+    if (surf[k].broad) update_surface(surf[k], x, surface_margin[k] - 0.5 * mu);
+  for (const PairRule& rule : model.pairs) {
+    const double ma = surface_margin[static_cast<std::size_t>(rule.a)];
+    if (rule.b >= num_bodies) {
+      margin = ma;
+      vertex_obstacle(rule, x, out, stats);
+    } else {
+      margin = std::max(ma, surface_margin[static_cast<std::size_t>(rule.b)]);
+      soft_soft(rule, x, out, stats);
+    }
   }
   stats.contacts = out.size();
   return stats;

@@ -61,6 +61,15 @@ class CollisionDetector {
   // The same with another margin than the model's (the contact step widens it by the
   // step's predicted motion: contact_step.cpp).
   DetectionStats detect(const VecX& x, ContactSet& out, double margin);
+  // The same with a margin per surface (surface_margin[k] for surfaces[k], each >= the
+  // model's): a pair of surfaces a, b uses max(m_a, m_b) (a self pair m_a), a surface
+  // against an obstacle m_a. The contact step widens each surface's margin by its own
+  // predicted motion (contact_step.cpp), so that a fast body (a free rigid body falling
+  // onto its support) does not widen the slow bodies' self-contact search. The broad
+  // phase inflates surface k's boxes by m_k - mu / 2 (mu = min_k m_k): two boxes then
+  // overlap whenever their triangles are within max(m_a, m_b) (m_a + m_b - mu >= that),
+  // and with equal margins this is the single margin's m / 2.
+  DetectionStats detect(const VecX& x, ContactSet& out, const std::vector<double>& surface_margin);
 
  private:
   struct Impl;

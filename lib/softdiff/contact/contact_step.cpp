@@ -1,6 +1,7 @@
 #include <softdiff/contact/contact_step.hpp>
 
 #include <softdiff/contact/rigid_contact.hpp>
+#include <softdiff/core/assert.hpp>
 #include <softdiff/core/timer.hpp>
 
 #include <algorithm>
@@ -104,28 +105,34 @@ void detect_contacts(const Model& model, Data& data, const VecX& x, const VecX& 
   // within the step. Widening the margin to twice the largest node displacement the
   // step predicts (h max |v| over v_i and v_free; twice for two moving sides) keeps
   // every such pair in the NCP: its gap term phi / h lets it approach by exactly phi,
-  // and it carries no force unless it closes (docs/method.md "Contact").
-  double speed = 0;
-  for (Eigen::Index k = 0; k + 2 < v.size(); k += 3)
-    speed = std::max({speed, free_motion_widens ? v.segment<3>(k).squaredNorm() : 0.0,
-                      v_previous.segment<3>(k).squaredNorm()});
-  if (model.contact.with_rigid()) {
-    // Rigid bodies: detection on the extended positions (their surface vertices as
-    // pseudo-nodes after the soft nodes), the margin widened by their motion too.
-    extend_for_detection(model, data, x, v_previous, v);
-    const auto& rd = cd.rigid;
-    for (Eigen::Index k = x.size(); k + 2 < rd.x.size(); k += 3)
-      speed = std::max({speed, free_motion_widens ? rd.v_free.segment<3>(k).squaredNorm() : 0.0,
-                        rd.v_previous.segment<3>(k).squaredNorm()});
+  // and it carries no force unless it closes (docs/method.md "Contact"). Per surface:
+  // m_k = max(margin, 2 h max |v|) over surface k's vertices, a pair using the larger of
+  // its two (detection.hpp): a free rigid body's free fall (g h per step) then widens its
+  // own pairs, not the fingers' self-contact search (issue 21, docs/performance.md).
+  const bool rigid = model.contact.with_rigid();
+  if (rigid) extend_for_detection(model, data, x, v_previous, v);  // pseudo-nodes after the soft nodes
+  const VecX& vp = rigid ? cd.rigid.v_previous : v_previous;
+  const VecX& vf = rigid ? cd.rigid.v_free : v;
+  const auto& surfaces = model.contact.detection.surfaces;
+  cd.surface_margin.resize(surfaces.size());
+  double margin = model.contact.detection.margin;
+  for (std::size_t k = 0; k < surfaces.size(); ++k) {
+    SOFTDIFF_DEMAND(!surfaces[k].vertices.empty() || surfaces[k].triangles.cols() == 0,
+                    "detect_contacts: surface '" + surfaces[k].name + "' is not prepared (collision::make_surface)");
+    double speed = 0;
+    for (int node : surfaces[k].vertices)
+      speed = std::max({speed, free_motion_widens ? vf.segment<3>(3 * node).squaredNorm() : 0.0,
+                        vp.segment<3>(3 * node).squaredNorm()});
+    cd.surface_margin[k] = std::max(model.contact.detection.margin, 2 * h * std::sqrt(speed));
+    margin = std::max(margin, cd.surface_margin[k]);
   }
-  const double margin = std::max(model.contact.detection.margin, 2 * h * std::sqrt(speed));
   cd.margin = margin;
-  if (model.contact.with_rigid()) {
-    cd.stats = cd.detector->detect(cd.rigid.x, cd.contacts, margin);
+  if (rigid) {
+    cd.stats = cd.detector->detect(cd.rigid.x, cd.contacts, cd.surface_margin);
     drop_inert_contacts(model, h, margin, cd.rigid.v_previous, free_motion_widens ? cd.rigid.v_free : cd.rigid.v_previous,
                         cd.contacts.contacts);
   } else {
-    cd.stats = cd.detector->detect(x, cd.contacts, margin);
+    cd.stats = cd.detector->detect(x, cd.contacts, cd.surface_margin);
     drop_inert_contacts(model, h, margin, v_previous, free_motion_widens ? v : v_previous, cd.contacts.contacts);
   }
   data.timings.detection += seconds_since(t0);
@@ -159,15 +166,14 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   // g = H v_free + phi / h on normal rows.
   auto t0 = Clock::now();
   const auto& ncp = model.contact.ncp;
-  // With rigid bodies the dense backend always (docs/method.md "Rigid bodies in
-  // contact": the sparse operator has no rigid block; the scene reader refuses
-  // backend: sparse with them).
+  // With rigid bodies, either backend: the operator takes their rows h K K^T
+  // (SparseDelassus::set_rigid; docs/method.md "Rigid bodies in contact", Backends).
   const bool with_rigid = model.contact.with_rigid();
   // Rigidified parts of soft bodies (integrator/rigidify.hpp): G and the correction
   // through the reduced solve, on the dense backend (the scene reader refuses
   // backend: sparse with them).
   const bool rigidified = !model.rigidify.empty();
-  const bool sparse = !with_rigid && !rigidified && (ncp.backend == NcpBackend::sparse ||
+  const bool sparse = !rigidified && (ncp.backend == NcpBackend::sparse ||
                                       (ncp.backend == NcpBackend::automatic && nc > ncp.dense_max_contacts));
   if (sparse) {
     cd.G.resize(0, 0);
@@ -196,7 +202,12 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
     cd.G *= h;
   }
   cd.g.noalias() = cd.Ht.transpose() * v;
-  if (with_rigid) add_rigid_delassus(model, data, h, cd.G, cd.g);  // + h H_r W_r H_r^T, + H_r u_free
+  if (with_rigid && sparse) {
+    rigid_delassus_rows(model, data, cd.rigid.Kt, cd.g);  // + H_r u_free
+    cd.sparse.set_rigid(cd.rigid.Kt);                     // + h H_r W_r H_r^T = h Kt^T Kt
+  } else if (with_rigid) {
+    add_rigid_delassus(model, data, h, cd.G, cd.g);  // + h H_r W_r H_r^T, + H_r u_free
+  }
   for (int i = 0; i < nc; ++i) cd.g[3 * i + 2] += cd.contacts.contacts[i].gap / h;
   data.timings.delassus += seconds_since(t0);
 

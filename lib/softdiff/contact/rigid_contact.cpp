@@ -4,6 +4,9 @@
 #include <softdiff/core/assert.hpp>
 #include <softdiff/rigid/rotation.hpp>
 
+#include <Eigen/Cholesky>
+
+#include <cmath>
 #include <string>
 
 namespace softdiff::contact {
@@ -39,11 +42,17 @@ void begin_rigid_contact(const Model& model, Data& data, const std::vector<rigid
   auto& rd = data.contact.rigid;
   rd.in = in;  // same size after the first step: no allocation
   if (rd.u_free.size() != static_cast<Eigen::Index>(6 * R)) rd.u_free.resize(6 * R);
-  if (rd.W.size() != R) rd.W.resize(R);
+  if (rd.W.size() != R) {
+    rd.W.resize(R);
+    rd.L.resize(R);
+    rd.rank.resize(R);
+  }
   for (std::size_t r = 0; r < R; ++r) {
     const auto& body = model.rigid[r];
     rd.u_free.segment<3>(6 * r) = free[r].velocity;
     rd.u_free.segment<3>(6 * r + 3) = free[r].angular_velocity;
+    rd.L[r].setZero();
+    rd.rank[r] = 0;
     if (!has_dofs(body)) {
       rd.W[r].setZero();
       continue;
@@ -62,6 +71,8 @@ void begin_rigid_contact(const Model& model, Data& data, const std::vector<rigid
       rd.W[r].setZero();
       rd.W[r].topLeftCorner<3, 3>() = Mat3::Identity() / body.mass;
       rd.W[r].bottomRightCorner<3, 3>() = R * body.inertia.inverse() * R.transpose();
+      rd.L[r] = rd.W[r].llt().matrixL();  // W symmetric positive definite (m > 0, I > 0)
+      rd.rank[r] = 6;
       continue;
     }
     // Hinge, slider: the motion (v, omega) = T cdot with T = joint_motion_basis at the
@@ -74,6 +85,8 @@ void begin_rigid_contact(const Model& model, Data& data, const std::vector<rigid
     const rigid::Vec6 T = rigid::joint_motion_basis(body, in[r]).col(0);
     const double a = T.dot(A * T);
     rd.W[r] = T * T.transpose() / a;
+    rd.L[r].col(0) = T / std::sqrt(a);
+    rd.rank[r] = 1;
     const Vec3 n = body.joint.axis;
     const double rate = body.joint.kind == rigid::Joint::Kind::hinge ? n.dot(free[r].angular_velocity)
                                                                     : n.dot(free[r].velocity);
@@ -139,12 +152,36 @@ void rigid_jacobian_transpose(const Model& model, const collision::ContactSet& c
 
 void add_rigid_delassus(const Model& model, Data& data, double h, MatX& G, VecX& g) {
   auto& rd = data.contact.rigid;
+  const Eigen::Index nc = rd.Ht.cols() / 3;
   for (std::size_t r = 0; r < model.rigid.size(); ++r) {
     if (!has_dofs(model.rigid[r])) continue;
     const auto B = rd.Ht.middleRows<6>(6 * static_cast<Eigen::Index>(r));
-    if (B.squaredNorm() == 0) continue;  // no contact on this body
-    rd.WHt.noalias() = rd.W[r] * B;
-    G.noalias() += h * (B.transpose() * rd.WHt);
+    // The body's own contacts (their rows of G): G_rr += h K^T K on those only, K = L^T B.
+    rd.dofs.clear();
+    for (Eigen::Index i = 0; i < nc; ++i)
+      if (B.middleCols<3>(3 * i).squaredNorm() > 0)
+        for (int c = 0; c < 3; ++c) rd.dofs.push_back(static_cast<int>(3 * i + c));
+    if (rd.dofs.empty()) continue;  // no contact on this body
+    const int k = rd.rank[r];
+    rd.Kc.noalias() = rd.L[r].leftCols(k).transpose() * B(Eigen::all, rd.dofs);
+    rd.Gc.noalias() = h * (rd.Kc.transpose() * rd.Kc);
+    G(rd.dofs, rd.dofs) += rd.Gc;
+    g.noalias() += B.transpose() * rd.u_free.segment<6>(6 * static_cast<Eigen::Index>(r));
+  }
+}
+
+void rigid_delassus_rows(const Model& model, Data& data, MatX& Kt, VecX& g) {
+  auto& rd = data.contact.rigid;
+  Eigen::Index rows = 0;
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) rows += rd.rank[r];
+  Kt.resize(rows, rd.Ht.cols());
+  rows = 0;
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+    const int k = rd.rank[r];
+    if (k == 0) continue;  // a fixed body
+    const auto B = rd.Ht.middleRows<6>(6 * static_cast<Eigen::Index>(r));
+    Kt.middleRows(rows, k).noalias() = rd.L[r].leftCols(k).transpose() * B;  // zero rows without contact: set_rigid drops them
+    rows += k;
     g.noalias() += B.transpose() * rd.u_free.segment<6>(6 * static_cast<Eigen::Index>(r));
   }
 }

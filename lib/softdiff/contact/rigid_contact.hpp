@@ -43,8 +43,14 @@ void extend_for_detection(const Model& model, Data& data, const VecX& x, const V
 void rigid_jacobian_transpose(const Model& model, const collision::ContactSet& contacts,
                               const std::vector<rigid::RigidState>& in, MatX& Ht);
 
-// G += h sum_r H_r W_r H_r^T and g += H_r u_free (G: 3nc square, g: 3nc).
+// G += h sum_r H_r W_r H_r^T and g += H_r u_free (G: 3nc square, g: 3nc). Each body
+// updates only the rows and columns of its own contacts (3 k_r square, not 3nc square).
 void add_rigid_delassus(const Model& model, Data& data, double h, MatX& G, VecX& g);
+
+// The sparse backend's rigid rows: Kt = (L_r^T H_r^T) stacked over the bodies with dofs
+// and contacts (rank_r rows each: 6 free, 1 hinge/slider), so that
+// h sum_r H_r W_r H_r^T = h Kt^T Kt (SparseDelassus::set_rigid), and g += H_r u_free.
+void rigid_delassus_rows(const Model& model, Data& data, MatX& Kt, VecX& g);
 
 // u = u_free + h W H_r^T lambda (data.contact.rigid.u).
 void correct_rigid_velocities(const Model& model, Data& data, double h, const VecX& lambda);

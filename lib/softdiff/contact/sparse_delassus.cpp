@@ -91,13 +91,39 @@ void SparseDelassus::bind(integrator::LinearSolver& A_solver, const SparseMatrix
   options_ = options;
   failed_ = false;
   assembly_seconds_ = factorization_seconds_ = 0;
+  Kt_.resize(0, Ht.cols());
   restrict_to_all();
+}
+
+void SparseDelassus::set_rigid(const MatX& Kt) {
+  SOFTDIFF_DEMAND(Kt.cols() == 3 * static_cast<Eigen::Index>(nc_), "SparseDelassus::set_rigid: expected " +
+                                                                     std::to_string(3 * nc_) + " columns, got " +
+                                                                     std::to_string(Kt.cols()));
+  Eigen::Index k = 0;
+  for (Eigen::Index r = 0; r < Kt.rows(); ++r) k += Kt.row(r).squaredNorm() > 0;
+  Kt_.resize(k, Kt.cols());
+  k = 0;
+  for (Eigen::Index r = 0; r < Kt.rows(); ++r)
+    if (Kt.row(r).squaredNorm() > 0) Kt_.row(k++) = Kt.row(r);
+  select_rigid_columns();
+  scale_sqrt_inv_.resize(0);
+  pattern_ready_ = false;
+  c_ = 0;
+}
+
+void SparseDelassus::select_rigid_columns() {
+  const Eigen::Index m = static_cast<Eigen::Index>(W_.size());
+  KtW_.resize(Kt_.rows(), 3 * m);
+  if (Kt_.rows() > 0)
+    for (Eigen::Index b = 0; b < m; ++b) KtW_.middleCols<3>(3 * b) = Kt_.middleCols<3>(3 * W_[b]);
+  soft_empty_ = HtW_.nonZeros() == 0;
 }
 
 void SparseDelassus::restrict_to_all() {
   W_.resize(static_cast<std::size_t>(nc_));
   for (int i = 0; i < nc_; ++i) W_[i] = i;
   HtW_ = *Ht_;
+  select_rigid_columns();
   scale_sqrt_inv_.resize(0);  // unscaled: HtWs_ is not used
   pattern_ready_ = false;
   c_ = 0;
@@ -107,6 +133,7 @@ void SparseDelassus::restrict_to(const std::vector<int>& W) {
   const auto t0 = Clock::now();
   W_ = W;
   select_contact_columns(*Ht_, W, HtW_);
+  select_rigid_columns();
   assembly_seconds_ += seconds_since(t0);
   scale_sqrt_inv_.resize(0);  // unscaled: HtWs_ is not used
   pattern_ready_ = false;
@@ -121,6 +148,7 @@ void SparseDelassus::contact_compliance(Eigen::Ref<VecX> d) const {
     d.setOnes();
     return;
   }
+  d.setZero();
   const VecX& mass = *mass_;
   for (int b = 0; b < m; ++b) {
     double t = 0;
@@ -128,6 +156,9 @@ void SparseDelassus::contact_compliance(Eigen::Ref<VecX> d) const {
       for (SparseMatrix::InnerIterator it(HtW_, 3 * b + r); it; ++it) t += it.value() * it.value() / mass[it.row()];
     d[b] = h_ * t / 3;
   }
+  // The rigid part of G_ii exactly: h |K_i|^2 (unit mass).
+  if (KtW_.rows() > 0)
+    for (int b = 0; b < m; ++b) d[b] += h_ * KtW_.middleCols<3>(3 * b).squaredNorm() / 3;
 }
 
 void SparseDelassus::set_scale(const Eigen::Ref<const VecX>& d) {
@@ -138,6 +169,7 @@ void SparseDelassus::set_scale(const Eigen::Ref<const VecX>& d) {
   scale_sqrt_inv_.resize(3 * m);
   for (Eigen::Index b = 0; b < m; ++b) scale_sqrt_inv_.segment<3>(3 * b).setConstant(1 / std::sqrt(d[b]));
   HtWs_ = HtW_ * scale_sqrt_inv_.asDiagonal();
+  KtWs_ = KtW_ * scale_sqrt_inv_.asDiagonal();
   assembly_seconds_ += seconds_since(t0);
   pattern_ready_ = false;  // H~^T H~ changes (the pattern does not)
   c_ = 0;
@@ -159,38 +191,61 @@ void SparseDelassus::set_frames(const std::vector<Mat3>& frames, const Eigen::Re
   SparseMatrix Z(3 * m, 3 * m);
   Z.setFromTriplets(t.begin(), t.end());
   HtWs_ = HtW_ * Z;
+  KtWs_ = KtW_ * Z;
   scale_sqrt_inv_ = s;
   pattern_ready_ = false;
   c_ = 0;
 }
 
 bool SparseDelassus::apply(const Eigen::Ref<const VecX>& y, Eigen::Ref<VecX> out) {
-  u_.noalias() = HtW_ * y;
-  if (!A_solver_->solve(u_, w_)) {  // w_ is not defined then: out is NaN, not stale
-    failed_ = true;
-    out.setConstant(std::numeric_limits<double>::quiet_NaN());
-    return false;
+  if (soft_empty_) {
+    out.setZero();
+  } else {
+    u_.noalias() = HtW_ * y;
+    if (!A_solver_->solve(u_, w_)) {  // w_ is not defined then: out is NaN, not stale
+      failed_ = true;
+      out.setConstant(std::numeric_limits<double>::quiet_NaN());
+      return false;
+    }
+    out.noalias() = h_ * (HtW_.transpose() * w_);
   }
-  out.noalias() = h_ * (HtW_.transpose() * w_);
+  if (KtW_.rows() > 0) {  // + h K_W K_W^T y
+    kr_.noalias() = KtW_ * y;
+    out.noalias() += h_ * (KtW_.transpose() * kr_);
+  }
   return true;
 }
 
 bool SparseDelassus::apply_full(const Eigen::Ref<const VecX>& y, Eigen::Ref<VecX> out) {
-  u_.noalias() = HtW_ * y;
-  if (!A_solver_->solve(u_, w_)) {  // w_ is not defined then: out is NaN, not stale
-    failed_ = true;
-    out.setConstant(std::numeric_limits<double>::quiet_NaN());
-    return false;
+  if (soft_empty_) {
+    out.setZero();
+  } else {
+    u_.noalias() = HtW_ * y;
+    if (!A_solver_->solve(u_, w_)) {  // w_ is not defined then: out is NaN, not stale
+      failed_ = true;
+      out.setConstant(std::numeric_limits<double>::quiet_NaN());
+      return false;
+    }
+    out.noalias() = h_ * (Ht_->transpose() * w_);
   }
-  out.noalias() = h_ * (Ht_->transpose() * w_);
+  if (KtW_.rows() > 0) {  // + h K K_W^T y
+    kr_.noalias() = KtW_ * y;
+    out.noalias() += h_ * (Kt_.transpose() * kr_);
+  }
   return true;
 }
 
 bool SparseDelassus::dense(MatX& G) {
   const auto t0 = Clock::now();
-  const bool ok = A_solver_->inverse_congruence(HtW_, G);
-  failed_ = failed_ || !ok;
-  G *= h_;
+  bool ok = true;
+  if (soft_empty_) {
+    G.setZero(HtW_.cols(), HtW_.cols());
+  } else {
+    ok = A_solver_->inverse_congruence(HtW_, G);
+    failed_ = failed_ || !ok;
+    G *= h_;
+  }
+  if (KtW_.rows() > 0) G.noalias() += h_ * (KtW_.transpose() * KtW_);
   assembly_seconds_ += seconds_since(t0);
   return ok;
 }
@@ -221,28 +276,61 @@ void SparseDelassus::build_pattern() {
 
 bool SparseDelassus::factorize_shifted(double c) {
   SOFTDIFF_DEMAND(c > 0, "SparseDelassus::factorize_shifted: the shift must be positive");
-  if (!pattern_ready_) build_pattern();
-  const auto t0 = Clock::now();
-  Eigen::Map<VecX>(S_.valuePtr(), S_.nonZeros()) = a_values_ + (h_ / c) * p_values_;
-  ++factorizations_;
   c_ = 0;
-  const bool ok = B_solver_->factorize(S_).ok;
-  factorization_seconds_ += seconds_since(t0);
-  if (!ok) return false;
+  if (!soft_empty_) {
+    if (!pattern_ready_) build_pattern();
+    const auto t0 = Clock::now();
+    Eigen::Map<VecX>(S_.valuePtr(), S_.nonZeros()) = a_values_ + (h_ / c) * p_values_;
+    ++factorizations_;
+    const bool ok = B_solver_->factorize(S_).ok;
+    factorization_seconds_ += seconds_since(t0);
+    if (!ok) return false;
+  }
   c_ = c;
+  const MatX& Ks = scaled_rigid();
+  if (Ks.rows() == 0) return true;
+  // The rigid rows' Woodbury terms: Z = M K~ (k soft shifted solves), C = I / h + K~^T Z
+  // (k x k, symmetric positive definite: M is, and C >= I / h).
+  const auto t0 = Clock::now();
+  Z_ = Ks.transpose();
+  bool ok = true;
+  for (Eigen::Index j = 0; j < Z_.cols(); ++j) ok = shifted_soft(Z_.col(j)) && ok;
+  MatX C = Ks * Z_;
+  C.diagonal().array() += 1 / h_;
+  capacitance_.compute(C);
+  factorization_seconds_ += seconds_since(t0);
+  if (!ok || capacitance_.info() != Eigen::Success) {
+    c_ = 0;
+    return false;
+  }
   return true;
 }
 
-bool SparseDelassus::solve_shifted(Eigen::Ref<VecX> r) {
-  SOFTDIFF_DEMAND(c_ > 0, "SparseDelassus::solve_shifted without factorize_shifted");
-  const bool scaled = scale_sqrt_inv_.size() == r.size();
-  if (scaled) r.array() *= scale_sqrt_inv_.array();
+bool SparseDelassus::shifted_soft(Eigen::Ref<VecX> r) {
+  if (soft_empty_) {
+    r /= c_;
+    return true;
+  }
   const SparseMatrix& Hs = scaled_columns(HtW_, HtWs_, scale_sqrt_inv_);
   u_.noalias() = Hs * r;
   const bool ok = B_solver_->solve(u_, w_);
   failed_ = failed_ || !ok;
   r.noalias() -= (h_ / c_) * (Hs.transpose() * w_);
   r /= c_;
+  return ok;
+}
+
+bool SparseDelassus::solve_shifted(Eigen::Ref<VecX> r) {
+  SOFTDIFF_DEMAND(c_ > 0, "SparseDelassus::solve_shifted without factorize_shifted");
+  const bool scaled = scale_sqrt_inv_.size() == r.size();
+  if (scaled) r.array() *= scale_sqrt_inv_.array();
+  const bool ok = shifted_soft(r);
+  const MatX& Ks = scaled_rigid();
+  if (Ks.rows() > 0) {  // r <- M r - Z C^{-1} K~^T (M r)
+    kr_.noalias() = Ks * r;
+    capacitance_.solveInPlace(kr_);
+    r.noalias() -= Z_ * kr_;
+  }
   if (scaled) r.array() *= scale_sqrt_inv_.array();
   return ok;
 }
@@ -259,12 +347,22 @@ double SparseDelassus::largest_eigenvalue(int iterations) {
   double L = 0;
   for (int it = 0; it < iterations; ++it) {
     // power_next = D^-1/2 G_WW D^-1/2 power_ = h H~ A^{-1} H~^T power_.
-    const SparseMatrix& Hs = scaled_columns(HtW_, HtWs_, scale_sqrt_inv_);
-    u_.noalias() = Hs * power_;
-    const bool ok = A_solver_->solve(u_, w_);
-    failed_ = failed_ || !ok;
-    if (!ok) break;
-    power_next_.noalias() = h_ * (Hs.transpose() * w_);
+    // (+ h K~ K~^T power_ for the rigid rows)
+    if (soft_empty_) {
+      power_next_.setZero();
+    } else {
+      const SparseMatrix& Hs = scaled_columns(HtW_, HtWs_, scale_sqrt_inv_);
+      u_.noalias() = Hs * power_;
+      const bool ok = A_solver_->solve(u_, w_);
+      failed_ = failed_ || !ok;
+      if (!ok) break;
+      power_next_.noalias() = h_ * (Hs.transpose() * w_);
+    }
+    const MatX& Ks = scaled_rigid();
+    if (Ks.rows() > 0) {
+      kr_.noalias() = Ks * power_;
+      power_next_.noalias() += h_ * (Ks.transpose() * kr_);
+    }
     const double n = power_next_.norm();
     if (!(n > 0) || !std::isfinite(n)) break;
     L = n;

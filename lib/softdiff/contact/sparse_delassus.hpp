@@ -22,6 +22,18 @@
 // the mass ratio between bodies, which is what the scale is for (docs/method.md).
 // W is a subset of the contacts (restrict_to); after bind() it is all of them.
 //
+// Rigid bodies (set_rigid; docs/method.md "Rigid bodies in contact", Backends): their
+// part of G is h sum_r H_r W_r H_r^T = h K K^T with K^T = Kt (k x 3 nc, dense, k <= 6 per
+// body: Kt = L_r^T H_r^T, W_r = L_r L_r^T), i.e. k more dofs of unit mass bordering A:
+// G = h [H_s K~] blockdiag(A, I_k)^{-1} [H_s K~]^T. Every operation adds its part
+// exactly: the products and dense() add h K_W K_W^T y (O(k |W|)); the shifted solve is
+// the Woodbury identity once more, on top of the soft one: with M = (c I + G~_soft)^{-1}
+// (the B solve above) and K~ the scaled columns,
+//   (c I + G~_soft + h K~ K~^T)^{-1} = M - Z C^{-1} Z^T,  Z = M K~,  C = I / h + K~^T Z,
+// Z and C's Cholesky formed once per factorize_shifted (k solves with B), then one B
+// solve and O(k |W|) per application. Where no soft dof is in W's contacts (H_W = 0: a
+// rigid body on an obstacle) the soft part is 0: no solve with A or B at all.
+//
 // B's sparsity pattern is pattern(A) + pattern(H_W^T H_W). H_i couples the <= 4 nodes
 // of contact i: a vertex-obstacle contact's 3x3 block is already in A's pattern; a
 // soft-soft contact couples nodes that share no element. The pattern that was analyzed
@@ -33,6 +45,8 @@
 // pattern S) and refactorizes: no analysis, no allocation.
 #include <softdiff/core/types.hpp>
 #include <softdiff/integrator/linear_solver.hpp>
+
+#include <Eigen/Cholesky>
 
 #include <memory>
 #include <vector>
@@ -55,6 +69,10 @@ class SparseDelassus {
   // vector (the default, and the static solver, whose A has no mass): all d_i = 1.
   void set_mass(const VecX& mass_diagonal) { mass_ = &mass_diagonal; }
   void clear_mass() { mass_ = nullptr; }
+  // The rigid bodies' rows Kt (k x 3 nc, see above); after bind (which clears them).
+  // Zero rows are dropped (a body without contact). Invalidates the shifted factorization.
+  void set_rigid(const MatX& Kt);
+  int rigid_rows() const { return static_cast<int>(Kt_.rows()); }
 
   int contacts() const { return nc_; }
   // Restrict to the contacts W (ascending ids). Invalidates the shifted factorization.
@@ -108,6 +126,10 @@ class SparseDelassus {
 
  private:
   void build_pattern();  // P = H_W^T H_W (upper), S grown if needed, values scattered
+  void select_rigid_columns();  // KtW_ = Kt_'s columns of W; soft_empty_
+  // r <- (c I + h H~ A^{-1} H~^T)^{-1} r, the soft part of the shifted solve (scaled space).
+  bool shifted_soft(Eigen::Ref<VecX> r);
+  const MatX& scaled_rigid() const { return scale_sqrt_inv_.size() > 0 ? KtWs_ : KtW_; }
 
   integrator::LinearSolver* A_solver_ = nullptr;
   const SparseMatrix* A_ = nullptr;
@@ -128,6 +150,11 @@ class SparseDelassus {
   std::unique_ptr<integrator::LinearSolver> B_solver_;
   bool analyzed_ = false;
   VecX u_, w_, power_, power_next_;  // (3n) scratch; (3|W|) power iteration
+  // Rigid rows (set_rigid): all contacts, W's columns, scaled; the shifted solve's Z, C.
+  MatX Kt_, KtW_, KtWs_, Z_;
+  Eigen::LLT<MatX> capacitance_;
+  VecX kr_;                          // (k) scratch
+  bool soft_empty_ = false;          // H_W has no entry: the soft part of G_WW is 0
   double last_eigenvalue_ = 0, last_rho_ = 0;
   bool failed_ = false;
   int analyses_ = 0, factorizations_ = 0;

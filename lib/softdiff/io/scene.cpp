@@ -314,7 +314,7 @@ class Reader {
 
   // Rigid bodies in contact (docs/method.md "Rigid bodies in contact"): free, fixed,
   // hinge and slider bodies (joints without limits), implicit Euler with one Newton
-  // iteration, the dense NCP backend. The rest is refused (issue 21).
+  // iteration, either NCP backend. The rest is refused (issue 21).
   void check_rigid_contact(const Node& root, const SceneDesc& scene) const {
     if (scene.rigid_bodies.empty() || !scene.contact.enabled) return;
     const std::string first = scene.rigid_bodies.front().where.path;
@@ -323,10 +323,6 @@ class Reader {
       ctx_.fail(contact->key_mark, "contact",
                 "contact with rigid bodies and simulation.newton_iterations > 1 is not supported yet (issue 21; " +
                     first + " is rigid): use newton_iterations: 1");
-    if (scene.contact.backend == ContactDesc::Backend::sparse)
-      ctx_.fail(contact->key_mark, "contact.backend",
-                "backend: sparse with rigid bodies is not supported yet (issue 21; " + first +
-                    " is rigid): use dense or auto (rigid contact always uses the dense backend)");
     for (const auto& rb : scene.rigid_bodies)
       if (rb.joint && rb.joint->limits)
         throw InputError(rb.joint->where.str() + ": contact with a rigid body whose joint has limits is not supported yet "
