@@ -297,4 +297,110 @@ TEST(RigidContactValidation, HingedBarFallsOntoItsSupport) {
   EXPECT_NEAR(f.norm(), N, 1e-6 * w);
 }
 
+
+// A soft pad pushing a rigid block across a table (issue 21 item 6, the Finger-block
+// scene's physics in closed form). The table is the plane z = 0 (the pad on its own plane z = 5 mm) under the gravity
+// g (0, sin a, -cos a) (a = 20 deg: a table tilted about x, gravity's tangential part
+// along +y). The block (40 mm cube, 64 g, mu = 0.5 on the table) sits downhill of a
+// soft pad (30 x 20 x 30 mm, frictionless on the table and on the block, E = 200 kPa,
+// stiffness damping only: mass damping would drag its rigid motion), which leans on it
+// with its weight's tangential part m_p g sin a: the push of a soft pad, known exactly.
+//  - below the threshold (m_p + m_b) sin a < mu m_b cos a: the block stays put and the
+//    pad's push on it is m_p g sin a;
+//  - above it: pad and block slide together with a = g sin a - mu m_b g cos a /
+//    (m_p + m_b), and the push is m_p (g sin a - a) = mu m_b g cos a m_p / (m_p + m_b).
+struct PadAndBlock {
+  Model model;
+  double m_pad = 0, m_block = 0;
+};
+PadAndBlock pad_and_block(double pad_density, double a, double mu, double h) {
+  test::BodySpec spec;
+  spec.young = 2e5;
+  spec.poisson = 0.3;
+  spec.density = pad_density;
+  spec.rayleigh_stiffness = 0.005;
+  mesh::TetMesh m = test::box_mesh(3, 2, 3, 0.03, 0.02, 0.03);
+  // Front face y = 0; the pad stands on its own plane 5 mm above the block's (both
+  // frictionless for it): its front-bottom edge does not meet the block's back-bottom
+  // edge, where a pad vertex would find the block's bottom face as its closest feature
+  // (a degenerate contact lifting the block).
+  for (Eigen::Index i = 0; i < m.X.cols(); ++i) m.X.col(i) += Vec3(-0.015, -0.02, 0.005);
+  PadAndBlock pb{test::make_model(m, spec, Vec3(0, g0 * std::sin(a), -g0 * std::cos(a)), h)};
+  pb.m_pad = pb.model.fem.mass_diagonal.sum() / 3;
+  rigid::RigidState s;
+  s.position = Vec3(0, 0.02, 0.02);  // back face y = 0 against the pad, bottom on the table
+  test::add_rigid_body(pb.model, "block", test::box_shape(Vec3(0.02, 0.02, 0.02)), 1000, s);
+  pb.m_block = pb.model.rigid[0].mass;
+  test::enable_rigid_contact(pb.model, {test::plane(Vec3::UnitZ(), 0, "table"), test::plane(Vec3::UnitZ(), 0.005, "step")},
+                             {{"body", "step", 0.0}, {"block", "table", mu}, {"body", "block", 0.0}}, 1e-3,
+                             contact::NcpOptions{});
+  return pb;
+}
+
+// The push on the block along +y (the contacts between the pad, side 0, and the block).
+double push_on_block(const Data& data) {
+  double f = 0;
+  for (int i = 0; i < data.contact.contacts.size(); ++i) {
+    const auto& c = data.contact.contacts.contacts[static_cast<std::size_t>(i)];
+    const Vec3 w = c.frame * data.contact.lambda.segment<3>(3 * i);  // on side a
+    if (c.side_a == 1 && c.side_b == 0) f += w.y();
+    else if (c.side_a == 0 && c.side_b == 1) f -= w.y();
+  }
+  return f;
+}
+
+TEST(RigidContactValidation, SoftPadPushesABlockAtTheFrictionThreshold) {
+  const double a = 20 * pi / 180, mu = 0.5, h = 1e-3;
+  // Below: a pad of 14.4 g (density 800) against the 64 g block: (m_p + m_b) sin a =
+  // 0.0268 < mu m_b cos a = 0.0301. The block stays put (to the NCP's tolerance) and
+  // the push equals the pad's tangential weight once the pad's elastic transient has
+  // died out (0.3 s: its speed is then below 1e-6 m/s, so its momentum change per step
+  // is below 1e-6 of the push).
+  {
+    PadAndBlock pb = pad_and_block(800, a, mu, h);
+    Data data(pb.model);
+    const State end = run(pb.model, data, 300);
+    const double push = push_on_block(data), expected = pb.m_pad * g0 * std::sin(a);
+    const double drift = (end.rigid[0].position - pb.model.initial.rigid[0].position).norm();
+    // The pad's mean velocity along the push (its x motion and yaw are free on the
+    // frictionless plane and keep what the transient gave them).
+    double pad_speed = 0;
+    for (Eigen::Index k = 0; k < end.v.size(); k += 3) pad_speed += end.v[k + 1] / (end.v.size() / 3);
+    std::cout << "soft pad on a block below the threshold: push " << push << " N (m_p g sin a = " << expected
+              << "), block drift " << drift << " m, pad speed along y " << pad_speed << " m/s\n";
+    EXPECT_LT(drift, 1e-7);
+    EXPECT_LT(end.rigid[0].velocity.norm(), 1e-6);
+    EXPECT_LT(std::abs(pad_speed), 1e-6);
+    EXPECT_NEAR(push, expected, 1e-4 * expected);
+  }
+  // Above: a pad of 126 g (density 7000): a = g (sin a - mu m_b cos a / (m_p + m_b)). The
+  // block's acceleration over the last 100 steps (v difference / time) and the push
+  // match within 0.3% (measured 2e-4 and 9e-4: the pad's elastic oscillation, stiffness-
+  // damped, and the block's yaw ride on the rigid motion; the block's own update is exact
+  // for a constant net force).
+  {
+    PadAndBlock pb = pad_and_block(7000, a, mu, h);
+    Data data(pb.model);
+    State mid = run(pb.model, data, 200);
+    const double v_mid = mid.rigid[0].velocity.y();
+    State end = mid, next;
+    for (long n = 201; n <= 300; ++n) {
+      ASSERT_TRUE(integrator::time_step(pb.model, data, end, nullptr, next, n).ok());
+      std::swap(end, next);
+    }
+    const double acc = (end.rigid[0].velocity.y() - v_mid) / (100 * h);
+    const double expected_acc = g0 * (std::sin(a) - mu * pb.m_block * std::cos(a) / (pb.m_pad + pb.m_block));
+    const double push = push_on_block(data), expected_push = pb.m_pad * (g0 * std::sin(a) - expected_acc);
+    std::cout << "soft pad pushing a block above the threshold: acceleration " << acc << " m/s^2 (closed form "
+              << expected_acc << "), push " << push << " N (closed form " << expected_push << "), block z drift "
+              << end.rigid[0].position.z() - 0.02 << " m, omega " << end.rigid[0].angular_velocity.transpose() << " rad/s\n";
+    EXPECT_NEAR(acc, expected_acc, 3e-3 * expected_acc);
+    EXPECT_NEAR(push, expected_push, 3e-3 * expected_push);
+    EXPECT_LT(std::abs(end.rigid[0].position.z() - 0.02), 1e-6);  // neither sinks nor flies
+    // Does not tip (omega about x, y); its yaw (omega z) is the pad's uneven push (the
+    // pad's mesh is not mirror-symmetric) against sliding friction, which barely resists it.
+    EXPECT_LT(end.rigid[0].angular_velocity.head<2>().norm(), 1e-3);
+  }
+}
+
 }  // namespace rigid_contact_validation
