@@ -77,6 +77,15 @@ struct ContactData {
     std::vector<rigid::Mat6> W;            // (R) T (T^T A_r T)^{-1} T^T: velocity change per impulse (0: fixed)
     MatX Ht;                               // (6R, 3nc) the rigid bodies' rows of H_c^T
     MatX WHt;                              // (6, 3nc) scratch
+    // Joint limits as rows of the NCP (rigid_contact.hpp "limit rows"): 2 slots per body on
+    // a limited hinge or slider (lower, upper, in body order); the L selected ones are
+    // frictionless contacts of 3 rows appended after the nc contacts while the NCP is solved.
+    struct LimitRow {
+      int body = 0, side = 0, slot = 0;    // side 0: lower, 1: upper
+    };
+    std::vector<LimitRow> limit_rows;      // (L) this solve's rows
+    VecX mu_ext;                           // (nc + L) the contacts' mu, then 0 per limit row
+    VecX limit_lambda;                     // (slots) each limit's reaction of the last solve (N m or N; 0 unselected)
   } rigid;
 };
 

@@ -313,7 +313,7 @@ class Reader {
   }
 
   // Rigid bodies in contact (docs/method.md "Rigid bodies in contact"): free, fixed,
-  // hinge and slider bodies (joints without limits), implicit Euler with one Newton
+  // hinge and slider bodies (limits: rows of the NCP), implicit Euler with one Newton
   // iteration, the dense NCP backend. The rest is refused (issue 21).
   void check_rigid_contact(const Node& root, const SceneDesc& scene) const {
     if (scene.rigid_bodies.empty() || !scene.contact.enabled) return;
@@ -327,11 +327,6 @@ class Reader {
       ctx_.fail(contact->key_mark, "contact.backend",
                 "backend: sparse with rigid bodies is not supported yet (issue 21; " + first +
                     " is rigid): use dense or auto (rigid contact always uses the dense backend)");
-    for (const auto& rb : scene.rigid_bodies)
-      if (rb.joint && rb.joint->limits)
-        throw InputError(rb.joint->where.str() + ": contact with a rigid body whose joint has limits is not supported yet "
-                         "(issue 21; the limit as a row of the contact solve): remove the limits or set contact.enabled: "
-                         "false");
     for (const auto& p : scene.contact.pairs)
       if (p.first == p.second &&
           std::any_of(scene.rigid_bodies.begin(), scene.rigid_bodies.end(), [&](const auto& rb) { return rb.name == p.first; }))
