@@ -82,6 +82,15 @@ struct ContactData {
     MatX Kt;                               // (k, 3nc) L^T H_r^T of the bodies in contact (sparse backend)
     std::vector<int> dofs;                 // scratch: the contact rows of one body (add_rigid_delassus)
     MatX Kc, Gc;                           // scratch: L^T H_r^T on those rows, its h K^T K
+    // Joint limits as rows of the NCP (rigid_contact.hpp "limit rows"): 2 slots per body on
+    // a limited hinge or slider (lower, upper, in body order); the L selected ones are
+    // frictionless contacts of 3 rows appended after the nc contacts while the NCP is solved.
+    struct LimitRow {
+      int body = 0, side = 0, slot = 0;    // side 0: lower, 1: upper
+    };
+    std::vector<LimitRow> limit_rows;      // (L) this solve's rows
+    VecX mu_ext;                           // (nc + L) the contacts' mu, then 0 per limit row
+    VecX limit_lambda;                     // (slots) each limit's reaction of the last solve (N m or N; 0 unselected)
   } rigid;
 };
 

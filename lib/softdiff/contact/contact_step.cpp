@@ -145,7 +145,18 @@ void detect_contacts(const Model& model, Data& data, const VecX& x, const VecX& 
   data.timings.delassus += seconds_since(t0);
 }
 
+namespace {
+StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX& v, long step_index, bool all_limits);
+}  // namespace
+
 StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX& v, long step_index) {
+  return solve_contact_problem(model, data, h, v, step_index, false);
+}
+
+namespace {
+// all_limits: every joint limit a row of the NCP (the retry when an unselected one was
+// crossed; rigid_contact.hpp select_limit_rows).
+StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX& v, long step_index, bool all_limits) {
   auto& cd = data.contact;
   StepStatus status;
   status.step = step_index;
@@ -173,8 +184,11 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   // through the reduced solve, on the dense backend (the scene reader refuses
   // backend: sparse with them).
   const bool rigidified = !model.rigidify.empty();
-  const bool sparse = !rigidified && (ncp.backend == NcpBackend::sparse ||
-                                      (ncp.backend == NcpBackend::automatic && nc > ncp.dense_max_contacts));
+  // Joint limits in contact are rows of the dense NCP only (the scene reader refuses
+  // backend: sparse with them).
+  const bool sparse = !rigidified && num_limit_slots(model) == 0 &&
+                      (ncp.backend == NcpBackend::sparse ||
+                       (ncp.backend == NcpBackend::automatic && nc > ncp.dense_max_contacts));
   if (sparse) {
     cd.G.resize(0, 0);
     cd.sparse.bind(*data.solver, data.A, cd.Ht, h, model.solver);
@@ -202,19 +216,27 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
     cd.G *= h;
   }
   cd.g.noalias() = cd.Ht.transpose() * v;
+  // Joint limits: rows of this NCP after the nc contacts (rigid_contact.hpp "limit rows";
+  // the dense backend only: a scene with limited joints in contact never takes the sparse one).
+  const int limit_rows = with_rigid ? select_limit_rows(model, data, h, all_limits) : 0;
   if (with_rigid && sparse) {
     rigid_delassus_rows(model, data, cd.rigid.Kt, cd.g);  // + H_r u_free
     cd.sparse.set_rigid(cd.rigid.Kt);                     // + h H_r W_r H_r^T = h Kt^T Kt
   } else if (with_rigid) {
+    append_limit_rows(model, data, nc, cd.G, cd.g);
     add_rigid_delassus(model, data, h, cd.G, cd.g);  // + h H_r W_r H_r^T, + H_r u_free
   }
   for (int i = 0; i < nc; ++i) cd.g[3 * i + 2] += cd.contacts.contacts[i].gap / h;
+  if (limit_rows > 0) finish_limit_rows(model, data, h, nc, cd.G, cd.g);
   data.timings.delassus += seconds_since(t0);
 
   // Warm start from the last solve's forces of the same contacts (the previous step's,
   // or the previous Newton iteration's).
   t0 = Clock::now();
-  cd.lambda.setZero(3 * nc);
+  cd.lambda.setZero(3 * (nc + limit_rows));
+  if (cd.rigid.limit_lambda.size() == num_limit_slots(model))
+    for (int l = 0; l < limit_rows; ++l)
+      cd.lambda[3 * (nc + l) + 2] = cd.rigid.limit_lambda[cd.rigid.limit_rows[static_cast<std::size_t>(l)].slot];
   for (int i = 0; i < nc; ++i) {
     const collision::Contact::Key key = cd.contacts.contacts[i].key();
     const auto it = std::lower_bound(cd.previous_keys.begin(), cd.previous_keys.end(), key,
@@ -223,7 +245,7 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
       cd.lambda.segment<3>(3 * i) = cd.previous_lambda.segment<3>(3 * it->second);
   }
   cd.result = sparse ? cd.solver.solve(cd.sparse, cd.g, cd.mu, ncp, cd.lambda, cd.sigma, cd.modes)
-                     : cd.solver.solve(cd.G, cd.g, cd.mu, ncp, cd.lambda, cd.sigma, cd.modes);
+                     : cd.solver.solve(cd.G, cd.g, with_rigid ? cd.rigid.mu_ext : cd.mu, ncp, cd.lambda, cd.sigma, cd.modes);
   // On the operator the solver forms contact-system matrices as it goes (B's pattern and
   // values, the dense G_W of small sets): booked as the assembly of the contact system
   // (timings.delassus, as G itself on the dense backend), not as NCP time. B's numeric
@@ -243,9 +265,18 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
       return status;
     }
 
-  // The correction: v_f = v_free + h A^{-1} H^T lambda.
+  // The correction: v_f = v_free + h A^{-1} H^T lambda; the rigid bodies' first: with
+  // joint limits, a limit left out of the NCP (far at the start of the step) that the
+  // corrected rate crosses makes the solve run again with every limit.
   t0 = Clock::now();
-  cd.rhs.noalias() = h * (cd.Ht * cd.lambda);
+  if (with_rigid) {
+    correct_rigid_velocities(model, data, h, cd.lambda);
+    if (!all_limits && limit_rows < num_limit_slots(model) && unselected_limit_crossed(model, data, h)) {
+      data.timings.correction += seconds_since(t0);
+      return solve_contact_problem(model, data, h, v, step_index, true);
+    }
+  }
+  cd.rhs.noalias() = h * (cd.Ht * cd.lambda.head(3 * nc));
   if (rigidified) {
     if (!integrator::solve_rigidified(model, data, cd.rhs, cd.correction)) {
       status.code = StepStatus::Code::solver_failed;
@@ -262,7 +293,7 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   v += cd.correction;
   for (int k = 0; k < v.size(); ++k)
     if (model.fem.fixed[k]) v[k] = 0;
-  if (with_rigid) correct_rigid_velocities(model, data, h, cd.lambda);
+  if (with_rigid) remove_limit_rows(model, data, nc);
 
   cd.previous_keys.resize(static_cast<std::size_t>(nc));
   for (int i = 0; i < nc; ++i) cd.previous_keys[i] = {cd.contacts.contacts[i].key(), i};
@@ -271,5 +302,6 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   data.timings.correction += seconds_since(t0);
   return status;
 }
+}  // namespace
 
 }  // namespace softdiff::contact

@@ -75,7 +75,10 @@ constexpr int admm_stall_window = 100;
 // P_K(x) for the cone ||x_T|| <= mu x_N (mu >= 0).
 Vec3 project_cone(const Vec3& x, double mu) {
   const double t = x.head<2>().norm();
-  if (t <= mu * x[2]) return x;
+  // x[2] >= 0: with mu = 0 and x_T = 0 the test t <= mu x_N reads 0 <= -0 for a negative
+  // x_N, which is outside the cone (a frictionless row with no tangential part: a joint
+  // limit's row, rigid_contact.hpp).
+  if (t <= mu * x[2] && x[2] >= 0) return x;
   if (mu * t <= -x[2]) return Vec3::Zero();
   // t > 0 here: t = 0 satisfies one of the two tests above.
   const double pN = (x[2] + mu * t) / (1 + mu * mu);

@@ -6,6 +6,7 @@
 
 #include <Eigen/Cholesky>
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 
@@ -57,8 +58,6 @@ void begin_rigid_contact(const Model& model, Data& data, const std::vector<rigid
       rd.W[r].setZero();
       continue;
     }
-    SOFTDIFF_DEMAND(!body.joint.limits, "begin_rigid_contact: rigid body '" + body.name +
-                                            "': a joint with limits does not take part in contact");
     // W_r = A_r^{-1} with A_r = diag(m I, I_w(q_free)), I_w(q_free) = R I R^T at the free
     // step's end orientation: the symmetric linearization of the angular update (an
     // impulse changes the end momentum I_w(q_{n+1}) omega_{n+1}). step_matrix's angular
@@ -88,8 +87,14 @@ void begin_rigid_contact(const Model& model, Data& data, const std::vector<rigid
     rd.L[r].col(0) = T / std::sqrt(a);
     rd.rank[r] = 1;
     const Vec3 n = body.joint.axis;
-    const double rate = body.joint.kind == rigid::Joint::Kind::hinge ? n.dot(free[r].angular_velocity)
-                                                                    : n.dot(free[r].velocity);
+    // A limited joint: the free step without its limits (they are rows of the NCP).
+    rigid::RigidState unclamped;
+    const rigid::RigidState* f = &free[r];
+    if (body.joint.limits) {
+      rigid::step(body, in[r], model.step.dt, model.step.gravity, Vec3::Zero(), Vec3::Zero(), unclamped, false);
+      f = &unclamped;
+    }
+    const double rate = body.joint.kind == rigid::Joint::Kind::hinge ? n.dot(f->angular_velocity) : n.dot(f->velocity);
     rd.u_free.segment<6>(6 * r) = rate * T;
   }
   rd.u = rd.u_free;
@@ -197,6 +202,131 @@ void correct_rigid_velocities(const Model& model, Data& data, double h, const Ve
   }
 }
 
+namespace {
+bool limited(const rigid::RigidBody& b) {
+  return b.joint.limits && (b.joint.kind == rigid::Joint::Kind::hinge || b.joint.kind == rigid::Joint::Kind::slider);
+}
+// The joint rate of a body's (v, omega) (hinge: n.omega; slider: n.v).
+double joint_rate(const rigid::RigidBody& b, const rigid::Vec6& u) {
+  return b.joint.kind == rigid::Joint::Kind::hinge ? b.joint.axis.dot(u.tail<3>()) : b.joint.axis.dot(u.head<3>());
+}
+// Distance to the limit on `side` (0: lower, 1: upper) at the start of the step.
+double limit_gap(const rigid::RigidBody& b, const rigid::RigidState& s, int side) {
+  const double c = rigid::joint_coordinate(b, s);
+  return side == 0 ? c - b.joint.limits->first : b.joint.limits->second - c;
+}
+}  // namespace
+
+int num_limit_slots(const Model& model) {
+  int L = 0;
+  for (const auto& b : model.rigid) L += limited(b) ? 2 : 0;
+  return L;
+}
+
+int select_limit_rows(const Model& model, Data& data, double h, bool all) {
+  auto& rd = data.contact.rigid;
+  rd.limit_rows.clear();  // capacity kept: no allocation after the first step
+  const double margin = model.contact.detection.margin;
+  int slot = 0;
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+    const auto& body = model.rigid[r];
+    if (!limited(body)) continue;
+    // The margin in the joint coordinate: the detection margin (m) for a slider; for a
+    // hinge, the angle that moves the surface vertex farthest from the axis by it.
+    double scale = 1;
+    if (body.joint.kind == rigid::Joint::Kind::hinge) {
+      double reach = 0;
+      const Mat3 R = rd.in[r].orientation.toRotationMatrix();
+      const Vec3 n = body.joint.axis;
+      for (Eigen::Index k = 0; k < body.surface.vertices.cols(); ++k) {
+        const Vec3 d = rd.in[r].position + R * body.surface.vertices.col(k) - body.joint.anchor;
+        reach = std::max(reach, (d - n.dot(d) * n).norm());
+      }
+      scale = reach > 0 ? 1 / reach : 0;
+    }
+    const double speed = std::max(std::abs(joint_rate(body, rd.u_free.segment<6>(6 * static_cast<Eigen::Index>(r)))),
+                                  std::abs(joint_rate(body, (rigid::Vec6() << rd.in[r].velocity, rd.in[r].angular_velocity).finished())));
+    for (int side = 0; side < 2; ++side, ++slot)
+      if (all || limit_gap(body, rd.in[r], side) < margin * scale + 2 * h * speed)
+        rd.limit_rows.push_back({static_cast<int>(r), side, slot});
+  }
+  return static_cast<int>(rd.limit_rows.size());
+}
+
+void append_limit_rows(const Model& model, Data& data, int nc, MatX& G, VecX& g) {
+  auto& rd = data.contact.rigid;
+  const int L = static_cast<int>(rd.limit_rows.size());
+  const auto& mu = data.contact.mu;
+  rd.mu_ext.resize(nc + L);
+  rd.mu_ext.head(nc) = mu;
+  if (L == 0) return;
+  rd.mu_ext.tail(L).setZero();
+  const Eigen::Index n0 = 3 * static_cast<Eigen::Index>(nc), n1 = n0 + 3 * L;
+  rd.Ht.conservativeResize(Eigen::NoChange, n1);
+  rd.Ht.rightCols(3 * L).setZero();
+  G.conservativeResize(n1, n1);
+  G.rightCols(3 * L).setZero();
+  G.bottomRows(3 * L).setZero();
+  g.conservativeResize(n1);
+  g.tail(3 * L).setZero();
+  for (int l = 0; l < L; ++l) {
+    const auto& row = rd.limit_rows[static_cast<std::size_t>(l)];
+    const auto& body = model.rigid[static_cast<std::size_t>(row.body)];
+    // The limit's row on the body's (v, omega): any j with T.j = s gives s cdot on the
+    // joint's motion (v, omega) = T cdot, and W_r j = T (T.j) / a = s T / a, the joint
+    // rate change per unit impulse s / a; j = s T / |T|^2 (s = +1 lower, -1 upper).
+    const rigid::Vec6 T = rigid::joint_motion_basis(body, rd.in[static_cast<std::size_t>(row.body)]).col(0);
+    const double s = row.side == 0 ? 1.0 : -1.0;
+    rd.Ht.col(n0 + 3 * l + 2).segment<6>(6 * static_cast<Eigen::Index>(row.body)) = s * T / T.squaredNorm();
+  }
+}
+
+void finish_limit_rows(const Model& model, Data& data, double h, int nc, MatX& G, VecX& g) {
+  const auto& rd = data.contact.rigid;
+  for (std::size_t l = 0; l < rd.limit_rows.size(); ++l) {
+    const auto& row = rd.limit_rows[l];
+    const auto r = static_cast<std::size_t>(row.body);
+    const Eigen::Index o = 3 * (static_cast<Eigen::Index>(nc) + static_cast<Eigen::Index>(l));
+    g[o + 2] += limit_gap(model.rigid[r], rd.in[r], row.side) / h;
+    G(o, o) = G(o + 1, o + 1) = G(o + 2, o + 2);
+  }
+}
+
+bool unselected_limit_crossed(const Model& model, const Data& data, double h) {
+  const auto& rd = data.contact.rigid;
+  int slot = 0;
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+    const auto& body = model.rigid[r];
+    if (!limited(body)) continue;
+    const double rate = joint_rate(body, rd.u.segment<6>(6 * static_cast<Eigen::Index>(r)));
+    for (int side = 0; side < 2; ++side, ++slot) {
+      bool selected = false;
+      for (const auto& row : rd.limit_rows) selected = selected || row.slot == slot;
+      const double s = side == 0 ? 1.0 : -1.0;
+      if (!selected && limit_gap(body, rd.in[r], side) + h * s * rate < 0) return true;
+    }
+  }
+  return false;
+}
+
+void remove_limit_rows(const Model& model, Data& data, int nc) {
+  auto& cd = data.contact;
+  auto& rd = cd.rigid;
+  const int slots = num_limit_slots(model);
+  if (rd.limit_lambda.size() != slots) rd.limit_lambda.setZero(slots);
+  rd.limit_lambda.setZero();
+  const int L = static_cast<int>(rd.limit_rows.size());
+  if (L == 0) return;
+  const Eigen::Index n0 = 3 * static_cast<Eigen::Index>(nc);
+  for (int l = 0; l < L; ++l) rd.limit_lambda[rd.limit_rows[static_cast<std::size_t>(l)].slot] = cd.lambda[n0 + 3 * l + 2];
+  cd.lambda.conservativeResize(n0);
+  cd.sigma.conservativeResize(n0);
+  cd.modes.resize(static_cast<std::size_t>(nc));
+  cd.G.conservativeResize(n0, n0);
+  cd.g.conservativeResize(n0);
+  rd.Ht.conservativeResize(Eigen::NoChange, n0);
+}
+
 StepStatus end_rigid_contact(const Model& model, Data& data, std::vector<rigid::RigidState>& out, double h,
                              long step_index) {
   StepStatus status;
@@ -208,25 +338,13 @@ StepStatus end_rigid_contact(const Model& model, Data& data, std::vector<rigid::
     const auto& s = rd.in[r];
     auto& e = out[r];
     const auto& body = model.rigid[r];
-    const Vec3 n = body.joint.axis;
     switch (body.joint.kind) {
-      case rigid::Joint::Kind::hinge: {  // along the joint exactly, as rigid::step
-        const double delta = h * n.dot(rd.u.segment<3>(o + 3));
-        const Eigen::Quaterniond dq(Eigen::AngleAxisd(delta, n));
-        e.orientation = (dq * s.orientation).normalized();
-        e.position = body.joint.anchor + dq * (s.position - body.joint.anchor);
-        e.angular_velocity = delta / h * n;
-        e.velocity = e.angular_velocity.cross(e.position - body.joint.anchor);
+      case rigid::Joint::Kind::hinge:  // along the joint exactly, as rigid::step
+        rigid::move_along_joint(body, s, h * body.joint.axis.dot(rd.u.segment<3>(o + 3)), h, e);
         break;
-      }
-      case rigid::Joint::Kind::slider: {
-        const double rate = n.dot(rd.u.segment<3>(o));
-        e.position = s.position + h * rate * n;
-        e.orientation = s.orientation;
-        e.velocity = rate * n;
-        e.angular_velocity.setZero();
+      case rigid::Joint::Kind::slider:
+        rigid::move_along_joint(body, s, h * body.joint.axis.dot(rd.u.segment<3>(o)), h, e);
         break;
-      }
       default:
         e.velocity = rd.u.segment<3>(o);
         e.angular_velocity = rd.u.segment<3>(o + 3);

@@ -15,8 +15,19 @@
 //   - correction u_r = u_r,free + h W_r H_r^T lambda, and the pose integrated with it as
 //     rigid::step does (p + h v, exp(h [omega]) q).
 // Hinge and slider bodies: W_r = T a^{-1} T^T, a = T^T A_r T, T the joint's motion basis
-// at the start of the step, u_free = T cdot_free; the pose moves along the joint. A joint
-// with limits is refused with contact (issue 21).
+// at the start of the step, u_free = T cdot_free; the pose moves along the joint.
+// Limit rows (issue 21 item 2): a hinge or slider with limits takes its free step without
+// them (cdot_free unclamped) and each limit is one frictionless unilateral row of the same
+// NCP, appended after the contacts as a contact of 3 rows with mu = 0: its normal row's
+// Jacobian on the body's (v, omega) is j = s T / |T|^2 (s = +1 for the lower limit, -1
+// for the upper), so that j.u = s cdot on the joint's motion u = T cdot and W_r j =
+// s T / a (a = T^T A_r T, the joint's inertia); its gap is the distance to the
+// limit at the start of the step (c_n - lower, upper - c_n), and g = s cdot_free + gap / h.
+// The coordinate after the step, c_n + h cdot, is linear in cdot, so the limit holds
+// exactly (to the NCP's tolerance), with the contact forces, no penalty. The tangential
+// rows have a zero Jacobian (their force is 0: mu = 0) and a unit-scaled diagonal.
+// Without any contact detected the limits are the free step's clamp (rigid::step, the
+// exact size-1 LCP) and no NCP runs.
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
 
@@ -54,6 +65,32 @@ void rigid_delassus_rows(const Model& model, Data& data, MatX& Kt, VecX& g);
 
 // u = u_free + h W H_r^T lambda (data.contact.rigid.u).
 void correct_rigid_velocities(const Model& model, Data& data, double h, const VecX& lambda);
+
+// The limit slots of the model (2 per body on a hinge or slider with limits).
+int num_limit_slots(const Model& model);
+
+// Selects the limit rows of this solve into data.contact.rigid.limit_rows: a limit whose
+// gap at the start of the step is below the detection margin (in the joint coordinate:
+// over the farthest surface vertex's distance from a hinge's axis) plus 2 h max(|cdot_n|,
+// |cdot_free|), as the speculative margin of the contacts (contact_step.cpp), or every
+// limit when `all`. A far limit stays out: its large gap / h would set the NCP's velocity
+// scale. Returns L.
+int select_limit_rows(const Model& model, Data& data, double h, bool all);
+
+// Before add_rigid_delassus: extends data.contact.rigid.Ht by the L limit rows' columns
+// (3 each: tangential zero, normal j), G (3nc square) and g (3nc) by zero rows and
+// columns to 3 (nc + L), and fills rigid.mu_ext. Only rigid.mu_ext when L = 0.
+void append_limit_rows(const Model& model, Data& data, int nc, MatX& G, VecX& g);
+// After add_rigid_delassus: the limit rows' gap terms (gap / h) and their tangential
+// diagonals (equal to their normal diagonal h / a; decoupled, with mu = 0).
+void finish_limit_rows(const Model& model, Data& data, double h, int nc, MatX& G, VecX& g);
+// After correct_rigid_velocities: whether the corrected rates cross a limit that was not
+// selected (the contact forces drove the joint further than the speculative margin
+// allowed); the caller then solves again with every limit (select_limit_rows(all)).
+bool unselected_limit_crossed(const Model& model, const Data& data, double h);
+// After the correction: keeps the limits' normal forces in rigid.limit_lambda (by slot)
+// and cuts lambda, sigma, modes, G, g and rigid.Ht back to the nc contacts.
+void remove_limit_rows(const Model& model, Data& data, int nc);
 
 // After the soft step with contact: out = the start poses integrated with the corrected
 // velocities (p + h v, exp(h [omega]) q) for every body with dofs when contacts were

@@ -313,8 +313,8 @@ class Reader {
   }
 
   // Rigid bodies in contact (docs/method.md "Rigid bodies in contact"): free, fixed,
-  // hinge and slider bodies (joints without limits), implicit Euler with one Newton
-  // iteration, either NCP backend. The rest is refused (issue 21).
+  // hinge and slider bodies (limits: rows of the NCP, on the dense backend), implicit
+  // Euler with one Newton iteration, either NCP backend. The rest is refused (issue 21).
   void check_rigid_contact(const Node& root, const SceneDesc& scene) const {
     if (scene.rigid_bodies.empty() || !scene.contact.enabled) return;
     const std::string first = scene.rigid_bodies.front().where.path;
@@ -323,11 +323,13 @@ class Reader {
       ctx_.fail(contact->key_mark, "contact",
                 "contact with rigid bodies and simulation.newton_iterations > 1 is not supported yet (issue 21; " +
                     first + " is rigid): use newton_iterations: 1");
-    for (const auto& rb : scene.rigid_bodies)
-      if (rb.joint && rb.joint->limits)
-        throw InputError(rb.joint->where.str() + ": contact with a rigid body whose joint has limits is not supported yet "
-                         "(issue 21; the limit as a row of the contact solve): remove the limits or set contact.enabled: "
-                         "false");
+    if (scene.contact.backend == ContactDesc::Backend::sparse)
+      for (const auto& rb : scene.rigid_bodies)
+        if (rb.joint && rb.joint->limits)
+          ctx_.fail(contact->key_mark, "contact.backend",
+                    "backend: sparse with a rigid body whose joint has limits is not supported yet (issue 21; " +
+                        rb.joint->where.path + " has limits, which are rows of the dense contact solve): use dense "
+                        "or auto");
     for (const auto& p : scene.contact.pairs)
       if (p.first == p.second &&
           std::any_of(scene.rigid_bodies.begin(), scene.rigid_bodies.end(), [&](const auto& rb) { return rb.name == p.first; }))

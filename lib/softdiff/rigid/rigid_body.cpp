@@ -204,7 +204,7 @@ double joint_coordinate(const RigidBody& body, const RigidState& state) {
 }
 
 StepInfo step(const RigidBody& body, const RigidState& in, double h, const Vec3& gravity, const Vec3& force,
-              const Vec3& torque, RigidState& out) {
+              const Vec3& torque, RigidState& out, bool enforce_limits) {
   if (&in == &out) throw std::invalid_argument(who(body) + ": step's out must not alias in");
   if (!(h > 0) || !std::isfinite(h)) throw std::invalid_argument(who(body) + ": step length must be positive, got " + num(h));
   if (!finite(in) || !gravity.allFinite() || !force.allFinite() || !torque.allFinite())
@@ -259,13 +259,8 @@ StepInfo step(const RigidBody& body, const RigidState& in, double h, const Vec3&
       e.c1 = F.dot(n.cross(r_perp));
       e.c2 = F.dot(r_perp);
       const double c_n = joint_coordinate(body, in);
-      const double delta = clamp_to_limits(j, c_n, solve_joint(e, body), info.at_limit);
-      const Eigen::Quaterniond dq(Eigen::AngleAxisd(delta, n));
-      const double rate = delta / h;
-      out.orientation = (dq * in.orientation).normalized();
-      out.position = j.anchor + dq * r;
-      out.angular_velocity = rate * n;
-      out.velocity = rate * n.cross(out.position - j.anchor);
+      const double delta = enforce_limits ? clamp_to_limits(j, c_n, solve_joint(e, body), info.at_limit) : solve_joint(e, body);
+      move_along_joint(body, in, delta, h, out);
       break;
     }
     case Joint::Kind::slider: {
@@ -276,10 +271,8 @@ StepInfo step(const RigidBody& body, const RigidState& in, double h, const Vec3&
       e.cdot = n.dot(in.velocity);
       e.Q0 = n.dot(F);
       const double c_n = joint_coordinate(body, in);
-      const double delta = clamp_to_limits(j, c_n, solve_joint(e, body), info.at_limit);
-      out.position = in.position + delta * n;
-      out.velocity = delta / h * n;
-      out.angular_velocity.setZero();
+      const double delta = enforce_limits ? clamp_to_limits(j, c_n, solve_joint(e, body), info.at_limit) : solve_joint(e, body);
+      move_along_joint(body, in, delta, h, out);
       break;
     }
   }
@@ -292,6 +285,26 @@ StepInfo step(const RigidBody& body, const RigidState& in, double h, const Vec3&
   if (!finite(out) || !info.constraint_force.allFinite() || !info.constraint_torque.allFinite())
     throw ComputationError(who(body) + ": the step produced a non-finite state (h = " + num(h) + ")");
   return info;
+}
+
+void move_along_joint(const RigidBody& body, const RigidState& in, double delta, double h, RigidState& out) {
+  const Joint& j = body.joint;
+  const Vec3 n = j.axis;
+  const double rate = delta / h;
+  if (j.kind == Joint::Kind::hinge) {
+    const Eigen::Quaterniond dq(Eigen::AngleAxisd(delta, n));
+    out.orientation = (dq * in.orientation).normalized();
+    out.position = j.anchor + dq * (in.position - j.anchor);
+    out.angular_velocity = rate * n;
+    out.velocity = rate * n.cross(out.position - j.anchor);
+  } else if (j.kind == Joint::Kind::slider) {
+    out.position = in.position + delta * n;
+    out.orientation = in.orientation;
+    out.velocity = rate * n;
+    out.angular_velocity.setZero();
+  } else {
+    throw std::invalid_argument(who(body) + ": move_along_joint needs a hinge or a slider");
+  }
 }
 
 Mat3X world_vertices(const RigidBody& body, const RigidState& state) {

@@ -92,8 +92,17 @@ struct StepInfo {
 // std::invalid_argument for a bad call (h <= 0, out aliasing in) and softdiff's
 // ComputationError naming the body for a non-finite state or load or a Newton solve that
 // does not converge (the caller adds the step number).
+// enforce_limits = false steps a limited joint as if it had none (the contact stage's
+// free step: there the limit is a row of the NCP, contact/rigid_contact.hpp).
 StepInfo step(const RigidBody& body, const RigidState& in, double h, const Vec3& gravity,
-              const Vec3& force, const Vec3& torque, RigidState& out);
+              const Vec3& force, const Vec3& torque, RigidState& out, bool enforce_limits = true);
+
+// The end of a hinge or slider step that moves the joint coordinate by delta over h: the
+// body exactly on its joint (hinge: q = exp(delta n / 2) q_n, x = anchor + exp(delta n)
+// (x_n - anchor); slider: x = x_n + delta n, q = q_n) with the joint rate delta / h.
+// Shared by step and the contact stage's end (contact/rigid_contact.hpp). Other joints:
+// a precondition violation.
+void move_along_joint(const RigidBody& body, const RigidState& in, double delta, double h, RigidState& out);
 
 // Every entry of the state finite (pose, orientation, velocities).
 bool finite(const RigidState& s);
