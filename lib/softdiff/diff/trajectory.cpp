@@ -112,7 +112,7 @@ bool ForwardSensitivity::advance(const Model& model, const Data& data, const Sta
   // Rigid bodies: each body's 12 x 12 (and 12 x 7) step Jacobian, once per step.
   for (std::size_t r = 0; r < model.rigid.size(); ++r)
     rigid::step_jacobian(model.rigid[r], in.rigid[r], out.rigid[r], data.rigid[r], model.step.dt, model.step.gravity,
-                         Vec3::Zero(), Vec3::Zero(), rigid_jacobian_[r]);
+                         Vec3::Zero(), rigid_jacobian_[r]);
   const Eigen::Index nrp = static_cast<Eigen::Index>(theta_.rigid_parameters.size());
   const Eigen::Index rp0 = nrp ? theta_.rigid_parameter_offset(model) : 0;
   const Eigen::Index np = theta_.actuation_offset(), na = theta_.actuation ? num_actuators(model) : 0;
@@ -287,7 +287,7 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
     for (Eigen::Index r = 0; r < nr; ++r) {
       const auto i = static_cast<std::size_t>(r);
       rigid::step_jacobian(model.rigid[i], in.rigid[i], out.rigid[i], data.rigid[i], model.step.dt, model.step.gravity,
-                           Vec3::Zero(), Vec3::Zero(), rigid_J);
+                           Vec3::Zero(), rigid_J);
       rigid::step_vjp(rigid_J, bar_rigid.segment<12>(12 * r), rigid_bar_in, rigid_bar_p);
       bar_rigid.segment<12>(12 * r) = rigid_bar_in;
       for (std::size_t j = 0; j < theta.rigid_parameters.size(); ++j)
