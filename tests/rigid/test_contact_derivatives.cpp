@@ -284,3 +284,140 @@ TEST(RigidContactStepDerivatives, HingedBarAndSliderOnSupports) {
 }
 
 }  // namespace rigid_contact_derivatives_test
+
+namespace rigid_contact_derivatives_test {
+
+// The state moved along a column of x0 / v0 (soft rows, then 6 per rigid body: position
+// and rotation vector, or velocity and angular velocity) by e.
+State moved_initial(const Model& model, const State& s0, const VecX& dx0, const VecX& dv0, double e) {
+  const Eigen::Index n3 = 3L * model.fem.num_nodes;
+  State s = s0;
+  s.x += e * dx0.head(n3);
+  s.v += e * dv0.head(n3);
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+    const Eigen::Index o = n3 + 6 * static_cast<Eigen::Index>(r);
+    rigid::Vec12 d;
+    d << dx0.segment<6>(o), dv0.segment<6>(o);
+    s.rigid[r] = rigid::retract(s0.rigid[r], d, e);
+  }
+  return s;
+}
+
+State run_steps(const Model& model, const State& s0, long steps) {
+  Data data(model);
+  State a = s0, b;
+  for (long k = 1; k <= steps; ++k) {
+    const StepStatus st = integrator::time_step(model, data, a, nullptr, b, k);
+    EXPECT_TRUE(st.ok()) << describe(model, st);
+    std::swap(a, b);
+  }
+  return a;
+}
+
+// The final state's rows as the sensitivities have them: soft x, then per rigid body
+// (position, rotation vector) as tangents from `base`; likewise v and (v, omega).
+void rows_from(const Model& model, const State& base, const State& s, VecX& x_rows, VecX& v_rows) {
+  const Eigen::Index n3 = 3L * model.fem.num_nodes, R = static_cast<Eigen::Index>(model.rigid.size());
+  x_rows.resize(n3 + 6 * R);
+  v_rows.resize(n3 + 6 * R);
+  x_rows.head(n3) = s.x - base.x;
+  v_rows.head(n3) = s.v - base.v;
+  for (Eigen::Index r = 0; r < R; ++r) {
+    const rigid::Vec12 t = rigid::tangent_between(base.rigid[static_cast<std::size_t>(r)], s.rigid[static_cast<std::size_t>(r)]);
+    x_rows.segment<6>(n3 + 6 * r) = t.head<6>();
+    v_rows.segment<6>(n3 + 6 * r) = t.tail<6>();
+  }
+}
+
+// 12 steps of the wedge sliding and spinning on the plane (three sliding contacts all
+// along): forward sensitivities with respect to one random direction of x0, one of v0
+// (soft and rigid rows), the wedge's mass and its inertia zz, against central differences
+// of whole runs; then the adjoint of a loss on the final state (soft and rigid) against
+// the same sensitivities (exact algebra: 1e-9 relative).
+TEST(RigidContactTrajectoryDerivatives, SensitivitiesAndAdjointOfASlidingWedge) {
+  Model model = anchored(1e-3);
+  const rigid::Shape shape = wedge();
+  const rigid::MassProperties mp = rigid::mass_properties(shape, 800);
+  rigid::RigidState s;
+  s.position = Vec3(0, 0, mp.centre.z());
+  s.velocity = Vec3(0.5, 0.1, 0);
+  s.angular_velocity = Vec3(0, 0, 0.8);
+  test::add_rigid_body(model, "wedge", shape, 800, s);
+  test::enable_rigid_contact(model, {test::plane(Vec3::UnitZ(), 0, "floor")}, {{"wedge", "floor", 0.3}}, 1e-3, tight());
+  model.initial = warm_up(model, 3);
+  const long T = 12;
+  const Eigen::Index n3 = 3L * model.fem.num_nodes, rows = n3 + 6;
+  std::mt19937 rng(3);
+  std::normal_distribution<double> N;
+  diff::ThetaLayout theta;
+  theta.x0 = theta.v0 = true;
+  theta.x0_basis = MatX::NullaryExpr(rows, 1, [&] { return N(rng); });
+  theta.v0_basis = MatX::NullaryExpr(rows, 1, [&] { return N(rng); });
+  theta.rigid_parameters = {{0, 0}, {0, 3}};
+  Data data(model);
+  State final;
+  MatX dx, dv;
+  ASSERT_TRUE(diff::forward_sensitivities(model, data, model.initial, T, theta, final, dx, dv).ok());
+  ASSERT_EQ(dx.cols(), 4);
+  // Central differences of whole runs along the unit-scale directions (the parameters:
+  // times the mass, and the inertia's trace / 3). eps = 1e-6, but 1e-8 for x0: its
+  // direction moves and tilts the 5 cm wedge by O(1) m and rad per unit, and the
+  // difference's error measured 5.3e-3, 5.3e-5, 1.8e-7 at eps = 1e-6, 1e-7, 1e-8 (eps^2
+  // truncation; at 1e-5 a contact changes mode) against entries of 2.2. Round-off
+  // ~1e-16 / eps of the outputs. tol 1e-5 relative to each column's largest entry.
+  const VecX zero = VecX::Zero(rows);
+  for (int c = 0; c < 4; ++c) {
+    const double eps = c == 0 ? 1e-8 : 1e-6;
+    double scale = 1;
+    State sp, sm;
+    if (c < 2) {
+      const VecX d0 = c == 0 ? VecX(theta.x0_basis.col(0)) : zero, e0 = c == 1 ? VecX(theta.v0_basis.col(0)) : zero;
+      sp = run_steps(model, moved_initial(model, model.initial, d0, e0, eps), T);
+      sm = run_steps(model, moved_initial(model, model.initial, d0, e0, -eps), T);
+    } else {
+      const int index = c == 2 ? 0 : 3;
+      scale = c == 2 ? model.rigid[0].mass : model.rigid[0].inertia.trace() / 3;
+      Model mpl = model, mmi = model;
+      rigid::set_parameter(mpl.rigid[0], index, rigid::get_parameter(model.rigid[0], index) + eps * scale);
+      rigid::set_parameter(mmi.rigid[0], index, rigid::get_parameter(model.rigid[0], index) - eps * scale);
+      sp = run_steps(mpl, model.initial, T);
+      sm = run_steps(mmi, model.initial, T);
+    }
+    VecX xp, vp, xm, vm;
+    rows_from(model, final, sp, xp, vp);
+    rows_from(model, final, sm, xm, vm);
+    VecX fd(2 * rows), an(2 * rows);
+    fd << (xp - xm) / (2 * eps), (vp - vm) / (2 * eps);
+    an << dx.col(c) * scale, dv.col(c) * scale;
+    const double err = (an - fd).cwiseAbs().maxCoeff(), mag = fd.cwiseAbs().maxCoeff();
+    std::cout << "column " << c << ": max |sensitivity - FD| " << err << " of " << mag << "\n";
+    EXPECT_LT(err, 1e-5 * mag) << "column " << c;
+  }
+  // The adjoint of l = a . x_T + b . v_T (soft rows) + c . (rigid 12-tangent of the final
+  // state): its theta gradient is a^T dx + b^T dv + the rigid rows'.
+  const VecX a = VecX::NullaryExpr(n3, [&] { return N(rng); }), b = VecX::NullaryExpr(n3, [&] { return N(rng); });
+  const rigid::Vec12 cr = rigid::Vec12::NullaryExpr([&] { return N(rng); });
+  diff::Tape tape;
+  Data data2(model);
+  ASSERT_TRUE(diff::record(model, data2, model.initial, T, tape).ok());
+  diff::AdjointResult result;
+  ASSERT_TRUE(diff::adjoint(
+                  model, data2, tape, theta,
+                  [&](long k, const State&, VecX& bx, VecX& bv) {
+                    if (k == T) bx += a, bv += b;
+                  },
+                  result,
+                  [&](long k, const State&, VecX& br) {
+                    if (k == T) br += cr;
+                  })
+                  .ok());
+  EXPECT_EQ(result.recompute_mismatch, 0.0);
+  VecX expected(4);
+  for (int c = 0; c < 4; ++c)
+    expected[c] = a.dot(dx.col(c).head(n3)) + b.dot(dv.col(c).head(n3)) + cr.head<6>().dot(dx.col(c).tail<6>()) +
+                  cr.tail<6>().dot(dv.col(c).tail<6>());
+  std::cout << "adjoint " << result.theta.transpose() << " against forward " << expected.transpose() << "\n";
+  for (int c = 0; c < 4; ++c) EXPECT_NEAR(result.theta[c], expected[c], 1e-9 * expected.cwiseAbs().maxCoeff());
+}
+
+}  // namespace rigid_contact_derivatives_test

@@ -149,7 +149,13 @@ bool StepDerivatives::parameter_column(const Model& model, const Data& data, con
 
 bool StepDerivatives::prepare_contact(const Model& model, const Data& data, const State& in, const State& out,
                                       LinearSolver& solver) {
-  if (contact_v_.size() == out.v.size() && contact_v_ == out.v) return true;
+  // The cache key: v_f, and with rigid bodies their corrected velocities too (a scene whose
+  // soft nodes are all fixed has the same v_f = 0 at every step).
+  const bool with_rigid = model.contact.with_rigid();
+  const Eigen::Index key_size = out.v.size() + (with_rigid ? data.contact.rigid.u.size() : 0);
+  if (contact_v_.size() == key_size && contact_v_.head(out.v.size()) == out.v &&
+      (!with_rigid || contact_v_.tail(data.contact.rigid.u.size()) == data.contact.rigid.u))
+    return true;
   // Newton (docs/method.md "Newton iterations with contact"): the record's G is that of
   // the last Newton factorization, one iterate before the converged v_f; the implicit
   // function theorem at v_f needs G with the converged tangent A_f (`solver`, this
@@ -164,7 +170,9 @@ bool StepDerivatives::prepare_contact(const Model& model, const Data& data, cons
   const VecX& x = model.contact.with_rigid() ? data.contact.rigid.x : in.x;
   if (!contact_.prepare(model, data.contact, x, solver, step_size(model, data), !is_newton(model), nullptr, nullptr, A))
     return false;
-  contact_v_ = out.v;
+  contact_v_.resize(key_size);
+  contact_v_.head(out.v.size()) = out.v;
+  if (with_rigid) contact_v_.tail(data.contact.rigid.u.size()) = data.contact.rigid.u;
   return true;
 }
 

@@ -174,7 +174,7 @@ class StepDerivatives {
   // (soft then pseudo-node) vectors of the geometry terms.
   contact::RigidContactDerivative rigid_;
   VecX ext_dx_, ext_r_, ext_u_, ext_y_, ext_bar_x_, du0_, bar_du0_;
-  VecX contact_v_;                   // the v_f the contact derivatives were prepared for
+  VecX contact_v_;                   // the v_f (and rigid u) the contact derivatives were prepared for
   VecX b_, dlambda_, bar_lambda_, bar_b_, bar_mu_, y2_;
   SparseMatrix newton_A_;            // Newton: dR/dv at x_f (the pattern's structure)
   std::unique_ptr<LinearSolver> newton_solver_;
