@@ -98,11 +98,8 @@ std::string row_name(const Model& model, Eigen::Index row) {
   const bool velocity = row >= n3 + n6;
   if (velocity) row -= n3 + n6;
   if (row >= n3) {  // a rigid body's row: position, rotation vector / velocity, angular velocity
-    static const char* x_rows[6] = {"x", "y", "z", "rx", "ry", "rz"};
-    static const char* v_rows[6] = {"vx", "vy", "vz", "wx", "wy", "wz"};
     const Eigen::Index k = row - n3;
-    return std::string(velocity ? "v" : "x") + "[" + model.rigid[static_cast<std::size_t>(k / 6)].name + "]." +
-           (velocity ? v_rows : x_rows)[k % 6];
+    return rigid_row_name(model, static_cast<int>(k / 6), static_cast<int>(k % 6), velocity, velocity ? "v" : "x");
   }
   const Eigen::Index dof = row;
   const int node = static_cast<int>(dof / 3);

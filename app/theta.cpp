@@ -14,11 +14,14 @@ namespace {
 
 void demand_differentiable(const std::string& option, const Model& model) {
   demand_no_rigidified_parts(option, model);
-  // Issue 21, item 4: the rigid step is differentiated (forward mode) while no contact
-  // couples the rigid bodies; derivatives through contact with rigid bodies are not yet.
-  if (!model.rigid.empty() && model.contact.enabled)
-    throw InputError(option + ": derivatives of a scene with contact and rigid bodies are not supported yet (issue 21; "
-                              "rigid body '" + model.rigid.front().name + "')");
+  // Issue 21, item 4: the rigid step is differentiated with and without contact
+  // (contact/rigid_contact_derivatives.hpp); a joint limit's rows in the contact solve
+  // are not yet.
+  if (model.contact.with_rigid())
+    for (const auto& b : model.rigid)
+      if (b.joint.limits)
+        throw InputError(option + ": derivatives through contact of a rigid body whose joint has limits are not "
+                                  "supported yet (issue 21; rigid body '" + b.name + "')");
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
     for (const auto& b : model.fem.bodies)
       if (b.psd_projection)
@@ -51,6 +54,12 @@ void demand_no_rigid_bodies(const std::string& what, const Model& model) {
   if (!model.rigid.empty())
     throw InputError(what + ": derivatives with rigid bodies are not supported yet (issue 21; rigid body '" +
                      model.rigid.front().name + "')");
+}
+
+std::string rigid_row_name(const Model& model, int body, int k, bool velocity, const std::string& prefix) {
+  static const char* x_rows[6] = {"x", "y", "z", "rx", "ry", "rz"};
+  static const char* v_rows[6] = {"vx", "vy", "vz", "wx", "wy", "wz"};
+  return prefix + "[" + model.rigid[static_cast<std::size_t>(body)].name + "]." + (velocity ? v_rows : x_rows)[k];
 }
 
 ThetaSelection parse_theta(const std::string& option, const std::string& list, const Model& model) {
@@ -122,10 +131,8 @@ ThetaSelection parse_theta(const std::string& option, const std::string& list, c
       g.size = n3 + 6L * nr;
       for (Eigen::Index k = 0; k < n3; ++k) g.columns.push_back(n + "[" + std::to_string(k) + "]");
       // Rigid bodies: position and rotation vector (x0), velocity and angular velocity (v0).
-      static const char* x_rows[6] = {"x", "y", "z", "rx", "ry", "rz"};
-      static const char* v_rows[6] = {"vx", "vy", "vz", "wx", "wy", "wz"};
-      for (const auto& r : model.rigid)
-        for (int k = 0; k < 6; ++k) g.columns.push_back(n + "[" + r.name + "]." + (n == "x0" ? x_rows : v_rows)[k]);
+      for (int r = 0; r < nr; ++r)
+        for (int k = 0; k < 6; ++k) g.columns.push_back(rigid_row_name(model, r, k, n == "v0", n));
     } else if (n == "mass" || n == "inertia") {
       g.offset = sel.layout.rigid_parameter_offset(model);
       for (const auto& before : rigid_given) {

@@ -31,9 +31,16 @@ struct ThetaSelection {
 // servo; x0, v0 for a static scene), naming the option.
 // Issue 21: the reverse mode (calibrate, control) does not cover rigid bodies yet.
 // InputError "<what>: derivatives with rigid bodies are not supported yet (issue 21; ...)".
-// calibrate and control call it; parse_theta refuses only a scene with contact and
-// rigid bodies (derivatives through contact with rigid bodies: a later increment).
+// calibrate and control call it. parse_theta differentiates rigid bodies with and
+// without contact; it refuses (issue 21) only a rigid body in contact whose joint has
+// limits (the limit's rows in the contact solve are not differentiated yet).
 void demand_no_rigid_bodies(const std::string& what, const Model& model);
+
+// The name of row k (0..5) of rigid body `body`'s block of a state's rows (output.md's
+// /jacobians rows): "x[key].x" ... "x[key].rz" (position, rotation vector) or
+// "v[key].vx" ... "v[key].wz" (velocity, angular velocity); prefix "x0"/"v0" for the
+// columns of theta's initial-state groups ("x0[key].rx").
+std::string rigid_row_name(const Model& model, int body, int k, bool velocity, const std::string& prefix);
 // Throws InputError (exit 2) naming issue 21 if the model has rigidified parts (no
 // derivative of them yet); `what` names the command or option.
 void demand_no_rigidified_parts(const std::string& what, const Model& model);

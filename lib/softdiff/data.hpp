@@ -74,6 +74,7 @@ struct ContactData {
   struct Rigid {
     VecX x, v_previous, v_free;            // (3 (n + pseudo-nodes)) extended positions/velocities for detection
     std::vector<rigid::RigidState> in;     // (R) poses and velocities at the start of the step
+    std::vector<rigid::RigidState> free;   // (R) the free step's end states (their derivative: rigid_contact_derivatives.hpp)
     VecX u_free, u;                        // (6R) (v, omega) per body, world: after the free step; corrected
     std::vector<rigid::Mat6> W;            // (R) T (T^T A_r T)^{-1} T^T: velocity change per impulse (0: fixed)
     MatX Ht;                               // (6R, 3nc) the rigid bodies' rows of H_c^T

@@ -1,6 +1,7 @@
-// Derivatives with rigid bodies on the command line (issue 21, item 4, without
-// contact): `check-grad` passes on a scene with a free spinning rigid body and a hinge
-// pendulum beside the clamped beam (every default block, the rigid ones included);
+// Derivatives with rigid bodies on the command line (issue 21, item 4): `check-grad`
+// passes on a scene with a free spinning rigid body and a hinge pendulum beside the
+// clamped beam (every default block, the rigid ones included), and on a rigid sphere
+// resting on the floor through contact;
 // `simulate --jacobian` writes /jacobians rows for the rigid states (3 n_total + 6 per
 // rigid body) with the column names and units of docs/output.md; `mass`/`inertia`
 // without rigid bodies is refused with exit 2.
@@ -119,6 +120,38 @@ TEST(CliRigidDerivatives, JacobianRowsForRigidStates) {
   EXPECT_EQ(soft_mass, 0.0);
   EXPECT_GT(pendulum, 0.0);
   H5Fclose(f);
+}
+
+// Through contact (issue 21, item 4's last part): a rigid sphere on its pole on the floor
+// beside the clamped beam, launched at (0.2, 0.05, 0) m/s with friction 0.3: one sliding
+// contact that spins it up over the 3 steps checked (a box flat on four corners would
+// have indeterminate normal forces: four on a plane, rank 3). Every default block passes,
+// the friction coefficient's, mass and inertia included (measured: 1.6e-7 relative at
+// worst, x0). check-grad passes on every default block, the contact's included;
+// simulate --jacobian runs (it was refused with contact and rigid bodies).
+std::string sphere_on_floor() {
+  return beam() +
+         "  - name: ball\n"
+         "    type: rigid\n"
+         "    shape: {type: sphere, radius: 0.01}\n"
+         "    density: 1000\n"
+         "    position: [0.1, 0.1, 0]\n"
+         "    velocity: [0.2, 0.05, 0]\n"
+         "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.01}]\n"
+         "contact: {friction: 0.3, pairs: [[ball, floor, 0.3]]}\n";
+}
+
+TEST(CliRigidDerivatives, CheckGradThroughContact) {
+  const fs::path dir = fresh_dir(kWork, "check_grad_contact");
+  write_text(dir / "scene.yaml", sphere_on_floor());
+  const auto r = run_cli("check-grad scene.yaml --quiet --steps 3", dir);
+  EXPECT_EQ(r.code, 0) << r.out << r.err;
+  for (const char* block : {"young", "friction", "x0", "v0", "mass", "inertia"})
+    EXPECT_NE(r.out.find(block), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
+  const auto j = run_cli("simulate scene.yaml -o out.h5 --jacobian mass,v0", dir);
+  EXPECT_EQ(j.code, 0) << j.err;
+  EXPECT_TRUE(fs::exists(dir / "out.h5"));
 }
 
 TEST(CliRigidDerivatives, RigidParametersNeedRigidBodies) {

@@ -69,7 +69,7 @@ void check(const Case& c, bool want_limit) {
   const RigidState out = step_of(c, c.body, c.in, &info);
   ASSERT_EQ(info.at_limit, want_limit);
   StepJacobian J;
-  step_jacobian(c.body, c.in, out, info, c.h, c.g, c.f, c.tau, J);
+  step_jacobian(c.body, c.in, out, info, c.h, c.g, c.f, J);
   ASSERT_TRUE(J.state.allFinite() && J.params.allFinite());
   const double eps = 1e-6, tol = 1e-6;
   for (int j = 0; j < 12; ++j) {
@@ -110,7 +110,7 @@ TEST(RigidStepDerivatives, FreeSpinningBodyWithGyroscopicTerm) {
   StepInfo info;
   const RigidState out = step_of(c, c.body, c.in, &info);
   StepJacobian J;
-  step_jacobian(c.body, c.in, out, info, c.h, c.g, c.f, c.tau, J);
+  step_jacobian(c.body, c.in, out, info, c.h, c.g, c.f, J);
   EXPECT_GT((J.state.block<3, 3>(9, 9) - Mat3::Identity()).norm(), 1e-2);
 }
 
@@ -196,7 +196,7 @@ TEST(RigidStepDerivatives, Fixed) {
   StepInfo info;
   const RigidState out = step_of(c, c.body, c.in, &info);
   StepJacobian J;
-  step_jacobian(c.body, c.in, out, info, c.h, c.g, c.f, c.tau, J);
+  step_jacobian(c.body, c.in, out, info, c.h, c.g, c.f, J);
   EXPECT_EQ(J.params.norm(), 0.0);
   EXPECT_EQ(J.state.bottomRows<6>().norm(), 0.0);
 }
@@ -215,7 +215,7 @@ TEST(RigidStepDerivatives, JvpVjpDotProduct) {
     StepInfo info;
     const RigidState out = step_of(c, c.body, c.in, &info);
     StepJacobian J;
-    step_jacobian(c.body, c.in, out, info, c.h, c.g, c.f, c.tau, J);
+    step_jacobian(c.body, c.in, out, info, c.h, c.g, c.f, J);
     const Vec12 d = rnd(Vec12()), bar = rnd(Vec12());
     const Vec7 dp = rnd(Vec7());
     Vec12 bar_in;

@@ -42,6 +42,7 @@ void begin_rigid_contact(const Model& model, Data& data, const std::vector<rigid
                                                           std::to_string(free.size()));
   auto& rd = data.contact.rigid;
   rd.in = in;  // same size after the first step: no allocation
+  rd.free = free;
   if (rd.u_free.size() != static_cast<Eigen::Index>(6 * R)) rd.u_free.resize(6 * R);
   if (rd.W.size() != R) {
     rd.W.resize(R);

@@ -109,10 +109,13 @@ ForwardSensitivity::ForwardSensitivity(const Model& model, ThetaLayout theta)
 bool ForwardSensitivity::advance(const Model& model, const Data& data, const State& in, const State& out) {
   // The soft step's input as its derivative sees it is data.hat; the rigid bodies' is in.rigid.
   const Eigen::Index n3 = num_dofs(model), nr = static_cast<Eigen::Index>(model.rigid.size());
-  // Rigid bodies: each body's 12 x 12 (and 12 x 7) step Jacobian, once per step.
-  for (std::size_t r = 0; r < model.rigid.size(); ++r)
+  // Rigid bodies in contact (model.contact.with_rigid()): the step's JVP carries their
+  // rows through the one contact solve (contact/rigid_contact_derivatives.hpp). Otherwise
+  // each body's 12 x 12 (and 12 x 7) step Jacobian, once per step.
+  const bool coupled = model.contact.with_rigid();
+  for (std::size_t r = 0; !coupled && r < model.rigid.size(); ++r)
     rigid::step_jacobian(model.rigid[r], in.rigid[r], out.rigid[r], data.rigid[r], model.step.dt, model.step.gravity,
-                         Vec3::Zero(), Vec3::Zero(), rigid_jacobian_[r]);
+                         Vec3::Zero(), rigid_jacobian_[r]);
   const Eigen::Index nrp = static_cast<Eigen::Index>(theta_.rigid_parameters.size());
   const Eigen::Index rp0 = nrp ? theta_.rigid_parameter_offset(model) : 0;
   const Eigen::Index np = theta_.actuation_offset(), na = theta_.actuation ? num_actuators(model) : 0;
@@ -131,6 +134,28 @@ bool ForwardSensitivity::advance(const Model& model, const Data& data, const Sta
       t_.p = VecX::Unit(np, c);
     else if (c < np + na)
       t_.lambda_a = VecX::Unit(num_actuators(model), c - np);
+    if (coupled) {
+      t_.rigid.resize(12 * nr);
+      for (Eigen::Index r = 0; r < nr; ++r)
+        t_.rigid.segment<12>(12 * r) << dx_.col(c).segment<6>(n3 + 6 * r), dv_.col(c).segment<6>(n3 + 6 * r);
+      t_.rigid_p.resize(0);
+      if (c >= rp0 && c < rp0 + nrp) {
+        const auto& p = theta_.rigid_parameters[static_cast<std::size_t>(c - rp0)];
+        t_.rigid_p = VecX::Unit(7 * nr, 7 * p.body + p.index);
+      }
+      previous_.x.resize(0);
+      previous_.v.resize(0);
+      if (!integrator::multistep_jvp(*step_, model, data, out, t_, previous_, r_)) return false;
+      next_dx_.col(c).head(n3) = r_.x;
+      next_dv_.col(c).head(n3) = r_.v;
+      for (Eigen::Index r = 0; r < nr; ++r) {
+        next_dx_.col(c).segment<6>(n3 + 6 * r) = r_.rigid.segment<6>(12 * r);
+        next_dv_.col(c).segment<6>(n3 + 6 * r) = r_.rigid.segment<6>(12 * r + 6);
+      }
+      continue;
+    }
+    t_.rigid.resize(0);
+    t_.rigid_p.resize(0);
     if (multistep) {
       previous_.x = previous_dx_.col(c).head(n3);
       previous_.v = previous_dv_.col(c).head(n3);
@@ -239,8 +264,11 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
   for (const auto& p : theta.rigid_parameters)
     SOFTDIFF_DEMAND(p.body >= 0 && p.body < nr && p.index >= 0 && p.index < rigid::kRigidParameters,
                     "rigid parameter: no such body or index");
-  // The rigid bodies' cotangents (12 per body) and each step's Jacobian of one body.
-  VecX bar_rigid = VecX::Zero(12 * nr);
+  // The rigid bodies' cotangents (12 per body), their parameters' (7 per body, scattered
+  // to theta's columns at the end) and each step's Jacobian of one body. With rigid bodies
+  // in contact the step's VJP carries them (contact/rigid_contact_derivatives.hpp).
+  const bool coupled = model.contact.with_rigid();
+  VecX bar_rigid = VecX::Zero(12 * nr), bar_rigid_p = VecX::Zero(7 * nr);
   rigid::StepJacobian rigid_J;
   rigid::Vec12 rigid_bar_in;
   rigid::Vec7 rigid_bar_p;
@@ -275,6 +303,10 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
     const State& recorded = tape.frames[static_cast<std::size_t>(step)];
     result.recompute_mismatch = std::max({result.recompute_mismatch, (out.x - recorded.x).cwiseAbs().maxCoeff(),
                                           (out.v - recorded.v).cwiseAbs().maxCoeff()});
+    if (coupled)
+      bar.rigid = bar_rigid;
+    else
+      bar.rigid.resize(0);
     if (!integrator::multistep_vjp(derivatives, model, data, out, bar, cot, bar_previous)) return derivative_failed(step);
     result.theta.head(np) += cot.p;
     result.lambda_a.col(step - 1) = cot.lambda_a;
@@ -283,19 +315,25 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
     bar.v = cot.v + pending.v;
     pending.x = bar_previous.x;
     pending.v = bar_previous.v;
-    // The rigid bodies: bar_in = J_state^T bar_out, bar_params += J_params^T bar_out.
-    for (Eigen::Index r = 0; r < nr; ++r) {
+    if (coupled) {
+      bar_rigid = cot.rigid;
+      bar_rigid_p += cot.rigid_p;
+    }
+    // The rigid bodies without contact: bar_in = J_state^T bar_out, bar_params += J_params^T bar_out.
+    for (Eigen::Index r = 0; !coupled && r < nr; ++r) {
       const auto i = static_cast<std::size_t>(r);
       rigid::step_jacobian(model.rigid[i], in.rigid[i], out.rigid[i], data.rigid[i], model.step.dt, model.step.gravity,
-                           Vec3::Zero(), Vec3::Zero(), rigid_J);
+                           Vec3::Zero(), rigid_J);
       rigid::step_vjp(rigid_J, bar_rigid.segment<12>(12 * r), rigid_bar_in, rigid_bar_p);
       bar_rigid.segment<12>(12 * r) = rigid_bar_in;
-      for (std::size_t j = 0; j < theta.rigid_parameters.size(); ++j)
-        if (theta.rigid_parameters[j].body == r)
-          result.theta[rp0 + static_cast<Eigen::Index>(j)] += rigid_bar_p[theta.rigid_parameters[j].index];
+      bar_rigid_p.segment<7>(7 * r) += rigid_bar_p;
     }
     if (loss) loss(step - 1, in, bar.x, bar.v);
     if (rigid_loss && nr) rigid_loss(step - 1, in, bar_rigid);
+  }
+  for (std::size_t j = 0; j < theta.rigid_parameters.size(); ++j) {
+    const auto& p = theta.rigid_parameters[j];
+    result.theta[rp0 + static_cast<Eigen::Index>(j)] = bar_rigid_p[7 * p.body + p.index];
   }
   result.x0 = bar.x;
   result.v0 = bar.v;

@@ -13,9 +13,13 @@
 //   5. rigid parameters (rigid_parameters: mass, inertia components of a rigid body).
 // With rigid bodies, the sensitivities' rows are 3n soft coordinates, then 6 per rigid
 // body (dx: position, rotation vector; dv: velocity, angular velocity): output.md's
-// /jacobians rows. The rigid rows are propagated by each body's 12 x 12 step Jacobian
-// (rigid/rigid_derivatives.hpp), decoupled from the soft bodies while no contact
-// couples them; the adjoint maps their cotangents back by the transposes.
+// /jacobians rows. Without contact the rigid rows are propagated by each body's 12 x 12
+// step Jacobian (rigid/rigid_derivatives.hpp), decoupled from the soft bodies; the
+// adjoint maps their cotangents back by the transposes. With rigid bodies in contact
+// (model.contact.with_rigid()) every column goes through the step's JVP with its rigid
+// rows (StepTangent::rigid, rigid_p; contact/rigid_contact_derivatives.hpp), and the
+// adjoint's VJP returns their cotangents. The rigid parameters' cotangents are summed
+// per body over the steps and scattered to theta's columns at the end.
 // Per-step actuation values (the whole sequence lambda_a(t_1..t_T)) are inputs of the
 // reverse mode (adjoint()), which returns their gradient step by step.
 //

@@ -149,7 +149,13 @@ bool StepDerivatives::parameter_column(const Model& model, const Data& data, con
 
 bool StepDerivatives::prepare_contact(const Model& model, const Data& data, const State& in, const State& out,
                                       LinearSolver& solver) {
-  if (contact_v_.size() == out.v.size() && contact_v_ == out.v) return true;
+  // The cache key: v_f, and with rigid bodies their corrected velocities too (a scene whose
+  // soft nodes are all fixed has the same v_f = 0 at every step).
+  const bool with_rigid = model.contact.with_rigid();
+  const Eigen::Index key_size = out.v.size() + (with_rigid ? data.contact.rigid.u.size() : 0);
+  if (contact_v_.size() == key_size && contact_v_.head(out.v.size()) == out.v &&
+      (!with_rigid || contact_v_.tail(data.contact.rigid.u.size()) == data.contact.rigid.u))
+    return true;
   // Newton (docs/method.md "Newton iterations with contact"): the record's G is that of
   // the last Newton factorization, one iterate before the converged v_f; the implicit
   // function theorem at v_f needs G with the converged tangent A_f (`solver`, this
@@ -159,10 +165,14 @@ bool StepDerivatives::prepare_contact(const Model& model, const Data& data, cons
   // product that fails) is the derivative's failure, reported by the caller with its step
   // (diff/trajectory.cpp), not a programming error.
   contact_v_.resize(0);
-  if (!contact_.prepare(model, data.contact, in.x, solver, step_size(model, data), !is_newton(model), nullptr,
-                        nullptr, A))
+  // With rigid bodies the geometry is that of the extended positions (soft nodes, then the
+  // rigid pseudo-nodes posed at the start of the step) that detection used.
+  const VecX& x = model.contact.with_rigid() ? data.contact.rigid.x : in.x;
+  if (!contact_.prepare(model, data.contact, x, solver, step_size(model, data), !is_newton(model), nullptr, nullptr, A))
     return false;
-  contact_v_ = out.v;
+  contact_v_.resize(key_size);
+  contact_v_.head(out.v.size()) = out.v;
+  if (with_rigid) contact_v_.tail(data.contact.rigid.u.size()) = data.contact.rigid.u;
   return true;
 }
 
@@ -199,6 +209,19 @@ LinearSolver* StepDerivatives::system(const Model& model, const Data& data, cons
   newton_v_ = out.v;
   newton_h_ = h;
   return newton_solver_.get();
+}
+
+bool StepDerivatives::prepare_rigid(const Model& model, const Data& data, const State& out, double h,
+                                    const VecX& rigid, const VecX& rigid_p) {
+  if (!model.contact.with_rigid()) return false;
+  const auto R = static_cast<Eigen::Index>(model.rigid.size());
+  SOFTDIFF_DEMAND(!is_newton(model) && data.history_weight == 0,
+                  "step derivatives: rigid bodies in contact are differentiated for implicit_euler with "
+                  "newton_iterations 1 only (the step supports nothing else)");
+  demand_size(rigid, 12 * R, "rigid tangent");
+  demand_size(rigid_p, 7 * R, "rigid parameter tangent");
+  rigid_.prepare(model, data, out.rigid, h);
+  return true;
 }
 
 bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in, const State& out,
@@ -255,9 +278,22 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
     r_ += d.p[j] * q_;
   }
   const bool contact = model.contact.enabled && !data.contact.contacts.empty();
+  const bool with_rigid = prepare_rigid(model, data, out, h, d.rigid, d.rigid_p);
+  const auto& cd = data.contact;
   if (contact) {
     if (!prepare_contact(model, data, in, out, *solver)) return false;
-    if (d.x.size()) add_contact_force_jvp(model, data, dx, r_);  // h dH^T lambda
+    if (with_rigid) {
+      // h dH^T lambda on the extended positions: the soft nodes' share joins r, the
+      // pseudo-nodes' moves the rigid impulses (impulse_jvp).
+      ext_dx_.resize(cd.rigid.x.size());
+      ext_dx_.head(n) = dx;
+      rigid_.pseudo_position_jvp(model, d.rigid, ext_dx_);
+      ext_r_.setZero(cd.rigid.x.size());
+      contact_.add_force_jvp(cd, h, ext_dx_, ext_r_);
+      r_ += ext_r_.head(n);
+    } else if (d.x.size()) {
+      add_contact_force_jvp(model, data, dx, r_);  // h dH^T lambda
+    }
   }
   project(model, r_);
   if (!solver->solve(r_, y_)) return false;
@@ -267,7 +303,16 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
   if (contact) {
     // dv_f at fixed lambda is d_out.v; sigma moves by b; the forces by dlambda (the
     // implicit function theorem, modes fixed); then h A^{-1} H^T dlambda.
-    contact_sigma_jvp(model, data, out, dx, d_out.v, b_);
+    if (with_rigid) {
+      // b = H_s dv0 + the geometry terms on the extended velocities + the rigid rows'.
+      b_.noalias() = cd.Ht.transpose() * d_out.v;
+      rigid_.extended_velocities(model, cd, out.v, ext_u_);
+      contact_.add_sigma_jvp(cd, ext_u_, h, ext_dx_, b_);
+      rigid_.impulse_jvp(model, d.rigid, d.rigid_p, ext_r_, du0_);
+      rigid_.add_sigma_jvp(model, cd, du0_, d.rigid, b_);
+    } else {
+      contact_sigma_jvp(model, data, out, dx, d_out.v, b_);
+    }
     // Friction parameters: dmu_i = dp_j for the contacts of pair rule j.
     VecX dmu;
     contact::ContactStageDerivative::friction_tangent(model, data.contact, parameters_, d.p, dmu);
@@ -278,8 +323,12 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
     project(model, y_);
     d_out.v += y_;
   }
+  if (with_rigid)
+    rigid_.out_jvp(model, cd, d.rigid, d.rigid_p, du0_, dlambda_, d_out.rigid);
+  else
+    d_out.rigid.resize(0);
   d_out.x = dx + h * d_out.v;
-  return d_out.x.allFinite() && d_out.v.allFinite();
+  return d_out.x.allFinite() && d_out.v.allFinite() && d_out.rigid.allFinite();
 }
 
 bool StepDerivatives::actuation_jvps(const Model& model, const Data& data, const State& in, const State& out,
@@ -338,13 +387,19 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
   if (!solver->solve(tmp_, y_)) return false;
   project(model, y_);
   VecX* v_direct = &tmp_;  // the cotangent of dv_f's direct dependence on dv_i
+  const bool with_rigid = prepare_rigid(model, data, out, h, bar_out.rigid, VecX());
+  const auto& cd = data.contact;
+  if (with_rigid && !(model.contact.enabled && !cd.contacts.empty()))
+    rigid_.out_vjp(model, cd, bar_out.rigid, bar_in.rigid, bar_in.rigid_p, bar_du0_, bar_lambda_);
   if (model.contact.enabled && !data.contact.contacts.empty()) {
     // Contact: lambda's cotangent h H A^{-1} v~, the NCP derivative's transpose gives
     // bar_b; b = H dv0 + ... adds z = H^T bar_b to dv0's cotangent, so the right-hand
     // side's cotangent is y + A^{-1} z.
     if (!prepare_contact(model, data, in, out, *solver)) return false;
     bar_lambda_.noalias() = h * (data.contact.Ht.transpose() * y_);
+    if (with_rigid) rigid_.out_vjp(model, cd, bar_out.rigid, bar_in.rigid, bar_in.rigid_p, bar_du0_, bar_lambda_);
     contact_.ncp().vjp(bar_lambda_, bar_b_, bar_mu_);
+    if (with_rigid) rigid_.add_sigma_vjp(model, cd, bar_b_, bar_du0_, bar_in.rigid);
     tmp2_.noalias() = data.contact.Ht * bar_b_;
     project(model, tmp2_);
     if (!solver->solve(tmp2_, y2_)) return false;
@@ -373,8 +428,25 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
                                         minus_k_coef_, bar_in.x, work_) >= 0) {
     return false;
   }
-  if (model.contact.enabled && !data.contact.contacts.empty())
-    add_contact_geometry_vjp(model, data, out, y_, bar_b_, bar_in.x);
+  if (model.contact.enabled && !data.contact.contacts.empty()) {
+    if (with_rigid) {
+      // The extended cotangents: y on the soft nodes, the impulses' on the pseudo-nodes.
+      ext_y_.resize(cd.rigid.x.size());
+      ext_y_.head(n) = y_;
+      rigid_.impulse_vjp(model, bar_du0_, bar_in.rigid, bar_in.rigid_p, ext_y_);
+      rigid_.extended_velocities(model, cd, out.v, ext_u_);
+      ext_bar_x_.setZero(cd.rigid.x.size());
+      contact_.add_geometry_vjp(cd, ext_u_, h, ext_y_, bar_b_, ext_bar_x_);
+      bar_in.x += ext_bar_x_.head(n);
+      rigid_.add_pseudo_position_vjp(model, ext_bar_x_, bar_in.rigid);
+    } else {
+      add_contact_geometry_vjp(model, data, out, y_, bar_b_, bar_in.x);
+    }
+  }
+  if (!with_rigid) {
+    bar_in.rigid.resize(0);
+    bar_in.rigid_p.resize(0);
+  }
   bar_in.lambda_a = VecX::Zero(na);
   if (na > 0) {
     model.actuation.add_force_derivatives_transpose(in.x, data.lambda_a, y_, h, bar_in.x);
@@ -388,7 +460,8 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
     if (!parameter_column(model, data, in, out, j, q_)) return false;
     bar_in.p[j] = y_.dot(q_);
   }
-  return bar_in.x.allFinite() && bar_in.v.allFinite() && bar_in.lambda_a.allFinite() && bar_in.p.allFinite();
+  return bar_in.x.allFinite() && bar_in.v.allFinite() && bar_in.lambda_a.allFinite() && bar_in.p.allFinite() &&
+         bar_in.rigid.allFinite() && bar_in.rigid_p.allFinite();
 }
 
 }  // namespace softdiff::integrator

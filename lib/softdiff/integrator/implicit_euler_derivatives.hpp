@@ -51,12 +51,21 @@
 // sigma = H_c v_f + phi / h; H_c and phi at x_i): A_f in place of A, and the mode-fixed
 // system on G_f = h H_c A_f^{-1} H_c^T (docs/method.md "Newton iterations with contact").
 //
+// Rigid bodies in contact (model.contact.with_rigid(); docs/method.md "Through contact
+// with rigid bodies"): the tangents carry each rigid body's input state and parameters
+// (StepTangent::rigid, rigid_p) and the output's rigid states (StateTangent::rigid); the
+// geometry terms run on the extended positions (soft nodes, then the rigid pseudo-nodes),
+// the NCP derivative on the record's G with the rigid blocks, and the rigid bodies' own
+// maps are contact/rigid_contact_derivatives.hpp's. Implicit Euler with one Newton
+// iteration only (the step supports nothing else with rigid contact).
+//
 // Not covered yet (SOFTDIFF_DEMAND with a message): the static integrator (see
 // static_solver_derivatives.hpp), newton_iterations > 1 with psd_projection, friction
 // as a parameter.
 #include <softdiff/collision/contact_derivatives.hpp>
 #include <softdiff/contact/contact_step_derivatives.hpp>
 #include <softdiff/contact/ncp_derivatives.hpp>
+#include <softdiff/contact/rigid_contact_derivatives.hpp>
 #include <softdiff/core/parameters.hpp>
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
@@ -71,16 +80,22 @@ struct StepTangent {
   VecX x, v;       // (3n)
   VecX lambda_a;   // (n_a) actuation values of the step (at t_i + h)
   VecX p;          // (parameters().size())
+  // Rigid bodies in contact (model.contact.with_rigid(); empty: zero): 12 per body, the
+  // tangent of its input state (rigid_derivatives.hpp: dp, dtheta, dv, domega), and 7 per
+  // body, of its mass and inertia components.
+  VecX rigid, rigid_p;
 };
 
 // A tangent or cotangent of a state.
 struct StateTangent {
   VecX x, v;       // (3n); empty: zero
+  VecX rigid;      // (12 per rigid body) with rigid bodies in contact; empty: zero
 };
 
 // Cotangents of the step's inputs (all sized by vjp()).
 struct StepCotangent {
   VecX x, v, lambda_a, p;
+  VecX rigid, rigid_p;  // (12, 7 per rigid body) with rigid bodies in contact
 };
 
 class StepDerivatives {
@@ -141,6 +156,10 @@ class StepDerivatives {
   // (system(): A, or A_f with Newton), whose G the mode-fixed NCP derivative takes.
   // Returns false if a solve failed (jvp and vjp then return false).
   bool prepare_contact(const Model& model, const Data& data, const State& in, const State& out, LinearSolver& solver);
+  // Rigid bodies in contact: checks the rigid tangent's sizes and prepares rigid_ from the
+  // step's record; false (nothing to do) without them.
+  bool prepare_rigid(const Model& model, const Data& data, const State& out, double h, const VecX& rigid,
+                     const VecX& rigid_p);
   // r += h sum_i dH_i[dx]^T lambda_i
   void add_contact_force_jvp(const Model& model, const Data& data, const VecX& dx, VecX& r) const;
   // b = dH[dx] v_f + H dv0 + (0, 0, dgap / h): the change of sigma at fixed lambda.
@@ -151,7 +170,11 @@ class StepDerivatives {
                                 const VecX& bar_b, VecX& bar_x) const;
 
   contact::ContactStageDerivative contact_;  // geometry and NCP derivatives (contact/contact_step_derivatives.hpp)
-  VecX contact_v_;                   // the v_f the contact derivatives were prepared for
+  // Rigid bodies in contact (model.contact.with_rigid()): their maps, and the extended
+  // (soft then pseudo-node) vectors of the geometry terms.
+  contact::RigidContactDerivative rigid_;
+  VecX ext_dx_, ext_r_, ext_u_, ext_y_, ext_bar_x_, du0_, bar_du0_;
+  VecX contact_v_;                   // the v_f (and rigid u) the contact derivatives were prepared for
   VecX b_, dlambda_, bar_lambda_, bar_b_, bar_mu_, y2_;
   SparseMatrix newton_A_;            // Newton: dR/dv at x_f (the pattern's structure)
   std::unique_ptr<LinearSolver> newton_solver_;

@@ -16,14 +16,15 @@ constexpr int P = 0, TH = 3, V = 6, W = 9;  // blocks of a 12-tangent
 
 // The inertia component `k` (0..5: xx, yy, zz, xy, xz, yz) as a unit symmetric matrix.
 constexpr int kRow[6] = {0, 1, 2, 0, 0, 1}, kCol[6] = {0, 1, 2, 1, 2, 2};
+
+}  // namespace
+
 Mat3 inertia_unit(int k) {
   Mat3 S = Mat3::Zero();
   S(kRow[k], kCol[k]) = 1;
   S(kCol[k], kRow[k]) = 1;
   return S;
 }
-
-}  // namespace
 
 std::string rigid_parameter_name(int index) {
   static const char* names[kRigidParameters] = {"mass",       "inertia.xx", "inertia.yy", "inertia.zz",
@@ -56,8 +57,7 @@ void set_parameter(RigidBody& body, int index, double value) {
 }
 
 void step_jacobian(const RigidBody& body, const RigidState& in, const RigidState& out, const StepInfo& info, double h,
-                   const Vec3& gravity, const Vec3& force, const Vec3& torque, StepJacobian& J) {
-  (void)torque;  // a constant of the step: it enters only through the solution out
+                   const Vec3& gravity, const Vec3& force, StepJacobian& J) {
   J.state.setZero();
   J.params.setZero();
   const Mat3 I3 = Mat3::Identity();

@@ -52,9 +52,15 @@ struct StepJacobian {
 };
 
 // The Jacobian of step(body, in, h, gravity, force, torque, out) that returned info.
-// (force, torque are held fixed: they are not inputs of the derivative.)
+// (force and torque are held fixed: they are not inputs of the derivative. The torque
+// enters the step only through its solution out: the angular residual's constant and
+// the hinge's Q0, neither of which the Jacobians depend on; so it is not an argument.)
 void step_jacobian(const RigidBody& body, const RigidState& in, const RigidState& out, const StepInfo& info, double h,
-                   const Vec3& gravity, const Vec3& force, const Vec3& torque, StepJacobian& J);
+                   const Vec3& gravity, const Vec3& force, StepJacobian& J);
+
+// The inertia component k (0..5: xx, yy, zz, xy, xz, yz; parameter index k + 1) as a unit
+// symmetric matrix: dI / d(component k).
+Mat3 inertia_unit(int k);
 
 // d out = J.state d_in + J.params d_params.
 Vec12 step_jvp(const StepJacobian& J, const Vec12& d_in, const Vec7& d_params);

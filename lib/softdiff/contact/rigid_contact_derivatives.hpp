@@ -1,0 +1,98 @@
+#pragma once
+// Derivatives of the contact stage with rigid bodies (issue 21; sibling of
+// rigid_contact.hpp; docs/method.md "Derivatives", "Through contact with rigid bodies").
+// The step with rigid bodies in contact (implicit Euler, one Newton iteration, dense
+// backend) is
+//   1. the rigid free step s_r -> s_r^free (rigid::step; its Jacobian J_f from
+//      rigid_derivatives.hpp), u_free,r its velocities (joints: cdot_free T(s_r));
+//   2. detection at the extended positions X = (x, x_k = p_r + R_r X_k);
+//   3. the one NCP on G = h H_s A^{-1} H_s^T + h sum_r H_r W_r H_r^T, with H_r's rows
+//      sum_k w_k C^T [I, -[rho_k]], rho_k = R_r X_k (the pose at the start of the step) and
+//      W_r = T a^{-1} T^T, a = T^T diag(m I, R_f I R_f^T) T (R_f: the free orientation);
+//   4. u_r = u_free,r + W_r P_r, P_r = h H_r^T lambda; the end pose from (s_r, u_r):
+//      free p + h v, exp(h omega) q; hinge exp(delta n) about the anchor, delta = h n.omega;
+//      slider p + h (n.v) n.
+// Its derivative, the implicit derivative by contact mode as for the soft bodies, has per
+// rigid body the linear maps built here from the step's record, with z_r = (d in_r (12),
+// d params_r (7)) (rigid_derivatives.hpp's tangent and parameters):
+//   - pseudo-node positions: dx_k = dp_r + dtheta_r x rho_k (feeds the detection's
+//     geometry derivative, collision/contact_derivatives.hpp, on the extended positions);
+//   - the impulse at fixed lambda: dP_r = sum_k [df_k; rho_k x df_k] + Q_r dtheta_r, df_k
+//     the geometry's change of the force on pseudo-node k, Q_r = [0; sum_k [F_k][rho_k]]
+//     (the lever arm's rotation), F_k = h sum_i w_k C_i lambda_i;
+//   - du0_r = K0_r z_r + W_r dP_r: K0 = d u_free + dW[.] P_r (the free step's Jacobian
+//     chained with u_free's and W_r's dependence on q_free, mass, inertia and, for a
+//     hinge, T's on the position);
+//   - sigma at fixed lambda: b_i += sum_k w_k C_i^T (du0_v + du0_omega x rho_k + omega x
+//     (dtheta x rho_k));
+//   - after the NCP's dlambda: du_r = du0_r + h W_r H_r^T dlambda, and the end pose
+//     d out_r = E_in z_r + E_u du_r.
+// Without contacts in the step the rigid bodies end at their free step: d out = J_f z.
+// A fixed body's pose is carried over (J_f). All maps are fixed-size per body: no
+// allocation per contact after the first step of a size.
+#include <softdiff/data.hpp>
+#include <softdiff/model.hpp>
+#include <softdiff/rigid/rigid_derivatives.hpp>
+
+#include <vector>
+
+namespace softdiff::contact {
+
+using Mat12x19 = Eigen::Matrix<double, 12, 19>;
+using Mat6x19 = Eigen::Matrix<double, 6, 19>;
+
+class RigidContactDerivative {
+ public:
+  // From the step's record (data.contact.rigid: in, free, u, W, Ht; data.rigid: the free
+  // steps' StepInfo; data.contact: contacts, lambda) and the step's rigid end states.
+  void prepare(const Model& model, const Data& data, const std::vector<rigid::RigidState>& out, double h);
+  bool with_contacts() const { return contacts_; }
+
+  // Tangents. z: 12 R (the rigid input states), zp: 7 R (mass, inertia per body); empty: zero.
+  // dX: the extended positions' tangent; its pseudo-node part is set from z.
+  void pseudo_position_jvp(const Model& model, const VecX& z, VecX& dX) const;
+  // du0 (6R) from z, zp and r (the extended force change of add_force_jvp: its pseudo part).
+  void impulse_jvp(const Model& model, const VecX& z, const VecX& zp, const VecX& r, VecX& du0) const;
+  // b += the rigid rows' sigma change (du0 and the lever arm's rotation).
+  void add_sigma_jvp(const Model& model, const ContactData& cd, const VecX& du0, const VecX& z, VecX& b) const;
+  // The end states' tangent (12R) from z, zp, du0 and dlambda (with contacts), or J_f z.
+  void out_jvp(const Model& model, const ContactData& cd, const VecX& z, const VecX& zp, const VecX& du0,
+               const VecX& dlambda, VecX& d_out) const;
+
+  // Cotangents, the transposes in reverse order. bar_out: 12R. Sets bar_z (12R), bar_zp
+  // (7R) and bar_du0 (6R); bar_lambda += the rigid velocities' share.
+  void out_vjp(const Model& model, const ContactData& cd, const VecX& bar_out, VecX& bar_z, VecX& bar_zp,
+               VecX& bar_du0, VecX& bar_lambda) const;
+  // bar_du0, bar_z += the transpose of add_sigma_jvp for bar_b.
+  void add_sigma_vjp(const Model& model, const ContactData& cd, const VecX& bar_b, VecX& bar_du0, VecX& bar_z) const;
+  // bar_z, bar_zp += K0^T bar_du0, Q^T bar_dP; y's pseudo part = bar_df (the cotangent of
+  // add_force_jvp's output on the pseudo-nodes).
+  void impulse_vjp(const Model& model, const VecX& bar_du0, VecX& bar_z, VecX& bar_zp, VecX& y) const;
+  // bar_z += the transpose of pseudo_position_jvp for bar_X's pseudo part.
+  void add_pseudo_position_vjp(const Model& model, const VecX& bar_X, VecX& bar_z) const;
+
+  // The extended velocities (soft v, then each pseudo-node's v_r + omega_r x rho_k with
+  // the corrected u_r) for the geometry terms of sigma.
+  void extended_velocities(const Model& model, const ContactData& cd, const VecX& v, VecX& U) const;
+
+ private:
+  struct Body {
+    Mat12x19 Jf = Mat12x19::Zero();            // the free step [J.state J.params]
+    Mat6x19 K0 = Mat6x19::Zero();              // du_free + dW[.] P at fixed impulse
+    Eigen::Matrix<double, 6, 3> Q = Eigen::Matrix<double, 6, 3>::Zero();  // dP / dtheta (lever arm)
+    rigid::Mat6 W = rigid::Mat6::Zero();
+    rigid::Mat12 E_in = rigid::Mat12::Zero();  // d out / d in at fixed u
+    Eigen::Matrix<double, 12, 6> E_u = Eigen::Matrix<double, 12, 6>::Zero();  // d out / d u
+    Vec3 omega = Vec3::Zero();                 // the corrected angular velocity (u_r)
+    bool dofs = false;
+  };
+  int body_of(const Model& model, int node) const;
+
+  std::vector<Body> bodies_;
+  VecX rho_;   // (3 pseudo) x_k - p_r of each pseudo-node at the start of the step
+  VecX F_;     // (3 pseudo) the contact force on each pseudo-node, h sum_i w_k C_i lambda_i
+  bool contacts_ = false;
+  double h_ = 0;
+};
+
+}  // namespace softdiff::contact

@@ -1,0 +1,423 @@
+// Derivatives of the step through contact with rigid bodies (issue 21;
+// contact/rigid_contact_derivatives.hpp, integrator/implicit_euler_derivatives.cpp) against
+// central finite differences of integrator::time_step itself: a random direction in every
+// input at once (soft x, v; each rigid body's 12-tangent; its mass and inertia), the
+// outputs compared in the tangent space of the unperturbed output (rigid::tangent_between);
+// and the dot-product test of the JVP against the VJP. Scenes: a rigid box sliding on a
+// plane obstacle, a block sticking on an incline, a rigid cube on a soft slab (soft-rigid
+// contact: vertex-face pairs both ways), a hinged bar resting on a support and a block on
+// a slider. Then a trajectory (12 steps): forward sensitivities and the adjoint against
+// whole-run central differences.
+#include <softdiff/data.hpp>
+#include <softdiff/diff/trajectory.hpp>
+#include <softdiff/integrator/bdf2.hpp>
+#include <softdiff/integrator/implicit_euler_derivatives.hpp>
+#include <softdiff/rigid/rigid_derivatives.hpp>
+#include <support/meshes.hpp>
+#include <support/rigid_contact.hpp>
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <iostream>
+#include <random>
+
+using namespace softdiff;
+
+namespace rigid_contact_derivatives_test {
+
+constexpr double g0 = 9.81;
+
+// A soft anchor far away with every node fixed (build_model needs a soft body); it takes
+// part in no contact pair.
+Model anchored(double h) {
+  test::BodySpec spec;
+  spec.fixed = [](const Vec3&) { return true; };
+  mesh::TetMesh m = test::box_mesh(1, 1, 1, 0.01, 0.01, 0.01);
+  for (Eigen::Index i = 0; i < m.X.cols(); ++i) m.X.col(i) += Vec3(5, 5, 5);
+  return test::make_model(m, spec, Vec3(0, 0, -g0), h);
+}
+
+// Tight NCP: the polish then solves the mode equations to round-off, so that the finite
+// differences see the exact solution of each perturbed problem.
+contact::NcpOptions tight() {
+  contact::NcpOptions o;
+  o.tolerance = 1e-12;
+  o.max_iterations = 5000;
+  return o;
+}
+
+// Runs `steps` steps from model.initial (asserting each) and returns the last state.
+State warm_up(const Model& model, long steps) {
+  Data data(model);
+  State a = model.initial, b;
+  for (long k = 1; k <= steps; ++k) {
+    const StepStatus st = integrator::time_step(model, data, a, nullptr, b, k);
+    EXPECT_TRUE(st.ok()) << describe(model, st);
+    std::swap(a, b);
+  }
+  return a;
+}
+
+// One step from `in` with a fresh workspace (no warm start: every run solves the same way).
+State step_from(const Model& model, const State& in, std::unique_ptr<Data>& data) {
+  data = std::make_unique<Data>(model);
+  State out;
+  const StepStatus st = integrator::time_step(model, *data, in, nullptr, out, 1);
+  EXPECT_TRUE(st.ok()) << describe(model, st);
+  return out;
+}
+
+struct Direction {
+  VecX x, v, rigid, rigid_p;
+};
+
+Direction random_direction(const Model& model, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> N;
+  const Eigen::Index n3 = 3L * model.fem.num_nodes, R = static_cast<Eigen::Index>(model.rigid.size());
+  Direction d;
+  d.x = VecX::NullaryExpr(n3, [&] { return N(rng); });
+  d.v = VecX::NullaryExpr(n3, [&] { return N(rng); });
+  d.rigid = VecX::NullaryExpr(12 * R, [&] { return N(rng); });
+  d.rigid_p.resize(7 * R);
+  for (Eigen::Index r = 0; r < R; ++r) {
+    // Parameters on their own scale: the mass times 1, each inertia component times the
+    // trace / 3 (so that a step e keeps the inertia positive definite).
+    const auto& b = model.rigid[static_cast<std::size_t>(r)];
+    d.rigid_p[7 * r] = b.mass * N(rng);
+    for (int k = 1; k < 7; ++k) d.rigid_p[7 * r + k] = b.inertia.trace() / 3 * N(rng);
+  }
+  return d;
+}
+
+// The state and model moved along d by e.
+State moved(const Model& model, const State& in, const Direction& d, double e, Model& m) {
+  m = model;
+  State s = in;
+  s.x += e * d.x;
+  s.v += e * d.v;
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+    const auto ri = static_cast<Eigen::Index>(r);
+    s.rigid[r] = rigid::retract(in.rigid[r], d.rigid.segment<12>(12 * ri), e);
+    for (int k = 0; k < 7; ++k)
+      rigid::set_parameter(m.rigid[r], k, rigid::get_parameter(model.rigid[r], k) + e * d.rigid_p[7 * ri + k]);
+  }
+  return s;
+}
+
+// Central differences of the step along a random direction (every input at once) against
+// the JVP, then the dot-product test of the VJP. eps: the step along the direction (its
+// entries are O(1) in m, m/s, rad, and the parameters on their own scale); the tolerance
+// is relative to the largest entry of the finite difference (see each scene).
+void check_step(const Model& model, const State& in, double eps, double tol, unsigned seed = 5) {
+  std::unique_ptr<Data> data;
+  const State out = step_from(model, in, data);
+  const int nc = data->contact.contacts.size();
+  ASSERT_GT(nc, 0);
+  const std::vector<contact::Mode> modes = data->contact.modes;
+  int sliding = 0, sticking = 0;
+  for (auto m : modes) sliding += m == contact::Mode::sliding, sticking += m == contact::Mode::sticking;
+  const Direction d = random_direction(model, seed);
+  integrator::StepDerivatives D(model, {});
+  integrator::StepTangent t;
+  t.x = d.x;
+  t.v = d.v;
+  t.rigid = d.rigid;
+  t.rigid_p = d.rigid_p;
+  integrator::StateTangent jv;
+  ASSERT_TRUE(D.jvp(model, *data, in, out, t, jv));
+  ASSERT_EQ(jv.rigid.size(), 12 * static_cast<Eigen::Index>(model.rigid.size()));
+
+  Model mp, mm;
+  std::unique_ptr<Data> dp, dm;
+  const State sp = step_from(mp, moved(model, in, d, eps, mp), dp);
+  const State sm = step_from(mm, moved(model, in, d, -eps, mm), dm);
+  // The same contacts and modes on both sides: the derivative is that of one smooth piece.
+  ASSERT_EQ(dp->contact.contacts.size(), nc);
+  ASSERT_EQ(dm->contact.contacts.size(), nc);
+  ASSERT_EQ(dp->contact.modes, modes);
+  ASSERT_EQ(dm->contact.modes, modes);
+  VecX fd(jv.x.size() + jv.v.size() + jv.rigid.size()), an(fd.size());
+  fd.head(jv.x.size()) = (sp.x - sm.x) / (2 * eps);
+  fd.segment(jv.x.size(), jv.v.size()) = (sp.v - sm.v) / (2 * eps);
+  for (std::size_t r = 0; r < model.rigid.size(); ++r)
+    fd.segment<12>(jv.x.size() + jv.v.size() + 12 * static_cast<Eigen::Index>(r)) =
+        (rigid::tangent_between(out.rigid[r], sp.rigid[r]) - rigid::tangent_between(out.rigid[r], sm.rigid[r])) /
+        (2 * eps);
+  an << jv.x, jv.v, jv.rigid;
+  const double scale = fd.cwiseAbs().maxCoeff();
+  const double err = (an - fd).cwiseAbs().maxCoeff();
+  std::cout << "contacts " << nc << " (sticking " << sticking << ", sliding " << sliding << "): max |JVP - FD| " << err
+            << " of max |FD| " << scale << "; rigid rows JVP " << jv.rigid.transpose() << "\n";
+  EXPECT_LT(err, tol * scale);
+  // The rigid rows alone (small beside a soft body's): relative to their own scale.
+  const VecX fd_r = fd.tail(jv.rigid.size()), an_r = an.tail(jv.rigid.size());
+  EXPECT_LT((an_r - fd_r).cwiseAbs().maxCoeff(), tol * fd_r.cwiseAbs().maxCoeff());
+
+  // Dot-product test: <bar, J t> = <J^T bar, t> for a random cotangent: exact algebra, to
+  // round-off (1e-10 relative to the products' magnitudes).
+  const Direction b = random_direction(model, seed + 100);
+  integrator::StateTangent bar;
+  bar.x = b.x;
+  bar.v = b.v;
+  bar.rigid = b.rigid;
+  integrator::StepCotangent cot;
+  ASSERT_TRUE(D.vjp(model, *data, in, out, bar, cot));
+  const double lhs = bar.x.dot(jv.x) + bar.v.dot(jv.v) + bar.rigid.dot(jv.rigid);
+  const double rhs = cot.x.dot(t.x) + cot.v.dot(t.v) + cot.rigid.dot(t.rigid) + cot.rigid_p.dot(t.rigid_p);
+  const double mag = std::abs(bar.x.cwiseProduct(jv.x).sum()) + bar.v.cwiseAbs().dot(jv.v.cwiseAbs()) +
+                     bar.rigid.cwiseAbs().dot(jv.rigid.cwiseAbs());
+  EXPECT_NEAR(lhs, rhs, 1e-10 * mag) << "lhs " << lhs << ", rhs " << rhs;
+}
+
+// A tetrahedron (base triangle (0,0,0), (0.1,0,0), (0,0.08,0), apex (0.03,0.03,0.05) m)
+// sliding on its base along a plane at 0.5 m/s with mu = 0.3 and spinning about z: three
+// contacts, all sliding. (Three, not a box's four: four corners on a plane make the
+// normal forces statically indeterminate, rank 3 of 4, and with friction their split,
+// which the solver picks, moves the friction torque; the derivative takes the
+// minimum-norm split, a finite difference the solver's. Three are determinate.)
+rigid::Shape wedge() {
+  rigid::Shape s;
+  s.kind = rigid::Shape::Kind::mesh;
+  s.mesh_vertices.resize(3, 4);
+  s.mesh_vertices << 0, 0.1, 0, 0.03, 0, 0, 0.08, 0.03, 0, 0, 0, 0.05;
+  s.mesh_triangles.resize(3, 4);
+  s.mesh_triangles << 0, 0, 1, 2, 2, 1, 2, 0, 1, 3, 3, 3;
+  return s;
+}
+
+TEST(RigidContactStepDerivatives, WedgeSlidingOnAPlane) {
+  Model model = anchored(1e-3);
+  const rigid::Shape shape = wedge();
+  const rigid::MassProperties mp = rigid::mass_properties(shape, 800);
+  rigid::RigidState s;
+  s.position = Vec3(0, 0, mp.centre.z());
+  s.velocity = Vec3(0.5, 0.1, 0);
+  s.angular_velocity = Vec3(0, 0, 0.8);
+  test::add_rigid_body(model, "wedge", shape, 800, s);
+  test::enable_rigid_contact(model, {test::plane(Vec3::UnitZ(), 0, "floor")}, {{"wedge", "floor", 0.3}}, 1e-3, tight());
+  const State in = warm_up(model, 5);
+  // eps = 1e-6: the outputs are smooth within the piece; truncation eps^2 times their
+  // curvature (the gap term phi / h: ~1 / h^2 = 1e6 relative) is ~1e-6 relative at
+  // worst, round-off ~1e-16 / 1e-6 = 1e-10 of the outputs. tol 1e-5 relative to the
+  // largest difference.
+  check_step(model, in, 1e-6, 1e-5);
+}
+
+// A block on an incline of 20 degrees with mu = 0.6 > tan 20 = 0.36: it sticks (the
+// validation's incline, rigid_contact_validation); all four contacts sticking.
+TEST(RigidContactStepDerivatives, BlockStickingOnAnIncline) {
+  Model model = anchored(1e-3);
+  const double a = 20 * 3.14159265358979 / 180;
+  const Vec3 n(std::sin(a), 0, std::cos(a));
+  rigid::RigidState s;
+  s.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(a, Vec3::UnitY()));
+  s.position = 0.02 * n;
+  test::add_rigid_body(model, "block", test::box_shape(Vec3(0.05, 0.03, 0.02)), 1000, s);
+  test::enable_rigid_contact(model, {test::plane(n, 0, "ramp")}, {{"block", "ramp", 0.6}}, 1e-3, tight());
+  const State in = warm_up(model, 5);
+  check_step(model, in, 1e-6, 1e-5);
+}
+
+// A rigid cube (0.02 m, 500 kg/m^3) on a soft slab (4 x 4 x 1 tets' boxes, 0.06 x 0.06 x
+// 0.01 m, bottom fixed): the slab's top vertices against the cube's bottom triangles and
+// the cube's corners against the slab's top faces (vertex-face both ways), so the
+// geometry derivative runs through the soft nodes and the pseudo-nodes together.
+TEST(RigidContactStepDerivatives, CubeOnASoftSlab) {
+  test::BodySpec spec;
+  spec.young = 5e4;
+  spec.poisson = 0.4;
+  spec.density = 1000;
+  spec.rayleigh_mass = 20;
+  spec.rayleigh_stiffness = 0.01;
+  spec.fixed = [](const Vec3& p) { return p.z() < 1e-9; };
+  const mesh::TetMesh m = test::box_mesh(4, 4, 1, 0.06, 0.06, 0.01);
+  Model model = test::make_model(m, spec, Vec3(0, 0, -g0), 2e-3);
+  rigid::RigidState s;
+  // Between the slab's node lines and turned by 0.1 rad about z, so that every soft vertex
+  // under it and every corner of it lies inside a face, more than the margin (1 mm) from
+  // any edge or diagonal: the feature pairs do not switch under the perturbation.
+  // It lands: 0.3 mm above the slab at 0.3 m/s down, so that in the step differentiated
+  // the contacts are well inside their modes (at rest, many carry no force at zero gap:
+  // degenerate complementarity, where the modes flip under any perturbation).
+  s.position = Vec3(0.0375, 0.0375, 0.01 + 0.01 + 3e-4);
+  s.velocity = Vec3(0.05, 0, -0.3);
+  s.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(0.1, Vec3::UnitZ()));
+  test::add_rigid_body(model, "cube", test::box_shape(Vec3(0.01, 0.01, 0.01)), 500, s);
+  test::enable_rigid_contact(model, {}, {{"body", "cube", 0.5}}, 1e-3, tight());
+  const State in = model.initial;
+  // eps = 5e-9: the soft positions' direction (every node moved, elements deformed) has a
+  // large curvature in this landing step: the difference's error measured 2.5 at eps =
+  // 1e-7 and 0.025 at 1e-8 against outputs of 5.6e3 (eps^2 truncation, 4e-4 and 4e-6
+  // relative), so 1.1e-6 at 5e-9; round-off 1e-16 / 5e-9 = 2e-8 relative. tol 1e-5.
+  check_step(model, in, 5e-9, 1e-5);
+}
+
+// The hinged bar of rigid_contact_validation resting on a support under one of its free
+// corners, and a block on a vertical slider resting on a support under one corner: one
+// contact each (a joint has one dof: two contacts on it would be indeterminate).
+TEST(RigidContactStepDerivatives, HingedBarAndSliderOnSupports) {
+  Model model = anchored(1e-3);
+  rigid::RigidState bar;
+  bar.position = Vec3(0.1, 0, 0.01);
+  test::add_rigid_body(model, "bar", test::box_shape(Vec3(0.1, 0.02, 0.01)), 800, bar, 0.01, rigid::Joint::Kind::hinge);
+  model.rigid[0].joint.anchor = Vec3(0, 0, 0.01);
+  model.rigid[0].joint.axis = Vec3::UnitY();
+  rigid::initialize(model.rigid[0], bar);
+  model.initial.rigid[0] = model.rigid[0].reference;
+  rigid::RigidState block;
+  block.position = Vec3(1, 0, 0.02);
+  test::add_rigid_body(model, "block", test::box_shape(Vec3(0.02, 0.02, 0.02)), 500, block, 0.01,
+                       rigid::Joint::Kind::slider);
+  model.rigid[1].joint.anchor = block.position;
+  model.rigid[1].joint.axis = Vec3::UnitZ();
+  rigid::initialize(model.rigid[1], block);
+  test::enable_rigid_contact(
+      model,
+      {test::box(Vec3(0.2, 0.02, -0.01), Vec3(0.01, 0.005, 0.01), "support"),
+       test::box(Vec3(1.02, 0.02, -0.01), Vec3(0.005, 0.005, 0.01), "post")},
+      {{"bar", "support", 0.0}, {"block", "post", 0.0}}, 1e-3, tight());
+  const State in = warm_up(model, 5);
+  // eps, tol as for the wedge.
+  check_step(model, in, 1e-6, 1e-5);
+}
+
+}  // namespace rigid_contact_derivatives_test
+
+namespace rigid_contact_derivatives_test {
+
+// The state moved along a column of x0 / v0 (soft rows, then 6 per rigid body: position
+// and rotation vector, or velocity and angular velocity) by e.
+State moved_initial(const Model& model, const State& s0, const VecX& dx0, const VecX& dv0, double e) {
+  const Eigen::Index n3 = 3L * model.fem.num_nodes;
+  State s = s0;
+  s.x += e * dx0.head(n3);
+  s.v += e * dv0.head(n3);
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+    const Eigen::Index o = n3 + 6 * static_cast<Eigen::Index>(r);
+    rigid::Vec12 d;
+    d << dx0.segment<6>(o), dv0.segment<6>(o);
+    s.rigid[r] = rigid::retract(s0.rigid[r], d, e);
+  }
+  return s;
+}
+
+State run_steps(const Model& model, const State& s0, long steps) {
+  Data data(model);
+  State a = s0, b;
+  for (long k = 1; k <= steps; ++k) {
+    const StepStatus st = integrator::time_step(model, data, a, nullptr, b, k);
+    EXPECT_TRUE(st.ok()) << describe(model, st);
+    std::swap(a, b);
+  }
+  return a;
+}
+
+// The final state's rows as the sensitivities have them: soft x, then per rigid body
+// (position, rotation vector) as tangents from `base`; likewise v and (v, omega).
+void rows_from(const Model& model, const State& base, const State& s, VecX& x_rows, VecX& v_rows) {
+  const Eigen::Index n3 = 3L * model.fem.num_nodes, R = static_cast<Eigen::Index>(model.rigid.size());
+  x_rows.resize(n3 + 6 * R);
+  v_rows.resize(n3 + 6 * R);
+  x_rows.head(n3) = s.x - base.x;
+  v_rows.head(n3) = s.v - base.v;
+  for (Eigen::Index r = 0; r < R; ++r) {
+    const rigid::Vec12 t = rigid::tangent_between(base.rigid[static_cast<std::size_t>(r)], s.rigid[static_cast<std::size_t>(r)]);
+    x_rows.segment<6>(n3 + 6 * r) = t.head<6>();
+    v_rows.segment<6>(n3 + 6 * r) = t.tail<6>();
+  }
+}
+
+// 12 steps of the wedge sliding and spinning on the plane (three sliding contacts all
+// along): forward sensitivities with respect to one random direction of x0, one of v0
+// (soft and rigid rows), the wedge's mass and its inertia zz, against central differences
+// of whole runs; then the adjoint of a loss on the final state (soft and rigid) against
+// the same sensitivities (exact algebra: 1e-9 relative).
+TEST(RigidContactTrajectoryDerivatives, SensitivitiesAndAdjointOfASlidingWedge) {
+  Model model = anchored(1e-3);
+  const rigid::Shape shape = wedge();
+  const rigid::MassProperties mp = rigid::mass_properties(shape, 800);
+  rigid::RigidState s;
+  s.position = Vec3(0, 0, mp.centre.z());
+  s.velocity = Vec3(0.5, 0.1, 0);
+  s.angular_velocity = Vec3(0, 0, 0.8);
+  test::add_rigid_body(model, "wedge", shape, 800, s);
+  test::enable_rigid_contact(model, {test::plane(Vec3::UnitZ(), 0, "floor")}, {{"wedge", "floor", 0.3}}, 1e-3, tight());
+  model.initial = warm_up(model, 3);
+  const long T = 12;
+  const Eigen::Index n3 = 3L * model.fem.num_nodes, rows = n3 + 6;
+  std::mt19937 rng(3);
+  std::normal_distribution<double> N;
+  diff::ThetaLayout theta;
+  theta.x0 = theta.v0 = true;
+  theta.x0_basis = MatX::NullaryExpr(rows, 1, [&] { return N(rng); });
+  theta.v0_basis = MatX::NullaryExpr(rows, 1, [&] { return N(rng); });
+  theta.rigid_parameters = {{0, 0}, {0, 3}};
+  Data data(model);
+  State final;
+  MatX dx, dv;
+  ASSERT_TRUE(diff::forward_sensitivities(model, data, model.initial, T, theta, final, dx, dv).ok());
+  ASSERT_EQ(dx.cols(), 4);
+  // Central differences of whole runs along the unit-scale directions (the parameters:
+  // times the mass, and the inertia's trace / 3). eps = 1e-6, but 1e-8 for x0: its
+  // direction moves and tilts the 5 cm wedge by O(1) m and rad per unit, and the
+  // difference's error measured 5.3e-3, 5.3e-5, 1.8e-7 at eps = 1e-6, 1e-7, 1e-8 (eps^2
+  // truncation; at 1e-5 a contact changes mode) against entries of 2.2. Round-off
+  // ~1e-16 / eps of the outputs. tol 1e-5 relative to each column's largest entry.
+  const VecX zero = VecX::Zero(rows);
+  for (int c = 0; c < 4; ++c) {
+    const double eps = c == 0 ? 1e-8 : 1e-6;
+    double scale = 1;
+    State sp, sm;
+    if (c < 2) {
+      const VecX d0 = c == 0 ? VecX(theta.x0_basis.col(0)) : zero, e0 = c == 1 ? VecX(theta.v0_basis.col(0)) : zero;
+      sp = run_steps(model, moved_initial(model, model.initial, d0, e0, eps), T);
+      sm = run_steps(model, moved_initial(model, model.initial, d0, e0, -eps), T);
+    } else {
+      const int index = c == 2 ? 0 : 3;
+      scale = c == 2 ? model.rigid[0].mass : model.rigid[0].inertia.trace() / 3;
+      Model mpl = model, mmi = model;
+      rigid::set_parameter(mpl.rigid[0], index, rigid::get_parameter(model.rigid[0], index) + eps * scale);
+      rigid::set_parameter(mmi.rigid[0], index, rigid::get_parameter(model.rigid[0], index) - eps * scale);
+      sp = run_steps(mpl, model.initial, T);
+      sm = run_steps(mmi, model.initial, T);
+    }
+    VecX xp, vp, xm, vm;
+    rows_from(model, final, sp, xp, vp);
+    rows_from(model, final, sm, xm, vm);
+    VecX fd(2 * rows), an(2 * rows);
+    fd << (xp - xm) / (2 * eps), (vp - vm) / (2 * eps);
+    an << dx.col(c) * scale, dv.col(c) * scale;
+    const double err = (an - fd).cwiseAbs().maxCoeff(), mag = fd.cwiseAbs().maxCoeff();
+    std::cout << "column " << c << ": max |sensitivity - FD| " << err << " of " << mag << "\n";
+    EXPECT_LT(err, 1e-5 * mag) << "column " << c;
+  }
+  // The adjoint of l = a . x_T + b . v_T (soft rows) + c . (rigid 12-tangent of the final
+  // state): its theta gradient is a^T dx + b^T dv + the rigid rows'.
+  const VecX a = VecX::NullaryExpr(n3, [&] { return N(rng); }), b = VecX::NullaryExpr(n3, [&] { return N(rng); });
+  const rigid::Vec12 cr = rigid::Vec12::NullaryExpr([&] { return N(rng); });
+  diff::Tape tape;
+  Data data2(model);
+  ASSERT_TRUE(diff::record(model, data2, model.initial, T, tape).ok());
+  diff::AdjointResult result;
+  ASSERT_TRUE(diff::adjoint(
+                  model, data2, tape, theta,
+                  [&](long k, const State&, VecX& bx, VecX& bv) {
+                    if (k == T) bx += a, bv += b;
+                  },
+                  result,
+                  [&](long k, const State&, VecX& br) {
+                    if (k == T) br += cr;
+                  })
+                  .ok());
+  EXPECT_EQ(result.recompute_mismatch, 0.0);
+  VecX expected(4);
+  for (int c = 0; c < 4; ++c)
+    expected[c] = a.dot(dx.col(c).head(n3)) + b.dot(dv.col(c).head(n3)) + cr.head<6>().dot(dx.col(c).tail<6>()) +
+                  cr.tail<6>().dot(dv.col(c).tail<6>());
+  std::cout << "adjoint " << result.theta.transpose() << " against forward " << expected.transpose() << "\n";
+  for (int c = 0; c < 4; ++c) EXPECT_NEAR(result.theta[c], expected[c], 1e-9 * expected.cwiseAbs().maxCoeff());
+}
+
+}  // namespace rigid_contact_derivatives_test
