@@ -262,7 +262,7 @@ TEST(Cli, ShippedScenesRunAsShipped) {
     // 0.1 s; their equilibria are tests/integrator/validation_robots_p2.cpp's.
     const bool p2_robot = stem == "trunk_p2" || stem == "finger_p2";
     // finger_block runs its first 0.4 s (the finger touches the block near 0.15 s and
-    // pushes it ~1.5 mm by then); its whole 1.3 s (3.6 s of run) is Cli.FingerPushesTheBlock's.
+    // pushes it ~2 mm by then); its whole 1.3 s is Cli.FingerPushesTheBlock's.
     // gripper_free runs its first 0.6 s (the object on its pedestal, before the fingers
     // touch it near 0.7 s): after that ~1100 contacts on the dense backend take 13-48 s a
     // step (docs/method.md "Rigid bodies in contact"; issue 21).

@@ -70,7 +70,7 @@ State run(const Model& model, Data& data, long steps) {
   State a = model.initial, b;
   for (long n = 1; n <= steps; ++n) {
     const StepStatus st = integrator::time_step(model, data, a, nullptr, b, n);
-    EXPECT_TRUE(st.ok()) << describe(model, st);
+    EXPECT_TRUE(st.ok()) << describe(model, st) << " (contact solve converged: " << data.contact.result.converged << ", residual " << data.contact.result.residuals.max() << ", " << data.contact.contacts.size() << " contacts)";
     if (!st.ok()) break;
     EXPECT_TRUE(data.contact.result.converged)
         << "step " << n << ": residual " << data.contact.result.residuals.max() << " after " << data.contact.result.iterations
@@ -540,5 +540,6 @@ TEST_F(RigidContactDenseValidation, LimitsCarryContactLoadsExactly) {
   limits_carry_contact_loads(0.0, true);
   limits_carry_contact_loads(0.02, false);
 }
+
 
 }  // namespace rigid_contact_validation
