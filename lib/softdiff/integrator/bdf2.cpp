@@ -30,8 +30,8 @@ StepStatus bdf2_step(const Model& model, Data& data, const State& in, const Stat
   if (model.fem.num_fixed_dofs > 0)
     for (Eigen::Index k = 0; k < in.x.size(); ++k)
       if (model.fem.fixed[static_cast<std::size_t>(k)]) data.hat.x[k] = in.x[k];
-  // Rigidified parts: their extrapolated pose made rigid (integrator/rigidify.hpp).
-  if (!model.rigidify.empty()) rigidify_extrapolated_pose(model, in.x, previous->x, data.hat.x);
+  // Rigidified parts: their extrapolated state made rigid (integrator/rigidify.hpp).
+  if (!model.rigidify.empty()) rigidify_extrapolated_state(model, in, *previous, data.hat);
   const double extrapolation = seconds_since(t0);
   const StepStatus status = backward_euler_stage(model, data, data.hat, out, step_index, lambda_a, data.h, in.t + h);
   data.timings.other += extrapolation;  // the stage resets the timings; the extrapolation counts as "other"

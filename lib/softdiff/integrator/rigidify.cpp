@@ -203,7 +203,8 @@ void project_rigidified_residual(const Model& model, Data& data, VecX& r) {
   }
 }
 
-void rigidify_extrapolated_pose(const Model& model, const VecX& x, const VecX& x_previous, VecX& x_hat) {
+void rigidify_extrapolated_state(const Model& model, const State& in, const State& previous, State& hat) {
+  const VecX &x = in.x, &x_previous = previous.x;
   for (const auto& part : model.rigidify.parts) {
     const Vec3 c = part_centre(model, part, x), c_prev = part_centre(model, part, x_previous);
     Mat3 H = Mat3::Zero();  // sum m a b^T, a at x_{n-1}, b at x_n: b = R a
@@ -217,7 +218,24 @@ void rigidify_extrapolated_pose(const Model& model, const VecX& x, const VecX& x
     const Eigen::AngleAxisd aa(R);
     const Mat3 E = Eigen::AngleAxisd(aa.angle() / 3, aa.axis()).toRotationMatrix();
     const Vec3 c_hat = (4.0 / 3.0) * c - (1.0 / 3.0) * c_prev;
-    for (int i : part.nodes) x_hat.segment<3>(3 * i) = c_hat + E * (x.segment<3>(3 * i) - c);
+    for (int i : part.nodes) hat.x.segment<3>(3 * i) = c_hat + E * (x.segment<3>(3 * i) - c);
+    // The velocity and the angular momentum about the centroid, extrapolated.
+    Vec3 p_n = Vec3::Zero(), p_prev = Vec3::Zero(), L = Vec3::Zero();
+    Mat3 I = Mat3::Zero();
+    double m = 0;
+    for (int i : part.nodes) {
+      const double mi = model.fem.mass_diagonal[3 * i];
+      const Vec3 vn = in.v.segment<3>(3 * i), vp = previous.v.segment<3>(3 * i);
+      const Vec3 rn = x.segment<3>(3 * i) - c, rp = x_previous.segment<3>(3 * i) - c_prev;
+      const Vec3 r = hat.x.segment<3>(3 * i) - c_hat;
+      m += mi;
+      p_n += mi * vn;
+      p_prev += mi * vp;
+      L += mi * ((4.0 / 3.0) * rn.cross(vn) - (1.0 / 3.0) * rp.cross(vp));
+      I += mi * (r.squaredNorm() * Mat3::Identity() - r * r.transpose());
+    }
+    const Vec3 v_hat = ((4.0 / 3.0) * p_n - (1.0 / 3.0) * p_prev) / m, omega_hat = I.ldlt().solve(L);
+    for (int i : part.nodes) hat.v.segment<3>(3 * i) = v_hat + omega_hat.cross(Vec3(hat.x.segment<3>(3 * i) - c_hat));
   }
 }
 

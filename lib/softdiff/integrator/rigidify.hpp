@@ -36,7 +36,7 @@
 // are RigidifiedPart. Newton (newton_iterations > 1): the Galerkin-projected nonlinear
 // equations P^T R(P u) = 0 with T at x_i (the iterates x_i + h P u; the end pose is
 // placed exactly as above). BDF2: the stage from the extrapolated state with the
-// parts' extrapolated pose made rigid (rigidify_extrapolated_pose). Unsupported with
+// parts' extrapolated state made rigid (rigidify_extrapolated_state). Unsupported with
 // parts (the scene reader refuses them, issue 21): contact on the sparse backend,
 // static, factor reuse, derivatives.
 #include <softdiff/core/types.hpp>
@@ -136,14 +136,20 @@ bool rigidified_congruence(const Model& model, Data& data, const SparseMatrix& H
 // rigid velocity field the solve gave), see above.
 void place_rigidified(const Model& model, Data& data, const State& in, State& out, double h);
 
-// BDF2 (integrator/bdf2.cpp): the extrapolated positions x^ = 4/3 x_n - 1/3 x_{n-1}
-// of a rotating part are not a rigid pose (a blend of two rotations shrinks it by
-// O(angle^2)), and the placement would carry that into the part. x_hat's part nodes
-// are replaced by the rigid pose with the same extrapolation of the centroid and of
-// the rotation, x^_i = c^ + exp(1/3 log R) (x_{n,i} - c_n), c^ = 4/3 c_n - 1/3 c_{n-1},
+// BDF2 (integrator/bdf2.cpp): the extrapolated state x^ = 4/3 x_n - 1/3 x_{n-1},
+// v^ = 4/3 v_n - 1/3 v_{n-1} of a rotating part is not a rigid pose and field (a blend
+// of two rotations shrinks it by O(angle^2); the blended nodal velocities hold a
+// different angular momentum at the blended pose). The parts' rows of hat are replaced
+// by the rigid pose and field with the same extrapolation of the centroid, the
+// rotation, the velocity and the angular momentum:
+//     x^_i = c^ + exp(1/3 log R) (x_{n,i} - c_n),   c^ = 4/3 c_n - 1/3 c_{n-1},
+//     v^_i = v_p^ + omega^ x (x^_i - c^),   v_p^ = 4/3 v_p,n - 1/3 v_p,n-1,
+//     omega^ = I^{-1} (4/3 L_n - 1/3 L_{n-1}),
 // R the part's rotation from x_{n-1} to x_n (the polar factor of the mass-weighted
-// cross-covariance, exact for rigid poses).
-void rigidify_extrapolated_pose(const Model& model, const VecX& x, const VecX& x_previous, VecX& x_hat);
+// cross-covariance, exact for rigid poses), L the angular momentum about the centroid
+// (world), I the inertia of the pose x^. A constant torque then gives L_n = n dt tau
+// exactly, as implicit Euler does.
+void rigidify_extrapolated_state(const Model& model, const State& in, const State& previous, State& hat);
 
 // The part's (v_p, omega) from a nodal velocity field at positions x, about centre c:
 // the lumped-mass least-squares fit (exact for a rigid field).
