@@ -222,8 +222,8 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
        "rigid)"},
       {"contact_rigid_self", beam_and_sphere("", plane + "contact: {pairs: [[ball, ball, 0.3]]}\n"),
        "simulate scene.yaml -o out.h5", "a rigid body has no self-contact ('ball')"},
-      {"bdf2", beam_and_sphere(), "simulate scene.yaml -o out.h5 --set simulation.integrator=bdf2",
-       "simulation.integrator: integrator 'bdf2' with rigid bodies is not supported yet (issue 21"},
+      {"bdf2_jacobian", beam_and_sphere(), "simulate scene.yaml -o out.h5 --set simulation.integrator=bdf2 --jacobian x0",
+       "--jacobian: derivatives with bdf2 and rigid bodies are not supported yet (issue 21; rigid body 'ball')"},
       {"static", beam_and_sphere(),
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null",
