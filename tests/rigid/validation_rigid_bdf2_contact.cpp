@@ -48,14 +48,15 @@ contact::NcpOptions tight(contact::NcpBackend backend) {
 }
 
 // BDF2 from model.initial (the first step implicit Euler); asserts every step ok and
-// every contact solve converged.
-State run(const Model& model, Data& data, long steps) {
+// every contact solve converged, on the backend asked for.
+State run(const Model& model, Data& data, long steps, bool sparse) {
   State previous, a = model.initial, b;
   for (long n = 1; n <= steps; ++n) {
     const StepStatus st = integrator::time_step(model, data, a, n == 1 ? nullptr : &previous, b, n);
     EXPECT_TRUE(st.ok()) << describe(model, st);
     if (!st.ok()) break;
     EXPECT_TRUE(data.contact.result.converged) << "step " << n;
+    if (data.contact.contacts.size() > 0) EXPECT_EQ(data.contact.result.sparse, sparse) << "step " << n;
     previous = a;
     std::swap(a, b);
   }
@@ -89,7 +90,7 @@ TEST_P(RigidBdf2Contact, BlockSlidesDownAnInclineAtTheClosedFormAcceleration) {
   test::add_rigid_body(model, "block", test::box_shape(half), 1000, s);
   test::enable_rigid_contact(model, {test::plane(n, 0, "ramp")}, {{"block", "ramp", mu}}, 1e-3, tight(GetParam()));
   Data data(model);
-  const State end = run(model, data, steps);
+  const State end = run(model, data, steps, GetParam() == contact::NcpBackend::sparse);
   const double acc = g0 * (std::sin(a) - mu * std::cos(a)), t = steps * h;
   const auto& e = end.rigid[0];
   const double v = e.velocity.dot(d), travel = (e.position - model.initial.rigid[0].position).dot(d);
@@ -116,7 +117,7 @@ TEST_P(RigidBdf2Contact, BoxRestsFlatOnItsFourCorners) {
   test::add_rigid_body(model, "box", test::box_shape(Vec3(0.05, 0.03, 0.02)), 700, s);
   test::enable_rigid_contact(model, {test::plane(Vec3::UnitZ(), 0)}, {{"box", "floor", 0.5}}, 1e-3, tight(GetParam()));
   Data data(model);
-  const State end = run(model, data, 100);
+  const State end = run(model, data, 100, GetParam() == contact::NcpBackend::sparse);
   const auto& e = end.rigid[0];
   int count = 0;
   const Vec3 f = force_on_rigid(data, 1, &count);
