@@ -14,6 +14,10 @@ namespace {
 
 void demand_differentiable(const std::string& option, const Model& model) {
   demand_no_rigidified_parts(option, model);
+  // BDF2 with rigid bodies steps (rigid/rigid_bdf2.hpp) but is not differentiated yet.
+  if (model.step.integrator == IntegratorKind::bdf2 && !model.rigid.empty())
+    throw InputError(option + ": derivatives with bdf2 and rigid bodies are not supported yet (issue 21; rigid body '" +
+                     model.rigid.front().name + "'): use implicit_euler");
   // Issue 21, item 4: the rigid step is differentiated with and without contact
   // (contact/rigid_contact_derivatives.hpp); a joint limit's rows in the contact solve
   // are not yet.

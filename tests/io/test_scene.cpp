@@ -968,8 +968,18 @@ TEST_F(Scene, RigidBodiesRefuseWhatIsNotSupportedYet) {
   ASSERT_EQ(ok.contact.pairs.size(), 1u);
   EXPECT_EQ(ok.contact.pairs[0].first, "key");
   EXPECT_EQ(load(free_key + "contact: {pairs: [[beam, key, 0.4]]}\n").contact.pairs[0].second, "key");
-  expect_error(rigid_edit("  dt: 0.01\n", "  integrator: bdf2\n  dt: 0.01\n"), ":3:3: simulation.integrator: integrator 'bdf2' with rigid bodies is not supported yet (issue 21; "
-               "bodies[1] is rigid): use implicit_euler");
+  // BDF2 with rigid bodies (rigid/rigid_bdf2.hpp): accepted, with and without contact;
+  // in contact, a joint with limits is refused.
+  EXPECT_EQ(load(rigid_edit("  dt: 0.01\n", "  integrator: bdf2\n  dt: 0.01\n")).simulation.integrator, Integrator::bdf2);
+  EXPECT_EQ(load(edit("  dt: 0.01\n", "  integrator: bdf2\n  dt: 0.01\n", free_key) + "contact: {friction: 0.5}\n")
+                .simulation.integrator,
+            Integrator::bdf2);
+  expect_message(edit("  dt: 0.01\n", "  integrator: bdf2\n  dt: 0.01\n", kRigid) + "contact: {friction: 0.5}\n",
+                 "contact: contact with bdf2 and a rigid body whose joint has limits is not supported yet (issue 21; "
+                 "bodies[1].joint has limits): use implicit_euler");
+  expect_message(rigid_edit("  dt: 0.01\n  steps: 10\n", "  integrator: static\n"),
+                 "simulation.integrator: integrator 'static' with rigid bodies is not supported yet (issue 21; "
+                 "bodies[1] is rigid): use implicit_euler or bdf2");
   EXPECT_NO_THROW(load(kRigid + "contact: {enabled: false}\n"));
   // rigidify (issue 21 item 2): read here, its nodes resolved by build_model.
   const SceneDesc r = load(edit("    material:", "    rigidify: [{group: hub, attach: free}, {box: [0, 0, 0, 1, 1, 1]}]\n    material:"));

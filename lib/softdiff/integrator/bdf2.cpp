@@ -40,20 +40,27 @@ StepStatus bdf2_step(const Model& model, Data& data, const State& in, const Stat
 
 namespace {
 // Rigid bodies in contact (docs/method.md "Rigid bodies in contact"): the rigid free
-// step (rigid::step without contact), then the soft step whose contact stage solves the
-// one NCP on the soft and rigid velocities, then the rigid poses integrated with the
-// corrected velocities. Implicit Euler with one Newton iteration only (the scene reader
+// step (rigid::step without contact; BDF2: rigid::bdf2_step, implicit Euler of size
+// h' = 2 h / 3 from the extrapolated states), then the soft step whose contact stage
+// solves the one NCP on the soft and rigid velocities (with the stage's h: h' for
+// BDF2, as the soft bodies), then the rigid poses integrated with the corrected
+// velocities from the step's start states (the extrapolated ones for BDF2: the BDF2
+// pose update p_{n+1} = p^ + h' v_{n+1}). One Newton iteration only (the scene reader
 // refuses the rest).
-StepStatus time_step_rigid_contact(const Model& model, Data& data, const State& in, State& out, long step_index,
-                                   const VecX* lambda_a) {
-  SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler && model.step.newton_iterations == 1,
-                  "time_step: rigid bodies in contact need implicit_euler with newton_iterations 1");
+StepStatus time_step_rigid_contact(const Model& model, Data& data, const State& in, const State* previous, State& out,
+                                   long step_index, const VecX* lambda_a) {
+  const bool bdf2 = model.step.integrator == IntegratorKind::bdf2;
+  SOFTDIFF_DEMAND((bdf2 || model.step.integrator == IntegratorKind::implicit_euler) &&
+                      model.step.newton_iterations == 1,
+                  "time_step: rigid bodies in contact need implicit_euler or bdf2 with newton_iterations 1");
   const auto t0 = Clock::now();
-  const StepStatus free = step_rigid_bodies(model, data, in, out, step_index);
+  const StepStatus free = step_rigid_bodies(model, data, in, out, step_index, bdf2 ? previous : nullptr);
   if (!free.ok()) return free;
-  contact::begin_rigid_contact(model, data, in.rigid, out.rigid);
+  // data.hat.rigid: the rigid start states of the stage (the soft bdf2_step leaves them).
+  contact::begin_rigid_contact(model, data, data.hat.rigid, out.rigid);
   const double rigid_seconds = seconds_since(t0);
-  const StepStatus soft = implicit_euler_step(model, data, in, out, step_index, lambda_a);  // resets the timings
+  const StepStatus soft = bdf2 ? bdf2_step(model, data, in, previous, out, step_index, lambda_a)
+                               : implicit_euler_step(model, data, in, out, step_index, lambda_a);  // resets the timings
   data.timings.other += rigid_seconds;
   if (!(soft.ok() || soft.code == StepStatus::Code::not_converged)) return soft;
   const StepStatus rigid = contact::end_rigid_contact(model, data, out.rigid, data.h, step_index);
@@ -63,13 +70,14 @@ StepStatus time_step_rigid_contact(const Model& model, Data& data, const State& 
 
 StepStatus time_step(const Model& model, Data& data, const State& in, const State* previous, State& out,
                      long step_index, const VecX* lambda_a) {
-  if (model.contact.with_rigid()) return time_step_rigid_contact(model, data, in, out, step_index, lambda_a);
+  if (model.contact.with_rigid()) return time_step_rigid_contact(model, data, in, previous, out, step_index, lambda_a);
   const StepStatus soft = model.step.integrator == IntegratorKind::bdf2
                               ? bdf2_step(model, data, in, previous, out, step_index, lambda_a)
                               : implicit_euler_step(model, data, in, out, step_index, lambda_a);
   if (model.rigid.empty() || !(soft.ok() || soft.code == StepStatus::Code::not_converged)) return soft;
   // The rigid bodies: independent of the soft ones while there is no contact.
-  const StepStatus rigid = step_rigid_bodies(model, data, in, out, step_index);
+  const StepStatus rigid = step_rigid_bodies(model, data, in, out, step_index,
+                                            model.step.integrator == IntegratorKind::bdf2 ? previous : nullptr);
   return rigid.ok() ? soft : rigid;
 }
 

@@ -1,7 +1,8 @@
 #pragma once
 // The rigid bodies' part of a time step (issue 21, increment 1): each rigid body of
 // the model is its own small implicit system (rigid/rigid_body.hpp: implicit Euler on
-// the velocities, the exponential map on the orientation, joints and limits exact),
+// the velocities, the exponential map on the orientation, joints and limits exact;
+// BDF2: rigid/rigid_bdf2.hpp),
 // stepped with the same h under the scene's gravity and no external wrench.
 // integrator::time_step calls it when the model has rigid bodies (and only then: a
 // scene without them pays nothing): without contact after the soft step (the two are
@@ -15,7 +16,11 @@ namespace softdiff::integrator {
 // Steps every rigid body from in.rigid to out.rigid (resized to match on first use;
 // no allocation afterwards) over model.step.dt; records each body's StepInfo in
 // data.rigid. A non-finite result is a non_finite status naming the body.
-// Implicit Euler only: the scene reader refuses bdf2 and static with rigid bodies.
-StepStatus step_rigid_bodies(const Model& model, Data& data, const State& in, State& out, long step_index);
+// Implicit Euler, or BDF2 (rigid/rigid_bdf2.hpp) with previous the state at t_n - dt
+// (nullptr for the first step: implicit Euler); the step's start states (the
+// extrapolated ones with BDF2, else in.rigid) are left in data.hat.rigid (the contact
+// stage's start). The scene reader refuses static with rigid bodies.
+StepStatus step_rigid_bodies(const Model& model, Data& data, const State& in, State& out, long step_index,
+                             const State* previous = nullptr);
 
 }  // namespace softdiff::integrator
