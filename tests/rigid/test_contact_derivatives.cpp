@@ -47,6 +47,28 @@ contact::NcpOptions tight() {
   return o;
 }
 
+// The contact backends (as in validation_rigid_contact.cpp). dense: G with the rigid
+// part h H_r W_r H_r^T (add_rigid_delassus), the derivative on the record's G. sparse:
+// the NCP on the operator (its small working sets on their dense G_W), the derivative's
+// mode-fixed system on the dense G_AA of these few active contacts, formed by
+// ContactStageDerivative from H_A and the rigid rows Kt (issue 21: the rigid part was
+// missing there). operator: dense_max_contacts = 0 (ADMM on the operator) and the
+// derivative's crossovers derivative_(mixed_)dense_max_active = 0: the mode-fixed system
+// on the operator (PCG when every active contact sticks, GMRES with the reduced
+// preconditioner otherwise), its scale and preconditioner with the rigid rows too.
+enum class Backend { dense, sparse, op };
+std::string backend_name(Backend b) { return b == Backend::dense ? "dense" : b == Backend::sparse ? "sparse" : "operator"; }
+Model on_backend(Model m, Backend b) {
+  auto& o = m.contact.ncp;
+  o.backend = b == Backend::dense ? contact::NcpBackend::dense : contact::NcpBackend::sparse;
+  if (b == Backend::op) {
+    o.dense_max_contacts = 0;
+    o.derivative_dense_max_active = 0;
+    o.derivative_mixed_dense_max_active = 0;
+  }
+  return m;
+}
+
 // Runs `steps` steps from model.initial (asserting each) and returns the last state.
 State warm_up(const Model& model, long steps) {
   Data data(model);
@@ -110,11 +132,15 @@ State moved(const Model& model, const State& in, const Direction& d, double e, M
 // the JVP, then the dot-product test of the VJP. eps: the step along the direction (its
 // entries are O(1) in m, m/s, rad, and the parameters on their own scale); the tolerance
 // is relative to the largest entry of the finite difference (see each scene).
-void check_step(const Model& model, const State& in, double eps, double tol, unsigned seed = 5) {
+// jv_out: the JVP (for the comparison between backends); sparse: whether the step must
+// have taken the sparse contact backend (checked).
+void check_step(const Model& model, const State& in, double eps, double tol, unsigned seed = 5,
+                integrator::StateTangent* jv_out = nullptr) {
   std::unique_ptr<Data> data;
   const State out = step_from(model, in, data);
   const int nc = data->contact.contacts.size();
   ASSERT_GT(nc, 0);
+  EXPECT_EQ(data->contact.result.sparse, model.contact.ncp.backend == contact::NcpBackend::sparse);
   const std::vector<contact::Mode> modes = data->contact.modes;
   int sliding = 0, sticking = 0;
   for (auto m : modes) sliding += m == contact::Mode::sliding, sticking += m == contact::Mode::sticking;
@@ -128,6 +154,7 @@ void check_step(const Model& model, const State& in, double eps, double tol, uns
   integrator::StateTangent jv;
   ASSERT_TRUE(D.jvp(model, *data, in, out, t, jv));
   ASSERT_EQ(jv.rigid.size(), 12 * static_cast<Eigen::Index>(model.rigid.size()));
+  if (jv_out) *jv_out = jv;
 
   Model mp, mm;
   std::unique_ptr<Data> dp, dm;
@@ -187,7 +214,8 @@ rigid::Shape wedge() {
   return s;
 }
 
-TEST(RigidContactStepDerivatives, WedgeSlidingOnAPlane) {
+// The scenes (dense backend; `in`: the state of the step differentiated).
+Model wedge_scene(State& in) {
   Model model = anchored(1e-3);
   const rigid::Shape shape = wedge();
   const rigid::MassProperties mp = rigid::mass_properties(shape, 800);
@@ -197,7 +225,14 @@ TEST(RigidContactStepDerivatives, WedgeSlidingOnAPlane) {
   s.angular_velocity = Vec3(0, 0, 0.8);
   test::add_rigid_body(model, "wedge", shape, 800, s);
   test::enable_rigid_contact(model, {test::plane(Vec3::UnitZ(), 0, "floor")}, {{"wedge", "floor", 0.3}}, 1e-3, tight());
-  const State in = warm_up(model, 5);
+  model.contact.ncp.backend = contact::NcpBackend::dense;
+  in = warm_up(model, 5);
+  return model;
+}
+
+TEST(RigidContactStepDerivatives, WedgeSlidingOnAPlane) {
+  State in;
+  const Model model = wedge_scene(in);
   // eps = 1e-6: the outputs are smooth within the piece; truncation eps^2 times their
   // curvature (the gap term phi / h: ~1 / h^2 = 1e6 relative) is ~1e-6 relative at
   // worst, round-off ~1e-16 / 1e-6 = 1e-10 of the outputs. tol 1e-5 relative to the
@@ -207,7 +242,7 @@ TEST(RigidContactStepDerivatives, WedgeSlidingOnAPlane) {
 
 // A block on an incline of 20 degrees with mu = 0.6 > tan 20 = 0.36: it sticks (the
 // validation's incline, rigid_contact_validation); all four contacts sticking.
-TEST(RigidContactStepDerivatives, BlockStickingOnAnIncline) {
+Model incline_scene(State& in) {
   Model model = anchored(1e-3);
   const double a = 20 * 3.14159265358979 / 180;
   const Vec3 n(std::sin(a), 0, std::cos(a));
@@ -216,7 +251,14 @@ TEST(RigidContactStepDerivatives, BlockStickingOnAnIncline) {
   s.position = 0.02 * n;
   test::add_rigid_body(model, "block", test::box_shape(Vec3(0.05, 0.03, 0.02)), 1000, s);
   test::enable_rigid_contact(model, {test::plane(n, 0, "ramp")}, {{"block", "ramp", 0.6}}, 1e-3, tight());
-  const State in = warm_up(model, 5);
+  model.contact.ncp.backend = contact::NcpBackend::dense;
+  in = warm_up(model, 5);
+  return model;
+}
+
+TEST(RigidContactStepDerivatives, BlockStickingOnAnIncline) {
+  State in;
+  const Model model = incline_scene(in);
   check_step(model, in, 1e-6, 1e-5);
 }
 
@@ -224,7 +266,7 @@ TEST(RigidContactStepDerivatives, BlockStickingOnAnIncline) {
 // 0.01 m, bottom fixed): the slab's top vertices against the cube's bottom triangles and
 // the cube's corners against the slab's top faces (vertex-face both ways), so the
 // geometry derivative runs through the soft nodes and the pseudo-nodes together.
-TEST(RigidContactStepDerivatives, CubeOnASoftSlab) {
+Model cube_scene(State& in) {
   test::BodySpec spec;
   spec.young = 5e4;
   spec.poisson = 0.4;
@@ -246,7 +288,14 @@ TEST(RigidContactStepDerivatives, CubeOnASoftSlab) {
   s.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(0.1, Vec3::UnitZ()));
   test::add_rigid_body(model, "cube", test::box_shape(Vec3(0.01, 0.01, 0.01)), 500, s);
   test::enable_rigid_contact(model, {}, {{"body", "cube", 0.5}}, 1e-3, tight());
-  const State in = model.initial;
+  model.contact.ncp.backend = contact::NcpBackend::dense;
+  in = model.initial;
+  return model;
+}
+
+TEST(RigidContactStepDerivatives, CubeOnASoftSlab) {
+  State in;
+  const Model model = cube_scene(in);
   // eps = 5e-9: the soft positions' direction (every node moved, elements deformed) has a
   // large curvature in this landing step: the difference's error measured 2.5 at eps =
   // 1e-7 and 0.025 at 1e-8 against outputs of 5.6e3 (eps^2 truncation, 4e-4 and 4e-6
@@ -257,7 +306,7 @@ TEST(RigidContactStepDerivatives, CubeOnASoftSlab) {
 // The hinged bar of rigid_contact_validation resting on a support under one of its free
 // corners, and a block on a vertical slider resting on a support under one corner: one
 // contact each (a joint has one dof: two contacts on it would be indeterminate).
-TEST(RigidContactStepDerivatives, HingedBarAndSliderOnSupports) {
+Model hinge_scene(State& in) {
   Model model = anchored(1e-3);
   rigid::RigidState bar;
   bar.position = Vec3(0.1, 0, 0.01);
@@ -278,10 +327,69 @@ TEST(RigidContactStepDerivatives, HingedBarAndSliderOnSupports) {
       {test::box(Vec3(0.2, 0.02, -0.01), Vec3(0.01, 0.005, 0.01), "support"),
        test::box(Vec3(1.02, 0.02, -0.01), Vec3(0.005, 0.005, 0.01), "post")},
       {{"bar", "support", 0.0}, {"block", "post", 0.0}}, 1e-3, tight());
-  const State in = warm_up(model, 5);
+  model.contact.ncp.backend = contact::NcpBackend::dense;
+  in = warm_up(model, 5);
+  return model;
+}
+
+TEST(RigidContactStepDerivatives, HingedBarAndSliderOnSupports) {
+  State in;
+  const Model model = hinge_scene(in);
   // eps, tol as for the wedge.
   check_step(model, in, 1e-6, 1e-5);
 }
+
+// Each scene on the sparse backend and on the operator: the JVP against central
+// differences and the dot-product test (check_step, the dense scenes' eps and tol), and
+// the JVP equal to the dense backend's from the same state. That last tolerance: both
+// steps solve the NCP to 1e-12 relative (tight(); the polish to round-off) and the
+// operator's mode-fixed system to cg_tolerance 1e-12 / GMRES 1e-13 relative, amplified
+// by the mode-fixed system's conditioning (kappa of G_AA over these scenes' masses and
+// lever arms <= 1e3): 1e-8 relative to the largest entry of the dense JVP. Before the
+// fix (issue 21) the sparse JVPs missed h Kt^T Kt: the wedge's rigid rows were off by O(1).
+class RigidContactDerivativesOnBackend : public ::testing::TestWithParam<Backend> {};
+
+void check_backend(const Model& dense, const State& in, Backend b, double eps, double tol) {
+  const Model model = on_backend(dense, b);
+  integrator::StateTangent jv, jd;
+  check_step(model, in, eps, tol, 5, &jv);
+  check_step(dense, in, eps, tol, 5, &jd);
+  ASSERT_EQ(jv.x.size(), jd.x.size());
+  ASSERT_EQ(jv.rigid.size(), jd.rigid.size());
+  VecX a(jv.x.size() + jv.v.size() + jv.rigid.size()), d(a.size());
+  a << jv.x, jv.v, jv.rigid;
+  d << jd.x, jd.v, jd.rigid;
+  const double err = (a - d).cwiseAbs().maxCoeff(), mag = d.cwiseAbs().maxCoeff();
+  std::cout << backend_name(b) << ": max |JVP - dense JVP| " << err << " of " << mag << "\n";
+  EXPECT_LT(err, 1e-8 * mag);
+}
+
+TEST_P(RigidContactDerivativesOnBackend, WedgeSlidingOnAPlane) {
+  State in;
+  const Model dense = wedge_scene(in);
+  check_backend(dense, in, GetParam(), 1e-6, 1e-5);
+}
+
+TEST_P(RigidContactDerivativesOnBackend, BlockStickingOnAnIncline) {
+  State in;
+  const Model dense = incline_scene(in);
+  check_backend(dense, in, GetParam(), 1e-6, 1e-5);
+}
+
+TEST_P(RigidContactDerivativesOnBackend, CubeOnASoftSlab) {
+  State in;
+  const Model dense = cube_scene(in);
+  check_backend(dense, in, GetParam(), 5e-9, 1e-5);
+}
+
+TEST_P(RigidContactDerivativesOnBackend, HingedBarAndSliderOnSupports) {
+  State in;
+  const Model dense = hinge_scene(in);
+  check_backend(dense, in, GetParam(), 1e-6, 1e-5);
+}
+
+INSTANTIATE_TEST_SUITE_P(, RigidContactDerivativesOnBackend, ::testing::Values(Backend::sparse, Backend::op),
+                         [](const ::testing::TestParamInfo<Backend>& p) { return backend_name(p.param); });
 
 }  // namespace rigid_contact_derivatives_test
 
@@ -334,7 +442,10 @@ void rows_from(const Model& model, const State& base, const State& s, VecX& x_ro
 // (soft and rigid rows), the wedge's mass and its inertia zz, against central differences
 // of whole runs; then the adjoint of a loss on the final state (soft and rigid) against
 // the same sensitivities (exact algebra: 1e-9 relative).
-TEST(RigidContactTrajectoryDerivatives, SensitivitiesAndAdjointOfASlidingWedge) {
+// On each backend (the sparse ones: issue 21).
+class RigidContactTrajectoryDerivatives : public ::testing::TestWithParam<Backend> {};
+
+TEST_P(RigidContactTrajectoryDerivatives, SensitivitiesAndAdjointOfASlidingWedge) {
   Model model = anchored(1e-3);
   const rigid::Shape shape = wedge();
   const rigid::MassProperties mp = rigid::mass_properties(shape, 800);
@@ -344,6 +455,7 @@ TEST(RigidContactTrajectoryDerivatives, SensitivitiesAndAdjointOfASlidingWedge) 
   s.angular_velocity = Vec3(0, 0, 0.8);
   test::add_rigid_body(model, "wedge", shape, 800, s);
   test::enable_rigid_contact(model, {test::plane(Vec3::UnitZ(), 0, "floor")}, {{"wedge", "floor", 0.3}}, 1e-3, tight());
+  model = on_backend(model, GetParam());
   model.initial = warm_up(model, 3);
   const long T = 12;
   const Eigen::Index n3 = 3L * model.fem.num_nodes, rows = n3 + 6;
@@ -419,5 +531,9 @@ TEST(RigidContactTrajectoryDerivatives, SensitivitiesAndAdjointOfASlidingWedge) 
   std::cout << "adjoint " << result.theta.transpose() << " against forward " << expected.transpose() << "\n";
   for (int c = 0; c < 4; ++c) EXPECT_NEAR(result.theta[c], expected[c], 1e-9 * expected.cwiseAbs().maxCoeff());
 }
+
+INSTANTIATE_TEST_SUITE_P(, RigidContactTrajectoryDerivatives,
+                         ::testing::Values(Backend::dense, Backend::sparse, Backend::op),
+                         [](const ::testing::TestParamInfo<Backend>& p) { return backend_name(p.param); });
 
 }  // namespace rigid_contact_derivatives_test

@@ -71,6 +71,20 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
       if (modes[static_cast<std::size_t>(i)] != Mode::breaking) active_ids_.push_back(i);
     select_contact_columns(cd.Ht, active_ids_, Ht_active_);
     const int na = static_cast<int>(active_ids_.size());
+    // Rigid bodies on the sparse backend (issue 21): the step's G had their part h Kt^T Kt
+    // (SparseDelassus::set_rigid; Kt = L_r^T H_r^T, k x 3 nc, formed by
+    // rigid_delassus_rows on that path only), so every G_AA below adds h Kt_A^T Kt_A, Kt_A
+    // = Kt's columns of the active contacts. On the dense backend the record's G holds it;
+    // a G_AA recomputed there (use_record_G false) would have no Kt: refused.
+    Kt_active_.resize(0, 3 * na);
+    if (model.contact.with_rigid()) {
+      SOFTDIFF_DEMAND(cd.G.rows() == 0 && cd.rigid.Kt.cols() == 3 * static_cast<Eigen::Index>(nc),
+                      "contact derivative: with rigid bodies, G_AA is formed on the sparse backend only (the "
+                      "dense backend's record holds G)");
+      Kt_active_.resize(cd.rigid.Kt.rows(), 3 * na);
+      for (int b = 0; b < na; ++b)
+        Kt_active_.middleCols<3>(3 * b) = cd.rigid.Kt.middleCols<3>(3 * active_ids_[static_cast<std::size_t>(b)]);
+    }
     bool all_sticking = true;
     for (int i : active_ids_) all_sticking = all_sticking && modes[static_cast<std::size_t>(i)] == Mode::sticking;
     const auto& ncp = model.contact.ncp;
@@ -79,10 +93,20 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
       // Beyond the crossover: the mode-fixed system on the operator (mode_system.hpp),
       // G_AA y = h H_A A^{-1} H_A^T y, one solve with `solver` per product (the caller
       // keeps its factorization until the last jvp / vjp).
-      const auto G_AA = [this, &solver, h](const VecX& y, VecX& out) {
+      // Where no soft dof is in the active contacts (rigid bodies on obstacles only) the
+      // soft part is 0: no solve.
+      const bool soft_empty = Ht_active_.nonZeros() == 0;
+      const auto G_AA = [this, &solver, h, soft_empty](const VecX& y, VecX& out) {
+        if (soft_empty) {
+          out.setZero(y.size());
+          op_w_.setZero(Ht_active_.rows());
+          add_rigid_product(h, y, out);
+          return true;
+        }
         op_u_.noalias() = Ht_active_ * y;
         if (!solver.solve(op_u_, op_w_)) return false;  // op_w_ is not defined then
         out.noalias() = h * (Ht_active_.transpose() * op_w_);
+        add_rigid_product(h, y, out);
         return true;
       };
       // The scale L (docs/method.md "The derivative's scale"). Every active contact
@@ -127,6 +151,7 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
       OperatorModeSystem::FactorizeReduced reduce;
       if (A_upper) {
         shifted_.bind(solver, *A_upper, cd.Ht, h, model.solver);
+        if (Kt_active_.rows() > 0) shifted_.set_rigid(cd.rigid.Kt);  // + h Kt^T Kt (bind clears it)
         shifted_.restrict_to(active_ids_);
         // B is positive definite where A is; where it does not factorize (the static
         // solver's tangent need not be), the system is solved unpreconditioned.
@@ -143,16 +168,23 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
         }
       }
       ncp_.compute_operator(
-          [this, A, h](const VecX& y, VecX& out) {
+          [this, A, h, soft_empty](const VecX& y, VecX& out) {
+            if (soft_empty) {
+              out.setZero(y.size());
+              add_rigid_product(h, y, out);
+              return true;
+            }
             op_u_.noalias() = Ht_active_ * y;
             if (!A->solve(op_u_, op_w_)) return false;
             out.noalias() = h * (Ht_active_.transpose() * op_w_);
+            add_rigid_product(h, y, out);
             return true;
           },
           L, cd.mu, cd.lambda, sigma, modes, std::move(M), std::move(reduce), std::move(reduce_apply));
     } else {
       if (!solver.inverse_congruence(Ht_active_, G_active_)) return false;
       G_active_ *= h;
+      if (Kt_active_.rows() > 0) G_active_.noalias() += h * (Kt_active_.transpose() * Kt_active_);
       ncp_.compute_active(G_active_, cd.mu, cd.lambda, sigma, modes);
     }
   }
@@ -164,6 +196,12 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
 // them on a smaller set, where it is the exact maximum): their 3 columns of A^{-1} H_A^T
 // from one solve with several right-hand sides on `solver`'s factor. A row scale only:
 // the mode-fixed system's answer does not depend on it, its conditioning does.
+void ContactStageDerivative::add_rigid_product(double h, const VecX& y, VecX& out) {
+  if (Kt_active_.rows() == 0) return;
+  op_k_.noalias() = Kt_active_ * y;
+  out.noalias() += h * (Kt_active_.transpose() * op_k_);
+}
+
 bool ContactStageDerivative::sampled_max_diagonal(integrator::LinearSolver& solver, double h, double& L) {
   const int na = static_cast<int>(active_ids_.size());
   const int ns = std::min(na, scale_sample_contacts);
@@ -175,7 +213,16 @@ bool ContactStageDerivative::sampled_max_diagonal(integrator::LinearSolver& solv
   }
   if (!solver.solve(sample_B_, sample_X_)) return false;
   L = 0;
-  for (Eigen::Index c = 0; c < sample_B_.cols(); ++c) L = std::max(L, h * sample_B_.col(c).dot(sample_X_.col(c)));
+  for (Eigen::Index c = 0; c < sample_B_.cols(); ++c) {
+    double Gcc = h * sample_B_.col(c).dot(sample_X_.col(c));
+    // + the rigid part's diagonal h |Kt_A's column|^2 (the same sampled column).
+    if (Kt_active_.rows() > 0) {
+      const int j = static_cast<int>(c / 3), k = static_cast<int>(c % 3);
+      const int a = static_cast<int>((static_cast<long>(j) * na) / ns);
+      Gcc += h * Kt_active_.col(3 * a + k).squaredNorm();
+    }
+    L = std::max(L, Gcc);
+  }
   if (!(L > 0) || !std::isfinite(L)) return false;
   return true;
 }

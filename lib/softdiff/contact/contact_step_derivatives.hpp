@@ -82,6 +82,10 @@ class ContactStageDerivative {
   MatX sample_B_, sample_X_;     // mixed sets: (3n x 3 s) the sampled columns of H_A^T and A^{-1} times them
   bool sampled_max_diagonal(integrator::LinearSolver& solver, double h, double& L);
   VecX op_u_, op_w_;             // operator path: (3n) scratch of the products with G_AA
+  MatX Kt_active_;               // rigid bodies on the sparse backend: (k x 3 na) Kt's active columns
+  VecX op_k_;                    //   (k) scratch of their products
+  // out += h Kt_A^T (Kt_A y): the rigid part of G_AA y (nothing without rigid rows).
+  void add_rigid_product(double h, const VecX& y, VecX& out);
   SparseDelassus shifted_;       // operator path: (G_AA + c I)^{-1}, the preconditioner
   int nondifferentiable_ = 0, smoothed_ = 0;
 };
