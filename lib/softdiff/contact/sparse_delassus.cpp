@@ -197,7 +197,8 @@ void SparseDelassus::set_frames(const std::vector<Mat3>& frames, const Eigen::Re
   c_ = 0;
 }
 
-bool SparseDelassus::apply(const Eigen::Ref<const VecX>& y, Eigen::Ref<VecX> out) {
+bool SparseDelassus::product(const Eigen::Ref<const VecX>& y, const SparseMatrix& soft_rows, const MatX& rigid_rows,
+                             Eigen::Ref<VecX> out) {
   if (soft_empty_) {
     out.setZero();
   } else {
@@ -207,32 +208,21 @@ bool SparseDelassus::apply(const Eigen::Ref<const VecX>& y, Eigen::Ref<VecX> out
       out.setConstant(std::numeric_limits<double>::quiet_NaN());
       return false;
     }
-    out.noalias() = h_ * (HtW_.transpose() * w_);
+    out.noalias() = h_ * (soft_rows.transpose() * w_);
   }
-  if (KtW_.rows() > 0) {  // + h K_W K_W^T y
+  if (KtW_.rows() > 0) {  // + h K_rows K_W^T y
     kr_.noalias() = KtW_ * y;
-    out.noalias() += h_ * (KtW_.transpose() * kr_);
+    out.noalias() += h_ * (rigid_rows.transpose() * kr_);
   }
   return true;
 }
 
+bool SparseDelassus::apply(const Eigen::Ref<const VecX>& y, Eigen::Ref<VecX> out) {
+  return product(y, HtW_, KtW_, out);
+}
+
 bool SparseDelassus::apply_full(const Eigen::Ref<const VecX>& y, Eigen::Ref<VecX> out) {
-  if (soft_empty_) {
-    out.setZero();
-  } else {
-    u_.noalias() = HtW_ * y;
-    if (!A_solver_->solve(u_, w_)) {  // w_ is not defined then: out is NaN, not stale
-      failed_ = true;
-      out.setConstant(std::numeric_limits<double>::quiet_NaN());
-      return false;
-    }
-    out.noalias() = h_ * (Ht_->transpose() * w_);
-  }
-  if (KtW_.rows() > 0) {  // + h K K_W^T y
-    kr_.noalias() = KtW_ * y;
-    out.noalias() += h_ * (Kt_.transpose() * kr_);
-  }
-  return true;
+  return product(y, *Ht_, Kt_, out);
 }
 
 bool SparseDelassus::dense(MatX& G) {

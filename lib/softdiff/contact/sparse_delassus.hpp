@@ -130,6 +130,10 @@ class SparseDelassus {
   // r <- (c I + h H~ A^{-1} H~^T)^{-1} r, the soft part of the shifted solve (scaled space).
   bool shifted_soft(Eigen::Ref<VecX> r);
   const MatX& scaled_rigid() const { return scale_sqrt_inv_.size() > 0 ? KtWs_ : KtW_; }
+  // out = h (soft_rows^T A^{-1} H_W + rigid_rows^T K_W^T) y: apply (W's rows) and
+  // apply_full (every contact's rows) differ only in the rows they read out.
+  bool product(const Eigen::Ref<const VecX>& y, const SparseMatrix& soft_rows, const MatX& rigid_rows,
+               Eigen::Ref<VecX> out);
 
   integrator::LinearSolver* A_solver_ = nullptr;
   const SparseMatrix* A_ = nullptr;
