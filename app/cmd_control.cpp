@@ -132,7 +132,10 @@ int run_control(const ControlOptions& o, const std::string& command_line) {
   report.strict = o.strict;
   const Model model = io::build_model(scene, &report);
   for (const auto& w : report.warnings) warn(w);
-  demand_no_rigid_bodies("control", model);
+  // Rigid bodies (issue 21): their state is the step's input, not controlled; the step's
+  // derivative goes through rigid contact. parse_theta below refuses what it does not
+  // cover (bdf2 with rigid bodies, a limited joint in contact); rigidified parts here.
+  demand_no_rigidified_parts("control", model);
   if (model.step.integrator == IntegratorKind::static_equilibrium)
     throw InputError("control: the scene's integrator must be implicit_euler or bdf2 (inverse dynamics is per time step)");
   if (model.actuation.actuators.empty()) throw InputError("control: the scene has no actuators to control");

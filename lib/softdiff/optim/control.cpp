@@ -103,6 +103,9 @@ StepStatus InverseDynamics::compute(const Model& model, const State& s, long k, 
     }
   }
   info.contact_force_norm = F.size() ? F.norm() : contact_force_norm(model, data_);
+  info.Ja = Ja;
+  info.F = F;
+  info.Jc = Jc;
   // The QP.
   Vec3 err = info.predicted - goal;
   for (int c = 0; c < 3; ++c)

@@ -10,8 +10,8 @@
 //      effector's barycentric rows, S the selected axes) and, with contact, the nodal
 //      contact forces' Jacobian J_c = P_body H_c^T dlambda_c/dlambda (P_body: the rows of
 //      the effector's body) with F the body's nodal contact forces, over the contacts
-//      with other sides (obstacles, other bodies; not the body's self-contacts, whose
-//      forces are internal);
+//      with other sides (obstacles, other bodies, rigid bodies; not the body's
+//      self-contacts, whose forces are internal);
 //   3. the QP (optim/box_qp.hpp)
 //        min_d  alpha/2 |S (X_f + J_a d - X_goal)|^2 + beta/2 |F + J_c d|^2 + rho/2 |d|^2
 //        s.t.   lo - lambda <= d <= hi - lambda   (the actuators' limits)
@@ -20,6 +20,12 @@
 //   4. lambda' = lambda + filter d (a first-order low-pass on the change, 0 < filter <= 1;
 //      lambda' stays within the limits: a convex combination of feasible points).
 // The caller then takes the step with lambda'.
+// Rigid bodies (issue 21; docs/method.md "Control", "Through contact with rigid bodies"):
+// their state is an input of the step, not controlled: the JVPs carry a zero rigid
+// tangent in and go through the one NCP with the rigid blocks, so J_a and J_c see the
+// rigid bodies' response (an object pushed or held by the effector's body). The caller
+// refuses what the step's derivative does not cover (app/theta.cpp: BDF2 with rigid
+// bodies, a limited joint in contact, rigidified parts).
 #include <softdiff/core/types.hpp>
 #include <softdiff/data.hpp>
 #include <softdiff/integrator/implicit_euler_derivatives.hpp>
@@ -50,6 +56,12 @@ struct ControlStep {
   double kkt = 0;                    // the QP's KKT residual
   int qp_iterations = 0;
   bool qp_converged = false;
+  // The QP's data (kept for the finite-difference tests; sized per step, not per
+  // contact): J_a (3 x nd, before the axis selection), and with contact and beta > 0
+  // the body's nodal contact forces F (3 n_body) and their Jacobian J_c (3 n_body x nd).
+  Eigen::Matrix<double, 3, Eigen::Dynamic> Ja;
+  VecX F;
+  MatX Jc;
 };
 
 class InverseDynamics {
@@ -67,12 +79,14 @@ class InverseDynamics {
   // factorization: one factorization per control step (linearized steps; Newton
   // iterates refactorize).
   Data& data() { return data_; }
+  // P_body H_c^T lambda over the contacts with other sides (obstacles, other bodies,
+  // rigid bodies: a rigid body is another side, e.g. the object a gripper holds): a
+  // body's self-contact forces are internal (action and reaction on its own nodes) and
+  // act on nothing it holds. H_c^T's soft rows only (a rigid body's pseudo-nodes are not
+  // in it): the forces on the effector's body's nodes (3 n_body).
+  VecX nodal_contact_forces(const Data& data, const VecX& lambda) const;
 
  private:
-  // P_body H_c^T lambda over the contacts with other sides (obstacles, other bodies):
-  // a body's self-contact forces are internal (action and reaction on its own nodes)
-  // and act on nothing it holds.
-  VecX nodal_contact_forces(const Data& data, const VecX& lambda) const;
   ControlOptions options_;
   Data data_;
   std::unique_ptr<integrator::StepDerivatives> derivatives_;
