@@ -370,4 +370,57 @@ TEST(Cli, SliderBlockLandsOnItsLimitAboveTheFloor) {
   EXPECT_EQ(fmax, 0.0);  // the floor is never touched: exactly no force
 }
 
+
+// configs/pads_hold.yaml (issue 21 item 6, reduced: the Gripper's grasp against gravity):
+// two clamped soft pads squeeze a free 8.32 g block with a servo force F each, gravity
+// along the pads (-x), friction mu = 0.5 only. Coulomb with two pads: the block stays iff
+// the normal force per pad N >= m g / (2 mu) = 0.0816 N.
+//   - the scene's F = 0.3 N (N measured 0.30 N, 3.7x the threshold): the block settles
+//     after a first step's slip (0.92 mm: the pads' contact faces move as the beams bend
+//     under the squeeze) and stays: drop < 2 mm after 40 steps (0.2 s), speed < 1 mm/s,
+//     the pads' friction carrying the weight (the contact force's x sum = m g to 2%);
+//   - F = 0.05 N (0.6x the threshold): it slides out, more than 4 mm in 20 steps (6.3 mm
+//     measured; it also tumbles as it leaves the tips).
+// The sweep near the threshold is in docs/method.md "Control" ("A grasp against gravity").
+TEST(Cli, PadsHoldTheBlockByFrictionAndLetItSlipUnderTooLittleGrip) {
+  const double m = 0.026 * 0.02 * 0.016 * 1000, g = 9.81, mu = 0.5;
+  const fs::path scene = kRigidRoot / "configs/pads_hold.yaml";
+  struct Run {
+    double drop, v_end, fx, n_a;
+  };
+  auto run = [&](const std::string& name, const std::string& args) {
+    const fs::path dir = softdiff::test::fresh_dir(kRigidWork, name);
+    const auto r = run_cli("simulate '" + scene.string() + "' -o out.h5 --quiet " + args, dir);
+    EXPECT_EQ(r.code, 0) << r.err;
+    const hid_t f = H5Fopen((dir / "out.h5").string().c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+    EXPECT_GE(f, 0);
+    const std::vector<double> p = h5_read(f, "/bodies/block/position"), v = h5_read(f, "/bodies/block/velocity");
+    const std::vector<double> force = h5_read(f, "/bodies/block/contact_force");  // (T, vertices, 3)
+    const auto shape = h5_shape(f, "/bodies/block/contact_force");
+    H5Fclose(f);
+    Run out{};
+    const std::size_t T = p.size() / 3, nv = shape[1];
+    out.drop = p[0] - p[3 * (T - 1)];
+    out.v_end = v[3 * (T - 1)];
+    for (std::size_t k = 0; k < nv; ++k) {
+      const double* fk = &force[3 * ((T - 1) * nv + k)];
+      out.fx += fk[0];
+      out.n_a += std::max(fk[1], 0.0);  // pad_a pushes its face's vertices along +y
+    }
+    return out;
+  };
+  const Run held = run("pads_hold", "");
+  std::printf("held (F 0.3 N): drop %.3f mm, v %.2e m/s, friction %.5f N (m g %.5f), N %.4f N (m g / (2 mu) %.4f)\n",
+              1e3 * held.drop, held.v_end, held.fx, m * g, held.n_a, m * g / (2 * mu));
+  EXPECT_LT(held.drop, 2e-3);
+  EXPECT_LT(std::abs(held.v_end), 1e-3);
+  EXPECT_NEAR(held.fx, m * g, 0.02 * m * g);
+  EXPECT_GT(held.n_a, m * g / (2 * mu));
+  const Run slips = run("pads_slip", "--steps 20 --set bodies.pad_a.actuators.squeeze_a.force=0.05 "
+                                     "--set bodies.pad_b.actuators.squeeze_b.force=0.05");
+  std::printf("too little grip (F 0.05 N): drop %.3f mm in 20 steps, v %.3f m/s\n", 1e3 * slips.drop, slips.v_end);
+  EXPECT_GT(slips.drop, 4e-3);
+  EXPECT_LT(slips.v_end, 0.0);
+}
+
 }  // namespace
