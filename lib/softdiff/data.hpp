@@ -83,6 +83,12 @@ struct ContactData {
     MatX Kt;                               // (k, 3nc) L^T H_r^T of the bodies in contact (sparse backend)
     std::vector<int> dofs;                 // scratch: the contact rows of one body (add_rigid_delassus)
     MatX Kc, Gc;                           // scratch: L^T H_r^T on those rows, its h K^T K
+    // The manifold reduction (rigid_contact.hpp reduce_rigid_manifolds): scratch (grows
+    // only) and the contacts it dropped in the last detection.
+    std::vector<int> manifold, hull;       // candidate contacts of a group; their convex hull
+    std::vector<double> plane;             // (2 per candidate) coordinates in the tangent plane
+    std::vector<char> drop;                // (contacts) dropped by the reduction
+    int manifold_dropped = 0;
     // Joint limits as rows of the NCP (rigid_contact.hpp "limit rows"): 2 slots per body on
     // a limited hinge or slider (lower, upper, in body order); the L selected ones are
     // frictionless contacts of 3 rows appended after the nc contacts while the NCP is solved.

@@ -67,6 +67,10 @@ struct ContactSettings {
   // rigid bodies (or without contact).
   std::vector<int> rigid_node_begin;
   std::vector<int> rigid_node_body;
+  // A rigid body's resting manifold on a planar obstacle face reduced to the points that
+  // can carry force (contact/rigid_contact.hpp reduce_rigid_manifolds): exact, on by
+  // default; off only to compare (tests).
+  bool reduce_rigid_manifolds = true;
   bool with_rigid() const { return !rigid_node_begin.empty(); }
 };
 

@@ -416,4 +416,59 @@ TEST(RigidContact, SparseOperatorWithRigidRowsOnObstaclesOnly) {
   expect_sparse_matches_dense(c, false);
 }
 
+// The manifold reduction (rigid_contact.hpp reduce_rigid_manifolds) on hand-made
+// contacts of the box's pseudo-nodes against the floor z = 0 (frame (x, y, z)): a 3 x 3
+// grid of points in the plane z = 1 mm keeps its 4 corners (the centre and the edge
+// midpoints are convex combinations: dropped); a point above the grid's interior (z = 2
+// mm: inside in the tangent plane, not in 3D), one of another friction coefficient and
+// one of a soft node (a vertex_obstacle of node 0) are kept. The order of the kept
+// contacts is the input's.
+TEST(RigidContactUnit, ManifoldReductionKeepsTheExtremePointsOnly) {
+  rigid::RigidState s;
+  s.position = Vec3(0, 0, 0.021);
+  Model model = anchor_and_box(s);
+  Data data(model);
+  const int p0 = model.contact.rigid_node_begin[0];
+  std::vector<collision::Contact> list;
+  auto add = [&](int node, const Vec3& x, double mu) {
+    collision::Contact c;
+    c.kind = collision::ContactKind::vertex_obstacle;
+    c.side_a = 1;  // the box (names: anchor, box, floor)
+    c.side_b = 2;
+    c.count = 1;
+    c.nodes = {node, -1, -1, -1};
+    c.weights = {1, 0, 0, 0};
+    c.frame = Mat3::Identity();
+    c.point = x;
+    c.point_b = Vec3(x.x(), x.y(), 0);
+    c.gap = x.z();
+    c.mu = mu;
+    c.feature_b = 0;
+    c.kind_b = collision::Feature::face;
+    list.push_back(c);
+  };
+  int node = p0;
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) add(node++, Vec3(0.01 * i - 0.01, 0.02 * j - 0.02, 1e-3), 0.5);
+  add(node++, Vec3(0.002, 0.003, 2e-3), 0.5);  // above the interior: kept
+  add(node++, Vec3(0.001, 0.001, 1e-3), 0.3);  // another mu: its own group of one, kept
+  add(0, Vec3(0.0, 0.0, 1e-3), 0.5);           // a soft node: not a candidate
+  const std::vector<collision::Contact> before = list;
+  const int dropped = contact::reduce_rigid_manifolds(model, data, list);
+  EXPECT_EQ(dropped, 5);
+  EXPECT_EQ(data.contact.rigid.manifold_dropped, 5);
+  ASSERT_EQ(list.size(), before.size() - 5);
+  // Kept, in order: grid corners 0, 2, 6, 8, then the three others.
+  const int expected[] = {0, 2, 6, 8, 9, 10, 11};
+  for (std::size_t k = 0; k < list.size(); ++k)
+    EXPECT_EQ(list[k].nodes[0], before[static_cast<std::size_t>(expected[k])].nodes[0]) << "kept contact " << k;
+  // Collinear points: the ends of the segment stay, the inner ones go.
+  list.clear();
+  for (int i = 0; i < 5; ++i) add(p0 + i, Vec3(0.005 * i, 0.001 * i, 1e-3), 0.5);
+  EXPECT_EQ(contact::reduce_rigid_manifolds(model, data, list), 3);
+  ASSERT_EQ(list.size(), 2u);
+  EXPECT_EQ(list[0].nodes[0], p0);
+  EXPECT_EQ(list[1].nodes[0], p0 + 4);
+}
+
 }  // namespace rigid_contact_unit

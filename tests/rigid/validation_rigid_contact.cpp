@@ -322,6 +322,131 @@ TEST_P(RigidContactValidation, HingedBarFallsOntoItsSupport) {
   EXPECT_NEAR(f.norm(), N, 1e-6 * w);
 }
 
+// Redundant manifolds (rigid_contact.hpp reduce_rigid_manifolds): a short cylinder (r 30
+// mm, length 20 mm, 700 kg/m^3; tessellated at max_edge 10 mm: its cap is the centre and
+// 3 rings of vertices) standing on its cap on a plane of normal n = (sin a, 0, cos a)
+// touches it at every cap vertex; the reduction keeps the rim (the convex hull's
+// vertices). Each case runs twice, reduced (the default) and not, and compares both to
+// the closed form and to each other.
+struct CapOnPlane {
+  Model model;
+  Vec3 n, d;
+  int cap = 0, rim = 0;  // cap vertices, rim vertices
+};
+CapOnPlane cylinder_on_plane(double a, double mu, double h, bool reduce) {
+  CapOnPlane c{anchored(h), Vec3(std::sin(a), 0, std::cos(a)), Vec3(std::cos(a), 0, -std::sin(a))};
+  rigid::Shape shape;
+  shape.kind = rigid::Shape::Kind::cylinder;
+  shape.radius = 0.03;
+  shape.length = 0.02;
+  rigid::RigidState s;
+  s.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(a, Vec3::UnitY()));
+  s.position = 0.01 * c.n;
+  test::add_rigid_body(c.model, "puck", shape, 700, s, 0.01);
+  const Mat3X& V = c.model.rigid[0].surface.vertices;
+  for (Eigen::Index j = 0; j < V.cols(); ++j)
+    if (std::abs(V(2, j) + 0.01) < 1e-12) {
+      ++c.cap;
+      if (std::abs(V.col(j).head<2>().norm() - 0.03) < 1e-12) ++c.rim;
+    }
+  test::enable_rigid_contact(c.model, {test::plane(c.n, 0, "ramp")}, {{"puck", "ramp", mu}}, 1e-3, tight());
+  c.model.contact.reduce_rigid_manifolds = reduce;
+  return c;
+}
+
+// Runs without asserting convergence (the unreduced manifold, for comparison): the
+// largest residual of the steps' contact solves.
+State run_quietly(const Model& model, Data& data, long steps, double& worst) {
+  State a = model.initial, b;
+  worst = 0;
+  for (long n = 1; n <= steps; ++n) {
+    const StepStatus st = integrator::time_step(model, data, a, nullptr, b, n);
+    EXPECT_TRUE(st.ok()) << describe(model, st);
+    if (!st.ok()) break;
+    worst = std::max(worst, data.contact.result.residuals.max());
+    std::swap(a, b);
+  }
+  return a;
+}
+
+// At rest on a horizontal plane: the reduced manifold is the rim, the reaction is the
+// weight (no moment), and the run matches the unreduced one.
+TEST_P(RigidContactValidation, CylinderRestsOnItsCapRimOnly) {
+  CapOnPlane red = cylinder_on_plane(0, 0.5, 1e-3, true), full = cylinder_on_plane(0, 0.5, 1e-3, false);
+  ASSERT_GT(red.cap, red.rim);
+  Data dr(red.model), df(full.model);
+  const State er = run(red.model, dr, 100);
+  double worst = 0;
+  const State ef = run_quietly(full.model, df, 100, worst);
+  int kr = 0, kf = 0;
+  const Vec3 fr = force_on_rigid(red.model, dr, 1, &kr), ff = force_on_rigid(full.model, df, 1, &kf);
+  const double weight = red.model.rigid[0].mass * g0;
+  std::cout << backend_name(backend) << ": cylinder on its cap: " << kr << " contacts (rim " << red.rim << ") against " << kf
+            << " (cap " << red.cap << "), reaction " << fr.transpose() << " N against " << ff.transpose() << " N, weight "
+            << weight << " N; unreduced worst residual " << worst << ", dropped " << dr.contact.rigid.manifold_dropped << "\n";
+  EXPECT_EQ(kr, red.rim);
+  EXPECT_EQ(kf, red.cap);
+  EXPECT_EQ(dr.contact.rigid.manifold_dropped, red.cap - red.rim);
+  for (int i = 0; i < dr.contact.contacts.size(); ++i) {  // every kept point on the rim
+    const Vec3 p = dr.contact.contacts.contacts[static_cast<std::size_t>(i)].point - er.rigid[0].position;
+    EXPECT_NEAR(p.head<2>().norm(), 0.03, 1e-9) << "contact " << i;
+  }
+  // The NCP tolerance 1e-10 (scaled) bounds the force error to ~1e-10 of the weight.
+  EXPECT_NEAR(fr.z(), weight, 1e-8 * weight);
+  EXPECT_LT(fr.head<2>().norm(), 1e-8 * weight);
+  EXPECT_NEAR(ff.z(), weight, 1e-8 * weight);
+  EXPECT_LT(er.rigid[0].velocity.norm(), 1e-10);
+  EXPECT_LT(er.rigid[0].angular_velocity.norm(), 1e-10);
+  EXPECT_LT((er.rigid[0].position - ef.rigid[0].position).norm(), 1e-10);
+}
+
+// Sliding down a 30 deg incline with mu = 0.3 (no tipping: mu L / 2 < r): the closed
+// form of the block (BlockSlidesDownAnInclineAtTheClosedFormAcceleration, the same
+// tolerances), reduced and unreduced.
+TEST_P(RigidContactValidation, CylinderSlidesOnItsReducedCapAtTheClosedFormAcceleration) {
+  const double a = pi / 6, mu = 0.3, h = 1e-3;
+  const long steps = 200;
+  CapOnPlane red = cylinder_on_plane(a, mu, h, true), full = cylinder_on_plane(a, mu, h, false);
+  Data dr(red.model), df(full.model);
+  const State er = run(red.model, dr, steps);
+  double worst = 0;
+  const State ef = run_quietly(full.model, df, steps, worst);
+  const double acc = g0 * (std::sin(a) - mu * std::cos(a));
+  const auto& s = er.rigid[0];
+  const double v = s.velocity.dot(red.d), travel = (s.position - red.model.initial.rigid[0].position).dot(red.d);
+  const double vf = ef.rigid[0].velocity.dot(red.d);
+  std::cout << backend_name(backend) << ": cylinder sliding, 30 deg, mu 0.3: v " << v << " (relative error "
+            << v / (steps * h * acc) - 1 << "), unreduced " << vf << " (worst residual " << worst << "), contacts "
+            << dr.contact.contacts.size() << " of " << df.contact.contacts.size() << "\n";
+  EXPECT_NEAR(v, steps * h * acc, 1e-7 * steps * h * acc);
+  EXPECT_NEAR(travel, h * h * acc * steps * (steps + 1) / 2, 1e-7 * h * h * acc * steps * (steps + 1) / 2);
+  EXPECT_LT(std::abs(s.velocity.dot(red.n)), 1e-9);
+  EXPECT_LT(s.angular_velocity.norm(), 1e-8);
+  EXPECT_EQ(dr.contact.contacts.size(), red.rim);
+  EXPECT_LT((s.position - ef.rigid[0].position).norm(), 1e-9);
+  const Vec3 f = force_on_rigid(red.model, dr, 1);
+  const double weight = red.model.rigid[0].mass * g0;
+  EXPECT_NEAR(f.dot(red.n), weight * std::cos(a), 1e-7 * weight);
+  EXPECT_NEAR(-f.dot(red.d), mu * weight * std::cos(a), 1e-7 * weight);
+}
+
+// Sticking on a 20 deg incline with mu = 0.5: friction balances m g sin a exactly.
+TEST_P(RigidContactValidation, CylinderSticksOnItsReducedCapBelowTheFrictionAngle) {
+  const double a = pi / 9, mu = 0.5, h = 1e-3;
+  CapOnPlane red = cylinder_on_plane(a, mu, h, true);
+  Data dr(red.model);
+  const State er = run(red.model, dr, 200);
+  const auto& s = er.rigid[0];
+  EXPECT_LT((s.position - red.model.initial.rigid[0].position).norm(), 1e-9);
+  EXPECT_LT(s.velocity.norm(), 1e-8);
+  EXPECT_LT(s.angular_velocity.norm(), 1e-8);
+  EXPECT_EQ(dr.contact.contacts.size(), red.rim);
+  const Vec3 f = force_on_rigid(red.model, dr, 1);
+  const double weight = red.model.rigid[0].mass * g0;
+  EXPECT_NEAR(f.dot(red.n), weight * std::cos(a), 1e-7 * weight);
+  EXPECT_NEAR(-f.dot(red.d), weight * std::sin(a), 1e-7 * weight);
+}
+
 INSTANTIATE_TEST_SUITE_P(, RigidContactValidation, ::testing::Values(Backend::dense, Backend::sparse, Backend::op),
                          [](const ::testing::TestParamInfo<Backend>& p) { return backend_name(p.param); });
 

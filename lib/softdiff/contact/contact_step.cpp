@@ -131,6 +131,9 @@ void detect_contacts(const Model& model, Data& data, const VecX& x, const VecX& 
     cd.stats = cd.detector->detect(cd.rigid.x, cd.contacts, cd.surface_margin);
     drop_inert_contacts(model, h, margin, cd.rigid.v_previous, free_motion_widens ? cd.rigid.v_free : cd.rigid.v_previous,
                         cd.contacts.contacts);
+    // A rigid body's resting manifold on an obstacle face: its extreme points only (exact;
+    // rigid_contact.hpp reduce_rigid_manifolds).
+    if (model.contact.reduce_rigid_manifolds) reduce_rigid_manifolds(model, data, cd.contacts.contacts);
   } else {
     cd.stats = cd.detector->detect(x, cd.contacts, cd.surface_margin);
     drop_inert_contacts(model, h, margin, v_previous, free_motion_widens ? v : v_previous, cd.contacts.contacts);

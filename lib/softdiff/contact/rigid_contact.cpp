@@ -7,8 +7,10 @@
 #include <Eigen/Cholesky>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <string>
+#include <utility>
 
 namespace softdiff::contact {
 
@@ -360,6 +362,134 @@ StepStatus end_rigid_contact(const Model& model, Data& data, std::vector<rigid::
     }
   }
   return status;
+}
+
+}  // namespace softdiff::contact
+
+namespace softdiff::contact {
+
+int reduce_rigid_manifolds(const Model& model, Data& data, std::vector<collision::Contact>& list) {
+  auto& rd = data.contact.rigid;
+  rd.manifold_dropped = 0;
+  const int n = model.fem.num_nodes;
+  // Candidates: a rigid body's pseudo-node against an obstacle's face.
+  rd.manifold.clear();
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    const auto& c = list[i];
+    if (c.kind == collision::ContactKind::vertex_obstacle && c.count == 1 && c.nodes[0] >= n &&
+        c.kind_b == collision::Feature::face)
+      rd.manifold.push_back(static_cast<int>(i));
+  }
+  if (rd.manifold.size() < 3) return 0;
+  rd.drop.assign(list.size(), 0);
+  // Groups: same body, obstacle and face (then the same plane, frame and mu, checked below).
+  auto key = [&](int i) {
+    const auto& c = list[static_cast<std::size_t>(i)];
+    return std::array<int, 4>{c.side_a, c.side_b, c.feature_b, i};
+  };
+  std::sort(rd.manifold.begin(), rd.manifold.end(), [&](int a, int b) { return key(a) < key(b); });
+  auto same_plane = [&](const collision::Contact& a, const collision::Contact& b) {
+    if (a.side_a != b.side_a || a.side_b != b.side_b || a.feature_b != b.feature_b || a.mu != b.mu) return false;
+    if ((a.frame - b.frame).cwiseAbs().maxCoeff() > 1e-14) return false;  // unit columns: round-off only
+    const Vec3 d = a.point_b - b.point_b;  // both on the face's plane: d orthogonal to n
+    return std::abs(a.frame.col(2).dot(d)) <= 1e-12 * d.norm();
+  };
+  const std::size_t total = rd.manifold.size();
+  for (std::size_t s = 0; s < total;) {
+    std::size_t e = s + 1;
+    const auto& first = list[static_cast<std::size_t>(rd.manifold[s])];
+    while (e < total && same_plane(first, list[static_cast<std::size_t>(rd.manifold[e])])) ++e;
+    const int k = static_cast<int>(e - s);
+    if (k >= 3) {
+      // The group's points in the tangent plane (t1, t2), sorted lexicographically.
+      const Vec3 t1 = first.frame.col(0), t2 = first.frame.col(1);
+      int* g = rd.manifold.data() + s;
+      auto coords = [&](int i) {
+        const Vec3& p = list[static_cast<std::size_t>(i)].point;
+        return std::pair<double, double>(t1.dot(p), t2.dot(p));
+      };
+      std::sort(g, g + k, [&](int a, int b) { return coords(a) < coords(b); });
+      rd.plane.resize(2 * static_cast<std::size_t>(k));
+      double lo0 = 1e300, hi0 = -1e300, lo1 = 1e300, hi1 = -1e300;
+      for (int j = 0; j < k; ++j) {
+        const auto [u, v] = coords(g[j]);
+        rd.plane[2 * j] = u;
+        rd.plane[2 * j + 1] = v;
+        lo0 = std::min(lo0, u), hi0 = std::max(hi0, u), lo1 = std::min(lo1, v), hi1 = std::max(hi1, v);
+      }
+      const double size = std::hypot(hi0 - lo0, hi1 - lo1);
+      auto cross = [&](int o, int a, int b) {  // (a - o) x (b - o) in the plane
+        return (rd.plane[2 * a] - rd.plane[2 * o]) * (rd.plane[2 * b + 1] - rd.plane[2 * o + 1]) -
+               (rd.plane[2 * a + 1] - rd.plane[2 * o + 1]) * (rd.plane[2 * b] - rd.plane[2 * o]);
+      };
+      // Andrew's monotone chain; points on an edge (to round-off: turns below 1e-12
+      // size^2) are not vertices (they are convex combinations of its ends). Every hull
+      // vertex is kept, and another point is dropped only if the 3D check below finds it
+      // a convex combination of them to 1e-12 of the group's size.
+      auto& hull = rd.hull;
+      hull.clear();
+      const double flat = 1e-12 * size * size;
+      for (int j = 0; j < k; ++j) {
+        while (hull.size() >= 2 && cross(hull[hull.size() - 2], hull.back(), j) <= flat) hull.pop_back();
+        hull.push_back(j);
+      }
+      const std::size_t lower = hull.size() + 1;
+      for (int j = k - 2; j >= 0; --j) {
+        while (hull.size() >= lower && cross(hull[hull.size() - 2], hull.back(), j) <= flat) hull.pop_back();
+        hull.push_back(j);
+      }
+      hull.pop_back();  // the first point again
+      const int H = static_cast<int>(hull.size());
+      if (size > 0 && H < k) {
+        const double tol = 1e-12 * size;
+        auto point = [&](int j) -> const Vec3& { return list[static_cast<std::size_t>(g[j])].point; };
+        for (int j = 0; j < k; ++j) {
+          if (std::find(hull.begin(), hull.end(), j) != hull.end()) continue;
+          // Barycentric weights in a fan triangle (hull[0], hull[t], hull[t + 1]), or on
+          // the segment when the points are collinear (H = 2).
+          bool inside = false;
+          Vec3 combination = Vec3::Zero();
+          if (H == 2) {
+            const int a = hull[0], b = hull[1];
+            const double du = rd.plane[2 * b] - rd.plane[2 * a], dv = rd.plane[2 * b + 1] - rd.plane[2 * a + 1];
+            const double t = ((rd.plane[2 * j] - rd.plane[2 * a]) * du + (rd.plane[2 * j + 1] - rd.plane[2 * a + 1]) * dv) /
+                             (du * du + dv * dv);
+            if (t >= -1e-12 && t <= 1 + 1e-12) {
+              const double c = std::clamp(t, 0.0, 1.0);
+              combination = (1 - c) * point(a) + c * point(b);
+              inside = true;
+            }
+          } else {
+            for (int t = 1; t + 1 < H && !inside; ++t) {
+              const int a = hull[0], b = hull[static_cast<std::size_t>(t)], c = hull[static_cast<std::size_t>(t) + 1];
+              const double area = cross(a, b, c);
+              if (area <= 0) continue;
+              double wb = cross(a, j, c) / area, wc = cross(a, b, j) / area, wa = 1 - wb - wc;
+              if (wa < -1e-12 || wb < -1e-12 || wc < -1e-12) continue;
+              wa = std::max(wa, 0.0), wb = std::max(wb, 0.0), wc = std::max(wc, 0.0);
+              const double sum = wa + wb + wc;
+              combination = (wa * point(a) + wb * point(b) + wc * point(c)) / sum;
+              inside = true;
+            }
+          }
+          if (inside && (point(j) - combination).norm() <= tol) {
+            rd.drop[static_cast<std::size_t>(g[j])] = 1;
+            ++rd.manifold_dropped;
+          }
+        }
+      }
+    }
+    s = e;
+  }
+  if (rd.manifold_dropped == 0) return 0;
+  std::size_t w = 0;
+  for (std::size_t i = 0; i < list.size(); ++i)
+    if (!rd.drop[i]) {
+      if (w != i) list[w] = list[i];
+      ++w;
+    }
+  list.resize(w);
+  return rd.manifold_dropped;
 }
 
 }  // namespace softdiff::contact

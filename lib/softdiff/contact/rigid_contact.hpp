@@ -49,6 +49,23 @@ void begin_rigid_contact(const Model& model, Data& data, const std::vector<rigid
 // the start of the step; velocities from the start and the free step).
 void extend_for_detection(const Model& model, Data& data, const VecX& x, const VecX& v_previous, const VecX& v_free);
 
+// The manifold reduction (docs/method.md "Rigid bodies in contact", redundant manifolds):
+// a rigid body resting on a planar obstacle face touches it at many surface vertices
+// (a cylinder's cap: 105), a block of rank <= 6 in G on which ADMM converges slowly.
+// Among a group of vertex-obstacle contacts of one rigid body's pseudo-nodes on one
+// obstacle face (same plane, frame and mu), a contact whose point x_i is a convex
+// combination sum_j w_j x_j of the group's extreme points (the convex hull of the
+// points in the tangent plane; checked in 3D to 1e-12 of the group's size) is dropped.
+// Exact: its constraint value gap_i + h n.(v + omega x (x_i - p)) and its tangential
+// velocity are affine in x_i, so they are the same convex combination of the kept
+// points' (sigma_N,i >= 0 follows, lambda_i = 0 is complementary), and a force at x_i
+// moves to the kept points with weights w_j, with the same wrench and in the same cones.
+// The reduced problem's solution, extended by zero forces, solves the full one with
+// residuals no larger. Soft contacts and other kinds are untouched. Drops from `list`
+// in place (order kept); returns the number dropped (also data.contact.rigid.
+// manifold_dropped). No allocation once the scratch has grown.
+int reduce_rigid_manifolds(const Model& model, Data& data, std::vector<collision::Contact>& list);
+
 // The rigid rows of H_c^T (6R x 3nc) into data.contact.rigid.Ht, column 3i + c being row
 // c of contact i's Jacobian on each body's (v, omega); zero rows for a fixed body.
 void rigid_jacobian_transpose(const Model& model, const collision::ContactSet& contacts,
