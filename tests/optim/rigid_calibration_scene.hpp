@@ -21,7 +21,7 @@
 
 namespace softdiff::test::rigid_calibration {
 
-constexpr long kSteps = 10;
+constexpr long kCubeSteps = 10;
 
 inline Model cube_on_slab(double young = 5e4, double cube_density = 500) {
   BodySpec spec;
@@ -31,7 +31,7 @@ inline Model cube_on_slab(double young = 5e4, double cube_density = 500) {
   spec.rayleigh_mass = 20;
   spec.rayleigh_stiffness = 0.01;
   spec.fixed = [](const Vec3& p) { return p.z() < 1e-9; };
-  Model model = make_model(box_mesh(4, 4, 1, 0.06, 0.06, 0.01), spec, Vec3(0, 0, -9.81), 2e-3, kSteps);
+  Model model = make_model(box_mesh(4, 4, 1, 0.06, 0.06, 0.01), spec, Vec3(0, 0, -9.81), 2e-3, kCubeSteps);
   rigid::RigidState s;
   s.position = Vec3(0.0375, 0.0375, 0.01 + 0.01 + 3e-4);
   s.velocity = Vec3(0, 0, -0.3);
@@ -50,7 +50,7 @@ inline Model cube_on_slab(double young = 5e4, double cube_density = 500) {
   return model;
 }
 
-// Every frame 1..kSteps of a run of `model`: the soft positions if `nodes`, and the poses
+// Every frame 1..kCubeSteps of a run of `model`: the soft positions if `nodes`, and the poses
 // of the rigid bodies listed (orientation rows scaled by the scene's L), each target
 // orientation turned by `offset` (a rotation vector, world axes) so that the orientation
 // error is not small.
@@ -66,7 +66,7 @@ inline optim::CalibrationTarget poses_target(const Model& model, bool nodes, con
   Data data(model);
   State s = model.initial, next = model.initial;
   const Eigen::Quaterniond turn(Eigen::AngleAxisd(offset.norm(), offset.norm() > 0 ? Vec3(offset.normalized()) : Vec3::UnitX()));
-  for (long k = 1; k <= kSteps; ++k) {
+  for (long k = 1; k <= kCubeSteps; ++k) {
     const StepStatus st = integrator::time_step(model, data, s, nullptr, next, k);
     EXPECT_TRUE(st.ok()) << describe(model, st);
     std::swap(s, next);

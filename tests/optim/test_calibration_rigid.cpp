@@ -47,7 +47,7 @@ TEST(CalibrationRigid, ResidualJacobianAgainstCentralDifferences) {
   optim::residual(m, kSoft, kRigid, values, target, true, r, J);
   const Eigen::Index soft_rows = 3 * m.fem.num_nodes;
   ASSERT_EQ(r.size(), target.residual_size());
-  ASSERT_EQ(r.size(), kSteps * (soft_rows + 12));
+  ASSERT_EQ(r.size(), kCubeSteps * (soft_rows + 12));
   ASSERT_EQ(J.cols(), 5);
   const double rel[5] = {1e-3, 1e-3, 1e-5, 1e-5, 1e-5}, tol[5] = {5e-4, 5e-4, 1e-6, 1e-6, 0};
   for (Eigen::Index j = 0; j < J.cols(); ++j) {
@@ -73,7 +73,7 @@ TEST(CalibrationRigid, ResidualJacobianAgainstCentralDifferences) {
     // the same relative accuracy: the cube's for young and its mass, the spinner's for
     // its inertia.
     double err = 0, ref = 0;
-    for (Eigen::Index f = 0; f < kSteps; ++f) {
+    for (Eigen::Index f = 0; f < kCubeSteps; ++f) {
       const Eigen::Index at = f * (soft_rows + 12) + soft_rows;
       err += (J.col(j).segment(at, 12) - fd.segment(at, 12)).squaredNorm();
       ref += fd.segment(at, 12).squaredNorm();
