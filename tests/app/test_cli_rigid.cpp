@@ -250,8 +250,6 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null",
        "integrator 'static' with rigid bodies is not supported yet (issue 21"},
-      {"calibrate", beam_and_sphere(), "calibrate scene.yaml --param young --target target.h5 -o out.h5",
-       "calibrate: derivatives with rigid bodies are not supported yet (issue 21"},
       {"control", beam_and_sphere(), "control scene.yaml --target 0,0,0 -o out.h5",
        "control: derivatives with rigid bodies are not supported yet (issue 21"},
       {"rigid_only",
