@@ -15,6 +15,7 @@
 #include <softdiff/io/scene.hpp>
 #include <softdiff/io/target_files.hpp>
 #include <softdiff/optim/calibration.hpp>
+#include <softdiff/collision/distance.hpp>
 #include <softdiff/rigid/rigid_derivatives.hpp>
 
 #include <softdiff/core/threads.hpp>
@@ -247,8 +248,39 @@ optim::CalibrationTarget trajectory_target(const CalibrateOptions& o, const Mode
   return t;
 }
 
+// A marker's place on a rigid body at its initial pose s0 (issue 21): the point in
+// body axes (relative to the centre of mass), its distance to the body (0 inside: the
+// winding number of the closed surface, Van Oosterom and Strackee's solid angles), and
+// the distance allowed outside (half the nearest triangle's longest edge).
+struct RigidMarkerPlace {
+  Vec3 body_point = Vec3::Zero();
+  double distance = 0, allowed = 0;
+};
+RigidMarkerPlace rigid_marker_distance(const rigid::RigidBody& body, const rigid::RigidState& s0, const Vec3& y) {
+  RigidMarkerPlace out;
+  out.body_point = s0.orientation.conjugate() * (y - s0.position);
+  const auto& V = body.surface.vertices;
+  const auto& T = body.surface.triangles;
+  double solid = 0, best2 = std::numeric_limits<double>::infinity();
+  for (Eigen::Index t = 0; t < T.cols(); ++t) {
+    const Vec3 A = V.col(T(0, t)), B = V.col(T(1, t)), C = V.col(T(2, t));
+    const Vec3 a = A - out.body_point, b = B - out.body_point, c = C - out.body_point;
+    const double la = a.norm(), lb = b.norm(), lc = c.norm();
+    solid += 2 * std::atan2(a.dot(b.cross(c)), la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la);
+    const double d2 = collision::point_triangle_closest(out.body_point, A, B, C).dist2;
+    if (d2 < best2) {
+      best2 = d2;
+      out.allowed = 0.5 * std::max({(B - A).norm(), (C - B).norm(), (A - C).norm()});
+    }
+  }
+  const bool inside = std::abs(solid) > 2 * M_PI;  // winding number |solid / 4 pi| > 1/2
+  out.distance = inside ? 0.0 : std::sqrt(best2);
+  return out;
+}
+
 // Markers: a scene effector of that name, else the marker's observation at time 0
-// locates it in the body that contains it (at rest).
+// locates it in the body that contains it (at rest): a soft body's tet, or a point
+// fixed on a rigid body.
 optim::CalibrationTarget marker_target(const CalibrateOptions& o, const Model& model) {
   const auto obs = io::read_markers(o.markers);
   const bool is_static = model.step.integrator == IntegratorKind::static_equilibrium;
@@ -288,12 +320,21 @@ optim::CalibrationTarget marker_target(const CalibrateOptions& o, const Model& m
           }
         }
       }
+      // Rigid bodies (issue 21): inside the body's surface, or outside within half the
+      // nearest triangle's longest edge (as a soft body's nearest tet): a point fixed on
+      // the body, nearer than any soft body's.
+      for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+        const auto near = rigid_marker_distance(model.rigid[r], model.initial.rigid[r], z->second->position);
+        if (near.distance <= near.allowed && near.distance < best) {
+          best = near.distance;
+          m.rigid_body = static_cast<int>(r);
+          m.body_point = near.body_point;
+          found = true;
+        }
+      }
       if (!found)
         throw InputError(o.markers + ":" + std::to_string(z->second->line) + ": marker '" + ob.marker +
-                         "' at time 0 is not inside any body (positions are world coordinates in metres)" +
-                         (model.rigid.empty() ? std::string()
-                                              : std::string("; markers on rigid bodies are not supported yet (issue "
-                                                            "21): match a rigid body's pose with --target")));
+                         "' at time 0 is not inside any body (positions are world coordinates in metres)");
     }
     t.markers.push_back(m);
     index[ob.marker] = static_cast<int>(t.markers.size()) - 1;

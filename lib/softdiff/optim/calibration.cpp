@@ -100,6 +100,20 @@ void fill_rows(const CalibrationTarget& target, int f, const State& s, const Mat
     if (o.frame != f) continue;
     const Marker& m = target.markers[static_cast<std::size_t>(o.marker)];
     const Eigen::Index row = 3 * static_cast<Eigen::Index>(i);
+    if (m.rigid_body >= 0) {
+      // A point on a rigid body: p + R b. With q -> exp(dtheta) q, d(R b) = dtheta x (R b)
+      // = -[R b] dtheta.
+      const auto& rs = s.rigid[static_cast<std::size_t>(m.rigid_body)];
+      const Vec3 arm = rs.orientation * m.body_point;
+      r.segment<3>(row) = rs.position + arm - o.position;
+      if (dx) {
+        const Eigen::Index b = x.size() + 6L * m.rigid_body;
+        J.middleRows<3>(row) = dx->middleRows<3>(b) - rigid::hat(arm) * dx->middleRows<3>(b + 3);
+      } else {
+        J.middleRows<3>(row).setZero();
+      }
+      continue;
+    }
     r.segment<3>(row) = m.point.position(x) - o.position;
     J.middleRows<3>(row).setZero();
     if (dx)

@@ -8,7 +8,8 @@
 //   - states: the positions of every node at chosen frames (a softdiff trajectory);
 //     r = x_k(p) - x_k* stacked over the frames;
 //   - markers: positions of embedded points (in one tet each, as a
-//     motion-capture marker glued to the body) at chosen frames; r = W x_k(p) - y*.
+//     motion-capture marker glued to the body) at chosen frames; r = W x_k(p) - y*;
+//     or points fixed on a rigid body (issue 21): r = p_k + R(q_k) b - y*.
 //   - rigid bodies' poses (issue 21), with states or alone: per matched rigid body and
 //     frame, r = (p_k - p*, L log(q_k q*^-1)): the centre of mass's offset (m) and the
 //     rotation vector (world axes) of the orientation error times a length L (m),
@@ -46,9 +47,13 @@ namespace softdiff::optim {
 // An embedded point: sum_a w[a] x_{nodes[a]} (global node indices; 4 nodes with
 // barycentric weights in a linear tet, 10 with the quadratic shape functions in a
 // quadratic one).
+// On a rigid body (issue 21): rigid_body >= 0 (Model::rigid index) and the point in
+// its body axes relative to its centre of mass, p + R(q) body_point (`point` unused).
 struct Marker {
   std::string name;
   actuation::EmbeddedPoint point;
+  int rigid_body = -1;
+  Vec3 body_point = Vec3::Zero();
 };
 
 struct CalibrationTarget {
