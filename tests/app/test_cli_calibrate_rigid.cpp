@@ -3,7 +3,7 @@
 // pendulum's mass (its swing about the pin depends on m r^2 against its inertia about
 // its centre) and the spinner's inertia xx (its torque-free precession depends on the
 // ratios of its inertia) are recovered together from the target's rigid poses and the
-// beam's nodes; a target without a rigid body's datasets leaves that body unmatched and
+// beam's nodes, and from markers fixed on the rigid bodies; a target without a rigid body's datasets leaves that body unmatched and
 // says so; every bad input about rigid bodies exits 2 with a one-line message naming
 // the problem and leaves no output file.
 #include <support/cli.hpp>
@@ -12,7 +12,10 @@
 #include <gtest/gtest.h>
 #include <hdf5.h>
 
+#include <Eigen/Geometry>
+
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <string>
@@ -121,6 +124,44 @@ TEST(CliCalibrateRigid, ARigidBodyMissingFromTheTargetIsNotMatched) {
       << r.err;
   EXPECT_NE(r.out.find("\"rigid_matched\":\"pendulum\""), std::string::npos) << r.out;
   EXPECT_NEAR(json_number(r.out, "pendulum.mass") / 0.004, 1.0, 1e-6) << r.out;
+}
+
+// Markers on the rigid bodies (a point fixed on each, given at time 0 and followed in
+// the target's poses: p + R b) and one on the beam's tip: the pendulum's mass and the
+// spinner's inertia recovered from the markers alone, to 1e-6 relative.
+TEST(CliCalibrateRigid, RecoversFromMarkersOnRigidBodies) {
+  const auto dir = with_target("markers", beam() + pendulum() + spinner());
+  const hid_t f = H5Fopen((dir / "target.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const std::vector<double> time = h5_read(f, "/time");
+  struct Point {
+    std::string name, body;
+    Eigen::Vector3d b;  // body axes, from the centre of mass
+  };
+  const std::vector<Point> points = {{"p0", "pendulum", {0.004, 0.019, 0.004}},
+                                     {"s0", "spinner", {0.019, 0.009, 0.004}},
+                                     {"s1", "spinner", {-0.019, 0.0, -0.004}}};
+  std::string csv = "time,marker,x,y,z\n";
+  for (const auto& pt : points) {
+    const std::vector<double> p = h5_read(f, "/bodies/" + pt.body + "/position");
+    const std::vector<double> q = h5_read(f, "/bodies/" + pt.body + "/orientation");
+    for (std::size_t k = 0; k < time.size(); ++k) {
+      const Eigen::Quaterniond qk(q[4 * k], q[4 * k + 1], q[4 * k + 2], q[4 * k + 3]);
+      const Eigen::Vector3d y = Eigen::Vector3d(p[3 * k], p[3 * k + 1], p[3 * k + 2]) + qk * pt.b;
+      char line[200];
+      std::snprintf(line, sizeof line, "%.17g,%s,%.17g,%.17g,%.17g\n", time[k], pt.name.c_str(), y[0], y[1], y[2]);
+      csv += line;
+    }
+  }
+  H5Fclose(f);
+  write_text(dir / "markers.csv", csv);
+  const CliRun r = run_cli(
+      "calibrate scene.yaml --param pendulum.mass,spinner.inertia.xx --init 0.016,1e-7 --markers markers.csv -o cal.h5 "
+      "--json",
+      dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NEAR(json_number(r.out, "pendulum.mass") / 0.004, 1.0, 1e-6) << r.out;
+  EXPECT_NEAR(json_number(r.out, "spinner.inertia.xx") / (0.008 * 5e-4 / 12), 1.0, 1e-6) << r.out;
 }
 
 // Copies `from` to `to` and replaces /bodies/pendulum/<name> by a dataset of `rows` x

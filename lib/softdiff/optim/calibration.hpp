@@ -71,7 +71,8 @@ struct CalibrationTarget {
   };
   std::vector<Observation> observations;
   // Rigid bodies' poses (issue 21; with states, or alone: then states is empty and only
-  // these rows are matched; not with markers): 6 rows per matched body and frame,
+  // these rows are matched; not with markers, which may be on rigid bodies themselves:
+  // Marker::rigid_body): 6 rows per matched body and frame,
   // after the frame's 3n soft rows.
   struct RigidPoses {
     int body = 0;       // Model::rigid index
