@@ -87,7 +87,7 @@ void fill_rows(const CalibrationTarget& target, int f, const State& s, const Mat
         const Eigen::Index b = n3 + 6L * pose.body;
         J.middleRows<3>(row) = dx->middleRows<3>(b);
         const Mat3 Jl_inv = rigid::right_jacobian(Vec3(d.segment<3>(3))).transpose().inverse();
-        J.middleRows<3>(row + 3) = pose.length * Jl_inv * dx->middleRows<3>(b + 3);
+        J.middleRows<3>(row + 3).noalias() = (pose.length * Jl_inv) * dx->middleRows<3>(b + 3);
       } else {
         J.middleRows<6>(row).setZero();
       }
@@ -108,7 +108,8 @@ void fill_rows(const CalibrationTarget& target, int f, const State& s, const Mat
       r.segment<3>(row) = rs.position + arm - o.position;
       if (dx) {
         const Eigen::Index b = x.size() + 6L * m.rigid_body;
-        J.middleRows<3>(row) = dx->middleRows<3>(b) - rigid::hat(arm) * dx->middleRows<3>(b + 3);
+        J.middleRows<3>(row) = dx->middleRows<3>(b);
+        J.middleRows<3>(row).noalias() -= rigid::hat(arm) * dx->middleRows<3>(b + 3);
       } else {
         J.middleRows<3>(row).setZero();
       }
