@@ -15,6 +15,8 @@
 #include <softdiff/io/scene.hpp>
 #include <softdiff/io/target_files.hpp>
 #include <softdiff/optim/calibration.hpp>
+#include <softdiff/collision/distance.hpp>
+#include <softdiff/rigid/rigid_derivatives.hpp>
 
 #include <softdiff/core/threads.hpp>
 
@@ -34,13 +36,19 @@ namespace {
 
 struct Calibrated {
   std::vector<ParameterId> ids;
-  std::vector<std::string> names;  // output names: "young", or "beam.young" when several bodies have it
+  std::vector<rigid::RigidParameterId> rigid_ids;  // after ids in the values (issue 21)
+  std::vector<std::string> names;  // output names: "young", or "beam.young" when several bodies have it; then
+                                   // the rigid ones: "cube.mass", "cube.inertia.xx"
 };
 
 // --param: young, poisson, density, rayleigh_mass, rayleigh_stiffness, friction; a kind
 // alone is every body (every contact pair rule for friction), BODY.kind one body.
+// Rigid bodies (issue 21): mass, inertia (its diagonal components in body axes: xx, yy,
+// zz; inertia.xx one of them), alone every rigid body, RIGID.kind one; identified in log
+// scale. Off-diagonal components are refused (not positive: no log scale).
 Calibrated parse_params(const std::string& list, const Model& model) {
-  const std::string valid = "young, poisson, density, rayleigh_mass, rayleigh_stiffness, friction (or BODY.NAME)";
+  const std::string valid = "young, poisson, density, rayleigh_mass, rayleigh_stiffness, friction, and for rigid bodies "
+                            "mass, inertia, inertia.xx, inertia.yy, inertia.zz (or BODY.NAME)";
   const std::vector<std::string> items = split_list(list);
   if (items.empty() || (items.size() == 1 && items[0].empty()))
     throw InputError("--param: expected a comma-separated list of " + valid + "; got nothing");
@@ -55,12 +63,62 @@ Calibrated parse_params(const std::string& list, const Model& model) {
     c.ids.push_back(id);
     c.names.push_back(name);
   };
+  const int nr = static_cast<int>(model.rigid.size());
+  std::vector<std::string> rigid_names;
+  std::set<std::string> rigid_kinds;
+  const auto add_rigid = [&](int r, int index) {
+    const std::string name = model.rigid[static_cast<std::size_t>(r)].name + "." + rigid::rigid_parameter_name(index);
+    for (const auto& e : c.rigid_ids)
+      if (e.body == r && e.index == index) throw InputError("--param " + list + ": '" + name + "' is listed twice");
+    c.rigid_ids.push_back({r, index});
+    rigid_names.push_back(name);
+  };
   for (const auto& item : items) {
     if (item.empty()) throw InputError("--param " + list + ": empty name in the list (expected " + valid + ")");
     std::string body, kind = item;
-    if (const auto dot = item.find('.'); dot != std::string::npos) {
-      body = item.substr(0, dot);
-      kind = item.substr(dot + 1);
+    if (item != "inertia" && item.rfind("inertia.", 0) != 0)
+      if (const auto dot = item.find('.'); dot != std::string::npos) {
+        body = item.substr(0, dot);
+        kind = item.substr(dot + 1);
+      }
+    if (kind == "mass" || kind == "inertia" || kind.rfind("inertia.", 0) == 0) {
+      // A rigid body's parameter (issue 21).
+      std::vector<int> indices;
+      if (kind == "mass") indices = {0};
+      else if (kind == "inertia") indices = {1, 2, 3};
+      else if (kind == "inertia.xx") indices = {1};
+      else if (kind == "inertia.yy") indices = {2};
+      else if (kind == "inertia.zz") indices = {3};
+      else if (kind == "inertia.xy" || kind == "inertia.xz" || kind == "inertia.yz")
+        throw InputError("--param " + item + ": off-diagonal inertia components are not calibrated (they need not be "
+                         "positive, and parameters are identified in log scale): use inertia (xx, yy, zz) or "
+                         "inertia.xx, inertia.yy, inertia.zz");
+      else
+        throw InputError("--param " + list + ": unknown parameter '" + kind + "' (expected " + valid + ")");
+      if (nr == 0)
+        throw InputError("--param " + item + ": '" + kind + "' is a rigid body's parameter, and this scene has no rigid "
+                         "body (a soft body's mass: density)");
+      std::vector<std::string> rigid_bodies;
+      int found = -1;
+      for (int r = 0; r < nr; ++r) {
+        rigid_bodies.push_back(model.rigid[static_cast<std::size_t>(r)].name);
+        if (rigid_bodies.back() == body) found = r;
+      }
+      if (!body.empty() && found < 0) {
+        for (const auto& b : model.fem.bodies)
+          if (b.name == body)
+            throw InputError("--param " + item + ": '" + body + "' is a soft body; " + kind +
+                             " is a rigid body's parameter (rigid bodies: " + io::join(rigid_bodies) +
+                             "; a soft body's mass: density)");
+        std::string msg = "--param " + item + ": no rigid body '" + body + "' (rigid bodies: " + io::join(rigid_bodies) + ")";
+        if (const auto m = io::closest_match(body, rigid_bodies)) msg += "; did you mean '" + *m + "'?";
+        throw InputError(msg);
+      }
+      for (int r = 0; r < nr; ++r)
+        if (body.empty() || r == found)
+          for (const int index : indices) add_rigid(r, index);
+      rigid_kinds.insert(kind == "mass" ? "mass" : "inertia");
+      continue;
     }
     const auto p = parse_parameter(kind);
     if (!p) throw InputError("--param " + list + ": unknown parameter '" + kind + "' (expected " + valid + ")");
@@ -86,6 +144,10 @@ Calibrated parse_params(const std::string& list, const Model& model) {
         if (bodies.back() == body) found = b;
       }
       if (found < 0) {
+        for (const auto& rb : model.rigid)
+          if (rb.name == body)
+            throw InputError("--param " + item + ": '" + body + "' is a rigid body; its parameters are mass and "
+                             "inertia (" + kind + " is a soft body's)");
         std::string msg = "--param " + item + ": no body '" + body + "' (bodies: " + io::join(bodies) + ")";
         if (const auto m = io::closest_match(body, bodies)) msg += "; did you mean '" + *m + "'?";
         throw InputError(msg);
@@ -96,7 +158,9 @@ Calibrated parse_params(const std::string& list, const Model& model) {
   // Whether this scene's step is differentiated (the checks of --jacobian).
   std::string plain;
   for (const auto& k : kinds) plain += (plain.empty() ? "" : ",") + k;
+  for (const auto& k : rigid_kinds) plain += (plain.empty() ? "" : ",") + k;
   parse_theta("--param", plain, model);
+  c.names.insert(c.names.end(), rigid_names.begin(), rigid_names.end());
   return c;
 }
 
@@ -157,13 +221,66 @@ optim::CalibrationTarget trajectory_target(const CalibrateOptions& o, const Mode
     t.frames.push_back(step);
     t.states.push_back(f.x[static_cast<std::size_t>(k)]);
   }
+  // Rigid bodies' poses (issue 21): those in the file; their orientation rows scaled by
+  // the scene's L (optim::rigid_orientation_length).
+  for (const auto& rt : f.rigid) {
+    optim::CalibrationTarget::RigidPoses pose;
+    pose.body = rt.body;
+    pose.length = optim::rigid_orientation_length(model.rigid[static_cast<std::size_t>(rt.body)]);
+    for (const long k : frames) {
+      pose.position.push_back(rt.position[static_cast<std::size_t>(k)]);
+      pose.orientation.push_back(rt.orientation[static_cast<std::size_t>(k)]);
+    }
+    t.rigid.push_back(std::move(pose));
+  }
+  for (const auto& name : f.rigid_missing)
+    note("rigid body '" + name + "': no /bodies/" + name + "/position, orientation in " + o.target +
+         ": its pose is not matched");
+  for (const auto& pose : t.rigid) {
+    std::ostringstream s;
+    s.precision(4);
+    s << "rigid body '" << model.rigid[static_cast<std::size_t>(pose.body)].name
+      << "': its pose is matched (orientation rows scaled by L = " << pose.length << " m)";
+    note(s.str());
+  }
   for (std::size_t i = 1; i < t.frames.size(); ++i)
     if (t.frames[i] == t.frames[i - 1]) throw InputError(o.target + ": two frames at the same step " + std::to_string(t.frames[i]));
   return t;
 }
 
+// A marker's place on a rigid body at its initial pose s0 (issue 21): the point in
+// body axes (relative to the centre of mass), its distance to the body (0 inside: the
+// winding number of the closed surface, Van Oosterom and Strackee's solid angles), and
+// the distance allowed outside (half the nearest triangle's longest edge).
+struct RigidMarkerPlace {
+  Vec3 body_point = Vec3::Zero();
+  double distance = 0, allowed = 0;
+};
+RigidMarkerPlace rigid_marker_distance(const rigid::RigidBody& body, const rigid::RigidState& s0, const Vec3& y) {
+  RigidMarkerPlace out;
+  out.body_point = s0.orientation.conjugate() * (y - s0.position);
+  const auto& V = body.surface.vertices;
+  const auto& T = body.surface.triangles;
+  double solid = 0, best2 = std::numeric_limits<double>::infinity();
+  for (Eigen::Index t = 0; t < T.cols(); ++t) {
+    const Vec3 A = V.col(T(0, t)), B = V.col(T(1, t)), C = V.col(T(2, t));
+    const Vec3 a = A - out.body_point, b = B - out.body_point, c = C - out.body_point;
+    const double la = a.norm(), lb = b.norm(), lc = c.norm();
+    solid += 2 * std::atan2(a.dot(b.cross(c)), la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la);
+    const double d2 = collision::point_triangle_closest(out.body_point, A, B, C).dist2;
+    if (d2 < best2) {
+      best2 = d2;
+      out.allowed = 0.5 * std::max({(B - A).norm(), (C - B).norm(), (A - C).norm()});
+    }
+  }
+  const bool inside = std::abs(solid) > 2 * M_PI;  // winding number |solid / 4 pi| > 1/2
+  out.distance = inside ? 0.0 : std::sqrt(best2);
+  return out;
+}
+
 // Markers: a scene effector of that name, else the marker's observation at time 0
-// locates it in the body that contains it (at rest).
+// locates it in the body that contains it (at rest): a soft body's tet, or a point
+// fixed on a rigid body.
 optim::CalibrationTarget marker_target(const CalibrateOptions& o, const Model& model) {
   const auto obs = io::read_markers(o.markers);
   const bool is_static = model.step.integrator == IntegratorKind::static_equilibrium;
@@ -203,6 +320,18 @@ optim::CalibrationTarget marker_target(const CalibrateOptions& o, const Model& m
           }
         }
       }
+      // Rigid bodies (issue 21): inside the body's surface, or outside within half the
+      // nearest triangle's longest edge (as a soft body's nearest tet): a point fixed on
+      // the body, nearer than any soft body's.
+      for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+        const auto near = rigid_marker_distance(model.rigid[r], model.initial.rigid[r], z->second->position);
+        if (near.distance <= near.allowed && near.distance < best) {
+          best = near.distance;
+          m.rigid_body = static_cast<int>(r);
+          m.body_point = near.body_point;
+          found = true;
+        }
+      }
       if (!found)
         throw InputError(o.markers + ":" + std::to_string(z->second->line) + ": marker '" + ob.marker +
                          "' at time 0 is not inside any body (positions are world coordinates in metres)");
@@ -235,7 +364,7 @@ void add_calibrate(CLI::App& app, CalibrateOptions& o) {
   app.add_option("scene", o.scene, "Scene file (YAML, docs/scene.md)")->required()->check(CLI::ExistingFile);
   app.add_option("--param", o.param,
                  "Parameters to identify (comma-separated: young, poisson, density, rayleigh_mass, rayleigh_stiffness, "
-                 "friction; BODY.NAME for one body)")
+                 "friction; rigid bodies: mass, inertia, inertia.xx|yy|zz; BODY.NAME for one body)")
       ->required();
   auto* target = app.add_option("--target", o.target, "Target trajectory (a softdiff HDF5 file, docs/output.md)");
   auto* markers = app.add_option("--markers", o.markers, "Target markers: a CSV of time,marker,x,y,z observations");
@@ -266,15 +395,15 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
   report.strict = o.strict;
   const Model model = io::build_model(scene, &report);
   for (const auto& w : report.warnings) warn(w);
-  demand_no_rigid_bodies("calibrate", model);
+  demand_no_rigidified_parts("calibrate", model);  // rigid bodies: parse_theta's checks (issue 21)
   const Calibrated params = parse_params(o.param, model);
 
   // Initial values.
   std::vector<double> init;
   if (!o.init.empty()) {
     const auto items = split_list(o.init);
-    if (items.size() != params.ids.size())
-      throw InputError("--init " + o.init + ": expected " + std::to_string(params.ids.size()) + " values (one per parameter: " +
+    if (items.size() != params.names.size())
+      throw InputError("--init " + o.init + ": expected " + std::to_string(params.names.size()) + " values (one per parameter: " +
                        io::join(params.names) + "), got " + std::to_string(items.size()));
     for (std::size_t j = 0; j < items.size(); ++j) {
       char* end = nullptr;
@@ -285,9 +414,11 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
     }
   } else {
     for (const auto& id : params.ids) init.push_back(diff::get_parameter(model, id));
+    for (const auto& id : params.rigid_ids)
+      init.push_back(rigid::get_parameter(model.rigid[static_cast<std::size_t>(id.body)], id.index));
   }
   for (std::size_t j = 0; j < init.size(); ++j) {
-    const bool poisson = params.ids[j].kind == Parameter::poisson;
+    const bool poisson = j < params.ids.size() && params.ids[j].kind == Parameter::poisson;
     if (poisson ? !(init[j] > 0 && init[j] < 0.5) : !(init[j] > 0))
       throw InputError("--init: " + params.names[j] + " = " + io::format_number(init[j]) + " is outside the calibrated range (" +
                        (poisson ? "0 < poisson < 0.5" : "> 0: it is identified in log scale") + ")");
@@ -340,7 +471,7 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
     if (it.failed > 0) note(progress, "  last failed trial: " + it.last_failure);
   };
   const auto t_run = Clock::now();
-  const optim::CalibrationResult result = optim::calibrate(model, params.ids, init, target, co, print);
+  const optim::CalibrationResult result = optim::calibrate(model, params.ids, params.rigid_ids, init, target, co, print);
   progress.finish();
   const double run_seconds = seconds_since(t_run);
   if (!o.quiet)
@@ -351,6 +482,11 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
   // /calibration (docs/output.md).
   Model final_model = model;
   for (std::size_t j = 0; j < params.ids.size(); ++j) diff::set_parameter(final_model, params.ids[j], result.values[j]);
+  for (std::size_t j = 0; j < params.rigid_ids.size(); ++j) {
+    const auto& id = params.rigid_ids[j];
+    rigid::set_parameter(final_model.rigid[static_cast<std::size_t>(id.body)], id.index,
+                         result.values[params.ids.size() + j]);
+  }
   SimulateOptions so;
   so.scene = o.scene;
   so.output = out_path.string();
@@ -360,7 +496,7 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
   so.summary = false;
   so.progress_label = "final run";
   const auto write_calibration = [&](io::Hdf5Writer& w) {
-    const Eigen::Index p = static_cast<Eigen::Index>(params.ids.size());
+    const Eigen::Index p = static_cast<Eigen::Index>(params.names.size());
     MatX table(static_cast<Eigen::Index>(result.history.size()), p + 5);
     std::string columns = "iteration";
     for (const auto& n : params.names) columns += "," + n;
@@ -380,15 +516,16 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
     // damping 1, seconds s.
     std::vector<std::string> parameter_units;
     for (const auto& id : params.ids) parameter_units.push_back(parameter_unit(id.kind));
+    for (const auto& id : params.rigid_ids) parameter_units.push_back(id.index == 0 ? "kg" : "kg m^2");
     std::vector<std::string> units{"1"};
     units.insert(units.end(), parameter_units.begin(), parameter_units.end());
     const std::string common = column_units(parameter_units);
     const std::map<std::string, std::string> m2_per{
-        {"Pa", "m^2/Pa"}, {"1", "m^2"}, {"kg/m^3", "m^5/kg"}, {"1/s", "m^2 s"}, {"s", "m^2/s"}};
+        {"Pa", "m^2/Pa"}, {"1", "m^2"}, {"kg/m^3", "m^5/kg"}, {"1/s", "m^2 s"}, {"s", "m^2/s"}, {"kg", "m^2/kg"}, {"kg m^2", "1/kg"}};
     const auto gradient = m2_per.find(common);
     units.insert(units.end(), {"m^2", gradient == m2_per.end() ? std::string("mixed") : gradient->second, "1", "s"});
     w.write_matrix("/calibration/iterations", table, column_units(units), {{"columns", columns}});
-    for (std::size_t j = 0; j < params.ids.size(); ++j) w.set_attribute("/calibration", params.names[j], result.values[j]);
+    for (std::size_t j = 0; j < params.names.size(); ++j) w.set_attribute("/calibration", params.names[j], result.values[j]);
     w.set_attribute("/calibration", "converged", std::int64_t{result.converged ? 1 : 0});
     w.set_attribute("/calibration", "iterations", std::int64_t{result.iterations});
     w.set_attribute("/calibration", "final_cost", result.cost);
@@ -409,8 +546,11 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
     j.value("rejected", static_cast<long>(result.rejected)).value("failed", static_cast<long>(result.failed));
     j.value("final_cost", result.cost).value("wall_seconds", run_seconds);
     j.value("residuals", static_cast<long>(target.residual_size())).value("target_steps", target.steps());
+    std::vector<std::string> matched;  // the rigid bodies whose pose is matched (issue 21)
+    for (const auto& pose : target.rigid) matched.push_back(model.rigid[static_cast<std::size_t>(pose.body)].name);
+    j.value("rigid_matched", io::join(matched));
     j.begin_object("parameters");
-    for (std::size_t k = 0; k < params.ids.size(); ++k) j.value(params.names[k], result.values[k]);
+    for (std::size_t k = 0; k < params.names.size(); ++k) j.value(params.names[k], result.values[k]);
     j.end_object();
     j.begin_array("history");
     for (const auto& h : result.history) {

@@ -250,10 +250,9 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null",
        "integrator 'static' with rigid bodies is not supported yet (issue 21"},
-      {"calibrate", beam_and_sphere(), "calibrate scene.yaml --param young --target target.h5 -o out.h5",
-       "calibrate: derivatives with rigid bodies are not supported yet (issue 21"},
-      // control with rigid bodies runs since issue 21's rctl (test_cli_control.cpp
-      // PushesAFreeRigidBlock); what its derivative does not cover is refused there.
+      // calibrate and control with rigid bodies run since issue 21's rcal and rctl
+      // (test_cli_calibrate_rigid.cpp, test_cli_control.cpp PushesAFreeRigidBlock); what
+      // their derivatives do not cover is refused there.
       {"rigid_only",
        "softdiff: 1\nsimulation: {dt: 0.01, steps: 3}\nbodies:\n  - {name: ball, type: rigid, shape: {type: sphere, "
        "radius: 0.01}, density: 1000}\n",

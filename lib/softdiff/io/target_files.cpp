@@ -112,6 +112,50 @@ TrajectoryFile read_trajectory(const std::filesystem::path& file, const Model& m
       out.x[k].segment(3L * b.node_begin, 3L * b.num_nodes) =
           Eigen::Map<const VecX>(x.data() + k * 3 * static_cast<std::size_t>(b.num_nodes), 3L * b.num_nodes);
   }
+  // Rigid bodies' poses (issue 21): matched where the file has them.
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+    const std::string name = model.rigid[r].name, group = "/bodies/" + name;
+    const auto exists = [&](const std::string& path) {
+      return H5Lexists(f.id, "/bodies", H5P_DEFAULT) > 0 && H5Lexists(f.id, group.c_str(), H5P_DEFAULT) > 0 &&
+             H5Lexists(f.id, path.c_str(), H5P_DEFAULT) > 0;
+    };
+    const bool has_p = exists(group + "/position"), has_q = exists(group + "/orientation");
+    if (!has_p && !has_q) {
+      out.rigid_missing.push_back(name);
+      continue;
+    }
+    if (has_p != has_q)
+      fail(file, group + (has_p ? "/position" : "/orientation") + " without " + group +
+                     (has_p ? "/orientation" : "/position") + ": a rigid body's pose needs both (docs/output.md)");
+    const auto read = [&](const std::string& path, hsize_t width, const std::string& what) {
+      const std::vector<double> v = read_dataset(file, f.id, path, dims);
+      if (dims.size() != 2 || dims[0] != T || dims[1] != width) {
+        std::ostringstream s;
+        s << path << ": expected shape (" << T << ", " << width << ") (" << what << " of the scene's rigid body '" << name
+          << "' at each of the " << T << " frames of /time), got (";
+        for (std::size_t i = 0; i < dims.size(); ++i) s << (i ? ", " : "") << dims[i];
+        s << ")";
+        fail(file, s.str());
+      }
+      return v;
+    };
+    const std::vector<double> p = read(group + "/position", 3, "the centre of mass");
+    const std::vector<double> q = read(group + "/orientation", 4, "the unit quaternion w, x, y, z");
+    TrajectoryFile::RigidTrajectory rt;
+    rt.body = static_cast<int>(r);
+    for (std::size_t k = 0; k < T; ++k) {
+      rt.position.emplace_back(p[3 * k], p[3 * k + 1], p[3 * k + 2]);
+      Eigen::Quaterniond qk(q[4 * k], q[4 * k + 1], q[4 * k + 2], q[4 * k + 3]);
+      if (!(std::abs(qk.norm() - 1) <= 1e-6)) {
+        std::ostringstream s;
+        s << group << "/orientation: frame " << k << " is not a unit quaternion (norm " << qk.norm() << ")";
+        fail(file, s.str());
+      }
+      qk.normalize();
+      rt.orientation.push_back(qk);
+    }
+    out.rigid.push_back(std::move(rt));
+  }
   return out;
 }
 

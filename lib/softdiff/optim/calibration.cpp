@@ -10,12 +10,15 @@
 #include <softdiff/integrator/implicit_euler.hpp>
 #include <softdiff/integrator/static_solver.hpp>
 #include <softdiff/integrator/static_solver_derivatives.hpp>
+#include <softdiff/rigid/rigid_derivatives.hpp>
+#include <softdiff/rigid/rotation.hpp>
 
 #include <unsupported/Eigen/LevenbergMarquardt>
 
 #include <chrono>
 #include <cmath>
 #include <sstream>
+#include <stdexcept>
 
 namespace softdiff::optim {
 
@@ -23,8 +26,10 @@ Eigen::Index CalibrationTarget::residual_size() const {
   if (!observations.empty()) return 3 * static_cast<Eigen::Index>(observations.size());
   Eigen::Index m = 0;
   for (const auto& s : states) m += s.size();
-  return m;
+  return m + 6 * static_cast<Eigen::Index>(rigid.size() * frames.size());
 }
+
+double rigid_orientation_length(const rigid::RigidBody& body) { return std::sqrt(body.inertia.trace() / (3 * body.mass)); }
 
 double to_internal(Parameter kind, double value) {
   if (kind == Parameter::poisson) {
@@ -49,15 +54,45 @@ double dvalue_dinternal(Parameter kind, double z) {
 
 namespace {
 
-// The rows of frame index f (into target.frames) from the positions x and dx/dp.
-void fill_rows(const CalibrationTarget& target, int f, const VecX& x, const MatX* dx, VecX& r, MatX& J) {
+// The rows of frame index f (into target.frames) from the state s (positions x, the
+// rigid bodies' poses) and dx/dp (3n soft rows, then 6 per rigid body: position,
+// rotation vector in world axes).
+void fill_rows(const CalibrationTarget& target, int f, const State& s, const MatX* dx, VecX& r, MatX& J) {
+  const VecX& x = s.x;
   if (target.observations.empty()) {
-    Eigen::Index row = 0;
-    for (int g = 0; g < f; ++g) row += target.states[static_cast<std::size_t>(g)].size();
-    const VecX& y = target.states[static_cast<std::size_t>(f)];
-    r.segment(row, y.size()) = x - y;
-    if (dx) J.middleRows(row, y.size()) = *dx;
-    else J.middleRows(row, y.size()).setZero();
+    const Eigen::Index per_frame = 6 * static_cast<Eigen::Index>(target.rigid.size());
+    Eigen::Index row = per_frame * f;
+    for (int g = 0; g < f && !target.states.empty(); ++g) row += target.states[static_cast<std::size_t>(g)].size();
+    if (!target.states.empty()) {
+      const VecX& y = target.states[static_cast<std::size_t>(f)];
+      r.segment(row, y.size()) = x - y;
+      if (dx) J.middleRows(row, y.size()) = dx->topRows(y.size());
+      else J.middleRows(row, y.size()).setZero();
+      row += y.size();
+    }
+    // Rigid poses: (p - p*, L delta), delta = log(q q*^-1). A change dtheta of the
+    // orientation (q -> exp(dtheta) q, the sensitivities' rows) changes delta by
+    // J_l(delta)^-1 dtheta (exp(e) exp(delta) = exp(delta + J_l^-1(delta) e), J_l(delta) =
+    // J_r(delta)^T): exactly the identity at delta = 0.
+    const Eigen::Index n3 = x.size();
+    for (const auto& pose : target.rigid) {
+      const auto fi = static_cast<std::size_t>(f);
+      rigid::RigidState goal;
+      goal.position = pose.position[fi];
+      goal.orientation = pose.orientation[fi];
+      const rigid::Vec12 d = rigid::tangent_between(goal, s.rigid[static_cast<std::size_t>(pose.body)]);
+      r.segment<3>(row) = d.head<3>();
+      r.segment<3>(row + 3) = pose.length * d.segment<3>(3);
+      if (dx) {
+        const Eigen::Index b = n3 + 6L * pose.body;
+        J.middleRows<3>(row) = dx->middleRows<3>(b);
+        const Mat3 Jl_inv = rigid::right_jacobian(Vec3(d.segment<3>(3))).transpose().inverse();
+        J.middleRows<3>(row + 3).noalias() = (pose.length * Jl_inv) * dx->middleRows<3>(b + 3);
+      } else {
+        J.middleRows<6>(row).setZero();
+      }
+      row += 6;
+    }
     return;
   }
   for (std::size_t i = 0; i < target.observations.size(); ++i) {
@@ -65,6 +100,21 @@ void fill_rows(const CalibrationTarget& target, int f, const VecX& x, const MatX
     if (o.frame != f) continue;
     const Marker& m = target.markers[static_cast<std::size_t>(o.marker)];
     const Eigen::Index row = 3 * static_cast<Eigen::Index>(i);
+    if (m.rigid_body >= 0) {
+      // A point on a rigid body: p + R b. With q -> exp(dtheta) q, d(R b) = dtheta x (R b)
+      // = -[R b] dtheta.
+      const auto& rs = s.rigid[static_cast<std::size_t>(m.rigid_body)];
+      const Vec3 arm = rs.orientation * m.body_point;
+      r.segment<3>(row) = rs.position + arm - o.position;
+      if (dx) {
+        const Eigen::Index b = x.size() + 6L * m.rigid_body;
+        J.middleRows<3>(row) = dx->middleRows<3>(b);
+        J.middleRows<3>(row).noalias() -= rigid::hat(arm) * dx->middleRows<3>(b + 3);
+      } else {
+        J.middleRows<3>(row).setZero();
+      }
+      continue;
+    }
     r.segment<3>(row) = m.point.position(x) - o.position;
     J.middleRows<3>(row).setZero();
     if (dx)
@@ -73,8 +123,9 @@ void fill_rows(const CalibrationTarget& target, int f, const VecX& x, const MatX
   }
 }
 
-// "young[beam] = 1e6, friction[rule 0] = 0.5"
+// "young[beam] = 1e6, friction[rule 0] = 0.5, mass[cube] = 0.1"
 std::string describe_values(const Model& model, const std::vector<ParameterId>& parameters,
+                            const std::vector<rigid::RigidParameterId>& rigid_parameters,
                             const std::vector<double>& values) {
   std::ostringstream s;
   s.precision(6);
@@ -85,7 +136,28 @@ std::string describe_values(const Model& model, const std::vector<ParameterId>& 
     else s << model.fem.bodies[static_cast<std::size_t>(id.body)].name;
     s << "] = " << values[j];
   }
+  for (std::size_t j = 0; j < rigid_parameters.size(); ++j) {
+    const auto& p = rigid_parameters[j];
+    s << (parameters.empty() && j == 0 ? "" : ", ") << rigid::rigid_parameter_name(p.index) << "["
+      << model.rigid[static_cast<std::size_t>(p.body)].name << "] = " << values[parameters.size() + j];
+  }
   return s.str();
+}
+
+// Sets every parameter of m to values (soft ones, then rigid ones). A rigid inertia
+// component that makes the inertia not positive definite (a diagonal one beside
+// off-diagonal ones) is a failed run (ComputationError), as a run that fails.
+void set_values(Model& m, const std::vector<ParameterId>& parameters,
+                const std::vector<rigid::RigidParameterId>& rigid_parameters, const std::vector<double>& values) {
+  for (std::size_t j = 0; j < parameters.size(); ++j) diff::set_parameter(m, parameters[j], values[j]);
+  for (std::size_t j = 0; j < rigid_parameters.size(); ++j) {
+    const auto& p = rigid_parameters[j];
+    try {
+      rigid::set_parameter(m.rigid[static_cast<std::size_t>(p.body)], p.index, values[parameters.size() + j]);
+    } catch (const std::invalid_argument& e) {
+      throw ComputationError(std::string("calibration: ") + e.what());
+    }
+  }
 }
 
 }  // namespace
@@ -94,14 +166,15 @@ namespace {
 
 // One run of m (the parameters already set to `values`) on data (fresh, or restarted
 // for m): the residual and its Jacobian.
-void run(const Model& m, Data& data, const std::vector<ParameterId>& parameters, const std::vector<double>& values,
+void run(const Model& m, Data& data, const std::vector<ParameterId>& parameters,
+         const std::vector<rigid::RigidParameterId>& rigid_parameters, const std::vector<double>& values,
          const CalibrationTarget& target, bool strict, VecX& r, MatX& J,
          const std::function<void(long step, long steps)>& on_step) {
   const Eigen::Index rows = target.residual_size();
   r.setZero(rows);
-  J.setZero(rows, static_cast<Eigen::Index>(parameters.size()));
+  J.setZero(rows, static_cast<Eigen::Index>(parameters.size() + rigid_parameters.size()));
   const auto failed = [&](const StepStatus& st) {
-    throw ComputationError("calibration: the run with " + describe_values(m, parameters, values) +
+    throw ComputationError("calibration: the run with " + describe_values(m, parameters, rigid_parameters, values) +
                            " failed: " + describe(m, st));
   };
   if (m.step.integrator == IntegratorKind::static_equilibrium) {
@@ -116,16 +189,17 @@ void run(const Model& m, Data& data, const std::vector<ParameterId>& parameters,
     integrator::StaticTheta theta{parameters, false};
     if (!integrator::static_sensitivities(m, data, eq, theta, dx))
       throw ComputationError("calibration: the derivative of the equilibrium failed with " +
-                             describe_values(m, parameters, values));
-    for (int f = 0; f < static_cast<int>(target.frames.size()); ++f) fill_rows(target, f, eq.x, &dx, r, J);
+                             describe_values(m, parameters, rigid_parameters, values));
+    for (int f = 0; f < static_cast<int>(target.frames.size()); ++f) fill_rows(target, f, eq, &dx, r, J);
     return;
   }
   diff::ThetaLayout layout;
   layout.parameters = parameters;
+  layout.rigid_parameters = rigid_parameters;
   diff::ForwardSensitivity sensitivity(m, layout);
   State s = m.initial, next = m.initial, previous;  // previous: BDF2's history
   std::size_t f = 0;
-  if (target.frames[0] == 0) fill_rows(target, static_cast<int>(f++), s.x, nullptr, r, J);
+  if (target.frames[0] == 0) fill_rows(target, static_cast<int>(f++), s, nullptr, r, J);
   if (on_step) on_step(0, target.steps());
   for (long k = 1; k <= target.steps(); ++k) {
     const StepStatus st = integrator::time_step(m, data, s, k > 1 ? &previous : nullptr, next, k);
@@ -149,12 +223,12 @@ void run(const Model& m, Data& data, const std::vector<ParameterId>& parameters,
     std::swap(s, next);
     if (on_step) on_step(k, target.steps());
     if (f < target.frames.size() && target.frames[f] == k) {
-      fill_rows(target, static_cast<int>(f), s.x, &sensitivity.dx_dtheta(), r, J);
+      fill_rows(target, static_cast<int>(f), s, &sensitivity.dx_dtheta(), r, J);
       ++f;
     }
   }
   if (!r.allFinite() || !J.allFinite())
-    throw ComputationError("calibration: non-finite residual or Jacobian with " + describe_values(m, parameters, values));
+    throw ComputationError("calibration: non-finite residual or Jacobian with " + describe_values(m, parameters, rigid_parameters, values));
 }
 
 }  // namespace
@@ -162,31 +236,45 @@ void run(const Model& m, Data& data, const std::vector<ParameterId>& parameters,
 void residual(const Model& model, const std::vector<ParameterId>& parameters, const std::vector<double>& values,
               const CalibrationTarget& target, bool strict, VecX& r, MatX& J,
               const std::function<void(long step, long steps)>& on_step) {
-  SOFTDIFF_DEMAND(parameters.size() == values.size(), "calibration: one value per parameter");
-  SOFTDIFF_DEMAND(!target.frames.empty(), "calibration: the target has no frame");
-  Model m = model;
-  for (std::size_t j = 0; j < parameters.size(); ++j) diff::set_parameter(m, parameters[j], values[j]);
-  Data data(m);
-  run(m, data, parameters, values, target, strict, r, J, on_step);
+  residual(model, parameters, {}, values, target, strict, r, J, on_step);
 }
 
-CalibrationWorkspace::CalibrationWorkspace(const Model& model, std::vector<ParameterId> parameters)
-    : base_(model), parameters_(std::move(parameters)), model_(model), data_(model_) {
+void residual(const Model& model, const std::vector<ParameterId>& parameters,
+              const std::vector<rigid::RigidParameterId>& rigid_parameters, const std::vector<double>& values,
+              const CalibrationTarget& target, bool strict, VecX& r, MatX& J,
+              const std::function<void(long step, long steps)>& on_step) {
+  SOFTDIFF_DEMAND(parameters.size() + rigid_parameters.size() == values.size(), "calibration: one value per parameter");
+  SOFTDIFF_DEMAND(!target.frames.empty(), "calibration: the target has no frame");
+  Model m = model;
+  set_values(m, parameters, rigid_parameters, values);
+  Data data(m);
+  run(m, data, parameters, rigid_parameters, values, target, strict, r, J, on_step);
+}
+
+CalibrationWorkspace::CalibrationWorkspace(const Model& model, std::vector<ParameterId> parameters,
+                                           std::vector<rigid::RigidParameterId> rigid_parameters)
+    : base_(model), parameters_(std::move(parameters)), rigid_parameters_(std::move(rigid_parameters)), model_(model),
+      data_(model_) {
   for (const auto& p : parameters_) friction_ = friction_ || p.kind == Parameter::friction;
 }
 
 void CalibrationWorkspace::residual(const std::vector<double>& values, const CalibrationTarget& target, bool strict,
                                     VecX& r, MatX& J, const std::function<void(long step, long steps)>& on_step) {
-  SOFTDIFF_DEMAND(parameters_.size() == values.size(), "calibration: one value per parameter");
+  SOFTDIFF_DEMAND(parameters_.size() + rigid_parameters_.size() == values.size(), "calibration: one value per parameter");
   SOFTDIFF_DEMAND(!target.frames.empty(), "calibration: the target has no frame");
   // Every parameter back to the base model's value, then set in order: the same model
   // as set_parameter on a fresh copy (a density set on top of the last run's would
   // compound the rounding of the mass ratios).
   for (const auto& p : parameters_) diff::restore_parameter(model_, base_, p);
-  for (std::size_t j = 0; j < parameters_.size(); ++j) diff::set_parameter(model_, parameters_[j], values[j]);
+  for (const auto& p : rigid_parameters_) {  // a body's mass and inertia: nothing is derived from them
+    const auto b = static_cast<std::size_t>(p.body);
+    model_.rigid[b].mass = base_.rigid[b].mass;
+    model_.rigid[b].inertia = base_.rigid[b].inertia;
+  }
+  set_values(model_, parameters_, rigid_parameters_, values);
   data_.restart(model_, friction_);
   ++runs_;
-  run(model_, data_, parameters_, values, target, strict, r, J, on_step);
+  run(model_, data_, parameters_, rigid_parameters_, values, target, strict, r, J, on_step);
 }
 
 namespace {
@@ -199,10 +287,22 @@ constexpr double kFailedCostFactor = 10;
 // runs the simulation with its sensitivities on the one workspace; the Jacobian of the last two evaluated
 // points is kept, so that df() at an accepted point costs nothing.
 struct Functor : Eigen::DenseFunctor<double> {
-  Functor(const Model& model, const std::vector<ParameterId>& parameters, const CalibrationTarget& target, bool strict,
+  Functor(const Model& model, const std::vector<ParameterId>& parameters,
+          const std::vector<rigid::RigidParameterId>& rigid_parameters, const CalibrationTarget& target, bool strict,
           const std::function<void(int, long, long)>& on_step)
-      : Eigen::DenseFunctor<double>(static_cast<int>(parameters.size()), static_cast<int>(target.residual_size())),
-        parameters(parameters), target(target), strict(strict), on_step(on_step), workspace(model, parameters) {}
+      : Eigen::DenseFunctor<double>(static_cast<int>(parameters.size() + rigid_parameters.size()),
+                                    static_cast<int>(target.residual_size())),
+        parameters(parameters), target(target), strict(strict), on_step(on_step),
+        workspace(model, parameters, rigid_parameters) {}
+
+  // The value of unknown j from its internal coordinate z and the derivative: the soft
+  // parameters' reparametrization, log for the rigid ones (mass, inertia diagonal).
+  double value(std::size_t j, double z) const {
+    return j < parameters.size() ? from_internal(parameters[j].kind, z) : std::exp(z);
+  }
+  double dvalue(std::size_t j, double z) const {
+    return j < parameters.size() ? dvalue_dinternal(parameters[j].kind, z) : std::exp(z);
+  }
 
   struct Evaluation {
     VecX z, r;
@@ -210,8 +310,8 @@ struct Functor : Eigen::DenseFunctor<double> {
   };
 
   std::vector<double> physical(const VecX& z) const {
-    std::vector<double> v(parameters.size());
-    for (std::size_t j = 0; j < v.size(); ++j) v[j] = from_internal(parameters[j].kind, z[static_cast<Eigen::Index>(j)]);
+    std::vector<double> v(static_cast<std::size_t>(z.size()));
+    for (std::size_t j = 0; j < v.size(); ++j) v[j] = value(j, z[static_cast<Eigen::Index>(j)]);
     return v;
   }
   const Evaluation& evaluate(const VecX& z) {
@@ -269,7 +369,7 @@ struct Functor : Eigen::DenseFunctor<double> {
     const Evaluation& e = evaluate(z);
     fjac = e.J;
     for (Eigen::Index j = 0; j < z.size(); ++j)
-      fjac.col(j) *= dvalue_dinternal(parameters[static_cast<std::size_t>(j)].kind, z[j]);
+      fjac.col(j) *= dvalue(static_cast<std::size_t>(j), z[j]);
     return 0;
   }
 
@@ -320,16 +420,25 @@ bool converged_status(Eigen::LevenbergMarquardtSpace::Status s) {
 CalibrationResult calibrate(const Model& model, const std::vector<ParameterId>& parameters,
                             const std::vector<double>& initial, const CalibrationTarget& target,
                             const CalibrationOptions& options, const IterationCallback& callback) {
-  SOFTDIFF_DEMAND(parameters.size() == initial.size() && !parameters.empty(), "calibrate: one initial value per parameter");
+  return calibrate(model, parameters, {}, initial, target, options, callback);
+}
+
+CalibrationResult calibrate(const Model& model, const std::vector<ParameterId>& parameters,
+                            const std::vector<rigid::RigidParameterId>& rigid_parameters,
+                            const std::vector<double>& initial, const CalibrationTarget& target,
+                            const CalibrationOptions& options, const IterationCallback& callback) {
+  SOFTDIFF_DEMAND(parameters.size() + rigid_parameters.size() == initial.size() && !initial.empty(),
+                  "calibrate: one initial value per parameter");
   const auto t0 = std::chrono::steady_clock::now();
-  Functor functor(model, parameters, target, options.strict, options.on_step);
+  Functor functor(model, parameters, rigid_parameters, target, options.strict, options.on_step);
   Eigen::LevenbergMarquardt<Functor> lm(functor);
   lm.setFtol(options.ftol);
   lm.setXtol(options.xtol);
   lm.setGtol(options.gtol);
   lm.setMaxfev(1000000);
-  VecX z(static_cast<Eigen::Index>(parameters.size()));
-  for (std::size_t j = 0; j < parameters.size(); ++j) z[static_cast<Eigen::Index>(j)] = to_internal(parameters[j].kind, initial[j]);
+  VecX z(static_cast<Eigen::Index>(initial.size()));
+  for (std::size_t j = 0; j < initial.size(); ++j)
+    z[static_cast<Eigen::Index>(j)] = j < parameters.size() ? to_internal(parameters[j].kind, initial[j]) : std::log(initial[j]);
 
   CalibrationResult result;
   int evaluations_before = 0, failed_before = 0;

@@ -8,11 +8,18 @@
 //   - states: the positions of every node at chosen frames (a softdiff trajectory);
 //     r = x_k(p) - x_k* stacked over the frames;
 //   - markers: positions of embedded points (in one tet each, as a
-//     motion-capture marker glued to the body) at chosen frames; r = W x_k(p) - y*.
+//     motion-capture marker glued to the body) at chosen frames; r = W x_k(p) - y*;
+//     or points fixed on a rigid body (issue 21): r = p_k + R(q_k) b - y*.
+//   - rigid bodies' poses (issue 21), with states or alone: per matched rigid body and
+//     frame, r = (p_k - p*, L log(q_k q*^-1)): the centre of mass's offset (m) and the
+//     rotation vector (world axes) of the orientation error times a length L (m),
+//     rigid_orientation_length: the body's RMS distance of its mass from its centre.
 // Static scenes have one frame, the equilibrium (frame = the last load step).
 //
 // Unknowns are reparametrized so that every iterate is valid: log for young, density,
-// the Rayleigh factors and friction (> 0), and poisson = 0.5 / (1 + exp(-z)) in (0, 0.5).
+// the Rayleigh factors and friction (> 0), and poisson = 0.5 / (1 + exp(-z)) in (0, 0.5);
+// log for a rigid body's mass and diagonal inertia components (issue 21; they come after
+// the soft parameters in the values).
 // The Levenberg-Marquardt is Eigen's (unsupported/Eigen/LevenbergMarquardt, the MINPACK
 // lmder port: Moré's trust-region damping with column scaling), stopped on the relative
 // cost reduction (ftol), the relative step (xtol) or the gradient (gtol, the cosine
@@ -28,6 +35,7 @@
 #include <softdiff/actuation/embedding.hpp>
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
+#include <softdiff/rigid/rigid_derivatives.hpp>
 
 #include <array>
 #include <functional>
@@ -39,9 +47,13 @@ namespace softdiff::optim {
 // An embedded point: sum_a w[a] x_{nodes[a]} (global node indices; 4 nodes with
 // barycentric weights in a linear tet, 10 with the quadratic shape functions in a
 // quadratic one).
+// On a rigid body (issue 21): rigid_body >= 0 (Model::rigid index) and the point in
+// its body axes relative to its centre of mass, p + R(q) body_point (`point` unused).
 struct Marker {
   std::string name;
   actuation::EmbeddedPoint point;
+  int rigid_body = -1;
+  Vec3 body_point = Vec3::Zero();
 };
 
 struct CalibrationTarget {
@@ -58,6 +70,17 @@ struct CalibrationTarget {
     Vec3 position = Vec3::Zero();
   };
   std::vector<Observation> observations;
+  // Rigid bodies' poses (issue 21; with states, or alone: then states is empty and only
+  // these rows are matched; not with markers, which may be on rigid bodies themselves:
+  // Marker::rigid_body): 6 rows per matched body and frame,
+  // after the frame's 3n soft rows.
+  struct RigidPoses {
+    int body = 0;       // Model::rigid index
+    double length = 0;  // L (m): the orientation rows are L log(q q*^-1) (rigid_orientation_length)
+    std::vector<Vec3> position;                   // per frame (of `frames`)
+    std::vector<Eigen::Quaterniond> orientation;  // per frame, unit
+  };
+  std::vector<RigidPoses> rigid;
   long steps() const { return frames.empty() ? 0 : frames.back(); }
   Eigen::Index residual_size() const;
 };
@@ -66,6 +89,14 @@ struct CalibrationTarget {
 double to_internal(Parameter kind, double value);
 double from_internal(Parameter kind, double z);
 double dvalue_dinternal(Parameter kind, double z);
+
+// The length of a rigid body's orientation rows: L = sqrt(tr(I) / (3 m)) of its mass m
+// and inertia I (pass the scene's, not the calibrated values: L is a constant of the
+// target). For the orientation error delta (rotation vector), L^2 |delta|^2 is the mean
+// over directions of delta^T (I / m) delta, the body's mass-averaged squared point
+// displacement: a rotation is weighted as the motion of its points (docs/method.md
+// "Calibration"). A cube of side a: L = a / sqrt(6).
+double rigid_orientation_length(const rigid::RigidBody& body);
 
 struct CalibrationOptions {
   int max_iterations = 50;  // Levenberg-Marquardt iterations (Jacobian evaluations)
@@ -114,6 +145,12 @@ struct CalibrationResult {
 void residual(const Model& model, const std::vector<ParameterId>& parameters, const std::vector<double>& values,
               const CalibrationTarget& target, bool strict, VecX& r, MatX& J,
               const std::function<void(long step, long steps)>& on_step = {});
+// With rigid bodies' parameters (issue 21): values holds the soft parameters' then the
+// rigid ones' (J's columns in that order).
+void residual(const Model& model, const std::vector<ParameterId>& parameters,
+              const std::vector<rigid::RigidParameterId>& rigid_parameters, const std::vector<double>& values,
+              const CalibrationTarget& target, bool strict, VecX& r, MatX& J,
+              const std::function<void(long step, long steps)>& on_step = {});
 
 // The runs of a calibration on one workspace: a copy of the model whose parameter
 // values are changed in place before each run (diff::restore_parameter then
@@ -126,7 +163,8 @@ void residual(const Model& model, const std::vector<ParameterId>& parameters, co
 // must outlive it.
 class CalibrationWorkspace {
  public:
-  CalibrationWorkspace(const Model& model, std::vector<ParameterId> parameters);
+  CalibrationWorkspace(const Model& model, std::vector<ParameterId> parameters,
+                       std::vector<rigid::RigidParameterId> rigid_parameters = {});
   // As the free residual() (the same arguments, the same exceptions).
   void residual(const std::vector<double>& values, const CalibrationTarget& target, bool strict, VecX& r, MatX& J,
                 const std::function<void(long step, long steps)>& on_step = {});
@@ -141,6 +179,7 @@ class CalibrationWorkspace {
  private:
   const Model& base_;
   std::vector<ParameterId> parameters_;
+  std::vector<rigid::RigidParameterId> rigid_parameters_;
   bool friction_ = false;  // a parameter is a friction coefficient (the detector is rebuilt)
   Model model_;
   Data data_;
@@ -151,6 +190,12 @@ using IterationCallback = std::function<void(const CalibrationIteration&)>;
 
 // Levenberg-Marquardt from `initial`. Throws ComputationError if a run fails.
 CalibrationResult calibrate(const Model& model, const std::vector<ParameterId>& parameters,
+                            const std::vector<double>& initial, const CalibrationTarget& target,
+                            const CalibrationOptions& options, const IterationCallback& callback = {});
+// With rigid bodies' parameters (issue 21): initial and the result's values hold the soft
+// parameters' then the rigid ones'.
+CalibrationResult calibrate(const Model& model, const std::vector<ParameterId>& parameters,
+                            const std::vector<rigid::RigidParameterId>& rigid_parameters,
                             const std::vector<double>& initial, const CalibrationTarget& target,
                             const CalibrationOptions& options, const IterationCallback& callback = {});
 
