@@ -53,13 +53,6 @@ void demand_no_rigidified_parts(const std::string& what, const Model& model) {
                      model.rigidify.parts.front().name + ")");
 }
 
-void demand_no_rigid_bodies(const std::string& what, const Model& model) {
-  demand_no_rigidified_parts(what, model);
-  if (!model.rigid.empty())
-    throw InputError(what + ": derivatives with rigid bodies are not supported yet (issue 21; rigid body '" +
-                     model.rigid.front().name + "')");
-}
-
 std::string rigid_row_name(const Model& model, int body, int k, bool velocity, const std::string& prefix) {
   static const char* x_rows[6] = {"x", "y", "z", "rx", "ry", "rz"};
   static const char* v_rows[6] = {"vx", "vy", "vz", "wx", "wy", "wz"};

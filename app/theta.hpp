@@ -29,12 +29,8 @@ struct ThetaSelection {
 // actuators, or a scene whose step is not differentiated (newton_iterations > 1 with
 // psd_projection; a static scene with psd_projection, a pressure cavity or a rotation
 // servo; x0, v0 for a static scene), naming the option.
-// Issue 21: the reverse mode (calibrate, control) does not cover rigid bodies yet.
-// InputError "<what>: derivatives with rigid bodies are not supported yet (issue 21; ...)".
-// calibrate and control call it. parse_theta differentiates rigid bodies with and
-// without contact; it refuses (issue 21) only a rigid body in contact whose joint has
-// limits (the limit's rows in the contact solve are not differentiated yet).
-void demand_no_rigid_bodies(const std::string& what, const Model& model);
+// parse_theta differentiates rigid bodies with and without contact; it refuses (issue
+// 21) a rigid body in contact whose joint has limits, and bdf2 with rigid bodies.
 
 // The name of row k (0..5) of rigid body `body`'s block of a state's rows (output.md's
 // /jacobians rows): "x[key].x" ... "x[key].rz" (position, rotation vector) or
