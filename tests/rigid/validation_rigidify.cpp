@@ -488,12 +488,12 @@ TEST(RigidifyValidation, ContactDelassusIsTheReducedSystems) {
     MatX D;
     ASSERT_TRUE(S.dense(D));
     const double dense_err = (D - G_WW).norm() / G_WW.norm();
-    const double c = 1e-2 * G_ref.norm();
-    ASSERT_TRUE(S.factorize_shifted(c));
+    const double cshift = 1e-2 * G_ref.norm();
+    ASSERT_TRUE(S.factorize_shifted(cshift));
     VecX r = yw;
     ASSERT_TRUE(S.solve_shifted(r));
     MatX shifted = G_WW;
-    shifted.diagonal().array() += c;
+    shifted.diagonal().array() += cshift;
     const double shift_err = (shifted * r - yw).norm() / yw.norm();
     std::cout << "[rigidify] the operator with the part: G y " << op_err << ", G_:W y " << full_err << ", G_WW "
               << dense_err << ", (G_WW + c I)^-1 " << shift_err << " (relative)\n";
@@ -530,7 +530,9 @@ TEST(RigidifyValidation, BarWithARigidBlockRestsOnAPlane) {
     const StepStatus st = integrator::implicit_euler_step(model, data, a, b, k);
     ASSERT_TRUE(st.ok()) << describe(model, st);
     ASSERT_TRUE(data.contact.result.converged) << "step " << k;
-    if (data.contact.contacts.size() > 0) ASSERT_EQ(data.contact.result.sparse, !backend.empty()) << "step " << k;
+    if (data.contact.contacts.size() > 0) {
+      ASSERT_EQ(data.contact.result.sparse, !backend.empty()) << "step " << k;
+    }
     std::swap(a, b);
     for (std::size_t p = 0; p < part.nodes.size(); ++p)
       for (std::size_t q = 0; q < p; ++q) {
@@ -609,7 +611,9 @@ TEST(RigidifyValidation, RigidCubeRestsOnTheRigidBlock) {
     const StepStatus st = integrator::time_step(model, data, a, nullptr, b, k);
     ASSERT_TRUE(st.ok()) << describe(model, st);
     ASSERT_TRUE(data.contact.result.converged) << "step " << k;
-    if (data.contact.contacts.size() > 0) ASSERT_EQ(data.contact.result.sparse, !backend.empty()) << "step " << k;
+    if (data.contact.contacts.size() > 0) {
+      ASSERT_EQ(data.contact.result.sparse, !backend.empty()) << "step " << k;
+    }
     std::swap(a, b);
   }
   double bar_mass = 0, shape = 0, speed = 0;
