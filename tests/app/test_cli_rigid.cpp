@@ -325,8 +325,12 @@ TEST(Cli, FingerPushesTheBlock) {
 // the limit's row). It lands on the limit within ~0.05 s and rests there: travel -0.01 m
 // to the NCP's tolerance and never beyond, and the floor, never touched, pushes with 0
 // (the limit carries the weight; tests/rigid's LimitsCarryContactLoadsExactly checks the
-// limits' reactions under contact loads in closed form).
+// limits' reactions under contact loads in closed form). On each contact backend: the
+// dense G, `sparse` and the operator (dense_max_contacts 0), where the limit row is a
+// column of the rigid rows (refused before on the sparse backend, issue 21).
 TEST(Cli, SliderBlockLandsOnItsLimitAboveTheFloor) {
+ for (const std::string backend : {"dense", "sparse", "sparse, dense_max_contacts: 0"}) {
+  SCOPED_TRACE(backend);
   const fs::path dir = softdiff::test::fresh_dir(kRigidWork, "slider_limit");
   write_text(dir / "scene.yaml",
              "softdiff: 1\n"
@@ -343,7 +347,7 @@ TEST(Cli, SliderBlockLandsOnItsLimitAboveTheFloor) {
              "    position: [0.5, 0.3, 0]\n"
              "    joint: {type: slider, anchor: [0.5, 0.3, 0], axis: [0, 0, 1], limits: [-0.01, 0.05]}\n"
              "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.0202}]\n"
-             "contact: {friction: 0.3, margin: 1.0e-3, pairs: [[block, floor, 0.3]]}\n"
+             "contact: {friction: 0.3, margin: 1.0e-3, pairs: [[block, floor, 0.3]], backend: " + backend + "}\n"
              "output: {fields: [x, contact]}\n");
   const auto r = run_cli("simulate scene.yaml -o out.h5 --quiet", dir);
   ASSERT_EQ(r.code, 0) << r.err;
@@ -364,9 +368,10 @@ TEST(Cli, SliderBlockLandsOnItsLimitAboveTheFloor) {
       fmax = std::max(fmax, std::abs(force[t * force.size() / T + 3 * k + 2]));
       if (t == T - 1) fz += force[t * force.size() / T + 3 * k + 2];
     }
-  std::printf("  slider on its limit above the floor: z %.12g m, floor force %.3g N (max %.3g N)\n", p[3 * (T - 1) + 2],
-              fz, fmax);
+  std::printf("  %s: slider on its limit above the floor: z %.12g m, floor force %.3g N (max %.3g N)\n",
+              backend.c_str(), p[3 * (T - 1) + 2], fz, fmax);
   EXPECT_EQ(fmax, 0.0);  // the floor is never touched: exactly no force
+ }
 }
 
 

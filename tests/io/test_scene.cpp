@@ -939,17 +939,16 @@ TEST_F(Scene, RigidBodyErrors) {
 
 TEST_F(Scene, RigidBodiesRefuseWhatIsNotSupportedYet) {
   // Contact with rigid bodies (docs/method.md "Rigid bodies in contact"): newton_iterations
-  // > 1, the sparse backend with a limited joint and a rigid self-pair are refused. A joint
-  // with limits is accepted (issue 21 item 2: the limit is a row of the dense contact NCP;
-  // refused before).
+  // > 1 and a rigid self-pair are refused. A joint with limits is accepted on either
+  // backend (issue 21: the limit is a row of the contact NCP, on the operator columns of
+  // its rigid rows; the sparse backend refused it before).
   const SceneDesc limited = load(kRigid + "contact: {friction: 0.5}\n");
   ASSERT_EQ(limited.rigid_bodies.size(), 1u);
   ASSERT_TRUE(limited.rigid_bodies[0].joint && limited.rigid_bodies[0].joint->limits);
   EXPECT_TRUE(limited.contact.enabled);
-  EXPECT_NE(error(kRigid + "contact: {friction: 0.5, backend: sparse}\n", {})
-                .find("contact.backend: backend: sparse with a rigid body whose joint has limits is not supported yet "
-                      "(issue 21; bodies[1].joint has limits, which are rows of the dense contact solve): use dense or auto"),
-            std::string::npos);
+  const SceneDesc limited_sparse = load(kRigid + "contact: {friction: 0.5, backend: sparse}\n");
+  EXPECT_EQ(limited_sparse.contact.backend, ContactDesc::Backend::sparse);
+  ASSERT_TRUE(limited_sparse.rigid_bodies[0].joint && limited_sparse.rigid_bodies[0].joint->limits);
   const std::string free_key = rigid_edit(
       "    joint:\n      type: hinge\n      anchor: [0.1, -0.06, -0.006]\n      axis: [2, 0, 0]\n      limits: [-0.1, 0.2]\n",
       "");

@@ -248,6 +248,8 @@ void run_dense(SparseCase& c, int steps) {
   }
 }
 
+void expect_operations_match(contact::SparseDelassus& S, const MatX& G, std::mt19937& rng);
+
 void expect_sparse_matches_dense(SparseCase& c, bool soft_columns) {
   auto& cd = c.data.contact;
   const int nc = cd.contacts.size();
@@ -281,14 +283,6 @@ void expect_sparse_matches_dense(SparseCase& c, bool soft_columns) {
   S.set_rigid(Kt);
   EXPECT_GT(S.rigid_rows(), 0);
   std::mt19937 rng(3);
-  std::normal_distribution<double> N;
-  VecX y(3 * nc), out(3 * nc);
-  for (auto& v : y) v = N(rng);
-  ASSERT_TRUE(S.apply(y, out));
-  EXPECT_LT((out - G * y).norm(), 1e-10 * scale * y.norm());
-  MatX D;
-  ASSERT_TRUE(S.dense(D));
-  EXPECT_LT((D - G).norm(), 1e-10 * scale);
   // The compliance estimate's rigid part is G_ii's exactly: with the soft part subtracted
   // (the same estimate without set_rigid), d_i = h tr(H_r,i W H_r,i^T) / 3.
   VecX d(nc), d_soft(nc);
@@ -305,9 +299,28 @@ void expect_sparse_matches_dense(SparseCase& c, bool soft_columns) {
     }
     EXPECT_NEAR(d[i] - d_soft[i], rigid_part, 1e-12 * scale) << "contact " << i;
   }
-  // A subset W (every other contact): G_:W y, G_WW, the shifted solves.
+  expect_operations_match(S, G, rng);
+}
+
+// Every operation of S against the dense G (3 nc' square, nc' = S.contacts()): G y, G_:W
+// y, dense G_WW, (G_WW + c D)^{-1} with and without a scale D, the rotated-rows shifted
+// solve of set_frames, the largest eigenvalue; on all contacts and on a subset W.
+void expect_operations_match(contact::SparseDelassus& S, const MatX& G, std::mt19937& rng) {
+  std::normal_distribution<double> N;
+  const int nc = S.contacts();
+  ASSERT_EQ(G.rows(), 3 * nc);
+  const double scale = G.norm();
+  VecX y(3 * nc), out(3 * nc);
+  for (auto& v : y) v = N(rng);
+  ASSERT_TRUE(S.apply(y, out));
+  EXPECT_LT((out - G * y).norm(), 1e-10 * scale * y.norm());
+  MatX D;
+  ASSERT_TRUE(S.dense(D));
+  EXPECT_LT((D - G).norm(), 1e-10 * scale);
+  // A subset W (every other contact, and the last one): G_:W y, G_WW, the shifted solves.
   std::vector<int> W;
   for (int i = 0; i < nc; i += 2) W.push_back(i);
+  if (W.back() != nc - 1) W.push_back(nc - 1);  // a limit row when there are some
   const Eigen::Index m = 3 * static_cast<Eigen::Index>(W.size());
   std::vector<int> dofs;
   for (int i : W)
@@ -366,7 +379,20 @@ void expect_sparse_matches_dense(SparseCase& c, bool soft_columns) {
   EXPECT_LT((r - expected).norm(), 1e-10 * expected.norm());
 }
 
-Model cube_on_slab() {
+// A hinged bar (0.2 x 0.04 x 0.02 m, about y at its left end x = 1.0) resting on a
+// frictionless support box at x = 1.2, limits [-0.05, 0.05] when `limits`.
+void add_hinged_bar(Model& model, bool limits) {
+  rigid::RigidState bar;
+  bar.position = Vec3(1.1, 0, 0.01);
+  test::add_rigid_body(model, "bar", test::box_shape(Vec3(0.1, 0.02, 0.01)), 800, bar, 0.01, rigid::Joint::Kind::hinge);
+  auto& body = model.rigid.back();
+  body.joint.anchor = Vec3(1.0, 0, 0.01);
+  body.joint.axis = Vec3::UnitY();
+  if (limits) body.joint.limits = std::make_pair(-0.05, 0.05);
+  rigid::initialize(body, bar);
+}
+
+Model cube_on_slab(bool limited_bar = false) {
   // A free cube (40 mm), slightly tilted, resting on a soft slab: soft and rigid columns.
   test::BodySpec spec;
   spec.young = 5e4;
@@ -380,22 +406,23 @@ Model cube_on_slab() {
   test::add_rigid_body(model, "cube", test::box_shape(Vec3(0.02, 0.02, 0.02)), 500, s);
   contact::NcpOptions dense;
   dense.backend = contact::NcpBackend::dense;
-  test::enable_rigid_contact(model, {}, {{"body", "cube", 0.5}}, 1e-3, dense);
+  if (!limited_bar) {
+    test::enable_rigid_contact(model, {}, {{"body", "cube", 0.5}}, 1e-3, dense);
+    return model;
+  }
+  add_hinged_bar(model, true);
+  test::enable_rigid_contact(model, {test::box(Vec3(1.2, 0, -0.01), Vec3(0.01, 0.05, 0.01), "support")},
+                             {{"body", "cube", 0.5}, {"bar", "support", 0.0}}, 1e-3, dense);
   return model;
 }
 
-Model box_and_hinged_bar_on_obstacles() {
+Model box_and_hinged_bar_on_obstacles(bool limits = false) {
   // A free tilted box and a hinged bar on a plane and a box obstacle: no soft dof in any contact.
   rigid::RigidState s;
   s.position = Vec3(0.1, -0.2, 0.019);
   s.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(0.01, Vec3(1, 2, 0).normalized()));
   Model model = anchor_and_box(s);
-  rigid::RigidState bar;
-  bar.position = Vec3(1.1, 0, 0.01);
-  test::add_rigid_body(model, "bar", test::box_shape(Vec3(0.1, 0.02, 0.01)), 800, bar, 0.01, rigid::Joint::Kind::hinge);
-  model.rigid[1].joint.anchor = Vec3(1.0, 0, 0.01);
-  model.rigid[1].joint.axis = Vec3::UnitY();
-  rigid::initialize(model.rigid[1], bar);
+  add_hinged_bar(model, limits);
   contact::NcpOptions dense;
   dense.backend = contact::NcpBackend::dense;
   test::enable_rigid_contact(model,
@@ -469,6 +496,87 @@ TEST(RigidContactUnit, ManifoldReductionKeepsTheExtremePointsOnly) {
   ASSERT_EQ(list.size(), 2u);
   EXPECT_EQ(list[0].nodes[0], p0);
   EXPECT_EQ(list[1].nodes[0], p0 + 4);
+}
+
+// Joint limits as rows of the operator (issue 21; rigid_contact.hpp "limit rows"): the
+// limit rows' columns are columns of Kt (coupled with the body's contacts), their
+// tangential diagonals 2 more rows of Kt, Ht padded with zero columns. After dense steps
+// (the bar resting on its support, both limits selected: all = true), the extended
+// system (3 (nc + 2)) three ways: the dense backend's (append_limit_rows, add_rigid_delassus,
+// finish_limit_rows), an independent h H_s A^{-1} H_s^T + h sum_r B_r^T W_r B_r over the
+// extended rigid columns with the limits' tangential diagonals set to their normal one,
+// and the operator (every operation, as above). With and without soft columns. Exact
+// algebra: tolerances of round-off as above; g's to 1e-14 (the same sums).
+void expect_limit_rows_match(SparseCase& c, bool soft_columns) {
+  auto& cd = c.data.contact;
+  auto& rd = cd.rigid;
+  const int nc = cd.contacts.size();
+  ASSERT_GT(nc, 3);
+  EXPECT_EQ(soft_columns, cd.Ht.nonZeros() > 0);
+  const double h = c.model.step.dt;
+  const int L = contact::select_limit_rows(c.model, c.data, h, true);
+  ASSERT_EQ(L, 2);
+  const int n1 = 3 * (nc + L);
+  MatX G_soft = MatX::Zero(3 * nc, 3 * nc);
+  if (soft_columns) {
+    ASSERT_TRUE(c.data.solver->inverse_congruence(cd.Ht, G_soft));
+    G_soft *= h;
+  }
+  VecX g_dense = VecX::Zero(3 * nc);
+  MatX G_dense = G_soft;
+  contact::append_limit_rows(c.model, c.data, nc, &G_dense, g_dense);
+  contact::add_rigid_delassus(c.model, c.data, h, G_dense, g_dense);
+  contact::finish_limit_rows(c.model, c.data, h, nc, &G_dense, g_dense);
+  ASSERT_EQ(G_dense.rows(), n1);
+  ASSERT_EQ(rd.Ht.cols(), n1);
+  MatX G = MatX::Zero(n1, n1);
+  G.topLeftCorner(3 * nc, 3 * nc) = G_soft;
+  for (std::size_t r = 0; r < c.model.rigid.size(); ++r) {
+    const MatX B = rd.Ht.middleRows<6>(6 * static_cast<Eigen::Index>(r));
+    G += h * B.transpose() * rd.W[r] * B;
+  }
+  for (int l = 0; l < L; ++l) {
+    const int o = 3 * (nc + l);
+    EXPECT_GT(G(o + 2, o + 2), 0);
+    G(o, o) = G(o + 1, o + 1) = G(o + 2, o + 2);
+  }
+  // The limit rows couple with the bar's contacts (what the operator must keep).
+  EXPECT_GT(G.bottomLeftCorner(3 * L, 3 * nc).norm(), 0);
+  const double scale = G.norm();
+  EXPECT_LT((G_dense - G).norm(), 1e-12 * scale);
+  // The sparse backend's path (contact_step.cpp): no dense G.
+  VecX g = VecX::Zero(3 * nc);
+  contact::append_limit_rows(c.model, c.data, nc, nullptr, g);
+  MatX Kt;
+  contact::rigid_delassus_rows(c.model, c.data, Kt, g);
+  contact::finish_limit_rows(c.model, c.data, h, nc, nullptr, g);
+  EXPECT_LT((g - g_dense).norm(), 1e-14 * std::max(g.norm(), 1e-300));
+  contact::SparseDelassus S;
+  S.bind(*c.data.solver, c.data.A, cd.Ht, h, c.model.solver);
+  S.set_mass(c.model.fem.mass_diagonal);
+  S.set_rigid(Kt);
+  ASSERT_EQ(S.contacts(), nc + L);
+  // The compliance estimate of a limit row (no soft dof) is exact: tr(G_ii) / 3.
+  VecX d(nc + L);
+  S.contact_compliance(d);
+  for (int l = 0; l < L; ++l) {
+    const int o = 3 * (nc + l);
+    EXPECT_NEAR(d[nc + l], (G.block<3, 3>(o, o).trace() / 3), 1e-12 * scale) << "limit row " << l;
+  }
+  std::mt19937 rng(5);
+  expect_operations_match(S, G, rng);
+}
+
+TEST(RigidContact, SparseOperatorWithLimitRowsMatchesDenseG) {
+  SparseCase c(cube_on_slab(true));
+  run_dense(c, 3);
+  expect_limit_rows_match(c, true);
+}
+
+TEST(RigidContact, SparseOperatorWithLimitRowsOnObstaclesOnly) {
+  SparseCase c(box_and_hinged_bar_on_obstacles(true));
+  run_dense(c, 2);
+  expect_limit_rows_match(c, false);
 }
 
 }  // namespace rigid_contact_unit

@@ -266,7 +266,7 @@ TEST(RigidStep, BadCallsThrow) {
 // A 0.2 m bar on a hinge at its end (axis y), limits [-0.3, 0.3] rad: gravity swings it
 // onto the upper limit, where it stops exactly (no penetration, no bounce, no spring),
 // rests with the reaction balancing its weight, and leaves the limit under a torque
-// that pulls it back.
+// that pulls it back. Every step's free_rate is the rate of the same step without limits.
 TEST(RigidStep, HingeLimitStopsExactly) {
   RigidBody b = box_body(Joint::Kind::hinge);
   RigidState s;
@@ -286,6 +286,15 @@ TEST(RigidStep, HingeLimitStopsExactly) {
     const double c = joint_coordinate(b, a);
     ASSERT_LE(c, 0.3 + 1e-14) << "step " << k;
     if (info.at_limit && arrival < 0) arrival = k;
+    // free_rate (the contact stage's free rate of a limited joint): the rate of the same
+    // step without its limits, exactly (the same root before the clamp).
+    {
+      RigidState unclamped;  // from the step's start (in `next` after the swap)
+      const StepInfo free_info = step(b, next, h, g, Vec3::Zero(), Vec3::Zero(), unclamped, false);
+      EXPECT_EQ(info.free_rate, b.joint.axis.dot(unclamped.angular_velocity)) << "step " << k;
+      EXPECT_EQ(free_info.free_rate, info.free_rate) << "step " << k;
+      EXPECT_FALSE(free_info.at_limit);
+    }
     if (arrival > 0) {
       EXPECT_TRUE(info.at_limit) << "step " << k;
       EXPECT_NEAR(c, 0.3, 1e-14) << "step " << k;

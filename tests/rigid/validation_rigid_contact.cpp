@@ -450,8 +450,8 @@ TEST_P(RigidContactValidation, CylinderSticksOnItsReducedCapBelowTheFrictionAngl
 INSTANTIATE_TEST_SUITE_P(, RigidContactValidation, ::testing::Values(Backend::dense, Backend::sparse, Backend::op),
                          [](const ::testing::TestParamInfo<Backend>& p) { return backend_name(p.param); });
 
-// The soft pad's closed forms and joint limits (rows of the dense NCP only) run on the
-// dense backend: run() checks the backend each step against the global `backend`.
+// The soft pad's closed forms run on the dense backend: run() checks the backend each
+// step against the global `backend`.
 class RigidContactDenseValidation : public ::testing::Test {
  protected:
   void SetUp() override { backend = Backend::dense; }
@@ -607,7 +607,7 @@ void limits_carry_contact_loads(double upper, bool pad_on_bar) {
   rigid::initialize(model.rigid[1], block);
   // The default NCP tolerance (1e-8), as CubeRestsOnASoftSlab: at 1e-10 one step of the
   // pads' redundant frictional manifold stalls at 1.04e-10.
-  contact::NcpOptions ncp;
+  const contact::NcpOptions ncp = on_backend(contact::NcpOptions{});
   std::vector<test::NamedPair> pairs{{"pad_b", "block", 0.5}};
   if (pad_on_bar) pairs.push_back({"pad_a", "bar", 0.5});
   test::enable_rigid_contact(model, {}, pairs, 1e-3, ncp);
@@ -637,7 +637,7 @@ void limits_carry_contact_loads(double upper, bool pad_on_bar) {
   // m_bar g 0.1 (weight, +y) + moment (pad, +y) - lambda_upper = 0.
   const double angle = rigid::joint_coordinate(model.rigid[0], end.rigid[0]);
   const double q_bar = m_bar * g0 * 0.1 * std::cos(angle) + moment;
-  std::cout << "limits with contact: bar limit reaction " << rd.limit_lambda[1] << " N m (moments " << q_bar
+  std::cout << backend_name(backend) << ": limits with contact: bar limit reaction " << rd.limit_lambda[1] << " N m (moments " << q_bar
             << "), pad on bar " << -on_bar << " N (pad weight " << pad_mass * g0 << "), angle "
             << rigid::joint_coordinate(model.rigid[0], end.rigid[0]) << " rad; slider limit " << rd.limit_lambda[2]
             << " N ((m_block + m_pad) g = " << (m_block + pad_mass) * g0 << "), travel "
@@ -661,8 +661,18 @@ void limits_carry_contact_loads(double upper, bool pad_on_bar) {
 // at 7e-8 (tolerance 1e-8) at the landing step (step 25), and equally when the bar lands
 // on a support obstacle instead of its limit (measured): the NCP's own difficulty, not
 // the limit row's, so that case is not run here (issue 21 report).
-TEST_F(RigidContactDenseValidation, LimitsCarryContactLoadsExactly) {
-  limits_carry_contact_loads(0.0, true);
+// On every backend (the operator: the limit rows are columns of its rigid rows Kt,
+// SparseDelassus::set_rigid), the same closed forms and tolerances. Not run on the
+// operator: the pad on the bar held by its limit, where the operator's ADMM (and its
+// stall fallback and polish) stops at 1.50e-8 (tolerance 1e-8) on step 2 with 1000 to
+// 3500 iterations (measured 2026-12-03; 5000 reach it), while the dense G and the
+// sparse backend's dense working sets converge on the same problem, and the operator
+// converges when a support obstacle under the bar's free end holds it instead of the
+// limit row: the operator's ADMM on this manifold, not the operator's algebra (every
+// operation with limit rows equals the dense G to round-off,
+// RigidContact.SparseOperatorWithLimitRows*). Left for the NCP work (issue 21 report).
+TEST_P(RigidContactValidation, LimitsCarryContactLoadsExactly) {
+  if (backend != Backend::op) limits_carry_contact_loads(0.0, true);
   limits_carry_contact_loads(0.02, false);
 }
 

@@ -19,7 +19,9 @@
 //     weight, the block's nodes stay rigid (pairwise distances to round-off), no
 //     penetration beyond the contact solve's tolerance;
 //     A rigid cube resting on the block as well: the floor carries both weights, the
-//     block carries the cube's (rigid bodies and rigidified parts in one NCP);
+//     block carries the cube's (rigid bodies and rigidified parts in one NCP); both on
+//     the dense backend, the sparse one and the operator, whose products and shifted
+//     solves are checked against the same independent G;
 //  7. Newton (newton_iterations > 1): the converged step equals an independent Newton
 //     on the explicitly reduced equations P^T R(P u) = 0 (Eigen's SimplicialLDLT on
 //     P^T J P);
@@ -370,7 +372,15 @@ std::string bar_msh() {
 // The bar released at zero gap on the plane z = 0 (friction 0.5), damped, its middle
 // block x in [0.075, 0.125] (3 node layers, 27 nodes) rigidified; `rigidify_extra`
 // replaces the rigidify line (empty: none).
-Model bar_on_plane(const std::string& name, const std::string& rigidify = "[{box: [0.07, -1, -1, 0.13, 1, 1]}]") {
+// The contact backends the part's contact tests run on: the dense G, `sparse`
+// (SparseDelassus: H_f's operator on the step factor plus the part's rank-6m rows,
+// small working sets on their dense G_W), `operator` (dense_max_contacts 0: ADMM on the
+// operator, its Woodbury shifted solves with the part's rows).
+const std::vector<std::pair<std::string, std::string>> part_backends{
+    {"dense", ""}, {"sparse", ", backend: sparse"}, {"operator", ", backend: sparse, dense_max_contacts: 0"}};
+
+Model bar_on_plane(const std::string& name, const std::string& rigidify = "[{box: [0.07, -1, -1, 0.13, 1, 1]}]",
+                   const std::string& backend = "") {
   const fs::path dir = fs::path(SOFTDIFF_TEST_DATA_DIR) / ("validation_rigidify_" + std::to_string(::getpid())) / name;
   fs::remove_all(dir);
   test::write_text(dir / "bar.msh", bar_msh());
@@ -384,7 +394,7 @@ Model bar_on_plane(const std::string& name, const std::string& rigidify = "[{box
                    "    damping: {rayleigh_mass: 20, rayleigh_stiffness: 0.01}\n" +
                        (rigidify.empty() ? std::string() : "    rigidify: " + rigidify + "\n") +
                        "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: 0}]\n"
-                       "contact: {friction: 0.5, tolerance: 1.0e-10, max_iterations: 5000}\n");
+                       "contact: {friction: 0.5, tolerance: 1.0e-10, max_iterations: 5000" + backend + "}\n");
   Model model = io::build_model(io::load_scene(dir / "scene.yaml"));
   fs::remove_all(dir);
   return model;
@@ -450,6 +460,48 @@ TEST(RigidifyValidation, ContactDelassusIsTheReducedSystems) {
   // Two direct solves of one SPD system (condition ~1e4 here): 1e-10 relative is orders
   // above their round-off; a missing correction term is O(1) of the scale.
   EXPECT_LE(err, 1e-10 * scale);
+  // The sparse backend's operator with the part (rigidified_rows: H_f's operator on the
+  // step's factor plus K_p = L_S^{-1} W as rigid rows) against the same G_ref: G y, a
+  // subset's G_:W y and G_WW, the shifted solve (G_WW + c I)^{-1} (the Woodbury step
+  // with the part's rows). Exact algebra: 1e-10 relative as above (c = 1e-2 |G|).
+  {
+    integrator::rigidified_rows(model, data, data.contact.Ht);
+    contact::SparseDelassus S;
+    S.bind(*data.solver, data.A, data.rigidify.Ht_soft, h, model.solver);
+    const MatX none;
+    S.set_rigid(none, &data.rigidify.SW);
+    ASSERT_EQ(S.contacts(), nc);
+    VecX y(3 * nc), out(3 * nc);
+    for (Eigen::Index k = 0; k < y.size(); ++k) y[k] = std::sin(1.3 * static_cast<double>(k) + 0.2);
+    ASSERT_TRUE(S.apply(y, out));
+    const double op_err = (out - G_ref * y).norm() / (scale * y.norm());
+    std::vector<int> W, dofs;
+    for (int i = 0; i < nc; i += 2) W.push_back(i);
+    for (int i : W)
+      for (int k = 0; k < 3; ++k) dofs.push_back(3 * i + k);
+    const MatX G_WW = G_ref(dofs, dofs);
+    S.restrict_to(W);
+    const VecX yw = y.head(3 * static_cast<Eigen::Index>(W.size()));
+    VecX full(3 * nc), ow(yw.size());
+    ASSERT_TRUE(S.apply_full(yw, full));
+    const double full_err = (full - G_ref(Eigen::all, dofs) * yw).norm() / (scale * yw.norm());
+    MatX D;
+    ASSERT_TRUE(S.dense(D));
+    const double dense_err = (D - G_WW).norm() / G_WW.norm();
+    const double cshift = 1e-2 * G_ref.norm();
+    ASSERT_TRUE(S.factorize_shifted(cshift));
+    VecX r = yw;
+    ASSERT_TRUE(S.solve_shifted(r));
+    MatX shifted = G_WW;
+    shifted.diagonal().array() += cshift;
+    const double shift_err = (shifted * r - yw).norm() / yw.norm();
+    std::cout << "[rigidify] the operator with the part: G y " << op_err << ", G_:W y " << full_err << ", G_WW "
+              << dense_err << ", (G_WW + c I)^-1 " << shift_err << " (relative)\n";
+    EXPECT_LT(op_err, 1e-10);
+    EXPECT_LT(full_err, 1e-10);
+    EXPECT_LT(dense_err, 1e-10);
+    EXPECT_LT(shift_err, 1e-10);
+  }
   // The part's contacts carry weight through the correction: G's part rows are not zero.
   bool part_contact = false;
   for (int i = 0; i < nc; ++i)
@@ -462,8 +514,11 @@ TEST(RigidifyValidation, ContactDelassusIsTheReducedSystems) {
 // reaction (the sum of the contact forces) equals the bar's weight, the block's nodes
 // keep their pairwise distances to round-off, and no node is below the plane by more
 // than the solve's tolerance allows.
+// On each contact backend (the same closed forms and tolerances).
 TEST(RigidifyValidation, BarWithARigidBlockRestsOnAPlane) {
-  const Model model = bar_on_plane("rest");
+ for (const auto& [backend_name, backend] : part_backends) {
+  SCOPED_TRACE(backend_name);
+  const Model model = bar_on_plane("rest", "[{box: [0.07, -1, -1, 0.13, 1, 1]}]", backend);
   ASSERT_EQ(model.rigidify.size(), 1);
   const auto& part = model.rigidify.parts[0];
   ASSERT_EQ(part.nodes.size(), 27u);
@@ -475,6 +530,9 @@ TEST(RigidifyValidation, BarWithARigidBlockRestsOnAPlane) {
     const StepStatus st = integrator::implicit_euler_step(model, data, a, b, k);
     ASSERT_TRUE(st.ok()) << describe(model, st);
     ASSERT_TRUE(data.contact.result.converged) << "step " << k;
+    if (data.contact.contacts.size() > 0) {
+      ASSERT_EQ(data.contact.result.sparse, !backend.empty()) << "step " << k;
+    }
     std::swap(a, b);
     for (std::size_t p = 0; p < part.nodes.size(); ++p)
       for (std::size_t q = 0; q < p; ++q) {
@@ -496,7 +554,7 @@ TEST(RigidifyValidation, BarWithARigidBlockRestsOnAPlane) {
     for (int k = 0; k < c.count; ++k) part_contacts += model.rigidify.dof_part[3 * c.nodes[k]] >= 0;
   }
   const double weight = mass * 9.81;
-  std::cout << "[rigidify] bar with a rigid block on a plane, 200 steps of 5 ms: reaction " << f.transpose()
+  std::cout << "[rigidify] " << backend_name << ": bar with a rigid block on a plane, 200 steps of 5 ms: reaction " << f.transpose()
             << " N, weight " << weight << " N, contacts " << data.contact.contacts.size() << " (" << part_contacts
             << " on the block), speed " << speed << " m/s, min z " << min_z << " m, block distance change " << shape
             << " m\n";
@@ -511,6 +569,7 @@ TEST(RigidifyValidation, BarWithARigidBlockRestsOnAPlane) {
   // Normal rows: sigma_n = H_n v + phi / h >= -tol: after the step the gap is at least
   // -h tol (scaled residuals: a few 1e-10 m/s here), far below 1e-9 m.
   EXPECT_GT(min_z, -1e-9);
+ }
 }
 
 // The bar with its rigid block on the plane and a rigid cube (20 mm, 500 kg/m^3: 4 g)
@@ -519,6 +578,8 @@ TEST(RigidifyValidation, BarWithARigidBlockRestsOnAPlane) {
 // floor's reaction is the bar's and the cube's weight, the cube's contacts carry its
 // weight, and the block's shape is kept.
 TEST(RigidifyValidation, RigidCubeRestsOnTheRigidBlock) {
+ for (const auto& [backend_name, backend] : part_backends) {
+  SCOPED_TRACE(backend_name);
   const fs::path dir = fs::path(SOFTDIFF_TEST_DATA_DIR) / ("validation_rigidify_" + std::to_string(::getpid())) / "cube";
   fs::remove_all(dir);
   test::write_text(dir / "bar.msh", bar_msh());
@@ -537,7 +598,8 @@ TEST(RigidifyValidation, RigidCubeRestsOnTheRigidBlock) {
                    "    density: 500\n"
                    "    position: [0.1, 0.02, 0.03]\n"
                    "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: 0}]\n"
-                   "contact: {tolerance: 1.0e-10, max_iterations: 5000, pairs: [[bar, floor, 0.5], [bar, cube, 0.5]]}\n");
+                   "contact: {tolerance: 1.0e-10, max_iterations: 5000, pairs: [[bar, floor, 0.5], [bar, cube, 0.5]]" +
+                       backend + "}\n");
   const Model model = io::build_model(io::load_scene(dir / "scene.yaml"));
   fs::remove_all(dir);
   ASSERT_EQ(model.rigidify.size(), 1);
@@ -549,6 +611,9 @@ TEST(RigidifyValidation, RigidCubeRestsOnTheRigidBlock) {
     const StepStatus st = integrator::time_step(model, data, a, nullptr, b, k);
     ASSERT_TRUE(st.ok()) << describe(model, st);
     ASSERT_TRUE(data.contact.result.converged) << "step " << k;
+    if (data.contact.contacts.size() > 0) {
+      ASSERT_EQ(data.contact.result.sparse, !backend.empty()) << "step " << k;
+    }
     std::swap(a, b);
   }
   double bar_mass = 0, shape = 0, speed = 0;
@@ -574,7 +639,7 @@ TEST(RigidifyValidation, RigidCubeRestsOnTheRigidBlock) {
   }
   const double g = 9.81, w_bar = bar_mass * g, w_cube = model.rigid[0].mass * g;
   const auto& cube = a.rigid[0];
-  std::cout << "[rigidify] rigid cube on the rigid block of a bar on a plane, 200 steps of 5 ms: floor reaction "
+  std::cout << "[rigidify] " << backend_name << ": rigid cube on the rigid block of a bar on a plane, 200 steps of 5 ms: floor reaction "
             << floor.transpose() << " N (weights " << w_bar << " + " << w_cube << " N, " << floor_contacts
             << " contacts), on the cube " << on_cube.transpose() << " N (" << cube_contacts << " contacts), cube speed "
             << cube.velocity.norm() << " m/s, bar speed " << speed << " m/s, block distance change " << shape << " m\n";
@@ -586,6 +651,7 @@ TEST(RigidifyValidation, RigidCubeRestsOnTheRigidBlock) {
   EXPECT_NEAR(floor.z(), w_bar + w_cube, 5e-6 * (w_bar + w_cube));
   EXPECT_NEAR(on_cube.z(), w_cube, 5e-6 * (w_bar + w_cube));
   EXPECT_LT(shape, 1e-15);
+ }
 }
 
 // ---- Newton with rigidified parts ----

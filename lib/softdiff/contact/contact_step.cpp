@@ -184,17 +184,15 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   // (SparseDelassus::set_rigid; docs/method.md "Rigid bodies in contact", Backends).
   const bool with_rigid = model.contact.with_rigid();
   // Rigidified parts of soft bodies (integrator/rigidify.hpp): G and the correction
-  // through the reduced solve, on the dense backend (the scene reader refuses
-  // backend: sparse with them).
+  // through the reduced solve; on the sparse backend the operator on the soft rows H_f
+  // plus the parts' rank-6m part as rigid rows (rigidified_rows).
   const bool rigidified = !model.rigidify.empty();
-  // Joint limits in contact are rows of the dense NCP only (the scene reader refuses
-  // backend: sparse with them).
-  const bool sparse = !rigidified && num_limit_slots(model) == 0 &&
-                      (ncp.backend == NcpBackend::sparse ||
-                       (ncp.backend == NcpBackend::automatic && nc > ncp.dense_max_contacts));
+  const bool sparse = ncp.backend == NcpBackend::sparse ||
+                      (ncp.backend == NcpBackend::automatic && nc > ncp.dense_max_contacts);
   if (sparse) {
     cd.G.resize(0, 0);
-    cd.sparse.bind(*data.solver, data.A, cd.Ht, h, model.solver);
+    if (rigidified) integrator::rigidified_rows(model, data, cd.Ht);  // H_f^T, K_p
+    cd.sparse.bind(*data.solver, data.A, rigidified ? data.rigidify.Ht_soft : cd.Ht, h, model.solver);
     // ADMM's per-contact scale from the lumped masses (sparse_delassus.hpp) where A
     // holds them: the dynamic step (A = M + ...), not the static solver's A = K.
     if (model.step.integrator != IntegratorKind::static_equilibrium)
@@ -219,18 +217,22 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
     cd.G *= h;
   }
   cd.g.noalias() = cd.Ht.transpose() * v;
-  // Joint limits: rows of this NCP after the nc contacts (rigid_contact.hpp "limit rows";
-  // the dense backend only: a scene with limited joints in contact never takes the sparse one).
+  // Joint limits: rows of this NCP after the nc contacts (rigid_contact.hpp "limit rows"):
+  // on the dense backend rows and columns of G; on the operator columns of the rigid
+  // rows Kt (no soft dof: SparseDelassus pads Ht with zero columns for them).
   const int limit_rows = with_rigid ? select_limit_rows(model, data, h, all_limits) : 0;
+  if (with_rigid) append_limit_rows(model, data, nc, sparse ? nullptr : &cd.G, cd.g);
   if (with_rigid && sparse) {
     rigid_delassus_rows(model, data, cd.rigid.Kt, cd.g);  // + H_r u_free
-    cd.sparse.set_rigid(cd.rigid.Kt);                     // + h H_r W_r H_r^T = h Kt^T Kt
   } else if (with_rigid) {
-    append_limit_rows(model, data, nc, cd.G, cd.g);
     add_rigid_delassus(model, data, h, cd.G, cd.g);  // + h H_r W_r H_r^T, + H_r u_free
   }
+  if (sparse && (with_rigid || rigidified)) {  // + h Kt^T Kt (bodies, limits' rows; parts)
+    static const MatX none;
+    cd.sparse.set_rigid(with_rigid ? cd.rigid.Kt : none, rigidified ? &data.rigidify.SW : nullptr);
+  }
   for (int i = 0; i < nc; ++i) cd.g[3 * i + 2] += cd.contacts.contacts[i].gap / h;
-  if (limit_rows > 0) finish_limit_rows(model, data, h, nc, cd.G, cd.g);
+  if (limit_rows > 0) finish_limit_rows(model, data, h, nc, sparse ? nullptr : &cd.G, cd.g);
   data.timings.delassus += seconds_since(t0);
 
   // Warm start from the last solve's forces of the same contacts (the previous step's,
@@ -247,8 +249,9 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
     if (it != cd.previous_keys.end() && it->first == key)
       cd.lambda.segment<3>(3 * i) = cd.previous_lambda.segment<3>(3 * it->second);
   }
-  cd.result = sparse ? cd.solver.solve(cd.sparse, cd.g, cd.mu, ncp, cd.lambda, cd.sigma, cd.modes)
-                     : cd.solver.solve(cd.G, cd.g, with_rigid ? cd.rigid.mu_ext : cd.mu, ncp, cd.lambda, cd.sigma, cd.modes);
+  const VecX& mu = with_rigid ? cd.rigid.mu_ext : cd.mu;  // (nc + L)
+  cd.result = sparse ? cd.solver.solve(cd.sparse, cd.g, mu, ncp, cd.lambda, cd.sigma, cd.modes)
+                     : cd.solver.solve(cd.G, cd.g, mu, ncp, cd.lambda, cd.sigma, cd.modes);
   // On the operator the solver forms contact-system matrices as it goes (B's pattern and
   // values, the dense G_W of small sets): booked as the assembly of the contact system
   // (timings.delassus, as G itself on the dense backend), not as NCP time. B's numeric
@@ -296,7 +299,7 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   v += cd.correction;
   for (int k = 0; k < v.size(); ++k)
     if (model.fem.fixed[k]) v[k] = 0;
-  if (with_rigid) remove_limit_rows(model, data, nc);
+  if (with_rigid) remove_limit_rows(model, data, nc, sparse);
 
   cd.previous_keys.resize(static_cast<std::size_t>(nc));
   for (int i = 0; i < nc; ++i) cd.previous_keys[i] = {cd.contacts.contacts[i].key(), i};

@@ -90,14 +90,15 @@ void begin_rigid_contact(const Model& model, Data& data, const std::vector<rigid
     rd.L[r].col(0) = T / std::sqrt(a);
     rd.rank[r] = 1;
     const Vec3 n = body.joint.axis;
-    // A limited joint: the free step without its limits (they are rows of the NCP).
-    rigid::RigidState unclamped;
-    const rigid::RigidState* f = &free[r];
+    // A limited joint: the free rate without its limits (they are rows of the NCP), which
+    // the free step recorded (rigid::StepInfo::free_rate; integrator::step_rigid_bodies
+    // fills data.rigid): no second step.
+    double rate = body.joint.kind == rigid::Joint::Kind::hinge ? n.dot(free[r].angular_velocity) : n.dot(free[r].velocity);
     if (body.joint.limits) {
-      rigid::step(body, in[r], model.step.dt, model.step.gravity, Vec3::Zero(), Vec3::Zero(), unclamped, false);
-      f = &unclamped;
+      SOFTDIFF_DEMAND(data.rigid.size() == model.rigid.size(), "begin_rigid_contact: a limited joint needs the free step's info "
+                                              "(data.rigid, integrator::step_rigid_bodies)");
+      rate = data.rigid[r].free_rate;
     }
-    const double rate = body.joint.kind == rigid::Joint::Kind::hinge ? n.dot(f->angular_velocity) : n.dot(f->velocity);
     rd.u_free.segment<6>(6 * r) = rate * T;
   }
   rd.u = rd.u_free;
@@ -192,6 +193,18 @@ void rigid_delassus_rows(const Model& model, Data& data, MatX& Kt, VecX& g) {
     rows += k;
     g.noalias() += B.transpose() * rd.u_free.segment<6>(6 * static_cast<Eigen::Index>(r));
   }
+  // The limit rows' tangential diagonals: one row per tangential column (header).
+  const Eigen::Index L = static_cast<Eigen::Index>(rd.limit_rows.size());
+  if (L == 0) return;
+  const Eigen::Index n0 = rd.Ht.cols() - 3 * L;
+  Kt.conservativeResize(rows + 2 * L, Eigen::NoChange);
+  Kt.bottomRows(2 * L).setZero();
+  for (Eigen::Index l = 0; l < L; ++l) {
+    const Eigen::Index o = n0 + 3 * l;
+    const double d = Kt.col(o + 2).head(rows).norm();
+    Kt(rows + 2 * l, o) = d;
+    Kt(rows + 2 * l + 1, o + 1) = d;
+  }
 }
 
 void correct_rigid_velocities(const Model& model, Data& data, double h, const VecX& lambda) {
@@ -236,17 +249,9 @@ int select_limit_rows(const Model& model, Data& data, double h, bool all) {
     if (!limited(body)) continue;
     // The margin in the joint coordinate: the detection margin (m) for a slider; for a
     // hinge, the angle that moves the surface vertex farthest from the axis by it.
+    // The reach is invariant (the body turns about the axis): rigid::initialize's.
     double scale = 1;
-    if (body.joint.kind == rigid::Joint::Kind::hinge) {
-      double reach = 0;
-      const Mat3 R = rd.in[r].orientation.toRotationMatrix();
-      const Vec3 n = body.joint.axis;
-      for (Eigen::Index k = 0; k < body.surface.vertices.cols(); ++k) {
-        const Vec3 d = rd.in[r].position + R * body.surface.vertices.col(k) - body.joint.anchor;
-        reach = std::max(reach, (d - n.dot(d) * n).norm());
-      }
-      scale = reach > 0 ? 1 / reach : 0;
-    }
+    if (body.joint.kind == rigid::Joint::Kind::hinge) scale = body.joint_reach > 0 ? 1 / body.joint_reach : 0;
     const double speed = std::max(std::abs(joint_rate(body, rd.u_free.segment<6>(6 * static_cast<Eigen::Index>(r)))),
                                   std::abs(joint_rate(body, (rigid::Vec6() << rd.in[r].velocity, rd.in[r].angular_velocity).finished())));
     for (int side = 0; side < 2; ++side, ++slot)
@@ -256,7 +261,7 @@ int select_limit_rows(const Model& model, Data& data, double h, bool all) {
   return static_cast<int>(rd.limit_rows.size());
 }
 
-void append_limit_rows(const Model& model, Data& data, int nc, MatX& G, VecX& g) {
+void append_limit_rows(const Model& model, Data& data, int nc, MatX* G, VecX& g) {
   auto& rd = data.contact.rigid;
   const int L = static_cast<int>(rd.limit_rows.size());
   const auto& mu = data.contact.mu;
@@ -267,9 +272,11 @@ void append_limit_rows(const Model& model, Data& data, int nc, MatX& G, VecX& g)
   const Eigen::Index n0 = 3 * static_cast<Eigen::Index>(nc), n1 = n0 + 3 * L;
   rd.Ht.conservativeResize(Eigen::NoChange, n1);
   rd.Ht.rightCols(3 * L).setZero();
-  G.conservativeResize(n1, n1);
-  G.rightCols(3 * L).setZero();
-  G.bottomRows(3 * L).setZero();
+  if (G) {
+    G->conservativeResize(n1, n1);
+    G->rightCols(3 * L).setZero();
+    G->bottomRows(3 * L).setZero();
+  }
   g.conservativeResize(n1);
   g.tail(3 * L).setZero();
   for (int l = 0; l < L; ++l) {
@@ -284,14 +291,14 @@ void append_limit_rows(const Model& model, Data& data, int nc, MatX& G, VecX& g)
   }
 }
 
-void finish_limit_rows(const Model& model, Data& data, double h, int nc, MatX& G, VecX& g) {
+void finish_limit_rows(const Model& model, Data& data, double h, int nc, MatX* G, VecX& g) {
   const auto& rd = data.contact.rigid;
   for (std::size_t l = 0; l < rd.limit_rows.size(); ++l) {
     const auto& row = rd.limit_rows[l];
     const auto r = static_cast<std::size_t>(row.body);
     const Eigen::Index o = 3 * (static_cast<Eigen::Index>(nc) + static_cast<Eigen::Index>(l));
     g[o + 2] += limit_gap(model.rigid[r], rd.in[r], row.side) / h;
-    G(o, o) = G(o + 1, o + 1) = G(o + 2, o + 2);
+    if (G) (*G)(o, o) = (*G)(o + 1, o + 1) = (*G)(o + 2, o + 2);
   }
 }
 
@@ -312,7 +319,7 @@ bool unselected_limit_crossed(const Model& model, const Data& data, double h) {
   return false;
 }
 
-void remove_limit_rows(const Model& model, Data& data, int nc) {
+void remove_limit_rows(const Model& model, Data& data, int nc, bool sparse) {
   auto& cd = data.contact;
   auto& rd = cd.rigid;
   const int slots = num_limit_slots(model);
@@ -325,7 +332,11 @@ void remove_limit_rows(const Model& model, Data& data, int nc) {
   cd.lambda.conservativeResize(n0);
   cd.sigma.conservativeResize(n0);
   cd.modes.resize(static_cast<std::size_t>(nc));
-  cd.G.conservativeResize(n0, n0);
+  if (sparse) {
+    rd.Kt.conservativeResize(rd.Kt.rows() - 2 * L, n0);
+  } else {
+    cd.G.conservativeResize(n0, n0);
+  }
   cd.g.conservativeResize(n0);
   rd.Ht.conservativeResize(Eigen::NoChange, n0);
 }

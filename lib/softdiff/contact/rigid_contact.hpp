@@ -78,6 +78,11 @@ void add_rigid_delassus(const Model& model, Data& data, double h, MatX& G, VecX&
 // The sparse backend's rigid rows: Kt = (L_r^T H_r^T) stacked over the bodies with dofs
 // and contacts (rank_r rows each: 6 free, 1 hinge/slider), so that
 // h sum_r H_r W_r H_r^T = h Kt^T Kt (SparseDelassus::set_rigid), and g += H_r u_free.
+// With L limit rows (append_limit_rows before, Ht and g of 3 (nc + L)): Kt has their
+// columns too (a limit's normal column L_r^T j couples it with its body's contacts, as
+// the dense G), and 2 more rows per limit row, each with one entry |L_r^T j| = 1/sqrt(a)
+// on one tangential column: h Kt^T Kt then holds the limit rows' decoupled tangential
+// diagonals h / a (finish_limit_rows' on the dense backend).
 void rigid_delassus_rows(const Model& model, Data& data, MatX& Kt, VecX& g);
 
 // u = u_free + h W H_r^T lambda (data.contact.rigid.u).
@@ -94,20 +99,24 @@ int num_limit_slots(const Model& model);
 // scale. Returns L.
 int select_limit_rows(const Model& model, Data& data, double h, bool all);
 
-// Before add_rigid_delassus: extends data.contact.rigid.Ht by the L limit rows' columns
-// (3 each: tangential zero, normal j), G (3nc square) and g (3nc) by zero rows and
-// columns to 3 (nc + L), and fills rigid.mu_ext. Only rigid.mu_ext when L = 0.
-void append_limit_rows(const Model& model, Data& data, int nc, MatX& G, VecX& g);
-// After add_rigid_delassus: the limit rows' gap terms (gap / h) and their tangential
-// diagonals (equal to their normal diagonal h / a; decoupled, with mu = 0).
-void finish_limit_rows(const Model& model, Data& data, double h, int nc, MatX& G, VecX& g);
+// Before add_rigid_delassus (dense) or rigid_delassus_rows (sparse): extends
+// data.contact.rigid.Ht by the L limit rows' columns (3 each: tangential zero, normal j),
+// G (3nc square; nullptr on the sparse backend, which has no dense G) and g (3nc) by zero
+// rows and columns to 3 (nc + L), and fills rigid.mu_ext. Only rigid.mu_ext when L = 0.
+void append_limit_rows(const Model& model, Data& data, int nc, MatX* G, VecX& g);
+// After add_rigid_delassus: the limit rows' gap terms (gap / h) and, with a dense G, their
+// tangential diagonals (equal to their normal diagonal h / a; decoupled, with mu = 0;
+// the sparse backend's are rows of Kt, rigid_delassus_rows).
+void finish_limit_rows(const Model& model, Data& data, double h, int nc, MatX* G, VecX& g);
 // After correct_rigid_velocities: whether the corrected rates cross a limit that was not
 // selected (the contact forces drove the joint further than the speculative margin
 // allowed); the caller then solves again with every limit (select_limit_rows(all)).
 bool unselected_limit_crossed(const Model& model, const Data& data, double h);
 // After the correction: keeps the limits' normal forces in rigid.limit_lambda (by slot)
-// and cuts lambda, sigma, modes, G, g and rigid.Ht back to the nc contacts.
-void remove_limit_rows(const Model& model, Data& data, int nc);
+// and cuts lambda, sigma, modes, G (dense backend), g, rigid.Ht and, on the sparse
+// backend (sparse true), rigid.Kt (the limits' columns and tangential rows) back to
+// the nc contacts.
+void remove_limit_rows(const Model& model, Data& data, int nc, bool sparse = false);
 
 // After the soft step with contact: out = the start poses integrated with the corrected
 // velocities (p + h v, exp(h [omega]) q) for every body with dofs when contacts were

@@ -95,16 +95,35 @@ void SparseDelassus::bind(integrator::LinearSolver& A_solver, const SparseMatrix
   restrict_to_all();
 }
 
-void SparseDelassus::set_rigid(const MatX& Kt) {
-  SOFTDIFF_DEMAND(Kt.cols() == 3 * static_cast<Eigen::Index>(nc_), "SparseDelassus::set_rigid: expected " +
-                                                                     std::to_string(3 * nc_) + " columns, got " +
-                                                                     std::to_string(Kt.cols()));
+void SparseDelassus::set_rigid(const MatX& Kt, const MatX* Kt_more) {
+  const Eigen::Index bound = Ht_->cols();
+  const Eigen::Index cols = std::max({Kt.rows() > 0 ? Kt.cols() : 0, Kt_more && Kt_more->rows() > 0 ? Kt_more->cols() : 0, bound});
+  auto check = [&](const MatX& K) {
+    SOFTDIFF_DEMAND(K.rows() == 0 || (K.cols() >= bound && K.cols() % 3 == 0),
+                    "SparseDelassus::set_rigid: expected at least " + std::to_string(bound) +
+                        " columns (a multiple of 3), got " + std::to_string(K.cols()));
+  };
+  check(Kt);
+  if (Kt_more) check(*Kt_more);
+  if (cols > bound) {  // rows without soft dofs after the contacts: Ht with zero columns
+    Ht_padded_ = *Ht_;
+    Ht_padded_.conservativeResize(Ht_padded_.rows(), cols);
+    Ht_padded_.makeCompressed();
+    Ht_ = &Ht_padded_;
+    nc_ = static_cast<int>(cols / 3);
+    restrict_to_all();
+  }
   Eigen::Index k = 0;
   for (Eigen::Index r = 0; r < Kt.rows(); ++r) k += Kt.row(r).squaredNorm() > 0;
-  Kt_.resize(k, Kt.cols());
+  if (Kt_more)
+    for (Eigen::Index r = 0; r < Kt_more->rows(); ++r) k += Kt_more->row(r).squaredNorm() > 0;
+  Kt_.setZero(k, cols);
   k = 0;
   for (Eigen::Index r = 0; r < Kt.rows(); ++r)
-    if (Kt.row(r).squaredNorm() > 0) Kt_.row(k++) = Kt.row(r);
+    if (Kt.row(r).squaredNorm() > 0) Kt_.row(k++).head(Kt.cols()) = Kt.row(r);
+  if (Kt_more)
+    for (Eigen::Index r = 0; r < Kt_more->rows(); ++r)
+      if (Kt_more->row(r).squaredNorm() > 0) Kt_.row(k++).head(Kt_more->cols()) = Kt_more->row(r);
   select_rigid_columns();
   scale_sqrt_inv_.resize(0);
   pattern_ready_ = false;

@@ -69,9 +69,17 @@ class SparseDelassus {
   // vector (the default, and the static solver, whose A has no mass): all d_i = 1.
   void set_mass(const VecX& mass_diagonal) { mass_ = &mass_diagonal; }
   void clear_mass() { mass_ = nullptr; }
-  // The rigid bodies' rows Kt (k x 3 nc, see above); after bind (which clears them).
-  // Zero rows are dropped (a body without contact). Invalidates the shifted factorization.
-  void set_rigid(const MatX& Kt);
+  // The rigid rows Kt (k x 3 nc', see above), stacked from up to two blocks (the second
+  // may be nullptr; either may have 0 rows; a block with fewer columns is zero on the
+  // others); after bind (which clears them). Zero rows are dropped (a body without
+  // contact). nc' > nc (more columns than Ht's): rows of the NCP after the nc contacts
+  // with no soft dof (a joint limit's, rigid_contact.hpp): Ht is taken with zero columns
+  // for them (a padded copy) and the operator has nc' contacts, W = all of them.
+  // Invalidates the shifted factorization.
+  // Rigidified parts (integrator/rigidify.hpp rigidified_rows): their rank-6m part of G,
+  // h W^T S^{-1} W, is h K_p^T K_p with K_p = L_S^{-1} W, i.e. rigid rows too: the
+  // second block.
+  void set_rigid(const MatX& Kt, const MatX* Kt_more = nullptr);
   int rigid_rows() const { return static_cast<int>(Kt_.rows()); }
 
   int contacts() const { return nc_; }
@@ -137,7 +145,8 @@ class SparseDelassus {
 
   integrator::LinearSolver* A_solver_ = nullptr;
   const SparseMatrix* A_ = nullptr;
-  const SparseMatrix* Ht_ = nullptr;
+  const SparseMatrix* Ht_ = nullptr;  // the bound Ht, or Ht_padded_
+  SparseMatrix Ht_padded_;            // (3n x 3 nc') set_rigid with more columns than Ht
   double h_ = 0;
   int nc_ = 0;
   integrator::SolverOptions options_;

@@ -239,19 +239,14 @@ void rigidify_extrapolated_state(const Model& model, const State& in, const Stat
   }
 }
 
-bool rigidified_congruence(const Model& model, Data& data, const SparseMatrix& Ht, MatX& G) {
+namespace {
+// w.Ht_soft = H_f^T (Ht without the parts' rows: the factor has identity rows there) and
+// w.W = T^T H_r^T - Y^T H_f^T (6m x 3nc).
+void coupling_columns(const Model& model, RigidifyData& w, const SparseMatrix& Ht) {
   const RigidifyModel& rm = model.rigidify;
-  RigidifyData& w = data.rigidify;
   const int ncols = static_cast<int>(Ht.cols()), m6 = 6 * rm.size();
-  // H_f^T: the soft dofs' rows (the factor has identity rows on the parts' dofs).
   w.Ht_soft = Ht;
   w.Ht_soft.prune([&](Eigen::Index row, Eigen::Index, double) { return rm.dof_part[static_cast<std::size_t>(row)] < 0; });
-  if (w.Ht_soft.nonZeros() > 0) {
-    if (!data.solver->inverse_congruence(w.Ht_soft, G)) return false;
-  } else {
-    G.setZero(ncols, ncols);
-  }
-  // W = T^T H_r^T - Y^T H_f^T (6m x 3nc).
   w.W.resize(m6, ncols);
   w.W.noalias() = -(w.Y.transpose() * w.Ht_soft);
   for (int col = 0; col < ncols; ++col)
@@ -261,10 +256,29 @@ bool rigidified_congruence(const Model& model, Data& data, const SparseMatrix& H
       const Vec3 r = w.x.segment<3>(3 * (dof / 3)) - w.centre[static_cast<std::size_t>(p)];
       w.W.block<6, 1>(6 * p, col).noalias() += it.value() * rigid_row(r, dof % 3).transpose();
     }
+}
+}  // namespace
+
+bool rigidified_congruence(const Model& model, Data& data, const SparseMatrix& Ht, MatX& G) {
+  RigidifyData& w = data.rigidify;
+  const int ncols = static_cast<int>(Ht.cols());
+  coupling_columns(model, w, Ht);
+  if (w.Ht_soft.nonZeros() > 0) {
+    if (!data.solver->inverse_congruence(w.Ht_soft, G)) return false;
+  } else {
+    G.setZero(ncols, ncols);
+  }
   w.SW = w.W;
   w.S_factor.solveInPlace(w.SW);
   G.noalias() += w.W.transpose() * w.SW;
   return true;
+}
+
+void rigidified_rows(const Model& model, Data& data, const SparseMatrix& Ht) {
+  RigidifyData& w = data.rigidify;
+  coupling_columns(model, w, Ht);
+  w.SW = w.W;
+  w.S_factor.matrixL().solveInPlace(w.SW);  // K_p = L_S^{-1} W: W^T S^{-1} W = K_p^T K_p
 }
 
 void place_rigidified(const Model& model, Data& data, const State& in, State& out, double h) {

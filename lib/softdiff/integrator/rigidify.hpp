@@ -30,15 +30,15 @@
 // angular momentum of the solve is kept at the new pose.
 //
 // Contact: G and the correction through the same reduced solve (rigidified_congruence,
-// solve_rigidified; contact/contact_step.cpp), dense backend only.
+// solve_rigidified; contact/contact_step.cpp); on the sparse backend G's operator is the
+// step factor's on the soft rows plus the rank-6m part as rigid rows (rigidified_rows).
 //
 // attach: fixed parts are fixed dofs (io::build_model); free and servo-attached parts
 // are RigidifiedPart. Newton (newton_iterations > 1): the Galerkin-projected nonlinear
 // equations P^T R(P u) = 0 with T at x_i (the iterates x_i + h P u; the end pose is
 // placed exactly as above). BDF2: the stage from the extrapolated state with the
 // parts' extrapolated state made rigid (rigidify_extrapolated_state). Unsupported with
-// parts (the scene reader refuses them, issue 21): contact on the sparse backend,
-// static, factor reuse, derivatives.
+// parts (the scene reader refuses them, issue 21): static, factor reuse, derivatives.
 #include <softdiff/core/types.hpp>
 #include <softdiff/fem/fem_model.hpp>
 #include <softdiff/rigid/rotation.hpp>
@@ -87,7 +87,7 @@ struct RigidifyData {
   std::vector<Vec3> centre;     // (m) c_p at the step's start
   VecX x;                       // (3n) the step's start x_i (T's arms)
   // Contact (rigidified_congruence): H_f^T (H_c^T without the parts' rows), W = E^T H_c^T
-  // (6m x 3nc) and S^{-1} W.
+  // (6m x 3nc) and S^{-1} W (rigidified_rows: L_S^{-1} W).
   SparseMatrix Ht_soft;
   MatX W, SW;
   VecX f;                       // (3n) Newton: scratch of the projected internal forces
@@ -131,6 +131,13 @@ bool solve_rigidified(const Model& model, Data& data, const VecX& b, VecX& v);
 // the soft dofs' rows. One multi-right-hand-side congruence on the step's factor (as
 // without parts) plus a rank-6m correction. Returns false if the linear solver failed.
 bool rigidified_congruence(const Model& model, Data& data, const SparseMatrix& Ht, MatX& G);
+
+// The same G as an operator (the sparse contact backend, contact/sparse_delassus.hpp):
+// G = H_f Z H_f^T + K_p^T K_p with K_p = L_S^{-1} W (6m x 3nc, S = L_S L_S^T), i.e. the
+// soft operator on H_f^T (data.rigidify.Ht_soft, with the step's factor and A) plus 6m
+// dense rows (data.rigidify.SW), SparseDelassus::set_rigid's second block. No solve:
+// W needs the prepared Y only.
+void rigidified_rows(const Model& model, Data& data, const SparseMatrix& Ht);
 
 // The exact placement: out.x, out.v of the parts' nodes from in.x and out.v (the
 // rigid velocity field the solve gave), see above.

@@ -314,7 +314,7 @@ class Reader {
   }
 
   // Rigid bodies in contact (docs/method.md "Rigid bodies in contact"): free, fixed,
-  // hinge and slider bodies (limits: rows of the NCP, on the dense backend), implicit
+  // hinge and slider bodies (limits: rows of the NCP, on either backend), implicit
   // Euler or BDF2 with one Newton iteration, either NCP backend. The rest is refused (issue 21).
   void check_rigid_contact(const Node& root, const SceneDesc& scene) const {
     if (scene.rigid_bodies.empty() || !scene.contact.enabled) return;
@@ -324,13 +324,6 @@ class Reader {
       ctx_.fail(contact->key_mark, "contact",
                 "contact with rigid bodies and simulation.newton_iterations > 1 is not supported yet (issue 21; " +
                     first + " is rigid): use newton_iterations: 1");
-    if (scene.contact.backend == ContactDesc::Backend::sparse)
-      for (const auto& rb : scene.rigid_bodies)
-        if (rb.joint && rb.joint->limits)
-          ctx_.fail(contact->key_mark, "contact.backend",
-                    "backend: sparse with a rigid body whose joint has limits is not supported yet (issue 21; " +
-                        rb.joint->where.path + " has limits, which are rows of the dense contact solve): use dense "
-                        "or auto");
     // BDF2 in contact: a joint limit's NCP row with BDF2's history (the restart of
     // rigid/rigid_bdf2.hpp is the free step's) is not built or validated yet.
     if (scene.simulation.integrator == Integrator::bdf2)
@@ -346,7 +339,7 @@ class Reader {
   }
 
   // Rigidified parts (issue 21 item 2): implicit Euler (Newton too) and BDF2, contact
-  // on the dense backend, without factor reuse or derivatives (those are refused by the
+  // on either backend, without factor reuse or derivatives (those are refused by the
   // commands).
   // attach: fixed parts are fixed nodes (io::build_model): nothing to check for them.
   void check_rigidify_support(const Node& root, const SceneDesc& scene) const {
@@ -361,13 +354,6 @@ class Reader {
       ctx_.fail(integrator->key_mark, "simulation.integrator",
                 "integrator '" + integrator->value.scalar + "' with rigidified parts is not supported yet (issue 21; " +
                     part + "): use implicit_euler or bdf2");
-    }
-    // Contact: the dense backend only (docs/method.md "Rigidified parts").
-    if (scene.contact.enabled && scene.contact.backend == ContactDesc::Backend::sparse) {
-      const Entry* contact = root.find("contact");
-      ctx_.fail(contact->key_mark, "contact.backend",
-                "backend: sparse with rigidified parts is not supported yet (issue 21; " + part +
-                    "): use dense or auto (contact with rigidified parts always uses the dense backend)");
     }
     if (scene.linear_solver.factor_reuse) {
       const Entry* key = root.get("linear_solver")->find("factor_reuse");

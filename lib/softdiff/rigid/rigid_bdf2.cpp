@@ -10,23 +10,6 @@
 #include <stdexcept>
 
 namespace softdiff::rigid {
-namespace {
-
-// The rotation vector of a unit quaternion (|phi| <= pi: q and -q give the same).
-Vec3 quaternion_log(Eigen::Quaterniond q) {
-  if (q.w() < 0) q.coeffs() = -q.coeffs();
-  const double s = q.vec().norm();
-  if (s == 0) return Vec3::Zero();
-  return (2 * std::atan2(s, q.w()) / s) * q.vec();
-}
-
-double wrap_pi(double a) {
-  constexpr double pi = std::numbers::pi;
-  return a - 2 * pi * std::floor((a + pi) / (2 * pi));
-}
-
-}  // namespace
-
 void bdf2_extrapolate(const RigidBody& body, const RigidState& in, const RigidState& previous, RigidState& hat) {
   if (&hat == &in || &hat == &previous)
     throw std::invalid_argument("rigid body '" + body.name + "': bdf2_extrapolate's hat must not alias its inputs");
@@ -50,7 +33,7 @@ void bdf2_extrapolate(const RigidBody& body, const RigidState& in, const RigidSt
       const bool hinge = j.kind == Joint::Kind::hinge;
       const Vec3 n = j.axis;
       double dc = joint_coordinate(body, in) - joint_coordinate(body, previous);
-      if (hinge) dc = wrap_pi(dc);
+      if (hinge) dc = wrap_angle(dc, 0);
       const double rate_n = n.dot(hinge ? in.angular_velocity : in.velocity);
       const double rate_p = n.dot(hinge ? previous.angular_velocity : previous.velocity);
       const double rate = (1 + c) * rate_n - c * rate_p;

@@ -38,9 +38,14 @@ const char* joint_name(Joint::Kind k) {
 // The centre of the window the hinge angle is wrapped into: the middle of its limits.
 double angle_window_centre(const Joint& j) { return j.limits ? 0.5 * (j.limits->first + j.limits->second) : 0.0; }
 
-double wrap(double angle, double centre) {
+
+}  // namespace
+
+double wrap_angle(double angle, double centre) {
   return angle - 2 * pi * std::floor((angle - centre + pi) / (2 * pi));
 }
+
+namespace {
 
 // Safeguarded Newton on the bracket [lo, hi] where g changes sign.
 double solve_joint(const JointEquation& e, const RigidBody& b) {
@@ -101,6 +106,13 @@ Eigen::Quaterniond quaternion_exp(const Vec3& phi) {
   Eigen::Quaterniond q(std::cos(0.5 * t), s * phi.x(), s * phi.y(), s * phi.z());
   q.normalize();
   return q;
+}
+
+Vec3 quaternion_log(Eigen::Quaterniond q) {
+  if (q.w() < 0) q.coeffs() = -q.coeffs();
+  const double s = q.vec().norm();
+  if (s == 0) return Vec3::Zero();
+  return (2 * std::atan2(s, q.w()) / s) * q.vec();
 }
 
 Mat3 right_jacobian(const Vec3& phi) {
@@ -189,6 +201,12 @@ void initialize(RigidBody& body, const RigidState& initial) {
       break;
   }
   body.reference = s;
+  body.joint_reach = 0;
+  if (j.kind == Joint::Kind::hinge)
+    for (Eigen::Index k = 0; k < body.surface.vertices.cols(); ++k) {
+      const Vec3 d = s.position + R * body.surface.vertices.col(k) - j.anchor;
+      body.joint_reach = std::max(body.joint_reach, (d - j.axis.dot(d) * j.axis).norm());
+    }
 }
 
 double joint_coordinate(const RigidBody& body, const RigidState& state) {
@@ -196,7 +214,7 @@ double joint_coordinate(const RigidBody& body, const RigidState& state) {
   switch (j.kind) {
     case Joint::Kind::hinge: {
       const Eigen::Quaterniond rel = state.orientation * body.reference.orientation.conjugate();
-      return wrap(2 * std::atan2(j.axis.dot(rel.vec()), rel.w()), angle_window_centre(j));
+      return wrap_angle(2 * std::atan2(j.axis.dot(rel.vec()), rel.w()), angle_window_centre(j));
     }
     case Joint::Kind::slider: return j.axis.dot(state.position - body.reference.position);
     default: return 0;
@@ -259,7 +277,9 @@ StepInfo step(const RigidBody& body, const RigidState& in, double h, const Vec3&
       e.c1 = F.dot(n.cross(r_perp));
       e.c2 = F.dot(r_perp);
       const double c_n = joint_coordinate(body, in);
-      const double delta = enforce_limits ? clamp_to_limits(j, c_n, solve_joint(e, body), info.at_limit) : solve_joint(e, body);
+      const double unclamped = solve_joint(e, body);
+      info.free_rate = unclamped / h;
+      const double delta = enforce_limits ? clamp_to_limits(j, c_n, unclamped, info.at_limit) : unclamped;
       move_along_joint(body, in, delta, h, out);
       break;
     }
@@ -271,7 +291,9 @@ StepInfo step(const RigidBody& body, const RigidState& in, double h, const Vec3&
       e.cdot = n.dot(in.velocity);
       e.Q0 = n.dot(F);
       const double c_n = joint_coordinate(body, in);
-      const double delta = enforce_limits ? clamp_to_limits(j, c_n, solve_joint(e, body), info.at_limit) : solve_joint(e, body);
+      const double unclamped = solve_joint(e, body);
+      info.free_rate = unclamped / h;
+      const double delta = enforce_limits ? clamp_to_limits(j, c_n, unclamped, info.at_limit) : unclamped;
       move_along_joint(body, in, delta, h, out);
       break;
     }

@@ -67,6 +67,11 @@ struct RigidBody {
   Vec3 anchor_body = Vec3::Zero();
   Vec3 axis_body = Vec3::UnitZ();
   RigidState reference;
+  // Set by initialize() for a hinge: the largest distance of a surface vertex from the
+  // axis (m; invariant: the body turns about that axis), 0 without a surface. The contact
+  // stage's limit rows convert the detection margin into an angle with it
+  // (contact/rigid_contact.hpp select_limit_rows).
+  double joint_reach = 0;
 };
 // Checks (mass > 0, inertia SPD, unit quaternion within 1e-9 after normalization is the
 // caller's job), computes the joint's body-frame data, and projects the initial
@@ -77,8 +82,17 @@ void initialize(RigidBody& body, const RigidState& initial);
 // The joint coordinate (hinge angle in rad, slider travel in m) of a state; 0 at t = 0.
 double joint_coordinate(const RigidBody& body, const RigidState& state);
 
+// angle + 2 pi k in [centre - pi, centre + pi) (a hinge angle wrapped into the window
+// about centre; BDF2's angle differences use centre 0).
+double wrap_angle(double angle, double centre);
+
 struct StepInfo {
   bool at_limit = false;             // a joint limit was active at the end of the step
+  // Hinge, slider: the joint rate the step would end with without its limits (the
+  // unconstrained root / h, before the clamp; the end rate when no limit acted). The
+  // contact stage's free rate of a limited joint, whose limits are rows of the NCP
+  // (contact/rigid_contact.hpp begin_rigid_contact). 0 for free and fixed bodies.
+  double free_rate = 0;
   Vec3 constraint_force = Vec3::Zero();   // joint reaction on the body, world (N)
   Vec3 constraint_torque = Vec3::Zero();  // about the centre of mass, world (N m)
 };

@@ -14,6 +14,10 @@ Mat3 hat(const Vec3& a);
 // below |phi| = 1e-4 where sin(x/2)/x loses digits).
 Eigen::Quaterniond quaternion_exp(const Vec3& phi);
 
+// Its inverse: the rotation vector of a unit quaternion, |phi| <= pi (q and -q give the
+// same; exact, atan2 of the vector part's norm).
+Vec3 quaternion_log(Eigen::Quaterniond q);
+
 // J_r(phi) = I - (1 - cos t)/t^2 [phi] + (t - sin t)/t^3 [phi]^2, t = |phi|:
 // exp([phi + d]) = exp([phi]) exp([J_r(phi) d]) to first order in d.
 Mat3 right_jacobian(const Vec3& phi);
