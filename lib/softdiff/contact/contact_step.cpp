@@ -186,7 +186,9 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   const bool rigidified = !model.rigidify.empty();
   // Joint limits in contact are rows of the dense NCP only (the scene reader refuses
   // backend: sparse with them).
-  const bool sparse = !rigidified && num_limit_slots(model) == 0 &&
+  // A scene of rigid bodies only (no soft dof: nothing to factorize) takes the dense
+  // backend (the scene reader refuses backend: sparse there).
+  const bool sparse = !rigidified && num_limit_slots(model) == 0 && model.fem.num_nodes > 0 &&
                       (ncp.backend == NcpBackend::sparse ||
                        (ncp.backend == NcpBackend::automatic && nc > ncp.dense_max_contacts));
   if (sparse) {

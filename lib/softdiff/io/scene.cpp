@@ -324,6 +324,12 @@ class Reader {
       ctx_.fail(contact->key_mark, "contact",
                 "contact with rigid bodies and simulation.newton_iterations > 1 is not supported yet (issue 21; " +
                     first + " is rigid): use newton_iterations: 1");
+    // A scene of rigid bodies only: no soft factor for the operator; the dense G is
+    // h sum_r H_r W_r H_r^T (integrator/bdf2.cpp time_step_rigid_only).
+    if (scene.bodies.empty() && scene.contact.backend == ContactDesc::Backend::sparse)
+      ctx_.fail(contact->key_mark, "contact.backend",
+                "backend: sparse in a scene of rigid bodies only is not supported yet (issue 21; " + first +
+                    " is rigid, there is no soft body): use dense or auto");
     if (scene.contact.backend == ContactDesc::Backend::sparse)
       for (const auto& rb : scene.rigid_bodies)
         if (rb.joint && rb.joint->limits)
