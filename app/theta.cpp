@@ -37,6 +37,11 @@ void demand_differentiable(const std::string& option, const Model& model) {
         throw InputError(option + ": derivatives through contact of a rigid body whose joint has limits are not "
                                   "supported yet (issue 21; rigid body '" + b.name + "')");
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
+    // Static with rigid bodies (integrator/static_rigid.hpp) solves; its implicit-function
+    // derivative does not include the rigid equations yet.
+    if (!model.rigid.empty())
+      throw InputError(option + ": derivatives of a static scene with rigid bodies are not supported yet (issue 21; rigid "
+                                "body '" + model.rigid.front().name + "')");
     for (const auto& b : model.fem.bodies)
       if (b.psd_projection)
         throw InputError(option + ": a static scene with psd_projection (body '" + b.name +

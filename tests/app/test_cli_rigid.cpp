@@ -231,6 +231,46 @@ TEST(Cli, RigidBodyFallsByBdf2) {
   }
 }
 
+// integrator: static with a rigid body (docs/method.md "Static equilibrium with rigid
+// bodies"): the clamped beam sags under gravity and the free sphere rests on the floor
+// (its pole touches it at zero gap). One load step: frames 0 and 1; at frame 1 the
+// sphere has not moved (its contacts stop the free increment: no penetration beyond the
+// contact solve's tolerance, 1e-9 m) and its vertices' contact forces carry its weight
+// (the NCP's tolerance 1e-8, relative).
+TEST(Cli, RigidBodyRestsStatically) {
+  const fs::path dir = softdiff::test::fresh_dir(kRigidWork, "static_contact");
+  write_text(dir / "scene.yaml",
+             beam_and_sphere("", "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.01}]\n"
+                                 "contact: {pairs: [[ball, floor, 0.3]]}\n"
+                                 "output: {fields: [x, contact]}\n"));
+  const auto r = run_cli("simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null "
+                         "--set simulation.steps=null",
+                         dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const std::string file = (dir / "out.h5").string();
+  const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const std::vector<hsize_t> shape = h5_shape(f, "/bodies/ball/contact_force");
+  const std::vector<double> force = h5_read(f, "/bodies/ball/contact_force");
+  const std::vector<double> position = h5_read(f, "/bodies/ball/position");
+  const std::vector<double> beam = h5_read(f, "/bodies/beam/x");
+  const std::vector<double> time = h5_read(f, "/time");
+  H5Fclose(f);
+  ASSERT_EQ(time.size(), 2u);  // rest and load step 1
+  ASSERT_EQ(shape.size(), 3u);
+  const std::size_t nv = shape[1];
+  double fz = 0;
+  for (std::size_t k = 0; k < nv; ++k) fz += force[3 * nv + 3 * k + 2];
+  const double weight = 1000 * 4.0 / 3.0 * M_PI * 1e-6 * 9.81;
+  EXPECT_NEAR(fz, weight, 1e-7 * weight);
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(position[3 + c], position[c], 1e-9) << c;
+  // The beam sagged (frame 1 differs from frame 0 somewhere below round-off).
+  const std::size_t nb = beam.size() / 2;
+  double sag = 0;
+  for (std::size_t k = 0; k < nb; ++k) sag = std::max(sag, std::abs(beam[nb + k] - beam[k]));
+  EXPECT_GT(sag, 1e-6);
+}
+
 // A scene of rigid bodies only: one free sphere.
 const std::string kBallOnly =
     "softdiff: 1\nsimulation: {dt: 0.01, steps: 3}\nbodies:\n  - {name: ball, type: rigid, shape: {type: sphere, "
@@ -323,10 +363,27 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
        "simulate scene.yaml -o out.h5", "a rigid body has no self-contact ('ball')"},
       {"bdf2_jacobian", beam_and_sphere(), "simulate scene.yaml -o out.h5 --set simulation.integrator=bdf2 --jacobian x0",
        "--jacobian: derivatives with bdf2 and rigid bodies are not supported yet (issue 21; rigid body 'ball')"},
+      // static with rigid bodies (Cli.RigidBodyRestsStatically): a body with dofs needs
+      // contact; joint limits and derivatives are refused.
       {"static", beam_and_sphere(),
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null",
-       "integrator 'static' with rigid bodies is not supported yet (issue 21"},
+       "a static scene needs contact for a rigid body that is not fixed: bodies[1] ('ball') has no equilibrium under "
+       "gravity without a support"},
+      {"static_limits",
+       beam_and_sphere("    joint: {type: hinge, anchor: [0.1, 0.1, 0.01], axis: [1, 0, 0], limits: [-0.1, 0.1]}\n",
+                       "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.01}]\n"
+                       "contact: {pairs: [[ball, floor, 0.3]]}\n"),
+       "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
+       "simulation.steps=null",
+       "integrator 'static' with a rigid body whose joint has limits is not supported yet (issue 21; bodies[1].joint "
+       "has limits)"},
+      {"static_jacobian",
+       beam_and_sphere("", "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.01}]\n"
+                           "contact: {pairs: [[ball, floor, 0.3]]}\n"),
+       "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
+       "simulation.steps=null --jacobian young",
+       "--jacobian: derivatives of a static scene with rigid bodies are not supported yet (issue 21; rigid body 'ball')"},
       {"calibrate", beam_and_sphere(), "calibrate scene.yaml --param young --target target.h5 -o out.h5",
        "calibrate: derivatives with rigid bodies are not supported yet (issue 21"},
       {"control", beam_and_sphere(), "control scene.yaml --target 0,0,0 -o out.h5",
@@ -348,7 +405,7 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
       {"rigid_only_static", kBallOnly,
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null",
-       "integrator 'static' with rigid bodies is not supported yet (issue 21"},
+       "integrator 'static' with rigid bodies only (no soft body) is not supported yet (issue 21"},
       {"missing_mesh", beam_and_sphere("", "", "{type: mesh, mesh: nope.msh}"),
        "simulate scene.yaml -o out.h5", "bodies[1].shape.mesh: mesh file not found"},
       {"open_mesh", beam_and_sphere("", "", "{type: mesh, mesh: open.stl}"),
