@@ -229,8 +229,11 @@ int info_scene(const std::string& file, const std::vector<std::string>& set, boo
     std::printf("integrator  %s, dt %g s, %ld steps (%g s), newton_iterations %d\n",
                 model.step.integrator == IntegratorKind::bdf2 ? "bdf2" : "implicit_euler", model.step.dt,
                 model.step.steps, model.step.dt * model.step.steps, model.step.newton_iterations);
-  std::printf("system      %d dofs (%ld fixed), %ld nonzeros in the upper triangle, %zu element colors\n",
-              3 * fem.num_nodes, fem.num_fixed_dofs, fem.pattern.nnz(), fem.pattern.color_begin.size() - 1);
+  if (fem.num_nodes == 0)  // a scene of rigid bodies only (integrator/bdf2.cpp time_step_rigid_only)
+    std::printf("system      no soft body: the step skips the soft stage (no matrix, no factorization)\n");
+  else
+    std::printf("system      %d dofs (%ld fixed), %ld nonzeros in the upper triangle, %zu element colors\n",
+                3 * fem.num_nodes, fem.num_fixed_dofs, fem.pattern.nnz(), fem.pattern.color_begin.size() - 1);
   for (std::size_t bi = 0; bi < fem.bodies.size(); ++bi) {
     const auto& b = fem.bodies[bi];
     long fixed_nodes = 0;

@@ -12,7 +12,17 @@ namespace softdiff::app {
 namespace {
 
 
+// A scene of rigid bodies only (no soft node) steps without the soft stage
+// (integrator/bdf2.cpp time_step_rigid_only); its derivatives, which run through the
+// soft step's factor, are not built.
+void demand_soft_body(const std::string& what, const Model& model) {
+  if (model.fem.num_nodes == 0)
+    throw InputError(what + ": derivatives of a scene of rigid bodies only are not supported yet (issue 21; rigid body '" +
+                     (model.rigid.empty() ? std::string("?") : model.rigid.front().name) + "', no soft body)");
+}
+
 void demand_differentiable(const std::string& option, const Model& model) {
+  demand_soft_body(option, model);
   demand_no_rigidified_parts(option, model);
   // BDF2 with rigid bodies steps (rigid/rigid_bdf2.hpp) but is not differentiated yet.
   if (model.step.integrator == IntegratorKind::bdf2 && !model.rigid.empty())
@@ -27,6 +37,11 @@ void demand_differentiable(const std::string& option, const Model& model) {
         throw InputError(option + ": derivatives through contact of a rigid body whose joint has limits are not "
                                   "supported yet (issue 21; rigid body '" + b.name + "')");
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
+    // Static with rigid bodies (integrator/static_rigid.hpp) solves; its implicit-function
+    // derivative does not include the rigid equations yet.
+    if (!model.rigid.empty())
+      throw InputError(option + ": derivatives of a static scene with rigid bodies are not supported yet (issue 21; rigid "
+                                "body '" + model.rigid.front().name + "')");
     for (const auto& b : model.fem.bodies)
       if (b.psd_projection)
         throw InputError(option + ": a static scene with psd_projection (body '" + b.name +

@@ -231,6 +231,123 @@ TEST(Cli, RigidBodyFallsByBdf2) {
   }
 }
 
+// integrator: static with a rigid body (docs/method.md "Static equilibrium with rigid
+// bodies"): the clamped beam sags under gravity and the free sphere rests on the floor
+// (its pole touches it at zero gap). One load step: frames 0 and 1; at frame 1 the
+// sphere has not moved (its contacts stop the free increment: no penetration beyond the
+// contact solve's tolerance, 1e-9 m) and its vertices' contact forces carry its weight
+// (the NCP's tolerance 1e-8, relative).
+TEST(Cli, RigidBodyRestsStatically) {
+  const fs::path dir = softdiff::test::fresh_dir(kRigidWork, "static_contact");
+  write_text(dir / "scene.yaml",
+             beam_and_sphere("", "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.01}]\n"
+                                 "contact: {pairs: [[ball, floor, 0.3]]}\n"
+                                 "output: {fields: [x, contact]}\n"));
+  const auto r = run_cli("simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null "
+                         "--set simulation.steps=null",
+                         dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const std::string file = (dir / "out.h5").string();
+  const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const std::vector<hsize_t> shape = h5_shape(f, "/bodies/ball/contact_force");
+  const std::vector<double> force = h5_read(f, "/bodies/ball/contact_force");
+  const std::vector<double> position = h5_read(f, "/bodies/ball/position");
+  const std::vector<double> beam = h5_read(f, "/bodies/beam/x");
+  const std::vector<double> time = h5_read(f, "/time");
+  H5Fclose(f);
+  ASSERT_EQ(time.size(), 2u);  // rest and load step 1
+  ASSERT_EQ(shape.size(), 3u);
+  const std::size_t nv = shape[1];
+  double fz = 0;
+  for (std::size_t k = 0; k < nv; ++k) fz += force[3 * nv + 3 * k + 2];
+  const double weight = 1000 * 4.0 / 3.0 * M_PI * 1e-6 * 9.81;
+  EXPECT_NEAR(fz, weight, 1e-7 * weight);
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(position[3 + c], position[c], 1e-9) << c;
+  // The beam sagged (frame 1 differs from frame 0 somewhere below round-off).
+  const std::size_t nb = beam.size() / 2;
+  double sag = 0;
+  for (std::size_t k = 0; k < nb; ++k) sag = std::max(sag, std::abs(beam[nb + k] - beam[k]));
+  EXPECT_GT(sag, 1e-6);
+}
+
+// A scene of rigid bodies only: one free sphere.
+const std::string kBallOnly =
+    "softdiff: 1\nsimulation: {dt: 0.01, steps: 3}\nbodies:\n  - {name: ball, type: rigid, shape: {type: sphere, "
+    "radius: 0.01}, density: 1000}\n";
+
+// configs/rigid_stack.yaml as shipped (a scene of rigid bodies only, docs/method.md
+// "Scenes of rigid bodies only"): three boxes, the upper two dropped 1 mm, land and
+// rest. `info` says the step has no soft stage; the output has each box's pose and
+// surface (no soft body group), the XDMF of each box reads back through meshio; at the
+// end each box is at rest at its stacked height and the floor's contacts carry the
+// three weights (the contact solve's tolerance 1e-8 relative on the default ADMM).
+TEST(Cli, RigidStackRests) {
+  const fs::path dir = softdiff::test::fresh_dir(kRigidWork, "rigid_stack");
+  const fs::path scene = kRigidRoot / "configs/rigid_stack.yaml";
+  auto r = run_cli("info '" + scene.string() + "'", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("system      no soft body: the step skips the soft stage"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("rigid       top: box, 8 surface vertices, mass 0.108 kg"), std::string::npos) << r.out;
+  r = run_cli("simulate '" + scene.string() + "' -o out.h5 --quiet", dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(r.err.find("warning"), std::string::npos) << r.err;
+  const std::string file = (dir / "out.h5").string();
+  const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const hsize_t T = 51;  // 0.5 s / 0.002 s = 250 steps, every 5th, and frame 0
+  const double density = 500, g = 9.81;
+  struct Box {
+    std::string name;
+    double hx, hy, hz, x, y, z;  // half extents; the rest position (stacked, touching)
+  };
+  const Box boxes[3] = {{"base", 0.1, 0.1, 0.05, 0, 0, 0.05},
+                        {"middle", 0.06, 0.06, 0.04, 0.01, 0, 0.14},
+                        {"top", 0.03, 0.03, 0.03, -0.01, 0.005, 0.21}};
+  double weight = 0;
+  for (const Box& b : boxes) {
+    SCOPED_TRACE(b.name);
+    const std::string grp = "/bodies/" + b.name + "/";
+    EXPECT_EQ(h5_shape(f, grp + "position"), (std::vector<hsize_t>{T, 3}));
+    const std::vector<double> p = h5_read(f, grp + "position");
+    const std::vector<double> v = h5_read(f, grp + "velocity");
+    const std::vector<double> w = h5_read(f, grp + "angular_velocity");
+    const std::size_t last = 3 * (T - 1);
+    // At rest on the box below (the contact solve's gap term: no penetration beyond
+    // h x its tolerance, ~1e-11 m; the poses' round-off ~1e-16 m): 1e-9 m.
+    EXPECT_NEAR(p[last], b.x, 1e-9);
+    EXPECT_NEAR(p[last + 1], b.y, 1e-9);
+    EXPECT_NEAR(p[last + 2], b.z, 1e-9);
+    EXPECT_LT(std::hypot(v[last], v[last + 1], v[last + 2]), 1e-9);
+    EXPECT_LT(std::hypot(w[last], w[last + 1], w[last + 2]), 1e-9);
+    weight += density * 8 * b.hx * b.hy * b.hz * g;
+  }
+  // The contacts of the last frame with the floor (names: base, middle, top, floor).
+  const std::vector<double> offsets = h5_read(f, "/contact/offsets");
+  const std::vector<double> pair = h5_read(f, "/contact/pair");
+  const std::vector<double> force = h5_read(f, "/contact/force");
+  H5Fclose(f);
+  ASSERT_EQ(offsets.size(), T + 1);
+  double floor_z = 0;
+  int floor_contacts = 0;
+  for (auto i = static_cast<std::size_t>(offsets[T - 1]); i < static_cast<std::size_t>(offsets[T]); ++i)
+    if (pair[2 * i + 1] == 3) {
+      floor_z += force[3 * i + 2];
+      ++floor_contacts;
+    }
+  EXPECT_EQ(floor_contacts, 4);
+  EXPECT_NEAR(floor_z, weight, 1e-8 * weight);  // 26.33 N
+  // meshio reads each box's XDMF (its surface triangles, every frame's x, v, displacement).
+  for (const Box& b : boxes) {
+    const fs::path log = dir / ("meshio_" + b.name + ".txt");
+    const std::string command = "/usr/bin/python3 '" + (kRigidRoot / "tests/app/meshio_read_xdmf.py").string() + "' '" +
+                                file + "' " + b.name + " '" + (dir / ("out." + b.name + ".xmf")).string() + "' > '" +
+                                log.string() + "' 2>&1";
+    EXPECT_EQ(std::system(command.c_str()), 0) << read_text(log);
+    EXPECT_EQ(read_text(log).rfind("ok " + b.name + " 51", 0), 0u) << read_text(log);
+  }
+}
+
 // Every refusal: exit code 2, the message, and no output file.
 TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
   struct Case {
@@ -246,17 +363,48 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
        "simulate scene.yaml -o out.h5", "a rigid body has no self-contact ('ball')"},
       {"bdf2_jacobian", beam_and_sphere(), "simulate scene.yaml -o out.h5 --set simulation.integrator=bdf2 --jacobian x0",
        "--jacobian: derivatives with bdf2 and rigid bodies are not supported yet (issue 21; rigid body 'ball')"},
+      // static with rigid bodies (Cli.RigidBodyRestsStatically): a body with dofs needs
+      // contact; joint limits and derivatives are refused.
       {"static", beam_and_sphere(),
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null",
-       "integrator 'static' with rigid bodies is not supported yet (issue 21"},
+       "a static scene needs contact for a rigid body that is not fixed: bodies[1] ('ball') has no equilibrium under "
+       "gravity without a support"},
+      {"static_limits",
+       beam_and_sphere("    joint: {type: hinge, anchor: [0.1, 0.1, 0.01], axis: [1, 0, 0], limits: [-0.1, 0.1]}\n",
+                       "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.01}]\n"
+                       "contact: {pairs: [[ball, floor, 0.3]]}\n"),
+       "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
+       "simulation.steps=null",
+       "integrator 'static' with a rigid body whose joint has limits is not supported yet (issue 21; bodies[1].joint "
+       "has limits)"},
+      {"static_jacobian",
+       beam_and_sphere("", "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.01}]\n"
+                           "contact: {pairs: [[ball, floor, 0.3]]}\n"),
+       "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
+       "simulation.steps=null --jacobian young",
+       "--jacobian: derivatives of a static scene with rigid bodies are not supported yet (issue 21; rigid body 'ball')"},
       // calibrate and control with rigid bodies run since issue 21's rcal and rctl
       // (test_cli_calibrate_rigid.cpp, test_cli_control.cpp PushesAFreeRigidBlock); what
       // their derivatives do not cover is refused there.
-      {"rigid_only",
-       "softdiff: 1\nsimulation: {dt: 0.01, steps: 3}\nbodies:\n  - {name: ball, type: rigid, shape: {type: sphere, "
-       "radius: 0.01}, density: 1000}\n",
-       "simulate scene.yaml -o out.h5", "bodies[0]: a scene of rigid bodies only is not supported yet (issue 21)"},
+      // A scene of rigid bodies only runs (Cli.RigidStackRests); its derivatives, the
+      // sparse backend and static are refused.
+      {"rigid_only_jacobian", kBallOnly, "simulate scene.yaml -o out.h5 --jacobian x0",
+       "--jacobian: derivatives of a scene of rigid bodies only are not supported yet (issue 21; rigid body 'ball', "
+       "no soft body)"},
+      {"rigid_only_check_grad", kBallOnly, "check-grad scene.yaml",
+       "derivatives of a scene of rigid bodies only are not supported yet (issue 21"},
+      {"rigid_only_calibrate", kBallOnly, "calibrate scene.yaml --param young --target target.h5 -o out.h5",
+       "calibrate: derivatives of a scene of rigid bodies only are not supported yet (issue 21"},
+      {"rigid_only_sparse", kBallOnly + "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.01}]\n"
+                                        "contact: {friction: 0.3, backend: sparse}\n",
+       "simulate scene.yaml -o out.h5",
+       "contact.backend: backend: sparse in a scene of rigid bodies only is not supported yet (issue 21; bodies[0] is "
+       "rigid, there is no soft body): use dense or auto"},
+      {"rigid_only_static", kBallOnly,
+       "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
+       "simulation.steps=null",
+       "integrator 'static' with rigid bodies only (no soft body) is not supported yet (issue 21"},
       {"missing_mesh", beam_and_sphere("", "", "{type: mesh, mesh: nope.msh}"),
        "simulate scene.yaml -o out.h5", "bodies[1].shape.mesh: mesh file not found"},
       {"open_mesh", beam_and_sphere("", "", "{type: mesh, mesh: open.stl}"),

@@ -976,9 +976,15 @@ TEST_F(Scene, RigidBodiesRefuseWhatIsNotSupportedYet) {
   expect_message(edit("  dt: 0.01\n", "  integrator: bdf2\n  dt: 0.01\n", kRigid) + "contact: {friction: 0.5}\n",
                  "contact: contact with bdf2 and a rigid body whose joint has limits is not supported yet (issue 21; "
                  "bodies[1].joint has limits): use implicit_euler");
+  // static with rigid bodies (integrator/static_rigid.hpp): a joint with limits is
+  // refused, a body with dofs needs contact; a fixed one, or one in contact, is accepted.
   expect_message(rigid_edit("  dt: 0.01\n  steps: 10\n", "  integrator: static\n"),
-                 "simulation.integrator: integrator 'static' with rigid bodies is not supported yet (issue 21; "
-                 "bodies[1] is rigid): use implicit_euler or bdf2");
+                 "simulation.integrator: integrator 'static' with a rigid body whose joint has limits is not supported "
+                 "yet (issue 21; bodies[1].joint has limits): use implicit_euler or bdf2");
+  const std::string static_free = edit("  dt: 0.01\n  steps: 10\n", "  integrator: static\n", free_key);
+  expect_message(static_free, "simulation.integrator: a static scene needs contact for a rigid body that is not fixed: "
+                              "bodies[1] ('key') has no equilibrium under gravity without a support");
+  EXPECT_EQ(load(static_free + "contact: {friction: 0.5}\n").simulation.integrator, Integrator::static_equilibrium);
   EXPECT_NO_THROW(load(kRigid + "contact: {enabled: false}\n"));
   // rigidify (issue 21 item 2): read here, its nodes resolved by build_model.
   const SceneDesc r = load(edit("    material:", "    rigidify: [{group: hub, attach: free}, {box: [0, 0, 0, 1, 1, 1]}]\n    material:"));

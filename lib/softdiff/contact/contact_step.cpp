@@ -187,8 +187,11 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   // through the reduced solve; on the sparse backend the operator on the soft rows H_f
   // plus the parts' rank-6m part as rigid rows (rigidified_rows).
   const bool rigidified = !model.rigidify.empty();
-  const bool sparse = ncp.backend == NcpBackend::sparse ||
-                      (ncp.backend == NcpBackend::automatic && nc > ncp.dense_max_contacts);
+  // A scene of rigid bodies only (no soft dof: nothing to factorize) takes the dense
+  // backend (the scene reader refuses backend: sparse there).
+  const bool sparse = model.fem.num_nodes > 0 &&
+                      (ncp.backend == NcpBackend::sparse ||
+                       (ncp.backend == NcpBackend::automatic && nc > ncp.dense_max_contacts));
   if (sparse) {
     cd.G.resize(0, 0);
     if (rigidified) integrator::rigidified_rows(model, data, cd.Ht);  // H_f^T, K_p

@@ -1,6 +1,7 @@
 // BDF2: see bdf2.hpp.
 #include <softdiff/integrator/bdf2.hpp>
 
+#include <softdiff/contact/contact_step.hpp>
 #include <softdiff/contact/rigid_contact.hpp>
 #include <softdiff/core/assert.hpp>
 #include <softdiff/core/timer.hpp>
@@ -68,8 +69,43 @@ StepStatus time_step_rigid_contact(const Model& model, Data& data, const State& 
 }
 }  // namespace
 
+namespace {
+// A scene of rigid bodies only (no soft node): the soft stage is skipped, no matrix is
+// assembled or factorized (the linear solver is never called). Without contact the
+// rigid bodies' own step; with contact the rigid free step, then the one NCP on the
+// rigid velocities alone (contact/contact_step.cpp: G = h sum_r H_r W_r H_r^T, no soft
+// block, the dense backend), then the poses integrated with the corrected velocities,
+// exactly as time_step_rigid_contact without the soft step. The soft state stays empty
+// (x, v of size 0); the record (data.h, history_weight, hat) is the rigid step's.
+StepStatus time_step_rigid_only(const Model& model, Data& data, const State& in, const State* previous, State& out,
+                                long step_index) {
+  const bool bdf2 = model.step.integrator == IntegratorKind::bdf2 && previous;
+  const double h = model.step.dt;
+  data.timings = {};
+  data.h = bdf2 ? 2.0 * h / 3.0 : h;
+  data.history_weight = bdf2 ? 1.0 / 3.0 : 0.0;
+  data.hat.t = in.t;
+  data.hat.x.resize(0);
+  data.hat.v.resize(0);
+  data.newton_iterations_used = 1;
+  data.newton_residual = 0;
+  out.x.resize(0);
+  out.v.resize(0);
+  out.t = in.t + h;
+  const StepStatus free = step_rigid_bodies(model, data, in, out, step_index, bdf2 ? previous : nullptr);
+  if (!free.ok() || !model.contact.with_rigid()) return free;
+  const auto t0 = Clock::now();
+  contact::begin_rigid_contact(model, data, data.hat.rigid, out.rigid);
+  data.timings.other += seconds_since(t0);
+  const StepStatus contact = contact::resolve_contacts(model, data, data.hat, out.v, step_index, data.h);
+  if (!contact.ok()) return contact;
+  return contact::end_rigid_contact(model, data, out.rigid, data.h, step_index);
+}
+}  // namespace
+
 StepStatus time_step(const Model& model, Data& data, const State& in, const State* previous, State& out,
                      long step_index, const VecX* lambda_a) {
+  if (model.fem.num_nodes == 0) return time_step_rigid_only(model, data, in, previous, out, step_index);
   if (model.contact.with_rigid()) return time_step_rigid_contact(model, data, in, previous, out, step_index, lambda_a);
   const StepStatus soft = model.step.integrator == IntegratorKind::bdf2
                               ? bdf2_step(model, data, in, previous, out, step_index, lambda_a)

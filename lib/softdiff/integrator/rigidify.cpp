@@ -1,5 +1,6 @@
 // Rigidified parts of soft bodies: see rigidify.hpp and docs/method.md "Rigidified parts".
 #include <softdiff/integrator/rigidify.hpp>
+#include <softdiff/integrator/static_rigid.hpp>
 #include <softdiff/rigid/rotation.hpp>
 
 #include <softdiff/core/assert.hpp>
@@ -80,8 +81,9 @@ Eigen::Matrix<double, 6, 1> part_velocity(const Model& model, const RigidifiedPa
 
 StepStatus prepare_rigidified(const Model& model, Data& data, const VecX& x, double h, long step_index,
                               const VecX* K_damping) {
-  SOFTDIFF_DEMAND(model.step.integrator != IntegratorKind::static_equilibrium && !model.solver.factor_reuse,
-                  "rigidified parts: the dynamic steps only, without factor reuse (issue 21)");
+  SOFTDIFF_DEMAND(!model.solver.factor_reuse, "rigidified parts: without factor reuse (issue 21)");
+  // The static solver (integrator/static_rigid.hpp): A = K, called with h = 1.
+  const bool is_static = model.step.integrator == IntegratorKind::static_equilibrium;
   const auto& fem = model.fem;
   const RigidifyModel& rm = model.rigidify;
   RigidifyData& w = data.rigidify;
@@ -106,6 +108,7 @@ StepStatus prepare_rigidified(const Model& model, Data& data, const VecX& x, dou
   const double* K = data.fem.K_values.data();
   const double* Kd = K_damping ? K_damping->data() : K;
   auto value = [&](int k, int part) {
+    if (is_static) return K[k];
     const auto& b = fem.bodies[static_cast<std::size_t>(rm.parts[static_cast<std::size_t>(part)].body)];
     return (1 + h * b.rayleigh_mass) * M[k] + h * b.rayleigh_stiffness * Kd[k] + h * h * K[k];
   };
@@ -302,6 +305,30 @@ void place_rigidified(const Model& model, Data& data, const State& in, State& ou
       out.x.segment<3>(3 * i) = c_next + r;
       out.v.segment<3>(3 * i) = vp + omega_next.cross(r);
     }
+  }
+}
+
+void rigidified_static_pose(const Model& model, Data& data, const VecX& x) {
+  const RigidifyModel& rm = model.rigidify;
+  RigidifyData& w = data.rigidify;
+  if (w.centre.size() != rm.parts.size()) w.centre.resize(rm.parts.size());
+  w.x = x;
+  for (std::size_t p = 0; p < rm.parts.size(); ++p) w.centre[p] = part_centre(model, rm.parts[p], x);
+}
+
+void place_rigidified_static(const Model& model, const Data& data, const VecX& x, const VecX& dx, double alpha,
+                             VecX& trial) {
+  const RigidifyModel& rm = model.rigidify;
+  const RigidifyData& w = data.rigidify;
+  trial = x + alpha * dx;
+  for (int p = 0; p < rm.size(); ++p) {
+    const auto& part = rm.parts[static_cast<std::size_t>(p)];
+    const Vec3& c = w.centre[static_cast<std::size_t>(p)];
+    Eigen::Matrix<double, 6, 6> N;
+    const Eigen::Matrix<double, 6, 1> u = fit(model, part, x, c, dx, N);
+    const Mat3 R = rigid::quaternion_exp(alpha * Vec3(u.tail<3>())).toRotationMatrix();
+    const Vec3 c_next = c + alpha * u.head<3>();
+    for (int i : part.nodes) trial.segment<3>(3 * i) = c_next + R * (x.segment<3>(3 * i) - c);
   }
 }
 

@@ -2,6 +2,8 @@
 
 #include <softdiff/contact/contact_step.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
+#include <softdiff/integrator/rigidify.hpp>
+#include <softdiff/integrator/static_rigid.hpp>
 
 #include <algorithm>
 #include <softdiff/core/assert.hpp>
@@ -74,6 +76,21 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
   data.static_shifted_iterations = 0;
   double size_scale = 0;
   for (const auto& b : fem.bodies) size_scale = std::max(size_scale, b.bbox_diagonal);
+  // Rigid bodies (static_rigid.hpp): their pose increments join each iteration's contact
+  // solve, with the proximal factor k_rigid; the rigid equations join the convergence test.
+  const bool with_rigid = !model.rigid.empty();
+  SOFTDIFF_DEMAND(!with_rigid || model.contact.with_rigid() ||
+                      std::all_of(model.rigid.begin(), model.rigid.end(),
+                                  [](const auto& b) { return b.joint.kind == rigid::Joint::Kind::fixed; }),
+                  "solve_static: rigid bodies with dofs need contact (the scene reader refuses the rest)");
+  const double k_first = with_rigid ? static_rigid_stiffness(model, size_scale, true) : 0.0;
+  const double k_rigid = with_rigid ? static_rigid_stiffness(model, size_scale, false) : 0.0;
+  // Rigidified parts (static_rigid.hpp, rigidify.hpp): the reduced Newton P^T R(P u) = 0;
+  // residuals projected on the parts' rigid motions, increments by the reduced solve,
+  // the parts' nodes placed exactly.
+  const bool rigidified = !model.rigidify.empty();
+  double rigid_rel = 0;
+  std::string rigid_worst;
   // Contact (docs/method.md "Static equilibrium"): per Newton iteration, the NCP of the
   // linearized problem at x_k with the same contact stage as the dynamic step, h = 1:
   // G = H K^{-1} H^T, g = H dx_free + phi, dx = dx_free + K^{-1} H^T lambda. lambda is
@@ -139,10 +156,26 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       }
       // With contact: the last NCP's forces H_c^T lambda (projected already).
       if (with_contact) residual += contact_force;
-      const double reference = std::max({factor * load_norm, data.fem.f_int.norm(), actuated ? data.f_act.norm() : 0.0,
+      // With parts: ||f_int|| without the internal forces inside them (they do no work on
+      // the parts' rigid motions), as the dynamic Newton's scale.
+      double internal_norm = data.fem.f_int.norm();
+      if (rigidified) {
+        rigidified_static_pose(model, data, out.x);
+        data.rigidify.f = data.fem.f_int;
+        project(model, data.rigidify.f);
+        project_rigidified_residual(model, data, data.rigidify.f);
+        internal_norm = data.rigidify.f.norm();
+      }
+      const double reference = std::max({factor * load_norm, internal_norm, actuated ? data.f_act.norm() : 0.0,
                                          with_contact ? contact_force.norm() : 0.0});
       project(model, residual);
+      if (rigidified) project_rigidified_residual(model, data, residual);
       rel = reference > 0 ? residual.norm() / reference : 0.0;
+      // Rigid bodies: T^T (w_r + H_r^T lambda) relative to the weight (static_rigid.hpp).
+      if (with_rigid) {
+        rigid_rel = static_rigid_residual(model, data, out.rigid, factor, with_contact && contact_solved, &rigid_worst);
+        rel = std::max(rel, rigid_rel);
+      }
       data.timings.assembly += seconds_since(t0);
       if (!std::isfinite(rel)) {
         status.code = StepStatus::Code::non_finite;
@@ -153,6 +186,12 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       // an NCP solved to its tolerance.
       const bool contact_ok = !with_contact || (contact_solved && cd.result.converged);
       if (rel <= settings.static_tolerance && contact_ok) break;
+      if (it >= settings.static_max_iterations && with_rigid && rigid_rel >= rel) {
+        StepStatus ns = not_converged(s, it, rel, "");
+        ns.detail = "static equilibrium not reached: rigid body '" + rigid_worst +
+                    "' is out of balance (increase static.max_iterations or static.load_steps)";
+        return ns;
+      }
       if (it >= settings.static_max_iterations)
         return not_converged(s, it, rel, "static equilibrium not reached (increase static.max_iterations or static.load_steps)");
       // A dx = f + P + H_a^T lambda, A = K + sum_cables lambda d^2L/dx^2 (K = d^2E/dx^2;
@@ -210,18 +249,57 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       }
       if (shifted || proximal_grown) ++data.static_shifted_iterations;
       else shift = 0;
+      // Parts: the Schur complement of their 6 m dofs on this iteration's factor (A = K).
+      if (rigidified) {
+        t0 = Clock::now();
+        status = prepare_rigidified(model, data, out.x, 1.0, s);
+        data.timings.factorization += seconds_since(t0);
+        if (!status.ok()) return status;
+      }
       t0 = Clock::now();
+      double rigid_moved = 0;  // the rigid bodies' largest vertex move in this iteration (static_rigid.hpp)
       // Without contact forces in the free solve: the NCP's lambda is the total force.
       if (with_contact) residual -= contact_force;
-      data.solver->solve(residual, dx);
+      if (rigidified ? !solve_rigidified(model, data, residual, dx) : !data.solver->solve(residual, dx)) {
+        status.code = StepStatus::Code::solver_failed;
+        status.step = s;
+        status.detail = "the linear solver failed on the static Newton increment";
+        return status;
+      }
       project(model, dx);
       data.timings.solve += seconds_since(t0);
       if (with_contact) {
+        // Rigid bodies: their free increments and compliances for this solve.
+        if (with_rigid) begin_static_rigid(model, data, out.rigid, it == 0 ? k_first : k_rigid, factor);
         // The contact stage with h = 1: dx <- dx_free + K^{-1} H_c^T lambda.
         const StepStatus cs = contact::resolve_contacts(model, data, out.x, dx_previous, 1.0, dx, s, false);
         if (!cs.ok()) return cs;
+        // The rigid poses move by their corrected increments; a body that no contact
+        // holds moves by ~10 x the scene's size (its free increment): no support.
+        if (with_rigid) {
+          const int unsupported = static_rigid_unsupported(model, data);
+          if (unsupported >= 0) {
+            StepStatus ns = not_converged(s, it, rel, "");
+            ns.detail = "rigid body '" + model.rigid[static_cast<std::size_t>(unsupported)].name +
+                        "' touches no support within contact.margin: no equilibrium under its load (rest it on a "
+                        "soft body, an obstacle or another body, or fix its joint)";
+            return ns;
+          }
+          int rigid_body = -1;
+          const StepStatus rs = end_static_rigid(model, data, out.rigid, s, rigid_moved, rigid_body);
+          if (!rs.ok()) return rs;
+          if (!(rigid_moved <= size_scale)) {
+            StepStatus ns = not_converged(s, it, rel, "");
+            ns.detail = "rigid body '" + model.rigid[static_cast<std::size_t>(rigid_body)].name +
+                        "' moved by more than the scene's size in one Newton iteration: its contacts do not hold it (it "
+                        "rests on no support within contact.margin, or the load exceeds what friction holds: no "
+                        "equilibrium)";
+            return ns;
+          }
+        }
         contact_solved = true;
         contact_force.noalias() = cd.Ht * cd.lambda;
+        if (rigidified) project_rigidified_residual(model, data, contact_force);
         // A body held by contact alone moves rigidly (by its weight over tau_p) unless a
         // contact stops it: a move beyond the scene's size means it rests on nothing.
         const double moved = dx.cwiseAbs().maxCoeff();
@@ -246,10 +324,15 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
         const double rho = dx_norm / dx_norm_previous;
         dx_norm_previous = shifted ? std::numeric_limits<double>::infinity() : dx_norm;
         if (settings.static_displacement_tolerance > 0 && !shifted && (!with_contact || cd.result.converged) &&
-            rel <= settings.static_residual_tolerance && rho < 1) {
+            rel <= settings.static_residual_tolerance && rho < 1 && rigid_moved <= 1e-13 * size_scale) {
           trial = out.x + dx - in.x;
           if (dx_norm * rho / (1 - rho) <= settings.static_displacement_tolerance * trial.cwiseAbs().maxCoeff()) {
-            out.x += dx;
+            if (rigidified) {
+              place_rigidified_static(model, data, out.x, dx, 1.0, trial);
+              out.x = trial;
+            } else {
+              out.x += dx;
+            }
             ++total_iterations;
             break;
           }
@@ -260,8 +343,14 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       // below 1e-13 of the model's size, the equilibrium is as exact as doubles allow.
       // (Not with a shifted tangent: its step is not Newton's and may be small far from
       // the equilibrium.)
-      if (!shifted && (!with_contact || cd.result.converged) && dx.cwiseAbs().maxCoeff() <= 1e-13 * size_scale) {
-        out.x += dx;
+      if (!shifted && (!with_contact || cd.result.converged) && dx.cwiseAbs().maxCoeff() <= 1e-13 * size_scale &&
+          rigid_moved <= 1e-13 * size_scale) {
+        if (rigidified) {
+          place_rigidified_static(model, data, out.x, dx, 1.0, trial);
+          out.x = trial;
+        } else {
+          out.x += dx;
+        }
         break;
       }
 
@@ -286,7 +375,10 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       double alpha = 1;
       bool accepted = false;
       for (int ls = 0; ls < 40; ++ls, alpha *= 0.5) {
-        trial = out.x + alpha * dx;
+        if (rigidified)
+          place_rigidified_static(model, data, out.x, dx, alpha, trial);
+        else
+          trial = out.x + alpha * dx;
         if (with_contact) {
           // Contact forces have no potential (friction): the full step, shortened only
           // where it inverts an element (x_k and x_k + dx both satisfy the linearized
@@ -308,6 +400,7 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
           data.Kv = data.fem.f_int + factor * fem.gravity_force;
           model.actuation.add_forces(trial, data.lambda_a, 1.0, data.Kv);
           project(model, data.Kv);
+          if (rigidified) project_rigidified_residual(model, data, data.Kv);  // as the residual r0
           const double r = data.Kv.norm();
           if (r <= (1 - 1e-4 * alpha) * r0) {
             accepted = true;

@@ -506,10 +506,10 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
   model.solver.pcg_max_iterations = scene.linear_solver.pcg_max_iterations;
   model.solver.refactor_iterations = scene.linear_solver.refactor_iterations;
 
-  if (scene.bodies.empty()) {
-    Where w = scene.rigid_bodies.empty() ? Where{scene.file.string(), 0, 0, "bodies"} : scene.rigid_bodies.front().where;
-    fail(w, "a scene of rigid bodies only is not supported yet (issue 21): the step needs a soft body beside them");
-  }
+  // A scene of rigid bodies only has no soft node: the step skips the soft stage
+  // (integrator/bdf2.cpp time_step_rigid_only).
+  if (scene.bodies.empty() && scene.rigid_bodies.empty())
+    fail(Where{scene.file.string(), 0, 0, "bodies"}, "the scene has no body");
   std::vector<fem::BodyModel> bodies;
   std::vector<unsigned char> fixed;
   std::vector<PendingPart> pending_parts;  // free and servo-attached rigidified parts

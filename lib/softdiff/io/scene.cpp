@@ -162,8 +162,8 @@ class Reader {
       scene.bodies.push_back(std::move(desc));
     }
     read_obstacles(root, scene);
-    check_rigid_support(root, scene);
     read_contact(root, scene);
+    check_rigid_support(root, scene);  // (after read_contact: static needs contact)
     check_rigid_contact(root, scene);
     check_rigidify_support(root, scene);  // (after read_contact: it reads the backend)
     read_output(root, scene.output);
@@ -301,15 +301,32 @@ class Reader {
   }
 
   // Rigid bodies (issue 21): stepped by implicit Euler or BDF2 (rigid/rigid_bdf2.hpp),
-  // with or without contact; static is refused.
+  // with or without contact; static (integrator/static_rigid.hpp) beside a soft body,
+  // every rigid body with dofs held by contact (a fixed one needs nothing), without
+  // joint limits. The rest of static is refused.
   void check_rigid_support(const Node& root, const SceneDesc& scene) const {
     if (scene.rigid_bodies.empty()) return;
     const std::string first = scene.rigid_bodies.front().where.path;
-    if (scene.simulation.integrator != Integrator::implicit_euler && scene.simulation.integrator != Integrator::bdf2) {
-      const Entry* integrator = root.get("simulation")->find("integrator");
+    if (scene.simulation.integrator != Integrator::static_equilibrium) return;
+    const Entry* integrator = root.get("simulation")->find("integrator");
+    auto refuse = [&](const std::string& why) {
       ctx_.fail(integrator->key_mark, "simulation.integrator",
-                "integrator '" + integrator->value.scalar + "' with rigid bodies is not supported yet (issue 21; " +
-                    first + " is rigid): use implicit_euler or bdf2");
+                "integrator '" + integrator->value.scalar + "' with " + why + " is not supported yet (issue 21; " + first +
+                    " is rigid): use implicit_euler or bdf2");
+    };
+    if (scene.bodies.empty()) refuse("rigid bodies only (no soft body)");
+    for (const auto& rb : scene.rigid_bodies) {
+      const bool fixed = rb.joint && rb.joint->kind == JointDesc::Kind::fixed;
+      if (rb.joint && rb.joint->limits)
+        ctx_.fail(integrator->key_mark, "simulation.integrator",
+                  "integrator '" + integrator->value.scalar +
+                      "' with a rigid body whose joint has limits is not supported yet (issue 21; " + rb.joint->where.path +
+                      " has limits): use implicit_euler or bdf2");
+      if (!fixed && !scene.contact.enabled)
+        ctx_.fail(integrator->key_mark, "simulation.integrator",
+                  "a static scene needs contact for a rigid body that is not fixed: " + rb.where.path + " ('" + rb.name +
+                      "') has no equilibrium under gravity without a support (enable contact and rest it on one, or "
+                      "give it joint: {type: fixed})");
     }
   }
 
@@ -324,6 +341,12 @@ class Reader {
       ctx_.fail(contact->key_mark, "contact",
                 "contact with rigid bodies and simulation.newton_iterations > 1 is not supported yet (issue 21; " +
                     first + " is rigid): use newton_iterations: 1");
+    // A scene of rigid bodies only: no soft factor for the operator; the dense G is
+    // h sum_r H_r W_r H_r^T (integrator/bdf2.cpp time_step_rigid_only).
+    if (scene.bodies.empty() && scene.contact.backend == ContactDesc::Backend::sparse)
+      ctx_.fail(contact->key_mark, "contact.backend",
+                "backend: sparse in a scene of rigid bodies only is not supported yet (issue 21; " + first +
+                    " is rigid, there is no soft body): use dense or auto");
     // BDF2 in contact: a joint limit's NCP row with BDF2's history (the restart of
     // rigid/rigid_bdf2.hpp is the free step's) is not built or validated yet.
     if (scene.simulation.integrator == Integrator::bdf2)
@@ -338,9 +361,9 @@ class Reader {
         throw InputError(p.where.str() + ": a rigid body has no self-contact ('" + p.first + "')");
   }
 
-  // Rigidified parts (issue 21 item 2): implicit Euler (Newton too) and BDF2, contact
-  // on either backend, without factor reuse or derivatives (those are refused by the
-  // commands).
+  // Rigidified parts (issue 21 item 2): implicit Euler (Newton too), BDF2 and static
+  // (the reduced Newton, integrator/static_rigid.hpp), contact on either backend,
+  // without factor reuse or derivatives (those are refused by the commands).
   // attach: fixed parts are fixed nodes (io::build_model): nothing to check for them.
   void check_rigidify_support(const Node& root, const SceneDesc& scene) const {
     const RigidifyDesc* first = nullptr;
@@ -349,12 +372,6 @@ class Reader {
         if (r.attach != "fixed" && !first) first = &r;
     if (!first) return;
     const std::string part = first->where.path;
-    if (scene.simulation.integrator == Integrator::static_equilibrium) {
-      const Entry* integrator = root.get("simulation")->find("integrator");
-      ctx_.fail(integrator->key_mark, "simulation.integrator",
-                "integrator '" + integrator->value.scalar + "' with rigidified parts is not supported yet (issue 21; " +
-                    part + "): use implicit_euler or bdf2");
-    }
     if (scene.linear_solver.factor_reuse) {
       const Entry* key = root.get("linear_solver")->find("factor_reuse");
       ctx_.fail(key->key_mark, "linear_solver.factor_reuse",

@@ -1,0 +1,82 @@
+#pragma once
+// Rigid bodies in the static solver (issue 21; docs/method.md "Static equilibrium with
+// rigid bodies"). Each rigid body with dofs takes part in every Newton iteration of
+// integrator::solve_static with the soft bodies, through the one contact solve of the
+// iteration (contact/contact_step.cpp, h = 1: the unknowns are increments, not
+// velocities):
+//   - unknowns: the increment u_r of the body's pose, (dp, dtheta) in world axes
+//     (free: 6; hinge, slider: T dc with T the joint's motion basis, dc the increment
+//     of the joint coordinate; fixed: none);
+//   - equations: the generalized force on the joint's dofs vanishes,
+//         T^T (w_r + H_r^T lambda) = 0,    w_r = (f m g, 0)
+//     (gravity at the centre of mass, ramped by the load step's factor f = s / L as on the soft bodies; H_r^T lambda the contact forces and torques on the
+//     body; a limit's row of the NCP is the limit's reaction);
+//   - the rigid body has no stiffness: its free increment is that of a proximal term
+//     A_r = k diag(m I, I_w) (k in 1/s^2, the same for every body), u_free = A_r^{-1} w_r
+//     (on a joint: T (T^T w_r) / (T^T A_r T)), W_r = A_r^{-1} (on a joint: T T^T / a),
+//     and the NCP finds the contact forces that stop it: where the contact set holds the
+//     body, lambda satisfies H_r^T lambda = -w_r on its dofs whatever k (the equations
+//     above are linear in lambda), so the rigid equations hold at the end of the
+//     iteration up to the NCP's tolerance and the lever arms' change with the increment;
+//   - k = |g| / (0.01 s), s the scene's size (the soft bodies' largest bounding-box
+//     diagonal): the free increment of a body is 0.01 s. The NCP's accuracy is relative
+//     to |g| ~ |H u_free|, so a large free increment costs accuracy (measured: a cube on
+//     a soft slab stalls at a relative residual 8e-6 with 10 s, converges to 1e-10 in 7
+//     iterations with 0.01 s); a larger k slows the proximal iteration where the body's
+//     support is soft (the contraction per iteration ~ k a / (k a + the support's
+//     stiffness on the joint's dof: 0.53 for the hinged bar on a soft pad);
+//   - a body with a load on its dofs that no contact of an iteration touches has no
+//     support within contact.margin: the solver stops, not converged, naming it;
+//   - after the contact solve, each pose moves by its increment exactly on its joint
+//     (free: p + dp, exp(dtheta) q; hinge, slider: rigid::move_along_joint), velocities 0.
+#include <softdiff/data.hpp>
+#include <softdiff/model.hpp>
+
+#include <string>
+#include <vector>
+
+namespace softdiff::integrator {
+
+// The proximal factor k (1/s^2) of a scene of size `size` (m) under the model's
+// gravity; first: the load step's first iteration (see above).
+double static_rigid_stiffness(const Model& model, double size, bool first);
+
+// Fills data.contact.rigid for the contact solve of one Newton iteration at the poses
+// `poses`: in = free = poses, W_r, L_r, rank_r, u_free = A_r^{-1} w_r (6 R), u = u_free.
+// load_factor: the load step's s / L (gravity ramped as on the soft bodies).
+void begin_static_rigid(const Model& model, Data& data, const std::vector<rigid::RigidState>& poses, double k,
+                        double load_factor);
+
+// After the contact solve (or without contacts): each pose moved by its increment
+// data.contact.rigid.u, velocities zero. Returns the largest displacement of a body's
+// surface vertex (m) and its body in *body. A non-finite pose: non_finite status.
+StepStatus end_static_rigid(const Model& model, Data& data, std::vector<rigid::RigidState>& poses, long load_step,
+                            double& moved, int& body);
+
+// After the contact solve: the first body with dofs and a load along them that no
+// contact of this solve touches (it has no support within contact.margin: no
+// equilibrium), or -1.
+int static_rigid_unsupported(const Model& model, const Data& data);
+
+// The rigid equations' residual at `poses` with the contact forces of the last contact
+// solve (data.contact: rigid.Ht, lambda; none when `with_contact` is false or no contact
+// was found): max over the bodies of |T^T (w_r + H_r^T lambda)| relative to the body's
+// weight (forces) and weight times reach (torques: the largest distance of a surface
+// vertex from the centre of mass, or from the hinge's axis). 0 without rigid dofs.
+double static_rigid_residual(const Model& model, const Data& data, const std::vector<rigid::RigidState>& poses,
+                             double load_factor, bool with_contact, std::string* worst = nullptr);
+
+// Rigidified parts in the static solver (docs/method.md "Static equilibrium with
+// rigidified parts"; defined in rigidify.cpp beside the dynamic step's functions): the
+// reduced Newton P^T R(P u) = 0 on the static tangent A = K (prepare_rigidified with
+// h = 1 reads K alone for a static model), its increment solved by solve_rigidified.
+// rigidified_static_pose: the parts' centres and T's arms at x (data.rigidify.x,
+// centre), for project_rigidified_residual before the iteration's prepare.
+void rigidified_static_pose(const Model& model, Data& data, const VecX& x);
+// trial = x + alpha dx, with the parts' nodes placed exactly: the part's rigid increment
+// (dp, dtheta), the lumped-mass fit of dx about its centre at x, scaled by alpha:
+// x_i' = c + alpha dp + exp(alpha [dtheta]) (x_i - c). Needs rigidified_static_pose(x).
+void place_rigidified_static(const Model& model, const Data& data, const VecX& x, const VecX& dx, double alpha,
+                             VecX& trial);
+
+}  // namespace softdiff::integrator
