@@ -13,7 +13,18 @@ namespace {
 
 
 void demand_differentiable(const std::string& option, const Model& model) {
-  demand_no_rigidified_parts(option, model);
+  // Rigidified parts (issue 21 item 4 for item 2; integrator/rigidify_derivatives.hpp):
+  // implicit Euler with one Newton iteration, with or without contact (the scene reader
+  // keeps them on the dense backend), without rigid bodies in contact.
+  if (!model.rigidify.empty()) {
+    const std::string& part = model.rigidify.parts.front().name;
+    if (model.step.integrator != IntegratorKind::implicit_euler || model.step.newton_iterations > 1)
+      throw InputError(option + ": derivatives with rigidified parts are supported for implicit_euler with "
+                                "newton_iterations 1 only (issue 21; " + part + ")");
+    if (model.contact.with_rigid())
+      throw InputError(option + ": derivatives with rigidified parts and rigid bodies in contact are not supported "
+                                "yet (issue 21; " + part + ")");
+  }
   // BDF2 with rigid bodies steps (rigid/rigid_bdf2.hpp) but is not differentiated yet.
   if (model.step.integrator == IntegratorKind::bdf2 && !model.rigid.empty())
     throw InputError(option + ": derivatives with bdf2 and rigid bodies are not supported yet (issue 21; rigid body '" +
