@@ -162,7 +162,6 @@ int run_check_grad(const CheckGradOptions& o) {
     if (!is_static) wrt += ",x0,v0";
     if (!model.rigid.empty()) wrt += ",mass,inertia";
   }
-  demand_no_rigidified_parts("check-grad", model);
   ThetaSelection sel = parse_theta("--wrt", wrt, model);
   const Eigen::Index n3 = 3L * model.fem.num_nodes, nr = static_cast<Eigen::Index>(model.rigid.size());
   // x0 and v0: random directions (max entry 1), seeded; with rigid bodies they also move

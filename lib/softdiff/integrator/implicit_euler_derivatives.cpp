@@ -23,6 +23,20 @@ void demand_supported(const Model& model) {
 
 bool is_newton(const Model& model) { return model.step.newton_iterations > 1; }
 
+// Rigidified parts: what rigidify_derivatives.hpp covers (the rest is issue 21).
+void demand_parts_supported(const Model& model, const Data& data) {
+  const std::string part = model.rigidify.parts.front().name;
+  SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler && data.history_weight == 0 &&
+                      model.step.newton_iterations == 1,
+                  "step derivatives with rigidified parts (" + part +
+                      "): implicit_euler with newton_iterations 1 only (issue 21)");
+  SOFTDIFF_DEMAND(!model.contact.with_rigid(),
+                  "step derivatives with rigidified parts (" + part + ") and rigid bodies in contact (issue 21)");
+  const auto nc = static_cast<Eigen::Index>(data.contact.contacts.size());
+  SOFTDIFF_DEMAND(!model.contact.enabled || nc == 0 || data.contact.G.rows() == 3 * nc,
+                  "step derivatives with rigidified parts (" + part + ") in contact: the dense backend only (issue 21)");
+}
+
 // The step size of the record: data.h (dt for implicit Euler, 2 dt / 3 for BDF2), or
 // dt before any step.
 double step_size(const Model& model, const Data& data) { return data.h > 0 ? data.h : model.step.dt; }
@@ -224,7 +238,7 @@ bool StepDerivatives::prepare_rigid(const Model& model, const Data& data, const 
   return true;
 }
 
-bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in, const State& out,
+bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in, const State& step_out,
                           const StepTangent& d, StateTangent& d_out) {
   demand_supported(model);
   const auto& fem = model.fem;
@@ -236,6 +250,13 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
   demand_size(d.p, static_cast<Eigen::Index>(parameters_.size()), "tangent p");
   const double h = step_size(model, data);
   set_step_size(model, h);
+  // Rigidified parts: the terms below at the solve's velocity v~ (before the placement).
+  const bool parts = !model.rigidify.empty();
+  if (parts) {
+    demand_parts_supported(model, data);
+    parts_.prepare(model, data, in, step_out, h);
+  }
+  const State& out = parts ? parts_.solve_state() : step_out;
   const bool newton = is_newton(model);
   const VecX& dx = d.x.size() ? d.x : zero_;
   const VecX& dv = d.v.size() ? d.v : zero_;
@@ -295,10 +316,12 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
       add_contact_force_jvp(model, data, dx, r_);  // h dH^T lambda
     }
   }
+  if (parts) parts_.add_rhs_jvp(model, data, d.x, r_);  // - A dP z; keeps dP^T r_res
   project(model, r_);
-  if (!solver->solve(r_, y_)) return false;
+  if (!(parts ? parts_.solve(model, data, r_, true, y_) : solver->solve(r_, y_))) return false;
   // Linearized: y = dDelta, dv_f = dv_i + dDelta; Newton: y = dv_f.
   d_out.v = newton ? y_ : VecX(dv + y_);
+  if (parts) parts_.add_dPz(d_out.v);
   project(model, d_out.v);
   if (contact) {
     // dv_f at fixed lambda is d_out.v; sigma moves by b; the forces by dlambda (the
@@ -319,7 +342,7 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
     contact_.ncp().jvp(b_, dmu, dlambda_);
     tmp_.noalias() = h * (data.contact.Ht * dlambda_);
     project(model, tmp_);
-    if (!solver->solve(tmp_, y_)) return false;
+    if (!(parts ? parts_.solve(model, data, tmp_, false, y_) : solver->solve(tmp_, y_))) return false;
     project(model, y_);
     d_out.v += y_;
   }
@@ -328,6 +351,7 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
   else
     d_out.rigid.resize(0);
   d_out.x = dx + h * d_out.v;
+  if (parts) parts_.place_jvp(model, dx, d_out.x, d_out.v);  // the parts' exact placement
   return d_out.x.allFinite() && d_out.v.allFinite() && d_out.rigid.allFinite();
 }
 
@@ -340,6 +364,7 @@ bool StepDerivatives::actuation_jvps(const Model& model, const Data& data, const
                                             std::to_string(dlambda.rows()));
   SOFTDIFF_DEMAND(!(model.contact.enabled && !data.contact.contacts.empty()),
                   "actuation_jvps: the step has contacts (their tangent goes through the NCP's modes: jvp() per column)");
+  SOFTDIFF_DEMAND(model.rigidify.empty(), "actuation_jvps: rigidified parts are not covered (issue 21; jvp() per column)");
   const double h = step_size(model, data);
   set_step_size(model, h);
   LinearSolver* solver = system(model, data, out);
@@ -365,7 +390,7 @@ bool StepDerivatives::actuation_jvps(const Model& model, const Data& data, const
   return dx_out.allFinite();
 }
 
-bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in, const State& out,
+bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in, const State& step_out,
                           const StateTangent& bar_out, StepCotangent& bar_in) {
   demand_supported(model);
   const auto& fem = model.fem;
@@ -375,6 +400,12 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
   demand_size(bar_out.v, n, "cotangent v");
   const double h = step_size(model, data);
   set_step_size(model, h);
+  const bool parts = !model.rigidify.empty();
+  if (parts) {
+    demand_parts_supported(model, data);
+    parts_.prepare(model, data, in, step_out, h);
+  }
+  const State& out = parts ? parts_.solve_state() : step_out;
   const bool newton = is_newton(model);
   delta_ = out.v - in.v;
   LinearSolver* solver = system(model, data, out);
@@ -383,8 +414,14 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
   // v~ = Pi (bar_v_f + h bar_x_f), y = A^{-1} v~.
   tmp_ = bar_out.v.size() ? bar_out.v : zero_;
   if (bar_out.x.size()) tmp_ += h * bar_out.x;
+  if (parts) {
+    // The placement's transpose: the parts' rows of v~'s and x_i's cotangents.
+    bar_in.x = bar_out.x.size() ? bar_out.x : zero_;
+    parts_.place_vjp(model, bar_out.x.size() ? bar_out.x : zero_, bar_out.v.size() ? bar_out.v : zero_, tmp_,
+                     bar_in.x);
+  }
   project(model, tmp_);
-  if (!solver->solve(tmp_, y_)) return false;
+  if (!(parts ? parts_.solve(model, data, tmp_, false, y_) : solver->solve(tmp_, y_))) return false;
   project(model, y_);
   VecX* v_direct = &tmp_;  // the cotangent of dv_f's direct dependence on dv_i
   const bool with_rigid = prepare_rigid(model, data, out, h, bar_out.rigid, VecX());
@@ -402,7 +439,7 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
     if (with_rigid) rigid_.add_sigma_vjp(model, cd, bar_b_, bar_du0_, bar_in.rigid);
     tmp2_.noalias() = data.contact.Ht * bar_b_;
     project(model, tmp2_);
-    if (!solver->solve(tmp2_, y2_)) return false;
+    if (!(parts ? parts_.solve(model, data, tmp2_, false, y2_) : solver->solve(tmp2_, y2_))) return false;
     project(model, y2_);
     y_ += y2_;
     tmp_ += tmp2_;
@@ -419,7 +456,10 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
     bar_in.v -= tmp2_;
   }
 
-  bar_in.x = bar_out.x.size() ? bar_out.x : zero_;
+  if (parts)
+    parts_.add_solve_vjp(model, data, tmp_, y_, bar_in.x);  // the dP terms (bar_in.x holds the placement's)
+  else
+    bar_in.x = bar_out.x.size() ? bar_out.x : zero_;
   if (newton) {
     fem::symmetric_multiply(fem, data.fem.K_values, y_, tmp2_);
     bar_in.x -= h * tmp2_;

@@ -59,6 +59,13 @@
 // maps are contact/rigid_contact_derivatives.hpp's. Implicit Euler with one Newton
 // iteration only (the step supports nothing else with rigid contact).
 //
+// Rigidified parts (model.rigidify; rigidify_derivatives.hpp, docs/method.md "Rigidified
+// parts"): the solves are the reduced ones on the step's factor, the terms above are
+// evaluated at the solve's velocity v~ (before the placement), the arms' dependence on
+// x_i adds the dP terms, and the placement's derivative maps (x_i, v~) to the output.
+// Implicit Euler with one Newton iteration, with or without contact (the record's G),
+// without rigid bodies in contact; actuation_jvps() refuses parts (one jvp() per column).
+//
 // Not covered yet (SOFTDIFF_DEMAND with a message): the static integrator (see
 // static_solver_derivatives.hpp), newton_iterations > 1 with psd_projection, friction
 // as a parameter.
@@ -68,6 +75,7 @@
 #include <softdiff/contact/rigid_contact_derivatives.hpp>
 #include <softdiff/core/parameters.hpp>
 #include <softdiff/data.hpp>
+#include <softdiff/integrator/rigidify_derivatives.hpp>
 #include <softdiff/model.hpp>
 
 #include <memory>
@@ -180,6 +188,9 @@ class StepDerivatives {
   std::unique_ptr<LinearSolver> newton_solver_;
   VecX newton_v_;                    // the v_f newton_A_ was factorized for
   double newton_h_ = 0;              // and its step size
+  // Rigidified parts (model.rigidify; rigidify_derivatives.hpp): the reduced solve's and
+  // the placement's derivative terms, prepared per jvp / vjp from the step's record.
+  RigidifiedStepDerivative parts_;
   VecX lambda_column_;               // (n_a) actuation_jvps(): one column of dlambda
   MatX rhs_columns_, y_columns_;     // (3n x k) actuation_jvps(): right-hand sides, solutions
 };

@@ -37,8 +37,10 @@
 // are RigidifiedPart. Newton (newton_iterations > 1): the Galerkin-projected nonlinear
 // equations P^T R(P u) = 0 with T at x_i (the iterates x_i + h P u; the end pose is
 // placed exactly as above). BDF2: the stage from the extrapolated state with the
-// parts' extrapolated state made rigid (rigidify_extrapolated_state). Unsupported with
-// parts (the scene reader refuses them, issue 21): static, factor reuse, derivatives.
+// parts' extrapolated state made rigid (rigidify_extrapolated_state). Static: the
+// reduced static Newton (static_solver.cpp). Derivatives: rigidify_derivatives.hpp
+// (implicit Euler, one Newton iteration, dense contact backend). Unsupported with parts
+// (refused, issue 21): factor reuse, the other derivatives.
 #include <softdiff/core/types.hpp>
 #include <softdiff/fem/fem_model.hpp>
 #include <softdiff/rigid/rotation.hpp>

@@ -1,0 +1,296 @@
+// Derivatives of the implicit Euler step with rigidified parts: see rigidify_derivatives.hpp.
+#include <softdiff/integrator/rigidify_derivatives.hpp>
+
+#include <softdiff/fem/assembly.hpp>
+#include <softdiff/integrator/rigidify.hpp>
+#include <softdiff/rigid/rotation.hpp>
+
+namespace softdiff::integrator {
+
+namespace {
+using Vec6 = Eigen::Matrix<double, 6, 1>;
+using Mat6 = Eigen::Matrix<double, 6, 6>;
+
+// N = sum_i m_i T_i^T T_i and f = sum_i m_i T_i^T v_i for the part's nodes at x about c.
+void fit_system(const Model& model, const RigidifiedPart& part, const VecX& x, const Vec3& c, const VecX& v, Mat6& N,
+                Vec6& f) {
+  N.setZero();
+  f.setZero();
+  for (int i : part.nodes) {
+    const double mi = model.fem.mass_diagonal[3 * i];
+    const Vec3 a = x.segment<3>(3 * i) - c;
+    for (int k = 0; k < 3; ++k) {
+      const Eigen::Matrix<double, 1, 6> t = rigid_row(a, k);
+      N.noalias() += mi * t.transpose() * t;
+      f.noalias() += (mi * v[3 * i + k]) * t.transpose();
+    }
+  }
+}
+}  // namespace
+
+void RigidifiedStepDerivative::prepare(const Model& model, const Data& data, const State& in, const State& out,
+                                       double h) {
+  const auto& fem = model.fem;
+  const RigidifyModel& rm = model.rigidify;
+  const Eigen::Index n = 3L * fem.num_nodes, m6 = 6L * rm.size();
+  h_ = h;
+  parts_.resize(rm.parts.size());
+  for (VecX* v : {&r_res_, &da_, &dpz_, &w_, &Mw_, &Kw_, &Aw_, &bar_a_, &b_soft_, &y_})
+    if (v->size() != n) v->setZero(n);
+  if (g_extra_.size() != m6) {
+    g_extra_.setZero(m6);
+    g_.setZero(m6);
+    u_.setZero(m6);
+  }
+  x_ = in.x;
+  solve_ = out;
+  for (std::size_t p = 0; p < rm.parts.size(); ++p) {
+    const auto& part = rm.parts[p];
+    Part& q = parts_[p];
+    q.c = part_centre(model, part, in.x);
+    q.m = 0;
+    for (int i : part.nodes) q.m += fem.mass_diagonal[3 * i];
+    Vec6 f;
+    fit_system(model, part, in.x, q.c, in.v, q.N, f);
+    q.N_factor.compute(q.N);
+    const Vec6 u_i = q.N_factor.solve(f);  // the fit of v_i (exact for a rigid field)
+    q.I = q.N.bottomRightCorner<3, 3>();
+    q.I_factor.compute(q.I);
+    // The placed pose: its rigid field gives v_p and omega', and L = I' omega' = I omega.
+    Mat6 N1;
+    Vec6 f1;
+    fit_system(model, part, out.x, part_centre(model, part, out.x), out.v, N1, f1);
+    const Vec6 u1 = N1.ldlt().solve(f1);
+    q.u_f.head<3>() = u1.head<3>();
+    q.u_f.tail<3>() = q.I_factor.solve(Vec3(N1.bottomRightCorner<3, 3>() * u1.tail<3>()));
+    q.u_z = q.u_f - u_i;
+    const Vec3 omega = q.u_f.tail<3>();
+    q.L = q.I * omega;
+    q.R = rigid::quaternion_exp(h * omega).toRotationMatrix();
+    q.Jr = rigid::right_jacobian(h * omega);
+    q.s = q.I_factor.solve(Vec3(q.R.transpose() * q.L));
+    q.omega_next = q.R * q.s;
+    for (int i : part.nodes) {
+      const Vec3 a = in.x.segment<3>(3 * i) - q.c;
+      solve_.v.segment<3>(3 * i) = in.v.segment<3>(3 * i) + q.u_z.head<3>() + q.u_z.tail<3>().cross(a);
+    }
+  }
+  // r_res = h (P + f_int + f_act) - h alpha M v~ - (h beta + h^2) K~ v~ - M Delta + h H^T lambda,
+  // the parts' rows (zero resultant and moment on each part).
+  fem::symmetric_multiply(fem, fem.mass_values, solve_.v, Mw_);
+  fem::symmetric_multiply(fem, data.fem.K_values, solve_.v, Kw_);
+  w_ = solve_.v - in.v;
+  fem::symmetric_multiply(fem, fem.mass_values, w_, Aw_);
+  const bool contact = model.contact.enabled && !data.contact.contacts.empty();
+  if (contact) w_.noalias() = h * (data.contact.Ht * data.contact.lambda);
+  r_res_.setZero();
+  for (const auto& part : rm.parts) {
+    const auto& b = fem.bodies[static_cast<std::size_t>(part.body)];
+    const double ha = h * b.rayleigh_mass, k = h * b.rayleigh_stiffness + h * h;
+    for (int i : part.nodes)
+      for (int c = 3 * i; c < 3 * i + 3; ++c) {
+        double r = h * (fem.gravity_force[c] + data.fem.f_int[c]) - ha * Mw_[c] - k * Kw_[c] - Aw_[c];
+        if (!model.actuation.empty()) r += h * data.f_act[c];
+        if (contact) r += w_[c];
+        r_res_[c] = r;
+      }
+  }
+}
+
+void RigidifiedStepDerivative::system_product(const Model& model, const Data& data, const VecX& w, VecX& out) {
+  const auto& fem = model.fem;
+  fem::symmetric_multiply(fem, fem.mass_values, w, Mw_);
+  fem::symmetric_multiply(fem, data.fem.K_values, w, Kw_);
+  for (const auto& b : fem.bodies) {
+    const int begin = 3 * b.node_begin, len = 3 * b.num_nodes;
+    out.segment(begin, len) = (1 + h_ * b.rayleigh_mass) * Mw_.segment(begin, len) +
+                              (h_ * b.rayleigh_stiffness + h_ * h_) * Kw_.segment(begin, len);
+  }
+}
+
+Eigen::Matrix<double, 6, 1> RigidifiedStepDerivative::fit(const Model& model, int p, const VecX& w) const {
+  const Part& q = parts_[static_cast<std::size_t>(p)];
+  Vec6 f = Vec6::Zero();
+  for (int i : model.rigidify.parts[static_cast<std::size_t>(p)].nodes) {
+    const double mi = model.fem.mass_diagonal[3 * i];
+    const Vec3 a = x_.segment<3>(3 * i) - q.c, wi = w.segment<3>(3 * i);
+    f.head<3>() += mi * wi;
+    f.tail<3>() += mi * a.cross(wi);
+  }
+  return q.N_factor.solve(f);
+}
+
+void RigidifiedStepDerivative::arms_to_positions(const Model& model, int p, const VecX& bar_a, const Vec3& bar_c,
+                                                 VecX& bar_x) const {
+  const Part& q = parts_[static_cast<std::size_t>(p)];
+  const auto& nodes = model.rigidify.parts[static_cast<std::size_t>(p)].nodes;
+  Vec3 sum = Vec3::Zero();
+  for (int i : nodes) sum += bar_a.segment<3>(3 * i);
+  const Vec3 centre = (bar_c - sum) / q.m;  // a_i = x_i - c, c = sum m_j x_j / m
+  for (int i : nodes) bar_x.segment<3>(3 * i) += bar_a.segment<3>(3 * i) + model.fem.mass_diagonal[3 * i] * centre;
+}
+
+void RigidifiedStepDerivative::add_rhs_jvp(const Model& model, const Data& data, const VecX& dx, VecX& r) {
+  const RigidifyModel& rm = model.rigidify;
+  g_extra_.setZero();
+  dpz_.setZero();
+  for (int p = 0; p < rm.size(); ++p) {
+    const auto& part = rm.parts[static_cast<std::size_t>(p)];
+    const Part& q = parts_[static_cast<std::size_t>(p)];
+    if (dx.size() == 0) {
+      for (int i : part.nodes) da_.segment<3>(3 * i).setZero();
+      continue;
+    }
+    Vec3 dc = Vec3::Zero();
+    for (int i : part.nodes) dc += model.fem.mass_diagonal[3 * i] * dx.segment<3>(3 * i);
+    dc /= q.m;
+    const Vec3 omega_z = q.u_z.tail<3>();
+    for (int i : part.nodes) {
+      const Vec3 da = dx.segment<3>(3 * i) - dc;
+      da_.segment<3>(3 * i) = da;
+      dpz_.segment<3>(3 * i) = omega_z.cross(da);                              // dP z
+      g_extra_.segment<3>(6 * p + 3) += da.cross(Vec3(r_res_.segment<3>(3 * i)));  // dP^T r_res
+    }
+  }
+  if (dx.size() == 0) return;
+  system_product(model, data, dpz_, Aw_);
+  r -= Aw_;
+}
+
+bool RigidifiedStepDerivative::solve(const Model& model, const Data& data, const VecX& b, bool with_extra, VecX& v) {
+  // rigidify.cpp's solve_rigidified with this object's workspace (data is the record).
+  const RigidifyModel& rm = model.rigidify;
+  const RigidifyData& w = data.rigidify;
+  b_soft_ = b;
+  for (const auto& part : rm.parts)
+    for (int i : part.nodes) b_soft_.segment<3>(3 * i).setZero();
+  if (!data.solver->solve(b_soft_, y_)) return false;
+  g_.noalias() = -w.C.transpose() * y_;
+  for (int p = 0; p < rm.size(); ++p)
+    for (int i : rm.parts[static_cast<std::size_t>(p)].nodes) {
+      const Vec3 a = w.x.segment<3>(3 * i) - w.centre[static_cast<std::size_t>(p)];
+      const Vec3 bi = b.segment<3>(3 * i);
+      g_.segment<3>(6 * p) += bi;
+      g_.segment<3>(6 * p + 3) += a.cross(bi);
+    }
+  if (with_extra) g_ += g_extra_;
+  u_ = w.S_factor.solve(g_);
+  v = y_;
+  v.noalias() -= w.Y * u_;
+  for (int p = 0; p < rm.size(); ++p) {
+    const Vec6 up = u_.segment<6>(6 * p);
+    for (int i : rm.parts[static_cast<std::size_t>(p)].nodes) {
+      const Vec3 a = w.x.segment<3>(3 * i) - w.centre[static_cast<std::size_t>(p)];
+      v.segment<3>(3 * i) = up.head<3>() + up.tail<3>().cross(a);
+    }
+  }
+  return v.allFinite();
+}
+
+void RigidifiedStepDerivative::add_dPz(VecX& dv) const {
+  dv += dpz_;  // zero off the parts' rows
+}
+
+void RigidifiedStepDerivative::place_jvp(const Model& model, const VecX& dx, VecX& dx_out, VecX& dv_out) {
+  const RigidifyModel& rm = model.rigidify;
+  const double h = h_;
+  for (int p = 0; p < rm.size(); ++p) {
+    const auto& part = rm.parts[static_cast<std::size_t>(p)];
+    const Part& q = parts_[static_cast<std::size_t>(p)];
+    const Vec3 vp = q.u_f.head<3>(), omega = q.u_f.tail<3>();
+    Vec3 dc = Vec3::Zero();
+    for (int i : part.nodes) dc += model.fem.mass_diagonal[3 * i] * dx.segment<3>(3 * i);
+    dc /= q.m;
+    // The fit's tangent: du = N^{-1} sum m [dT^T (v~ - T u) + T^T (dv~ - dT u)].
+    Vec6 rhs = Vec6::Zero();
+    Mat3 dI = Mat3::Zero();
+    for (int i : part.nodes) {
+      const double mi = model.fem.mass_diagonal[3 * i];
+      const Vec3 a = x_.segment<3>(3 * i) - q.c, da = dx.segment<3>(3 * i) - dc;
+      const Vec3 rho = solve_.v.segment<3>(3 * i) - vp - omega.cross(a);
+      const Vec3 wv = dv_out.segment<3>(3 * i) - omega.cross(da);
+      rhs.head<3>() += mi * wv;
+      rhs.tail<3>() += mi * (a.cross(wv) + da.cross(rho));
+      dI += mi * (2 * a.dot(da) * Mat3::Identity() - da * a.transpose() - a * da.transpose());
+    }
+    const Vec6 du = q.N_factor.solve(rhs);
+    const Vec3 dvp = du.head<3>(), domega = du.tail<3>();
+    const Vec3 theta = h * (q.Jr * domega);  // dR = R [theta]x
+    const Vec3 dL = dI * omega + q.I * domega;
+    const Vec3 ds = q.I_factor.solve(Vec3(-theta.cross(Vec3(q.R.transpose() * q.L)) + q.R.transpose() * dL - dI * q.s));
+    const Vec3 domega_next = q.R * (theta.cross(q.s) + ds);
+    for (int i : part.nodes) {
+      const Vec3 a = x_.segment<3>(3 * i) - q.c, da = dx.segment<3>(3 * i) - dc;
+      const Vec3 r = q.R * a, dr = q.R * (theta.cross(a) + da);
+      dx_out.segment<3>(3 * i) = dc + h * dvp + dr;
+      dv_out.segment<3>(3 * i) = dvp + domega_next.cross(r) + q.omega_next.cross(dr);
+    }
+  }
+}
+
+void RigidifiedStepDerivative::place_vjp(const Model& model, const VecX& bar_x_out, const VecX& bar_v_out,
+                                         VecX& bar_v_tilde, VecX& bar_x) {
+  const RigidifyModel& rm = model.rigidify;
+  const double h = h_;
+  for (int p = 0; p < rm.size(); ++p) {
+    const auto& part = rm.parts[static_cast<std::size_t>(p)];
+    const Part& q = parts_[static_cast<std::size_t>(p)];
+    const Vec3 vp = q.u_f.head<3>(), omega = q.u_f.tail<3>();
+    Vec3 bar_vp = Vec3::Zero(), bar_c = Vec3::Zero(), bar_omega_next = Vec3::Zero(), bar_theta = Vec3::Zero();
+    for (int i : part.nodes) {
+      const Vec3 a = x_.segment<3>(3 * i) - q.c, r = q.R * a;
+      const Vec3 bx = bar_x_out.segment<3>(3 * i), bv = bar_v_out.segment<3>(3 * i);
+      bar_vp += bv + h * bx;
+      bar_c += bx;
+      bar_omega_next += r.cross(bv);
+      const Vec3 e = q.R.transpose() * (bx + bv.cross(q.omega_next));  // the cotangent of R^{-1} dr
+      bar_theta += a.cross(e);
+      bar_a_.segment<3>(3 * i) = e;
+    }
+    const Vec3 beta = q.R.transpose() * bar_omega_next;
+    bar_theta += q.s.cross(beta);
+    const Vec3 gamma = q.I_factor.solve(beta);
+    bar_theta += gamma.cross(Vec3(q.R.transpose() * q.L));
+    const Vec3 bar_L = q.R * gamma;
+    Vec6 bar_u;
+    bar_u.head<3>() = bar_vp;
+    bar_u.tail<3>() = q.I * bar_L + h * (q.Jr.transpose() * bar_theta);
+    const Vec6 kappa = q.N_factor.solve(bar_u);
+    const Vec3 kv = kappa.head<3>(), kw = kappa.tail<3>();
+    for (int i : part.nodes) {
+      const double mi = model.fem.mass_diagonal[3 * i];
+      const Vec3 a = x_.segment<3>(3 * i) - q.c;
+      // dI's cotangent: bar_L^T dI omega - gamma^T dI s, with
+      // p^T dI q = sum m da . (2 (p.q) a - (a.q) p - (a.p) q).
+      Vec3 ba = mi * (2 * bar_L.dot(omega) * a - a.dot(omega) * bar_L - a.dot(bar_L) * omega);
+      ba -= mi * (2 * gamma.dot(q.s) * a - a.dot(q.s) * gamma - a.dot(gamma) * q.s);
+      // The fit's: T^T dv~ . kappa, dT^T rho . kappa, -T^T dT u . kappa.
+      const Vec3 tk = kv + kw.cross(a);
+      const Vec3 rho = solve_.v.segment<3>(3 * i) - vp - omega.cross(a);
+      bar_v_tilde.segment<3>(3 * i) = mi * tk;
+      ba += mi * (rho.cross(kw) - tk.cross(omega));
+      bar_a_.segment<3>(3 * i) += ba;
+      bar_x.segment<3>(3 * i).setZero();
+    }
+    arms_to_positions(model, p, bar_a_, bar_c, bar_x);
+  }
+}
+
+void RigidifiedStepDerivative::add_solve_vjp(const Model& model, const Data& data, const VecX& t, const VecX& y,
+                                             VecX& bar_x) {
+  const RigidifyModel& rm = model.rigidify;
+  system_product(model, data, y, Aw_);
+  for (int p = 0; p < rm.size(); ++p) {
+    const auto& part = rm.parts[static_cast<std::size_t>(p)];
+    const Vec3 omega_z = parts_[static_cast<std::size_t>(p)].u_z.tail<3>();
+    const Vec3 omega_q = fit(model, p, y).tail<3>();  // y = T u_q on the part: N^{-1} P^T t's
+    for (int i : part.nodes) {
+      const Vec3 ti = t.segment<3>(3 * i), ai = Aw_.segment<3>(3 * i), ri = r_res_.segment<3>(3 * i);
+      // <t, dP z> - <A y, dP z> + <u_q, dP^T r_res>, each as da_i . (...)
+      bar_a_.segment<3>(3 * i) = (ti - ai).cross(omega_z) + ri.cross(omega_q);
+    }
+    arms_to_positions(model, p, bar_a_, Vec3::Zero(), bar_x);
+  }
+}
+
+}  // namespace softdiff::integrator

@@ -1,0 +1,95 @@
+#pragma once
+// Derivatives of the implicit Euler step with rigidified parts (issue 21 item 4 for
+// item 2; docs/method.md "Rigidified parts", "Derivatives"). Used by StepDerivatives
+// (implicit_euler_derivatives.hpp) when model.rigidify is not empty: implicit Euler with
+// one Newton iteration, with or without contact (dense backend: the record's G, formed
+// by rigidified_congruence, is the mode-fixed system's).
+//
+// The step with parts (rigidify.hpp): P^T A P z = P^T (b + h H^T lambda), Delta = P z,
+// v~ = v_i + Delta (the solve's velocity), then the exact placement of every part from
+// v~ (the lumped-mass fit u_f = (v_p, omega) of v~ at x_i about c, x_i' = c + h v_p +
+// R a_i, R = exp(h [omega]), v_i' = v_p + omega' x R a_i, omega' = R I^{-1} R^T I omega).
+// P depends on x_i through the arms a_i = x_i - c (c the part's lumped-mass centroid):
+// dP z has rows omega_z x da_i on the part's nodes (da_i = dx_i - dc), dP^T s has the
+// part's rows (0, sum_i da_i x s_i). Differentiating the reduced system,
+//     d Delta = A_red^{-1} (rho) + P N^{-1} dP^T r_res + dP z,
+//     rho = (the step's right-hand side derivative without parts, at v~) - A dP z,
+// A_red^{-1} = P N^{-1} P^T (N = P^T A P; rigidify.hpp's Schur complement on the step's
+// factor: every solve is one solve with the factor), r_res = b + h H^T lambda - A Delta
+// the step's residual (zero resultant and moment on each part: its internal forces).
+// The placement's derivative: the fit's (du = N_p^{-1} sum_i m_i [dT_i^T (v~_i - T_i u)
+// + T_i^T (dv~_i - dT_i u)]), R's through SO(3)'s right Jacobian (dR = R [J_r(h omega) h
+// domega]x), the inertia's dI = sum m_i (2 a_i.da_i I - da_i a_i^T - a_i da_i^T). The
+// reverse mode transposes each piece.
+//
+// v~ and u_f are not stored by the step: they are recovered from the step's output
+// (the part's rigid field at the placed pose gives v_p and omega', and I' omega' = I
+// omega = L), and u_z = u_f - fit(v_i) (v~ = v_i + T u_z on the part).
+#include <softdiff/core/types.hpp>
+#include <softdiff/data.hpp>
+#include <softdiff/model.hpp>
+
+#include <Eigen/Cholesky>
+#include <vector>
+
+namespace softdiff::integrator {
+
+class RigidifiedStepDerivative {
+ public:
+  // From the record of the step in -> out (step size h): the parts' centres, fits,
+  // velocities, v~ (solve_state()) and the residual r_res on the parts' rows.
+  void prepare(const Model& model, const Data& data, const State& in, const State& out, double h);
+  // The step's output before the placement (v = v~; x, t, rigid those of out): the state
+  // the derivative terms of the step without parts are evaluated at.
+  const State& solve_state() const { return solve_; }
+
+  // Forward: with the position tangent dx (empty: zero), r -= A dP z (rho above) and
+  // the reduced right-hand side's dP^T r_res is kept for solve(..., true, ...).
+  void add_rhs_jvp(const Model& model, const Data& data, const VecX& dx, VecX& r);
+  // v = A_red^{-1} b (b projected), plus P N^{-1} dP^T r_res of the last add_rhs_jvp when
+  // with_extra. One solve with the step's factor. False if the linear solver failed.
+  bool solve(const Model& model, const Data& data, const VecX& b, bool with_extra, VecX& v);
+  // dv += dP z (on the parts' rows) for the dx of the last add_rhs_jvp.
+  void add_dPz(VecX& dv) const;
+  // The placement's tangent: the parts' rows of dx_out, dv_out from dx and dv~ (= dv_out
+  // on entry; the other rows are the caller's: dx + h dv~, dv~).
+  void place_jvp(const Model& model, const VecX& dx, VecX& dx_out, VecX& dv_out);
+
+  // Reverse: the placement's transpose. bar_v_tilde, bar_x are the cotangents of v~ and
+  // x_i through the placement (the rows of the other nodes: bar_v + h bar_x and bar_x,
+  // set by the caller); the parts' rows are set here from bar_x_out, bar_v_out.
+  void place_vjp(const Model& model, const VecX& bar_x_out, const VecX& bar_v_out, VecX& bar_v_tilde, VecX& bar_x);
+  // The dP terms' transpose: t the cotangent of Delta (projected), y = A_red^{-1} t; adds
+  // to bar_x (the parts' nodes).
+  void add_solve_vjp(const Model& model, const Data& data, const VecX& t, const VecX& y, VecX& bar_x);
+
+ private:
+  struct Part {
+    Vec3 c = Vec3::Zero();
+    double m = 0;
+    Eigen::Matrix<double, 6, 6> N;              // the fit's matrix at x_i about c
+    Eigen::LDLT<Eigen::Matrix<double, 6, 6>> N_factor;
+    Eigen::Matrix<double, 6, 1> u_f, u_z;       // the fit of v~, the reduced Delta
+    Mat3 R, Jr, I;                              // exp(h omega), J_r(h omega), inertia about c at x_i
+    Eigen::LDLT<Mat3> I_factor;
+    Vec3 L, s, omega_next;                      // I omega, I^{-1} R^T L, R s
+  };
+  // (A w) on the parts' rows: A = (1 + h alpha) M + (h beta + h^2) K~ of the part's body.
+  void system_product(const Model& model, const Data& data, const VecX& w, VecX& out);
+  // u = N_p^{-1} sum_i m_i T_i^T w_i (the fit of w's part rows).
+  Eigen::Matrix<double, 6, 1> fit(const Model& model, int p, const VecX& w) const;
+  // bar_x += bar_a - m_i / m sum bar_a (+ m_i / m bar_c) on part p's rows: the arms'
+  // cotangent through a_i = x_i - c.
+  void arms_to_positions(const Model& model, int p, const VecX& bar_a, const Vec3& bar_c, VecX& bar_x) const;
+
+  double h_ = 0;
+  std::vector<Part> parts_;
+  State solve_;
+  VecX x_;                 // (3n) the step's x_i
+  VecX r_res_;             // (3n) the step's residual on the parts' rows (zero elsewhere)
+  VecX da_, dpz_, w_, Mw_, Kw_, Aw_, bar_a_;  // (3n) workspace
+  Eigen::Matrix<double, Eigen::Dynamic, 1> g_extra_, g_, u_;  // (6m)
+  VecX b_soft_, y_;        // (3n) the reduced solve's
+};
+
+}  // namespace softdiff::integrator
