@@ -32,8 +32,8 @@ struct ThetaSelection {
 // Issue 21: the reverse mode (calibrate, control) does not cover rigid bodies yet.
 // InputError "<what>: derivatives with rigid bodies are not supported yet (issue 21; ...)".
 // calibrate and control call it. parse_theta differentiates rigid bodies with and
-// without contact; it refuses (issue 21) only a rigid body in contact whose joint has
-// limits (the limit's rows in the contact solve are not differentiated yet).
+// without contact, joint limits in contact included; it refuses (issue 21) bdf2 with
+// rigid bodies.
 void demand_no_rigid_bodies(const std::string& what, const Model& model);
 
 // The name of row k (0..5) of rigid body `body`'s block of a state's rows (output.md's
