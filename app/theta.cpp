@@ -44,14 +44,16 @@ void demand_differentiable(const std::string& option, const Model& model) {
   if (model.step.integrator == IntegratorKind::bdf2 && !model.rigid.empty())
     throw InputError(option + ": derivatives with bdf2 and rigid bodies are not supported yet (issue 21; rigid body '" +
                      model.rigid.front().name + "'): use implicit_euler");
-  // Issue 21, item 4: the rigid step is differentiated with and without contact
-  // (contact/rigid_contact_derivatives.hpp); a joint limit's rows in the contact solve
-  // are not yet.
-  if (model.contact.with_rigid())
+  // Issue 21, item 4: the rigid step is differentiated with and without contact, a
+  // joint limit's rows in the contact solve included (contact/rigid_contact_derivatives.hpp).
+  // The limit rows' derivative rebuilds the dense extended G (prepare_limits); the
+  // sparse backend runs limits in contact (as rigid rows) but is not differentiated there.
+  if (model.contact.with_rigid() && model.contact.ncp.backend == contact::NcpBackend::sparse)
     for (const auto& b : model.rigid)
       if (b.joint.limits)
-        throw InputError(option + ": derivatives through contact of a rigid body whose joint has limits are not "
-                                  "supported yet (issue 21; rigid body '" + b.name + "')");
+        throw InputError(option + ": derivatives through contact of a rigid body whose joint has limits on "
+                                  "contact.backend: sparse are not supported yet (issue 21; rigid body '" + b.name +
+                                  "'): use dense or auto");
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
     // Static with rigid bodies (integrator/static_rigid.hpp) solves; its implicit-function
     // derivative does not include the rigid equations yet.

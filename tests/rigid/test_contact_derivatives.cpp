@@ -13,6 +13,7 @@
 #include <softdiff/integrator/bdf2.hpp>
 #include <softdiff/integrator/implicit_euler_derivatives.hpp>
 #include <softdiff/rigid/rigid_derivatives.hpp>
+#include <softdiff/diff/parameters.hpp>
 #include <support/meshes.hpp>
 #include <support/rigid_contact.hpp>
 
@@ -535,5 +536,195 @@ TEST_P(RigidContactTrajectoryDerivatives, SensitivitiesAndAdjointOfASlidingWedge
 INSTANTIATE_TEST_SUITE_P(, RigidContactTrajectoryDerivatives,
                          ::testing::Values(Backend::dense, Backend::sparse, Backend::op),
                          [](const ::testing::TestParamInfo<Backend>& p) { return backend_name(p.param); });
+
+}  // namespace rigid_contact_derivatives_test
+
+namespace rigid_contact_derivatives_test {
+
+// Joint limits in contact (issue 21; rigid_contact_derivatives.hpp "Joint limits in
+// contact"): the limit rows of the step's NCP, an active limit a bilateral row of the
+// mode-fixed system. The set-up of validation_rigid_contact.cpp's
+// LimitsCarryContactLoadsExactly, with small pads: a soft pad (8 mm cube, damped) on a
+// bar (0.2 x 0.04 x 0.02 m) hinged about y at its left end and held by its upper limit
+// (the "key" pressed against its stop by the pad and its weight), and a block on a
+// vertical slider resting on its lower limit 0 under a second pad (the limit carries both
+// weights). The rigid surfaces are coarse (max_edge 0.06: the bar's top face is four
+// cells of 0.05 x 0.04 m, the block's one of 0.04 m) and each pad, turned by 0.1 rad about
+// z, stands inside one triangle of them more than 1 mm (the margin) from every edge and
+// diagonal, with no rigid vertex under it: its four bottom nodes are vertex-face contacts
+// whose feature pairs do not switch under the perturbations (as CubeOnASoftSlab). The
+// pads are frictionless (mu = 0): with mu = 0.5 the resting pads' contacts sit at the
+// stick-slip boundary (no tangential load) and the solver's modes changed under
+// perturbations of 1e-8 (measured), so no finite difference is of one piece there.
+// `upper`: the bar's upper limit (0: it starts on it). Warmed up `warm` steps.
+Model limit_scene(State& in, long warm, double upper = 0.0) {
+  test::BodySpec spec;
+  spec.young = 1e5;
+  spec.density = 1000;
+  spec.rayleigh_mass = 20;
+  spec.rayleigh_stiffness = 0.005;
+  const mesh::TetMesh cube = test::box_mesh(1, 1, 1, 0.008, 0.008, 0.008);
+  const Mat3 turn = Eigen::AngleAxisd(0.1, Vec3::UnitZ()).toRotationMatrix();
+  const auto placed = [&](const Vec3& bottom_centre) {
+    mesh::TetMesh m = cube;
+    for (Eigen::Index i = 0; i < m.X.cols(); ++i)
+      m.X.col(i) = bottom_centre + turn * (Vec3(m.X.col(i)) - Vec3(0.004, 0.004, 0));
+    return m;
+  };
+  const mesh::TetMesh pad_a = placed(Vec3(0.175, -0.0125, 0.02)), pad_b = placed(Vec3(1.0, -0.0125, 0.04));
+  std::vector<test::BodyInput> pads{{pad_a, spec, "pad_a"}, {pad_b, spec, "pad_b"}};
+  Model model = test::make_model(pads, Vec3(0, 0, -g0), 1e-3);
+  rigid::RigidState bar;
+  bar.position = Vec3(0.1, 0, 0.01);
+  test::add_rigid_body(model, "bar", test::box_shape(Vec3(0.1, 0.02, 0.01)), 800, bar, 0.06, rigid::Joint::Kind::hinge);
+  model.rigid[0].joint.anchor = Vec3(0, 0, 0.01);
+  model.rigid[0].joint.axis = Vec3::UnitY();
+  model.rigid[0].joint.limits = std::make_pair(-0.1, upper);
+  rigid::initialize(model.rigid[0], bar);
+  model.initial.rigid[0] = model.rigid[0].reference;
+  rigid::RigidState block;
+  block.position = Vec3(1, 0, 0.02);
+  test::add_rigid_body(model, "block", test::box_shape(Vec3(0.02, 0.02, 0.02)), 500, block, 0.06,
+                       rigid::Joint::Kind::slider);
+  model.rigid[1].joint.anchor = block.position;
+  model.rigid[1].joint.axis = Vec3::UnitZ();
+  model.rigid[1].joint.limits = std::make_pair(0.0, 0.05);
+  rigid::initialize(model.rigid[1], block);
+  model.initial.rigid[1] = model.rigid[1].reference;
+  test::enable_rigid_contact(model, {}, {{"pad_a", "bar", 0.0}, {"pad_b", "block", 0.0}}, 1e-3, tight());
+  model.contact.ncp.backend = contact::NcpBackend::dense;
+  in = warm_up(model, warm);
+  return model;
+}
+
+// The limits' forces of one step from `in` (by slot: bar lower, upper; block lower, upper).
+VecX limit_forces(const Model& model, const State& in) {
+  std::unique_ptr<Data> data;
+  step_from(model, in, data);
+  return data->contact.rigid.limit_lambda;
+}
+
+TEST(RigidContactStepDerivatives, LimitsCarryingContactLoads) {
+  State in;
+  const Model model = limit_scene(in, 300);
+  // The step differentiated: both limits active (the bar's upper, the block's lower), the
+  // others out of the NCP or inactive; the same on both sides of the differences (the
+  // derivative is that of one piece: check_step checks the contacts' modes).
+  const VecX lim = limit_forces(model, in);
+  std::cout << "limit forces " << lim.transpose() << "\n";
+  ASSERT_EQ(lim.size(), 4);
+  EXPECT_GT(lim[1], 0);
+  EXPECT_GT(lim[2], 0);
+  EXPECT_EQ(lim[0], 0);
+  EXPECT_EQ(lim[3], 0);
+  const Direction d = random_direction(model, 5);
+  for (double e : {1e-8, -1e-8}) {
+    Model m;
+    const VecX l = limit_forces(m, moved(model, in, d, e, m));
+    EXPECT_TRUE(l[1] > 0 && l[2] > 0 && l[0] == 0 && l[3] == 0) << "limit forces " << l.transpose();
+  }
+  // eps = 1e-8: the random direction moves every pad node by O(1) m per unit, and on the
+  // 8 mm pads (1 g, E = 1e5) a 1e-6 m move is a strain of 1e-4, an elastic force of ~6e-4
+  // N beside the friction cones' mu lambda_N ~ 1e-3 N: at eps = 1e-6 contacts slip (the
+  // modes change); at 1e-8, 1e-2 of it. Truncation eps^2 times the outputs' curvature (the
+  // gap term ~1 / h^2 = 1e6 relative) ~1e-10, round-off 1e-16 / 1e-8 = 1e-8 relative. tol 1e-5.
+  check_step(model, in, 1e-8, 1e-5);
+}
+
+
+// 10 steps of the limit scene from its settled state (300 steps: both limits active all
+// along, the pads at rest and sticking): forward sensitivities with respect to the pads'
+// Young's modulus (pad_a's), a random direction of x0 and one of v0 (soft and rigid rows),
+// against central differences of whole runs; then the adjoint of a loss on the final
+// state (soft and rigid rows) against the same sensitivities (exact algebra: 1e-9
+// relative). The bodies' masses are not columns: held by their limits, the bodies' states
+// do not depend on them (only the limits' reactions do).
+TEST(RigidContactLimitTrajectoryDerivatives, SensitivitiesAndAdjointThroughLimitsInContact) {
+  State in;
+  Model model = limit_scene(in, 300);
+  model.initial = in;
+  const long T = 10;
+  const Eigen::Index n3 = 3L * model.fem.num_nodes, rows = n3 + 12;
+  std::mt19937 rng(3);
+  std::normal_distribution<double> N;
+  diff::ThetaLayout theta;
+  theta.parameters = {{Parameter::young, 0}};
+  theta.x0 = theta.v0 = true;
+  theta.x0_basis = MatX::NullaryExpr(rows, 1, [&] { return N(rng); });
+  theta.v0_basis = MatX::NullaryExpr(rows, 1, [&] { return N(rng); });
+  Data data(model);
+  State final;
+  MatX dx, dv;
+  ASSERT_TRUE(diff::forward_sensitivities(model, data, model.initial, T, theta, final, dx, dv).ok());
+  ASSERT_EQ(dx.cols(), 3);
+  const VecX active = data.contact.rigid.limit_lambda;
+  ASSERT_EQ(active.size(), 4);
+  EXPECT_GT(active[1], 0);
+  EXPECT_GT(active[2], 0);
+  // eps, measured (max |sensitivity - FD| against the column's largest entry): Young's
+  // modulus (relative) 1.5e-10, 2.1e-11, 3.6e-10, 3.8e-9 of 1.5e-4 at 1e-3 ... 1e-6: the
+  // outputs move by 1.5e-4 eps, so below 1e-4 the NCP's solution to 1e-12 (a force noise
+  // ~1e-14 m/s in v) dominates: 1e-4. x0 (its direction moves every node and the bodies by
+  // O(1) m per unit): 1.5, 6.2e-3, 6.1e-5, 3.0e-3 of 80 at 1e-5 ... 1e-8 (eps^2 truncation,
+  // then that noise / eps): 1e-7. v0: 2.4e-9, 1.3e-8, 1.1e-7, 1.5e-6 of 0.38 at 1e-5 ...
+  // 1e-8: 1e-5. tol 1e-5 relative to each column's largest entry.
+  const VecX zero = VecX::Zero(rows);
+  for (int c = 0; c < 3; ++c) {
+    const double eps = c == 0 ? 1e-4 : c == 1 ? 1e-7 : 1e-5;
+    double scale = 1;
+    State sp, sm;
+    if (c > 0) {
+      const VecX d0 = c == 1 ? VecX(theta.x0_basis.col(0)) : zero, e0 = c == 2 ? VecX(theta.v0_basis.col(0)) : zero;
+      sp = run_steps(model, moved_initial(model, model.initial, d0, e0, eps), T);
+      sm = run_steps(model, moved_initial(model, model.initial, d0, e0, -eps), T);
+    } else {
+      const ParameterId young{Parameter::young, 0};
+      scale = diff::get_parameter(model, young);
+      Model mpl = model, mmi = model;
+      diff::set_parameter(mpl, young, scale * (1 + eps));
+      diff::set_parameter(mmi, young, scale * (1 - eps));
+      sp = run_steps(mpl, model.initial, T);
+      sm = run_steps(mmi, model.initial, T);
+    }
+    VecX xp, vp, xm, vm;
+    rows_from(model, final, sp, xp, vp);
+    rows_from(model, final, sm, xm, vm);
+    VecX fd(2 * rows), an(2 * rows);
+    fd << (xp - xm) / (2 * eps), (vp - vm) / (2 * eps);
+    an << dx.col(c) * scale, dv.col(c) * scale;
+    const double err = (an - fd).cwiseAbs().maxCoeff(), mag = fd.cwiseAbs().maxCoeff();
+    Eigen::Index worst = 0;
+    (an - fd).cwiseAbs().maxCoeff(&worst);
+    std::cout << "column " << c << ": max |sensitivity - FD| " << err << " of " << mag << " (row " << worst << " of "
+              << 2 * rows << ": " << an[worst] << " against " << fd[worst] << ")\n";
+    EXPECT_LT(err, 1e-5 * mag) << "column " << c;
+  }
+  const VecX a = VecX::NullaryExpr(n3, [&] { return N(rng); }), b = VecX::NullaryExpr(n3, [&] { return N(rng); });
+  const VecX cr = VecX::NullaryExpr(24, [&] { return N(rng); });
+  diff::Tape tape;
+  Data data2(model);
+  ASSERT_TRUE(diff::record(model, data2, model.initial, T, tape).ok());
+  diff::AdjointResult result;
+  ASSERT_TRUE(diff::adjoint(
+                  model, data2, tape, theta,
+                  [&](long k, const State&, VecX& bx, VecX& bv) {
+                    if (k == T) bx += a, bv += b;
+                  },
+                  result,
+                  [&](long k, const State&, VecX& br) {
+                    if (k == T) br += cr;
+                  })
+                  .ok());
+  EXPECT_EQ(result.recompute_mismatch, 0.0);
+  VecX expected(3);
+  for (int c = 0; c < 3; ++c) {
+    expected[c] = a.dot(dx.col(c).head(n3)) + b.dot(dv.col(c).head(n3));
+    for (int r = 0; r < 2; ++r)
+      expected[c] += cr.segment<6>(12 * r).dot(dx.col(c).segment<6>(n3 + 6 * r)) +
+                     cr.segment<6>(12 * r + 6).dot(dv.col(c).segment<6>(n3 + 6 * r));
+  }
+  std::cout << "adjoint " << result.theta.transpose() << " against forward " << expected.transpose() << "\n";
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(result.theta[c], expected[c], 1e-9 * expected.cwiseAbs().maxCoeff());
+}
 
 }  // namespace rigid_contact_derivatives_test

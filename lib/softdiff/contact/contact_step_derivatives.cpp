@@ -36,7 +36,7 @@ constexpr int operator_unpreconditioned_mixed_max_active = 64;
 bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, const VecX& x,
                                      integrator::LinearSolver& solver, double h, bool use_record_G,
                                      const std::vector<Mode>* modes_in, const VecX* sigma_in,
-                                     const SparseMatrix* A_upper) {
+                                     const SparseMatrix* A_upper, const NcpSystem* extended) {
   const std::vector<Mode>& modes = modes_in ? *modes_in : cd.modes;
   const VecX& sigma = sigma_in ? *sigma_in : cd.sigma;
   const auto& det = model.contact.detection;
@@ -61,7 +61,9 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
     }
   }
   if (nc == 0) return true;
-  if (use_record_G && cd.G.rows() == 3 * nc) {
+  if (extended) {
+    ncp_.compute(*extended->G, *extended->mu, *extended->lambda, *extended->sigma, *extended->modes);
+  } else if (use_record_G && cd.G.rows() == 3 * nc) {
     ncp_.compute(cd.G, cd.mu, cd.lambda, sigma, modes);
   } else {
     // The mode-fixed system needs G_AA of the active contacts only: one congruence

@@ -37,9 +37,17 @@ class ContactStageDerivative {
   // modes, sigma: the modes and sigma the NCP derivative holds (default: cd's).
   // A_upper: the matrix `solver` factorized (upper triangle), for the operator path's
   // preconditioner (mode_system.hpp; nullptr: the operator path is unpreconditioned).
+  // extended: the NCP derivative on this system instead (rigid bodies' joint limits in
+  // contact: the contacts' rows then the limit rows, rigid_contact_derivatives.hpp); the
+  // geometry derivatives stay the contacts'.
+  struct NcpSystem {
+    const MatX* G = nullptr;
+    const VecX *mu = nullptr, *lambda = nullptr, *sigma = nullptr;
+    const std::vector<Mode>* modes = nullptr;
+  };
   bool prepare(const Model& model, const ContactData& cd, const VecX& x, integrator::LinearSolver& solver, double h,
                bool use_record_G, const std::vector<Mode>* modes = nullptr, const VecX* sigma = nullptr,
-               const SparseMatrix* A_upper = nullptr);
+               const SparseMatrix* A_upper = nullptr, const NcpSystem* extended = nullptr);
 
   // r += h sum_i dH_i[dx]^T lambda_i (the contact forces' change with the positions).
   void add_force_jvp(const ContactData& cd, double h, const VecX& dx, VecX& r) const;

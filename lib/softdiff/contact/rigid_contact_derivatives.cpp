@@ -1,6 +1,8 @@
 // Derivatives of the contact stage with rigid bodies: see rigid_contact_derivatives.hpp.
 #include <softdiff/contact/rigid_contact_derivatives.hpp>
 
+#include <softdiff/contact/rigid_contact.hpp>
+#include <softdiff/core/assert.hpp>
 #include <softdiff/rigid/rotation.hpp>
 
 #include <Eigen/LU>
@@ -50,6 +52,7 @@ void RigidContactDerivative::prepare(const Model& model, const Data& data, const
     const auto r = static_cast<std::size_t>(model.contact.rigid_node_body[static_cast<std::size_t>(k)]);
     rho_.segment<3>(3 * k) = rd.in[r].orientation * model.rigid[r].surface.vertices.col(n + k - model.contact.rigid_node_begin[r]);
   }
+  prepare_limits(model, data, h);
   const Mat3 I3 = Mat3::Identity();
   for (std::size_t r = 0; r < R; ++r) {
     const auto& body = model.rigid[r];
@@ -59,6 +62,25 @@ void RigidContactDerivative::prepare(const Model& model, const Data& data, const
     rigid::StepJacobian J;
     rigid::step_jacobian(body, in, fr, data.rigid[r], model.step.dt, model.step.gravity, Vec3::Zero(), J);
     B.Jf << J.state, J.params;
+    // A limited hinge or slider: u_free is the free step WITHOUT its limits
+    // (begin_rigid_contact), so du_free is that step's Jacobian (Ju); W keeps the clamped
+    // free step's orientation (Jf). Unlimited: the same step.
+    Mat12x19 Ju = B.Jf;
+    double free_rate = 0;
+    {
+      const bool hinge = body.joint.kind == rigid::Joint::Kind::hinge;
+      const rigid::RigidState* f = &fr;
+      rigid::RigidState unclamped;
+      if (body.joint.limits && (hinge || body.joint.kind == rigid::Joint::Kind::slider)) {
+        const rigid::StepInfo info = rigid::step(body, in, model.step.dt, model.step.gravity, Vec3::Zero(),
+                                                 Vec3::Zero(), unclamped, false);
+        rigid::StepJacobian JU;
+        rigid::step_jacobian(body, in, unclamped, info, model.step.dt, model.step.gravity, Vec3::Zero(), JU);
+        Ju << JU.state, JU.params;
+        f = &unclamped;
+      }
+      free_rate = body.joint.axis.dot(hinge ? f->angular_velocity : f->velocity);
+    }
     B.dofs = has_dofs(body);
     B.K0.setZero();
     B.Q.setZero();
@@ -71,7 +93,7 @@ void RigidContactDerivative::prepare(const Model& model, const Data& data, const
     const Vec6 u = rd.u.segment<6>(o);
     B.omega = u.tail<3>();
     // P_r = h H_r^T lambda and Q_r = [0; sum_k [F_k][rho_k]] (d(rho x F) = [F][rho] dtheta).
-    const Vec6 Pr = contacts_ ? Vec6(h * (rd.Ht.middleRows<6>(o) * cd.lambda)) : Vec6::Zero();
+    const Vec6 Pr = contacts_ ? Vec6(h * (Ht_.middleRows<6>(o) * lambda_)) : Vec6::Zero();
     const int begin = model.contact.rigid_node_begin[r];
     for (Eigen::Index j = 0; j < body.surface.vertices.cols(); ++j) {
       const Eigen::Index k = begin - n + j;
@@ -102,8 +124,8 @@ void RigidContactDerivative::prepare(const Model& model, const Data& data, const
         const Vec3 r_arm = in.position - body.joint.anchor, nr = nax.cross(r_arm);
         Vec6 T;
         T << nr, nax;
-        const double rate = nax.dot(fr.angular_velocity);
-        B.K0 = T * (nax.transpose() * B.Jf.middleRows<3>(W));
+        const double rate = free_rate;
+        B.K0 = T * (nax.transpose() * Ju.middleRows<3>(W));
         B.K0.block<3, 3>(0, P) += rate * rigid::hat(nax);
         const Mat3 Iw = Rf * body.inertia * Rf.transpose();
         const double a = m * nr.squaredNorm() + nax.dot(Iw * nax), s = T.dot(Pr);
@@ -121,7 +143,7 @@ void RigidContactDerivative::prepare(const Model& model, const Data& data, const
         // T = [n; 0], u_free = (n.v_free) T, W = T T^T / m.
         Vec6 T;
         T << nax, Vec3::Zero();
-        B.K0 = T * (nax.transpose() * B.Jf.middleRows<3>(V));
+        B.K0 = T * (nax.transpose() * Ju.middleRows<3>(V));
         B.K0.col(MASS) += -T * T.dot(Pr) / (m * m);
         break;
       }
@@ -215,6 +237,9 @@ void RigidContactDerivative::impulse_jvp(const Model& model, const VecX& z, cons
       dP.head<3>() += df;
       dP.tail<3>() += rho_.segment<3>(3 * k).cross(df);
     }
+    // The limit rows' impulses on this body: h lambda_l dj[dp].
+    for (const Limit& l : limits_)
+      if (l.body == static_cast<int>(b)) dP += h_ * l.lambda * (l.Mj * zb.segment<3>(P));
     du0.segment<6>(6 * rb) = B.K0 * zb + B.W * dP;
   }
 }
@@ -237,6 +262,8 @@ void RigidContactDerivative::impulse_vjp(const Model& model, const VecX& bar_du0
     bar_z.segment<12>(12 * rb) += bz.head<12>();
     bar_zp.segment<7>(7 * rb) += bz.tail<7>();
     bar_z.segment<3>(12 * rb + TH) += B.Q.transpose() * bP;
+    for (const Limit& l : limits_)
+      if (l.body == static_cast<int>(b)) bar_z.segment<3>(12 * rb + P) += h_ * l.lambda * (l.Mj.transpose() * bP);
     for (Eigen::Index j = 0; j < nv; ++j) {
       const Eigen::Index k = begin - n + j;
       // df -> [df; rho x df]: bar_df = bar_P_v + (-[rho])^T... = bar_P_v - rho x bar_P_w.
@@ -289,7 +316,7 @@ void RigidContactDerivative::add_sigma_vjp(const Model& model, const ContactData
   }
 }
 
-void RigidContactDerivative::out_jvp(const Model& model, const ContactData& cd, const VecX& z, const VecX& zp,
+void RigidContactDerivative::out_jvp(const Model& model, const ContactData& /*cd*/, const VecX& z, const VecX& zp,
                                      const VecX& du0, const VecX& dlambda, VecX& d_out) const {
   const Eigen::Index R = static_cast<Eigen::Index>(model.rigid.size());
   d_out.resize(12 * R);
@@ -300,12 +327,12 @@ void RigidContactDerivative::out_jvp(const Model& model, const ContactData& cd, 
       d_out.segment<12>(12 * r) = B.Jf * zb;
       continue;
     }
-    const Vec6 du = du0.segment<6>(6 * r) + h_ * (B.W * (cd.rigid.Ht.middleRows<6>(6 * r) * dlambda));
+    const Vec6 du = du0.segment<6>(6 * r) + h_ * (B.W * (Ht_.middleRows<6>(6 * r) * dlambda));
     d_out.segment<12>(12 * r) = B.E_in * zb.head<12>() + B.E_u * du;
   }
 }
 
-void RigidContactDerivative::out_vjp(const Model& model, const ContactData& cd, const VecX& bar_out, VecX& bar_z,
+void RigidContactDerivative::out_vjp(const Model& model, const ContactData& /*cd*/, const VecX& bar_out, VecX& bar_z,
                                      VecX& bar_zp, VecX& bar_du0, VecX& bar_lambda) const {
   const Eigen::Index R = static_cast<Eigen::Index>(model.rigid.size());
   bar_z.setZero(12 * R);
@@ -323,7 +350,7 @@ void RigidContactDerivative::out_vjp(const Model& model, const ContactData& cd, 
     bar_z.segment<12>(12 * r) += B.E_in.transpose() * bo;
     const Vec6 bdu = B.E_u.transpose() * bo;
     bar_du0.segment<6>(6 * r) = bdu;
-    bar_lambda.noalias() += h_ * (cd.rigid.Ht.middleRows<6>(6 * r).transpose() * (B.W.transpose() * bdu));
+    bar_lambda.noalias() += h_ * (Ht_.middleRows<6>(6 * r).transpose() * (B.W.transpose() * bdu));
   }
 }
 
@@ -337,6 +364,111 @@ void RigidContactDerivative::extended_velocities(const Model& model, const Conta
     const int r = model.contact.rigid_node_body[static_cast<std::size_t>(k)];
     const Vec6 u = cd.rigid.u.segment<6>(6 * r);
     U.segment<3>(3 * (n + k)) = u.head<3>() + u.tail<3>().cross(rho_.segment<3>(3 * k));
+  }
+}
+
+void RigidContactDerivative::prepare_limits(const Model& model, const Data& data, double h) {
+  const auto& cd = data.contact;
+  const auto& rd = cd.rigid;
+  const int nc = contacts_ ? cd.contacts.size() : 0;
+  const int L = contacts_ ? static_cast<int>(rd.limit_rows.size()) : 0;
+  nc_ = nc;
+  u_ = rd.u;
+  limits_.resize(static_cast<std::size_t>(L));
+  const Eigen::Index n0 = 3 * static_cast<Eigen::Index>(nc), n1 = n0 + 3 * static_cast<Eigen::Index>(L);
+  Ht_.resize(6 * static_cast<Eigen::Index>(model.rigid.size()), n1);
+  lambda_.resize(n1);
+  if (nc > 0) {
+    Ht_.leftCols(n0) = rd.Ht;
+    lambda_.head(n0) = cd.lambda.head(n0);
+  }
+  if (L == 0) return;
+  SOFTDIFF_DEMAND(cd.G.rows() == n0 && rd.limit_lambda.size() == num_limit_slots(model),
+                  "rigid contact derivative: joint limits in contact need the dense backend's record (G)");
+  Ht_.rightCols(3 * L).setZero();
+  lambda_.tail(3 * L).setZero();
+  for (int l = 0; l < L; ++l) {
+    const auto& row = rd.limit_rows[static_cast<std::size_t>(l)];
+    const auto r = static_cast<std::size_t>(row.body);
+    const auto& body = model.rigid[r];
+    const bool hinge = body.joint.kind == rigid::Joint::Kind::hinge;
+    Limit& lim = limits_[static_cast<std::size_t>(l)];
+    lim.body = row.body;
+    lim.s = row.side == 0 ? 1.0 : -1.0;
+    // j = s T / |T|^2 (append_limit_rows), T = [n x (p - a); n] (hinge) or [n; 0].
+    const rigid::Vec6 T = rigid::joint_motion_basis(body, rd.in[r]).col(0);
+    const double T2 = T.squaredNorm();
+    lim.j = lim.s * T / T2;
+    lim.Mj.setZero();
+    if (hinge) {
+      // dj = s / |T|^2 (I - 2 T T^T / |T|^2) dT, dT = [n x dp; 0].
+      Eigen::Matrix<double, 6, 3> dT = Eigen::Matrix<double, 6, 3>::Zero();
+      dT.topRows<3>() = rigid::hat(body.joint.axis);
+      lim.Mj = lim.s / T2 * (rigid::Mat6::Identity() - 2 * T * T.transpose() / T2) * dT;
+    }
+    lim.coordinate_block = hinge ? TH : P;
+    lim.axis = body.joint.axis;
+    lim.lambda = rd.limit_lambda[row.slot];
+    Ht_.col(n0 + 3 * l + 2).segment<6>(6 * static_cast<Eigen::Index>(r)) = lim.j;
+    lambda_[n0 + 3 * l + 2] = lim.lambda;
+  }
+  // The solve's G on the extended rows: the record's G (contacts), then each limit
+  // column h H_r^T W_r j over every row (only its body's rows are nonzero), mirrored.
+  G_ext_.setZero(n1, n1);
+  G_ext_.topLeftCorner(n0, n0) = cd.G;
+  for (int l = 0; l < L; ++l) {
+    const Limit& lim = limits_[static_cast<std::size_t>(l)];
+    const Eigen::Index o = 6 * static_cast<Eigen::Index>(lim.body), col = n0 + 3 * l + 2;
+    G_ext_.col(col) = h * (Ht_.middleRows<6>(o).transpose() * (rd.W[static_cast<std::size_t>(lim.body)] * lim.j));
+  }
+  for (int l = 0; l < L; ++l) {
+    const Eigen::Index o = n0 + 3 * l;
+    G_ext_.row(o + 2) = G_ext_.col(o + 2).transpose();
+    G_ext_(o, o) = G_ext_(o + 1, o + 1) = G_ext_(o + 2, o + 2);  // finish_limit_rows
+  }
+  mu_ext_.setZero(nc + L);
+  mu_ext_.head(nc) = cd.mu.head(nc);
+  sigma_ext_.setZero(n1);
+  sigma_ext_.head(n0) = cd.sigma.head(n0);
+  modes_ext_.assign(cd.modes.begin(), cd.modes.begin() + nc);
+  for (int l = 0; l < L; ++l) {
+    const Limit& lim = limits_[static_cast<std::size_t>(l)];
+    const auto r = static_cast<std::size_t>(lim.body);
+    const auto& body = model.rigid[r];
+    const auto& row = rd.limit_rows[static_cast<std::size_t>(l)];
+    const double c = rigid::joint_coordinate(body, rd.in[r]);
+    const double gap = row.side == 0 ? c - body.joint.limits->first : body.joint.limits->second - c;
+    sigma_ext_[n0 + 3 * l + 2] = lim.j.dot(rd.u.segment<6>(6 * static_cast<Eigen::Index>(r))) + gap / h;
+    // By contact mode: an active limit is a bilateral row, an inactive one drops.
+    modes_ext_.push_back(lim.lambda > 0 ? Mode::sticking : Mode::breaking);
+  }
+}
+
+void RigidContactDerivative::limit_sigma_jvp(const VecX& z, const VecX& du0, VecX& b) const {
+  const Eigen::Index n0 = 3 * static_cast<Eigen::Index>(nc_);
+  for (std::size_t l = 0; l < limits_.size(); ++l) {
+    const Limit& lim = limits_[l];
+    const Eigen::Index o = n0 + 3 * static_cast<Eigen::Index>(l), r = lim.body;
+    double bn = lim.j.dot(du0.segment<6>(6 * r));
+    if (z.size()) {
+      const Vec6 u = u_.segment<6>(6 * r);
+      bn += u.dot(lim.Mj * z.segment<3>(12 * r + P));
+      bn += lim.s * lim.axis.dot(z.segment<3>(12 * r + lim.coordinate_block)) / h_;
+    }
+    b[o] = b[o + 1] = 0;
+    b[o + 2] = bn;
+  }
+}
+
+void RigidContactDerivative::add_limit_sigma_vjp(const VecX& bar_b, VecX& bar_du0, VecX& bar_z) const {
+  const Eigen::Index n0 = 3 * static_cast<Eigen::Index>(nc_);
+  for (std::size_t l = 0; l < limits_.size(); ++l) {
+    const Limit& lim = limits_[l];
+    const Eigen::Index r = lim.body;
+    const double beta = bar_b[n0 + 3 * static_cast<Eigen::Index>(l) + 2];
+    bar_du0.segment<6>(6 * r) += beta * lim.j;
+    bar_z.segment<3>(12 * r + P) += beta * (lim.Mj.transpose() * u_.segment<6>(6 * r));
+    bar_z.segment<3>(12 * r + lim.coordinate_block) += beta * lim.s / h_ * lim.axis;
   }
 }
 

@@ -30,6 +30,26 @@
 // Without contacts in the step the rigid bodies end at their free step: d out = J_f z.
 // A fixed body's pose is carried over (J_f). All maps are fixed-size per body: no
 // allocation per contact after the first step of a size.
+//
+// Joint limits in contact (rigid_contact.hpp "limit rows"; docs/method.md "Through contact
+// with rigid bodies", limit rows): the step's NCP had L limit rows after the nc contacts
+// (data.contact.rigid.limit_rows, their forces in limit_lambda; the record keeps only the
+// contacts'), frictionless unilateral rows whose normal Jacobian on the body's (v, omega)
+// is j = s T / |T|^2 (s = +1 lower, -1 upper) and gap the distance to the limit. By
+// contact mode, an active limit (lambda > 0) is a bilateral row (sticking, its tangential
+// rows decoupled with zero right-hand side: their force stays 0) and an inactive one
+// drops (breaking). prepare() rebuilds the extended system of the solve: H_r^T with the
+// limit columns, G (3 (nc + L)): the record's G, the limit rows' h H_r W_r j coupling and
+// h j W_r j diagonal (equal tangential diagonals, as finish_limit_rows), sigma (the limit
+// rows' s cdot(u) + gap / h), mu (0) and the modes; the NCP derivative runs on it. Per
+// limit row, at fixed lambda:
+//   - b_l = dj[z].u + j.du0 + s dc_n / h (dc_n = n.dtheta hinge, n.dp slider);
+//   - dP_r += h lambda_l dj[z], dj = s / |T|^2 (I - 2 T T^T / |T|^2) dT, dT = [n x dp; 0]
+//     for a hinge, 0 for a slider;
+// and du_r = du0_r + h W_r H_r^T dlambda over the extended columns. A limited body's free
+// velocity u_free is the UNCLAMPED free step's (begin_rigid_contact), so K0's du_free
+// comes from that step's Jacobian; W's dependence on q_free stays the clamped free
+// step's (the orientation W was formed with).
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
 #include <softdiff/rigid/rigid_derivatives.hpp>
@@ -75,6 +95,21 @@ class RigidContactDerivative {
   // the corrected u_r) for the geometry terms of sigma.
   void extended_velocities(const Model& model, const ContactData& cd, const VecX& v, VecX& U) const;
 
+  // Joint limits in the step's NCP (see above): L rows after the nc contacts.
+  int limit_rows() const { return static_cast<int>(limits_.size()); }
+  // The extended system of the solve (3 (nc + L)): G, mu, lambda, sigma and the modes by
+  // contact mode (valid when limit_rows() > 0).
+  const MatX& extended_G() const { return G_ext_; }
+  const VecX& extended_mu() const { return mu_ext_; }
+  const VecX& extended_lambda() const { return lambda_; }
+  const VecX& extended_sigma() const { return sigma_ext_; }
+  const std::vector<Mode>& extended_modes() const { return modes_ext_; }
+  // b's limit rows (b: 3 (nc + L), its contact rows set by the caller): b_l = dj[z].u +
+  // j.du0 + s dc_n / h, tangential rows 0.
+  void limit_sigma_jvp(const VecX& z, const VecX& du0, VecX& b) const;
+  // Its transpose: bar_du0, bar_z += for bar_b's limit rows.
+  void add_limit_sigma_vjp(const VecX& bar_b, VecX& bar_du0, VecX& bar_z) const;
+
  private:
   struct Body {
     Mat12x19 Jf = Mat12x19::Zero();            // the free step [J.state J.params]
@@ -87,8 +122,27 @@ class RigidContactDerivative {
     bool dofs = false;
   };
   int body_of(const Model& model, int node) const;
+  // A limit row of the step's NCP: its body, sign s, Jacobian j, dj / dp (hinge; 0 for a
+  // slider), force, and d c_n / d z's block (TH for a hinge, P for a slider).
+  struct Limit {
+    int body = 0;
+    double s = 1, lambda = 0;
+    rigid::Vec6 j = rigid::Vec6::Zero();
+    Eigen::Matrix<double, 6, 3> Mj = Eigen::Matrix<double, 6, 3>::Zero();
+    int coordinate_block = 0;
+    Vec3 axis = Vec3::UnitZ();
+  };
+  void prepare_limits(const Model& model, const Data& data, double h);
 
   std::vector<Body> bodies_;
+  std::vector<Limit> limits_;
+  MatX Ht_;                    // (6R x 3 (nc + L)) H_r^T with the limit columns
+  VecX u_;                     // (6R) the corrected velocities
+  VecX lambda_;                // (3 (nc + L)) the contacts' forces, then the limits'
+  MatX G_ext_;                 // (3 (nc + L)) square: the solve's G (limit rows only)
+  VecX mu_ext_, sigma_ext_;    //   its mu (nc + L), sigma (3 (nc + L))
+  std::vector<Mode> modes_ext_;
+  int nc_ = 0;
   VecX rho_;   // (3 pseudo) x_k - p_r of each pseudo-node at the start of the step
   VecX F_;     // (3 pseudo) the contact force on each pseudo-node, h sum_i w_k C_i lambda_i
   bool contacts_ = false;

@@ -222,7 +222,8 @@ std::size_t Tape::bytes() const {
   for (const auto& f : frames) b += sizeof(double) * static_cast<std::size_t>(f.x.size() + f.v.size() + 1);
   for (const auto& l : lambda_a) b += sizeof(double) * static_cast<std::size_t>(l.size());
   for (const auto& w : warm_start)
-    b += sizeof(w.keys[0]) * w.keys.size() + sizeof(double) * static_cast<std::size_t>(w.lambda.size());
+    b += sizeof(w.keys[0]) * w.keys.size() +
+         sizeof(double) * static_cast<std::size_t>(w.lambda.size() + w.limit_lambda.size());
   return b;
 }
 
@@ -244,7 +245,8 @@ StepStatus record(const Model& model, Data& data, const State& initial, long ste
       lambda = actuation.col(step - 1);
       override_values = &lambda;
     }
-    if (model.contact.enabled) tape.warm_start.push_back({data.contact.previous_keys, data.contact.previous_lambda});
+    if (model.contact.enabled)
+      tape.warm_start.push_back({data.contact.previous_keys, data.contact.previous_lambda, data.contact.rigid.limit_lambda});
     const State* previous = step > 1 ? &tape.frames[tape.frames.size() - 2] : nullptr;
     const StepStatus st = integrator::time_step(model, data, tape.frames.back(), previous, next, step, override_values);
     if (!st.ok()) return st;
@@ -296,6 +298,7 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
       const auto& w = tape.warm_start[static_cast<std::size_t>(step - 1)];
       data.contact.previous_keys = w.keys;
       data.contact.previous_lambda = w.lambda;
+      data.contact.rigid.limit_lambda = w.limit_lambda;  // the limit rows' warm start (rigid_contact.hpp)
     }
     const StepStatus st =
         integrator::time_step(model, data, in, previous, out, step, &tape.lambda_a[static_cast<std::size_t>(step - 1)]);

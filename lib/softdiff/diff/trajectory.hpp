@@ -118,6 +118,7 @@ struct Tape {
   struct WarmStart {
     std::vector<std::pair<collision::Contact::Key, int>> keys;
     VecX lambda;
+    VecX limit_lambda;  // rigid bodies' joint limits in contact: their forces (by slot)
   };
   std::vector<WarmStart> warm_start;
   long steps() const { return static_cast<long>(frames.size()) - 1; }

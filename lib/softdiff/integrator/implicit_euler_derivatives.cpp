@@ -182,7 +182,14 @@ bool StepDerivatives::prepare_contact(const Model& model, const Data& data, cons
   // With rigid bodies the geometry is that of the extended positions (soft nodes, then the
   // rigid pseudo-nodes posed at the start of the step) that detection used.
   const VecX& x = model.contact.with_rigid() ? data.contact.rigid.x : in.x;
-  if (!contact_.prepare(model, data.contact, x, solver, step_size(model, data), !is_newton(model), nullptr, nullptr, A))
+  // Joint limits in the step's NCP (rigid_contact_derivatives.hpp): the NCP derivative on
+  // the extended system (the contacts' rows, then the limit rows).
+  contact::ContactStageDerivative::NcpSystem extended;
+  if (with_rigid && rigid_.limit_rows() > 0)
+    extended = {&rigid_.extended_G(), &rigid_.extended_mu(), &rigid_.extended_lambda(), &rigid_.extended_sigma(),
+                &rigid_.extended_modes()};
+  if (!contact_.prepare(model, data.contact, x, solver, step_size(model, data), !is_newton(model), nullptr, nullptr, A,
+                        extended.G ? &extended : nullptr))
     return false;
   contact_v_.resize(key_size);
   contact_v_.head(out.v.size()) = out.v;
@@ -328,19 +335,26 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
     // implicit function theorem, modes fixed); then h A^{-1} H^T dlambda.
     if (with_rigid) {
       // b = H_s dv0 + the geometry terms on the extended velocities + the rigid rows'.
-      b_.noalias() = cd.Ht.transpose() * d_out.v;
+      // With joint limits in the NCP, b has their rows after the contacts' (limit_sigma_jvp).
+      b_.resize(cd.Ht.cols() + 3 * rigid_.limit_rows());
+      b_.head(cd.Ht.cols()).noalias() = cd.Ht.transpose() * d_out.v;
       rigid_.extended_velocities(model, cd, out.v, ext_u_);
       contact_.add_sigma_jvp(cd, ext_u_, h, ext_dx_, b_);
       rigid_.impulse_jvp(model, d.rigid, d.rigid_p, ext_r_, du0_);
       rigid_.add_sigma_jvp(model, cd, du0_, d.rigid, b_);
+      if (rigid_.limit_rows() > 0) rigid_.limit_sigma_jvp(d.rigid, du0_, b_);
     } else {
       contact_sigma_jvp(model, data, out, dx, d_out.v, b_);
     }
     // Friction parameters: dmu_i = dp_j for the contacts of pair rule j.
     VecX dmu;
     contact::ContactStageDerivative::friction_tangent(model, data.contact, parameters_, d.p, dmu);
+    if (dmu.size() && with_rigid && rigid_.limit_rows() > 0) {
+      dmu.conservativeResize(dmu.size() + rigid_.limit_rows());  // the limit rows: mu = 0
+      dmu.tail(rigid_.limit_rows()).setZero();
+    }
     contact_.ncp().jvp(b_, dmu, dlambda_);
-    tmp_.noalias() = h * (data.contact.Ht * dlambda_);
+    tmp_.noalias() = h * (data.contact.Ht * dlambda_.head(data.contact.Ht.cols()));
     project(model, tmp_);
     if (!(parts ? parts_.solve(model, data, tmp_, false, y_) : solver->solve(tmp_, y_))) return false;
     project(model, y_);
@@ -433,11 +447,15 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
     // bar_b; b = H dv0 + ... adds z = H^T bar_b to dv0's cotangent, so the right-hand
     // side's cotangent is y + A^{-1} z.
     if (!prepare_contact(model, data, in, out, *solver)) return false;
-    bar_lambda_.noalias() = h * (data.contact.Ht.transpose() * y_);
+    const int limit_rows = with_rigid ? rigid_.limit_rows() : 0;  // joint limits' rows after the contacts'
+    bar_lambda_.resize(cd.Ht.cols() + 3 * limit_rows);
+    bar_lambda_.head(cd.Ht.cols()).noalias() = h * (data.contact.Ht.transpose() * y_);
+    bar_lambda_.tail(3 * limit_rows).setZero();
     if (with_rigid) rigid_.out_vjp(model, cd, bar_out.rigid, bar_in.rigid, bar_in.rigid_p, bar_du0_, bar_lambda_);
     contact_.ncp().vjp(bar_lambda_, bar_b_, bar_mu_);
     if (with_rigid) rigid_.add_sigma_vjp(model, cd, bar_b_, bar_du0_, bar_in.rigid);
-    tmp2_.noalias() = data.contact.Ht * bar_b_;
+    if (limit_rows > 0) rigid_.add_limit_sigma_vjp(bar_b_, bar_du0_, bar_in.rigid);
+    tmp2_.noalias() = data.contact.Ht * bar_b_.head(cd.Ht.cols());
     project(model, tmp2_);
     if (!(parts ? parts_.solve(model, data, tmp2_, false, y2_) : solver->solve(tmp2_, y2_))) return false;
     project(model, y2_);
