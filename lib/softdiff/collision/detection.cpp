@@ -612,6 +612,17 @@ void CollisionDetector::Impl::soft_soft(const PairRule& rule, const VecX& x, Con
 CollisionDetector::CollisionDetector(const DetectionModel& model) : impl_(std::make_unique<Impl>(model)) {}
 CollisionDetector::~CollisionDetector() = default;
 
+void CollisionDetector::set_time(double t) {
+  for (auto& o : impl_->model.obstacles)
+    if (!o.offset_schedule.empty()) o.offset = plane_offset_at(o, t);
+}
+
+bool CollisionDetector::has_moving_obstacles() const {
+  for (const auto& o : impl_->model.obstacles)
+    if (!o.offset_schedule.empty()) return true;
+  return false;
+}
+
 DetectionStats CollisionDetector::detect(const VecX& x, ContactSet& out) { return detect(x, out, impl_->model.margin); }
 
 DetectionStats CollisionDetector::detect(const VecX& x, ContactSet& out, double margin) {

@@ -70,6 +70,12 @@ class CollisionDetector {
   // overlap whenever their triangles are within max(m_a, m_b) (m_a + m_b - mu >= that),
   // and with equal margins this is the single margin's m / 2.
   DetectionStats detect(const VecX& x, ContactSet& out, const std::vector<double>& surface_margin);
+  // Moving planes (Obstacle::offset_schedule): the detector's copies take their offsets
+  // at time t (the contact stage passes the step's end time t_{n+1}; the static solver
+  // its load step's time). Obstacles without a schedule are unchanged.
+  void set_time(double t);
+  // Some obstacle has an offset schedule.
+  bool has_moving_obstacles() const;
 
  private:
   struct Impl;

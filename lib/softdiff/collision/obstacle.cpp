@@ -385,8 +385,23 @@ void positive(const Obstacle& o, const char* what, double v) {
 
 // ------------------------------------------------------------------------------------
 
+double plane_offset_at(const Obstacle& o, double t) {
+  const auto& s = o.offset_schedule;
+  if (s.empty()) return o.offset;
+  if (t <= s.front()[0]) return s.front()[1];
+  if (t >= s.back()[0]) return s.back()[1];
+  for (std::size_t k = 1; k < s.size(); ++k)
+    if (t <= s[k][0]) {
+      const double w = (t - s[k - 1][0]) / (s[k][0] - s[k - 1][0]);
+      return (1 - w) * s[k - 1][1] + w * s[k][1];
+    }
+  return s.back()[1];
+}
+
 void prepare(Obstacle& o) {
   if (!o.center.allFinite()) fail(o, "center is not finite");
+  if (o.kind != ShapeKind::plane && !o.offset_schedule.empty())
+    fail(o, "an offset schedule (a prescribed motion) is for planes only");
   switch (o.kind) {
     case ShapeKind::plane: {
       const double n = o.normal.norm();
@@ -394,9 +409,17 @@ void prepare(Obstacle& o) {
         fail(o, "plane normal must be a non-zero vector, got (" + num(o.normal[0]) + ", " + num(o.normal[1]) + ", " +
                     num(o.normal[2]) + ")");
       if (!std::isfinite(o.offset)) fail(o, "plane offset is not finite");
+      for (std::size_t k = 0; k < o.offset_schedule.size(); ++k) {
+        const auto& p = o.offset_schedule[k];
+        if (!std::isfinite(p[0]) || !std::isfinite(p[1])) fail(o, "plane offset schedule: a time or offset is not finite");
+        if (k > 0 && !(p[0] > o.offset_schedule[k - 1][0]))
+          fail(o, "plane offset schedule: times must increase, got " + num(o.offset_schedule[k - 1][0]) + " then " +
+                      num(p[0]));
+      }
       // n . x = offset with the given n: the same plane with a unit normal.
       o.normal /= n;
       o.offset /= n;
+      for (auto& p : o.offset_schedule) p[1] /= n;
       break;
     }
     case ShapeKind::box:

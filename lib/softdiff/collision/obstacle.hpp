@@ -13,9 +13,11 @@
 #include <softdiff/core/types.hpp>
 
 #include <Eigen/Geometry>
+#include <array>
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <vector>
 
 namespace softdiff::collision {
 
@@ -38,6 +40,10 @@ struct Obstacle {
   Vec3 center = Vec3::Zero();
   Vec3 normal{0, 0, 1};          // plane: unit normal into the free side
   double offset = 0;             // plane: normal . x = offset
+  // plane (extension): a prescribed motion along the normal, offset(t) piecewise linear
+  // through (t_k, offset_k) (times increasing), held constant outside; empty: static.
+  // The detector sets `offset` from it at each step's end time (CollisionDetector::set_time).
+  std::vector<std::array<double, 2>> offset_schedule;
   Vec3 half_extents = Vec3::Zero();  // box
   double radius = 0;             // sphere, capsule, cylinder
   double half_length = 0;        // capsule (segment half length), cylinder (half height)
@@ -57,6 +63,10 @@ struct ClosestPoint {
 // Checks the parameters (unit normal, positive sizes, closed and oriented mesh)
 // and builds the mesh BVH. Throws InputError naming the obstacle and the problem.
 void prepare(Obstacle& obstacle);
+
+// A plane's offset at time t: its schedule's piecewise-linear value (held constant
+// outside the schedule's times), or `offset` without a schedule.
+double plane_offset_at(const Obstacle& obstacle, double t);
 
 // The exact signed distance query. Returns false (and leaves `out` unspecified)
 // only when the point is certainly farther than max_distance from the surface

@@ -268,6 +268,9 @@ StepStatus stage(const Model& model, Data& data, const State& in, State& out, lo
   // Contact (paper eq. 2): out.v = v_free on entry, v_f on return. With Newton this is
   // its first iteration; the contacts detected here stay for the whole step.
   if (model.contact.enabled) {
+    // A moving plane (Obstacle::offset_schedule) at the step's end time: its gap
+    // constraint n . x_{n+1} >= offset(t_{n+1}) is then exact (docs/method.md "Moving planes").
+    data.contact.detector->set_time(t_next);
     status = contact::resolve_contacts(model, data, in, out.v, step_index, h);
     if (!status.ok()) return status;
   }

@@ -124,6 +124,9 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
   for (long s = 1; s <= L; ++s) {
     const double factor = static_cast<double>(s) / L;
     data.static_load_step_start = out.x;
+    // A moving plane at this load step's time (the actuators' schedules are read at
+    // `factor` as well): docs/method.md "Moving planes".
+    if (with_contact) cd.detector->set_time(factor);
     double rel = 0;
     int it = 0;
     contact_solved = false;

@@ -325,6 +325,7 @@ collision::Obstacle build_obstacle(const ObstacleDesc& d) {
   }
   o.normal = d.normal;
   o.offset = d.offset;
+  o.offset_schedule = d.offset_schedule;
   o.center = d.center;
   o.rotation = rotation_from_euler_deg(d.rotate_deg);
   o.half_extents = d.half_extents;

@@ -763,7 +763,22 @@ class Reader {
       for (const std::string& k : needed)
         if (!item.find(k)) ctx_.fail(item.mark, path, "a " + type + " obstacle needs '" + k + "'");
       o.normal = vec3(get(item, "normal"), o.normal);
-      o.offset = number(get(item, "offset"), o.offset);
+      if (const Entry* off = item.find("offset"); off && off->value.is_sequence()) {
+        // A moving plane (extension): offset(t) piecewise linear, held outside.
+        double previous = -1;
+        for (std::size_t k = 0; k < off->value.items.size(); ++k) {
+          const Node& pair = off->value.items[k];
+          const double t = *yaml::to_number(pair.items[0]);
+          if (!(t >= 0) || !(t > previous))
+            ctx_.fail(pair.mark, yaml::index_path(path + ".offset", k),
+                      "times must be >= 0 and increasing, got " + pair.items[0].scalar);
+          previous = t;
+          o.offset_schedule.push_back({t, *yaml::to_number(pair.items[1])});
+        }
+        o.offset = o.offset_schedule.front()[1];
+      } else {
+        o.offset = number(get(item, "offset"), o.offset);
+      }
       o.center = vec3(get(item, "center"), o.center);
       o.half_extents = vec3(get(item, "half_extents"), o.half_extents);
       o.rotate_deg = vec3(get(item, "rotate_deg"), o.rotate_deg);

@@ -139,6 +139,7 @@ struct ObstacleDesc {
   std::string name;
   Vec3 normal{0, 0, 1};          // plane (not yet normalized)
   double offset = 0;             // plane
+  std::vector<std::array<double, 2>> offset_schedule;  // plane (extension): offset: [[t, offset], ...]
   Vec3 center = Vec3::Zero();    // box, sphere, capsule, cylinder
   Vec3 half_extents = Vec3::Zero();  // box
   Vec3 rotate_deg = Vec3::Zero();    // box, capsule, cylinder (XYZ Euler, R = Rz Ry Rx)

@@ -67,12 +67,21 @@ SpecPtr effector() {
   });
 }
 
+// A plane's offset: a number, or (extension) a piecewise-linear schedule of the
+// plane's motion along its normal.
+SpecPtr plane_offset() {
+  auto s = std::make_shared<Spec>(*number());
+  s->or_sequence = list(numbers(2, "a pair [time, offset]"), "a list of [time, offset] pairs", 1);
+  s->expected = "a number or a list of [time, offset] pairs";
+  return s;
+}
+
 SpecPtr obstacle() {
   return map({
       required("name", name()),
       required("type", choice({"plane", "box", "sphere", "capsule", "cylinder", "mesh"})),
       key("normal", vec3()),
-      key("offset", number()),
+      key("offset", plane_offset()),  // extension: or a schedule [[t, offset], ...] (a moving plane)
       key("center", vec3()),
       key("half_extents", vec3()),
       key("rotate_deg", vec3()),

@@ -281,6 +281,10 @@ void validate(const Node& node, const Spec& given, const Context& ctx, const yam
     case Kind::map: validate_map(node, spec, ctx, at, path); return;
     case Kind::list: validate_list(node, spec, ctx, at, path); return;
     case Kind::number: {
+      if (spec.or_sequence && node.is_sequence()) {
+        validate(node, *spec.or_sequence, ctx, at, path);
+        return;
+      }
       if (node.is_scalar() && !node.quoted && !yaml::to_number(node)) {
         std::string lower = node.scalar;
         for (char& c : lower) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));

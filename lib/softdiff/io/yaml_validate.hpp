@@ -56,6 +56,9 @@ struct Spec {
   std::string expected;  // for "expected <expected>, got ...": "a number", "a list of 3 numbers [x, y, z]"
   // number, integer: the valid range (message "must be > 0", "must be in [0, 0.5)")
   std::optional<double> min, max;
+  // number: a sequence is validated against this instead (a plane's offset: a number or
+  // a schedule [[t, offset], ...]); null: numbers only.
+  SpecPtr or_sequence;
   bool min_open = false, max_open = false;
   long long int_max = INT_MAX;  // integer: what the C++ field holds
   // choice
