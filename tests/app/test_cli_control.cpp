@@ -191,9 +191,11 @@ TEST(CliControl, RigidBodiesRefuseWhatTheDerivativeDoesNotCoverYet) {
   const Case cases[] = {
       {"bdf2.yaml --target 0,0,0 --set simulation.integrator=bdf2",
        "control: derivatives with bdf2 and rigid bodies are not supported yet (issue 21; rigid body 'block')"},
-      {"limits.yaml --target 0,0,0",
-       "control: derivatives through contact of a rigid body whose joint has limits are not supported yet (issue 21; "
-       "rigid body 'block')"},
+      // A limited joint in contact is differentiated on the dense backend (issue 21's rlim;
+      // it runs below), not on the sparse one.
+      {"limits.yaml --target 0,0,0 --set contact.backend=sparse",
+       "control: derivatives through contact of a rigid body whose joint has limits on contact.backend: sparse are "
+       "not supported yet (issue 21; rigid body 'block')"},
   };
   for (const Case& c : cases) {
     const CliRun r = run_cli("control " + c.args + " -o out.h5", dir);
@@ -202,6 +204,9 @@ TEST(CliControl, RigidBodiesRefuseWhatTheDerivativeDoesNotCoverYet) {
     EXPECT_FALSE(fs::exists(dir / "out.h5")) << c.args;
     EXPECT_FALSE(fs::exists(dir / "out.h5.partial")) << c.args;
   }
+  const CliRun ok = run_cli("control limits.yaml --target 0,0,0 -o limits.h5", dir);
+  EXPECT_EQ(ok.code, 0) << ok.err;
+  EXPECT_TRUE(fs::exists(dir / "limits.h5"));
 }
 
 }  // namespace

@@ -395,7 +395,7 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
       {"rigid_only_check_grad", kBallOnly, "check-grad scene.yaml",
        "derivatives of a scene of rigid bodies only are not supported yet (issue 21"},
       {"rigid_only_calibrate", kBallOnly, "calibrate scene.yaml --param young --target target.h5 -o out.h5",
-       "calibrate: derivatives of a scene of rigid bodies only are not supported yet (issue 21"},
+       "--param: derivatives of a scene of rigid bodies only are not supported yet (issue 21"},
       {"rigid_only_sparse", kBallOnly + "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.01}]\n"
                                         "contact: {friction: 0.3, backend: sparse}\n",
        "simulate scene.yaml -o out.h5",
