@@ -40,7 +40,6 @@ struct ThetaSelection {
 std::string rigid_row_name(const Model& model, int body, int k, bool velocity, const std::string& prefix);
 // Throws InputError (exit 2) naming issue 21 if the model has rigidified parts (no
 // derivative of them yet); `what` names the command or option.
-void demand_no_rigidified_parts(const std::string& what, const Model& model);
 
 ThetaSelection parse_theta(const std::string& option, const std::string& list, const Model& model);
 
