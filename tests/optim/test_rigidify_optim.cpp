@@ -41,9 +41,12 @@ optim::CalibrationTarget states_target(const Model& model) {
 // The residual's columns against central differences of whole runs. No contact: every
 // run is the linearized step's smooth function of the parameters (the reduced solve and
 // the part's placement, exp of the rotation), so the quotient's error is its truncation,
-// O(h^2) relative, and round-off, ~1e-16 |r| / (h |dr/dp|). Relative step 1e-5 of each
-// value: truncation ~1e-10, round-off ~1e-10 here (|r| ~ |dr/dlog p|). Tolerance 1e-6 of
-// each column's norm (measured: printed, ~1e-9).
+// O(h^2) relative, and the runs' round-off over 2h. The runs are not smooth to 1e-16: a
+// sweep of check-grad on this scene (one step, relative eps 1e-3 .. 1e-6) gives errors
+// growing as 1/eps below 1e-4 (1e-5 at 1e-5, 3e-5 .. 5e-5 at 1e-6: the factorization's
+// round-off), and truncation above (poisson, near 0.5: 4.4e-5 at 1e-3, 4.2e-7 at 1e-4).
+// Relative step 1e-4 of each value: measured 1e-7 .. 1e-6 (printed). Tolerance 1e-5 of
+// each column's norm.
 void expect_columns_match(const Model& m, const std::vector<ParameterId>& ids, const std::vector<double>& values,
                           const optim::CalibrationTarget& target) {
   VecX r;
@@ -55,7 +58,7 @@ void expect_columns_match(const Model& m, const std::vector<ParameterId>& ids, c
   for (Eigen::Index j = 0; j < J.cols(); ++j) {
     SCOPED_TRACE("column " + std::to_string(j));
     const auto c = static_cast<std::size_t>(j);
-    const double h = 1e-5 * values[c];
+    const double h = 1e-4 * values[c];
     std::vector<double> vp = values, vm = values;
     vp[c] += h;
     vm[c] -= h;
@@ -67,7 +70,7 @@ void expect_columns_match(const Model& m, const std::vector<ParameterId>& ids, c
     ASSERT_GT(fd.norm(), 0.0);
     const double err = (J.col(j) - fd).norm() / fd.norm();
     std::printf("column %ld: |dr/dp| %.4e, relative error %.2e\n", static_cast<long>(j), fd.norm(), err);
-    EXPECT_LE(err, 1e-6);
+    EXPECT_LE(err, 1e-5);
   }
 }
 
