@@ -395,7 +395,8 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
   report.strict = o.strict;
   const Model model = io::build_model(scene, &report);
   for (const auto& w : report.warnings) warn(w);
-  demand_no_rigidified_parts("calibrate", model);  // rigid bodies: parse_theta's checks (issue 21)
+  // Rigid bodies and rigidified parts: parse_theta's checks (issue 21; parts: implicit Euler
+  // with one Newton iteration, contact on the dense backend, no rigid bodies in contact).
   const Calibrated params = parse_params(o.param, model);
 
   // Initial values.

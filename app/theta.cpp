@@ -80,12 +80,6 @@ void demand_differentiable(const std::string& option, const Model& model) {
 
 }  // namespace
 
-void demand_no_rigidified_parts(const std::string& what, const Model& model) {
-  if (!model.rigidify.empty())  // (rigidified parts of soft bodies: issue 21 item 2)
-    throw InputError(what + ": derivatives with rigidified parts are not supported yet (issue 21; " +
-                     model.rigidify.parts.front().name + ")");
-}
-
 std::string rigid_row_name(const Model& model, int body, int k, bool velocity, const std::string& prefix) {
   static const char* x_rows[6] = {"x", "y", "z", "rx", "ry", "rz"};
   static const char* v_rows[6] = {"vx", "vy", "vz", "wx", "wy", "wz"};

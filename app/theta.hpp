@@ -38,9 +38,6 @@ struct ThetaSelection {
 // "v[key].vx" ... "v[key].wz" (velocity, angular velocity); prefix "x0"/"v0" for the
 // columns of theta's initial-state groups ("x0[key].rx").
 std::string rigid_row_name(const Model& model, int body, int k, bool velocity, const std::string& prefix);
-// Throws InputError (exit 2) naming issue 21 if the model has rigidified parts (no
-// derivative of them yet); `what` names the command or option.
-void demand_no_rigidified_parts(const std::string& what, const Model& model);
 
 ThetaSelection parse_theta(const std::string& option, const std::string& list, const Model& model);
 

@@ -82,9 +82,12 @@ StepStatus InverseDynamics::compute(const Model& model, const State& s, long k, 
     directions_.setOnes(na, 1);
   else
     directions_.setIdentity(na, na);
-  if (!(model.contact.enabled && !data_.contact.contacts.empty())) {
+  if (!(model.contact.enabled && !data_.contact.contacts.empty()) && model.rigidify.empty()) {
     // No contact in the record: all nd columns in one solve with nd right-hand sides
-    // (StepDerivatives::actuation_jvps), BDF2 at (x^, v^).
+    // (StepDerivatives::actuation_jvps), BDF2 at (x^, v^). Rigidified parts (issue 21):
+    // their reduced solve and exact placement are jvp()'s (rigidify_derivatives.hpp), so
+    // they take the branch below, one jvp() per column (each one solve with the step's
+    // factor through the parts' Schur complement).
     if (!derivatives_->actuation_jvps(model, data_, data_.hat, prediction_, directions_, dx_columns_)) return failed;
     for (Eigen::Index j = 0; j < nd; ++j) {
       column_ = dx_columns_.col(j);
@@ -92,7 +95,7 @@ StepStatus InverseDynamics::compute(const Model& model, const State& s, long k, 
     }
   } else {
     // Contact: the tangent goes through the NCP's modes (the mode-fixed system, the
-    // contact forces' tangent for J_c), one jvp() per column.
+    // contact forces' tangent for J_c), one jvp() per column; rigidified parts too.
     integrator::StepTangent t;
     integrator::StateTangent r;
     for (Eigen::Index j = 0; j < nd; ++j) {

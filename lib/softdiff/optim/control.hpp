@@ -25,7 +25,9 @@
 // tangent in and go through the one NCP with the rigid blocks, so J_a and J_c see the
 // rigid bodies' response (an object pushed or held by the effector's body). The caller
 // refuses what the step's derivative does not cover (app/theta.cpp: BDF2 with rigid
-// bodies, a limited joint in contact, rigidified parts).
+// bodies, a limited joint in contact, rigidified parts beyond implicit Euler with one
+// Newton iteration on the dense backend). Rigidified parts: J_a by one jvp() per
+// actuation column (the reduced step's tangent with the parts' placement).
 #include <softdiff/core/types.hpp>
 #include <softdiff/data.hpp>
 #include <softdiff/integrator/implicit_euler_derivatives.hpp>
