@@ -54,9 +54,9 @@
 //
 // Allocation: every buffer of ADMM and PGS lives in the Workspace and is sized when
 // the problem size changes (Eigen resizes are no-ops at equal size); the iterations
-// allocate nothing. The polish sizes its dense system by the number of active
-// contacts, so it may allocate when that number changes (once per solve, not per
-// iteration); so may the working set when it grows (its reduced G_W, once per round),
+// allocate nothing. The polish and the semismooth Newton stage size their dense
+// systems by the number of active contacts, so they may allocate when that number
+// changes (per solve or Newton step, never per contact); so may the working set when it grows (its reduced G_W, once per round),
 // and the operator path's stall fallback (its dense G_CC, once per round).
 
 namespace softdiff::contact {
@@ -239,6 +239,14 @@ struct Buffers {
   std::vector<double> gnn;       // (nc) G_NN,i where known (dense G_W), else the power-iteration scale
   std::vector<int> ids_c;        // the candidate set of the operator's stall fallback, ascending
   std::vector<char> in_c;        // (nc) its membership
+  // semismooth Newton (newton_alart_curnier())
+  VecX ac_l, ac_s, ac_F, ac_d, ac_Gd, ac_lt, ac_st, ac_Ft, ac_best_l, ac_best_s;  // (n)
+  VecX ac_rho;                   // (nc) rho_i = 1 / G_NN,i
+  std::vector<Mode> ac_modes;    // (nc) the modes of the current iterate (breaking: y_N <= 0)
+  std::vector<int> ac_active;    // its non-breaking contacts
+  std::vector<Eigen::Matrix<double, 3, 3>> ac_E, ac_R;  // (nc) rows of J: E on the own contact, R on sigma's rows
+  MatX ac_J;                     // (3 na x 3 na)
+  VecX ac_rhs, ac_du;            // (3 na)
 
   void resize(Eigen::Index n) {
     if (x.size() == n) return;
@@ -247,8 +255,14 @@ struct Buffers {
     in_set.resize(static_cast<std::size_t>(n / 3));
     in_c.resize(static_cast<std::size_t>(n / 3));
     for (VecX* v : {&x, &y, &z, &s, &rhs, &x_prev, &y_prev, &power, &d3, &d3_sqrt_inv, &lambda_best, &lambda_p, &sigma_p, &lambda_kept,
-                     &sigma_kept, &gw, &lw, &sw, &lambda_alt, &sigma_alt})
+                     &sigma_kept, &gw, &lw, &sw, &lambda_alt, &sigma_alt, &ac_l, &ac_s, &ac_F, &ac_d, &ac_Gd, &ac_lt, &ac_st,
+                     &ac_Ft, &ac_best_l, &ac_best_s})
       v->resize(n);
+    ac_rho.resize(n / 3);
+    ac_modes.resize(static_cast<std::size_t>(n / 3));
+    ac_active.reserve(static_cast<std::size_t>(n / 3));
+    ac_E.resize(static_cast<std::size_t>(n / 3));
+    ac_R.resize(static_cast<std::size_t>(n / 3));
   }
 };
 
@@ -831,6 +845,201 @@ void polish_if_small(Buffers& w, const Problem& p, const NcpOptions& options, Ve
     result.polished = true;
 }
 
+// Semismooth Newton on the Alart-Curnier function (Alart & Curnier 1991; the
+// generalized Newton method of Christensen, Klarbring, Pang & Stroemberg 1998; one of
+// the solvers compared in Acary, Bremond & Huber 2018, "On solving contact problems
+// with Coulomb friction: formulations and numerical comparisons"). Per contact, with
+// sigma = G lambda + g, rho_i = 1 / G_NN,i (a compliance: y is a force),
+//   y_N = lambda_N - rho sigma_N,   y_T = lambda_T - rho sigma_T,   r = mu max(0, y_N),
+//   F_N = lambda_N - max(0, y_N),   F_T = lambda_T - P_{disk r}(y_T).
+// F(lambda) = 0 is Coulomb's law with the Signorini condition (the fixed points of
+// PGS, the solutions of the De Saxce NCP), so the stopping rule and the residuals are
+// the NCP's (residuals_of), unchanged. F is piecewise smooth (strongly semismooth); on
+// each piece, with the contact's "mode" read from y (not from thresholds on lambda or
+// sigma):
+//   breaking  y_N <= 0:        F_i = lambda_i                      (dF = e_i)
+//   sticking  ||y_T|| <= r:    F_i = rho sigma_i                   (dF = rho G_i,:)
+//   sliding   ||y_T|| > r:     F_N = rho sigma_N,  F_T = lambda_T - r t, t = y_T / ||y_T||,
+//      dF_T = [(I - P), -mu t] e_i + rho [P, mu t] G_i,:,  P = (r / ||y_T||)(I - t t^T).
+// The sliding rows' curvature is r / ||y_T|| = mu y_N / (mu y_N + rho ||sigma_T||) <= 1:
+// bounded where the polish's mode equations grow like mu lambda_N / ||sigma_T|| (a slowly
+// sliding contact), and continuous across the stick/slip boundary ||y_T|| = r, where the
+// polish must guess a mode; a contact whose state the iterate gets slightly wrong is in
+// the neighbouring piece of the same function, not a wrong equation. Each row of J is
+// E_i (on the own contact) + R_i G_i,: (3 x 3 blocks E_i, R_i). The breaking contacts'
+// step is d_i = -lambda_i exactly; the others' solves the (3 na) system
+//   (E_A + R_A G_AA) d_A = -F_A - R_A G_A,B d_B
+// by LU where well conditioned, else by the complete orthogonal decomposition (the
+// minimum-norm least-squares step: two near-coincident contacts make J singular), as in
+// polish(). Globalized by a backtracking line search on the merit 1/2 ||F||^2 (Armijo,
+// halving). Runs from the best iterate so far (after the solver and the polish); the
+// best iterate by the NCP residuals is kept, in place of lambda/sigma, if it is below
+// `residuals` (updated). Returns the Newton steps taken.
+constexpr int newton_ac_max_steps = 30;
+constexpr int newton_ac_max_halvings = 30;
+constexpr double newton_ac_armijo = 1e-4;
+// The stage ends when the best NCP residual has not decreased for this many steps (a
+// stall at a stationary point of the merit that is not a solution; measured on the
+// grip and pads_lift: such runs never recovered later, docs/method.md).
+constexpr int newton_ac_stall_steps = 8;
+int newton_alart_curnier(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma, NcpResiduals& residuals) {
+  const int nc = p.nc;
+  const Eigen::Index n = 3 * static_cast<Eigen::Index>(nc);
+  if (nc == 0) return 0;
+  auto l = w.ac_l.head(n), s = w.ac_s.head(n), F = w.ac_F.head(n), d = w.ac_d.head(n), Gd = w.ac_Gd.head(n);
+  auto lt = w.ac_lt.head(n), st = w.ac_st.head(n), Ft = w.ac_Ft.head(n);
+  auto best_l = w.ac_best_l.head(n), best_s = w.ac_best_s.head(n);
+  auto rho = w.ac_rho.head(nc);
+  const double Gmax = std::max(p.G.diagonal().maxCoeff(), tiny);
+  for (int i = 0; i < nc; ++i) rho[i] = 1 / std::max(p.G(3 * i + 2, 3 * i + 2), 1e-12 * Gmax);
+  // F at (lambda, sigma); with modes: the modes and J's blocks E_i, R_i too.
+  auto evaluate = [&](const auto& lam, const auto& sig, auto&& out, bool modes) {
+    double merit = 0;
+    for (int i = 0; i < nc; ++i) {
+      const int k = 3 * i;
+      const double mu = p.mu[i], r_i = rho[i];
+      const double yN = lam[k + 2] - r_i * sig[k + 2];
+      Vec3 f;
+      Mode mode;
+      Eigen::Matrix3d E = Eigen::Matrix3d::Zero(), R = Eigen::Matrix3d::Zero();
+      if (yN <= 0) {
+        mode = Mode::breaking;
+        f = lam.template segment<3>(k);
+      } else {
+        f[2] = r_i * sig[k + 2];
+        R(2, 2) = r_i;
+        const Eigen::Vector2d yT = lam.template segment<2>(k) - r_i * sig.template segment<2>(k);
+        const double radius = mu * yN, ny = yT.norm();
+        if (ny <= radius && mu > 0) {
+          mode = Mode::sticking;
+          f.head<2>() = r_i * sig.template segment<2>(k);
+          R(0, 0) = R(1, 1) = r_i;
+        } else {
+          mode = Mode::sliding;
+          const Eigen::Vector2d t = ny > 0 ? Eigen::Vector2d(yT / ny) : Eigen::Vector2d::Zero();
+          f.head<2>() = lam.template segment<2>(k) - radius * t;
+          if (modes) {
+            const Eigen::Matrix2d P =
+                ny > 0 ? Eigen::Matrix2d((radius / ny) * (Eigen::Matrix2d::Identity() - t * t.transpose()))
+                       : Eigen::Matrix2d::Zero();
+            E.topLeftCorner<2, 2>() = Eigen::Matrix2d::Identity() - P;
+            E.block<2, 1>(0, 2) = -mu * t;
+            R.topLeftCorner<2, 2>() = r_i * P;
+            R.block<2, 1>(0, 2) = r_i * mu * t;
+          }
+        }
+      }
+      out.template segment<3>(k) = f;
+      merit += f.squaredNorm();
+      if (modes) {
+        w.ac_modes[i] = mode;
+        w.ac_E[i] = mode == Mode::breaking ? Eigen::Matrix3d::Identity() : E;
+        w.ac_R[i] = R;
+      }
+    }
+    return 0.5 * merit;
+  };
+  l = lambda;
+  s = sigma;
+  best_l = l;
+  best_s = s;
+  NcpResiduals best = residuals_of(l, s, p.mu, p.vscale);
+  const NcpResiduals start = best;
+  double merit = evaluate(l, s, F, true);
+  int steps = 0, since_best = 0;
+  for (; steps < newton_ac_max_steps && best.max() > p.tolerance; ++steps) {
+    if (!std::isfinite(merit) || merit == 0) break;
+    // The step: d_B = -lambda_B on the breaking contacts, then the active system.
+    w.ac_active.clear();
+    d.setZero();
+    Gd.setZero();
+    for (int i = 0; i < nc; ++i) {
+      if (w.ac_modes[i] != Mode::breaking) {
+        w.ac_active.push_back(i);
+        continue;
+      }
+      d.segment<3>(3 * i) = -l.segment<3>(3 * i);
+      if (d.segment<3>(3 * i).squaredNorm() > 0) Gd.noalias() += p.G.middleCols<3>(3 * i) * d.segment<3>(3 * i);
+    }
+    const int na = static_cast<int>(w.ac_active.size());
+    const Eigen::Index m = 3 * static_cast<Eigen::Index>(na);
+    if (na > 0) {
+      w.ac_J.resize(m, m);
+      w.ac_rhs.resize(m);
+      for (int a = 0; a < na; ++a) {
+        const int i = w.ac_active[a];
+        const Eigen::Matrix3d& R = w.ac_R[i];
+        for (int b = 0; b < na; ++b)
+          w.ac_J.block<3, 3>(3 * a, 3 * b).noalias() = R * p.G.block<3, 3>(3 * i, 3 * w.ac_active[b]);
+        w.ac_J.block<3, 3>(3 * a, 3 * a) += w.ac_E[i];
+        w.ac_rhs.segment<3>(3 * a) = -F.segment<3>(3 * i) - R * Gd.segment<3>(3 * i);
+      }
+      bool lu_ok = false;
+      if (!w.polish_singular) {
+        w.lu.compute(w.ac_J);
+        ++w.polish_lu;
+        lu_ok = w.lu.rcond() > polish_lu_rcond;
+      }
+      if (lu_ok) {
+        w.ac_du = w.lu.solve(w.ac_rhs);
+      } else {
+        w.cod.setThreshold(1e-13);
+        w.cod.compute(w.ac_J);
+        w.polish_singular = true;
+        w.ac_du = w.cod.solve(w.ac_rhs);
+      }
+      ++w.polish_factorizations;
+      if (!w.ac_du.allFinite()) break;
+      for (int a = 0; a < na; ++a) {
+        const int i = w.ac_active[a];
+        d.segment<3>(3 * i) = w.ac_du.segment<3>(3 * a);
+        Gd.noalias() += p.G.middleCols<3>(3 * i) * w.ac_du.segment<3>(3 * a);
+      }
+    }
+    // The merit's directional derivative F . J d (J d = E d + R G d per contact): -2 merit
+    // for an exact Newton step, -|F projected on J's range|^2 for the least-squares one.
+    double slope = 0;
+    for (int i = 0; i < nc; ++i)
+      slope += F.segment<3>(3 * i).dot(w.ac_E[i] * d.segment<3>(3 * i) + w.ac_R[i] * Gd.segment<3>(3 * i));
+    // Backtracking on the merit (sigma is affine in lambda: sigma + alpha G d).
+    double alpha = 1, trial = infinity;
+    bool accepted = false;
+    if (slope < 0)
+      for (int half = 0; half <= newton_ac_max_halvings; ++half, alpha *= 0.5) {
+        lt = l + alpha * d;
+        st = s + alpha * Gd;
+        trial = evaluate(lt, st, Ft, false);
+        if (trial <= merit + newton_ac_armijo * alpha * slope) {
+          accepted = true;
+          break;
+        }
+      }
+    // No descent along the Newton direction (a kink of F, or a stationary point of the
+    // merit that is not a solution): the stage ends with the best iterate so far.
+    if (!accepted) break;
+    l = lt;
+    s.noalias() = p.G * l;  // exact sigma (no drift from the affine updates)
+    s += p.g;
+    merit = evaluate(l, s, F, true);
+    const NcpResiduals r = residuals_of(l, s, p.mu, p.vscale);
+    if (r.max() < best.max()) {
+      best = r;
+      best_l = l;
+      best_s = s;
+      since_best = 0;
+    } else if (++since_best >= newton_ac_stall_steps) {
+      ++steps;
+      break;
+    }
+  }
+  if (best.max() < start.max() && best.max() < residuals.max()) {
+    lambda = best_l;
+    sigma = best_s;
+    residuals = best;
+  }
+  return steps;
+}
+
 // ADMM (when it stalls: the polish, then PGS from there) or PGS on p, then the polish.
 NcpResult solve_core(Buffers& w, const Problem& p, const NcpOptions& options, VecRef lambda, VecRef sigma,
                      std::vector<Mode>& modes) {
@@ -855,6 +1064,17 @@ NcpResult solve_core(Buffers& w, const Problem& p, const NcpOptions& options, Ve
     }
   }
   if (!polish_done) polish_if_small(w, p, options, lambda, sigma, modes, result);
+  // The semismooth Newton stage where the solver and the polish missed the tolerance
+  // (newton_alart_curnier(); the same size limit as the polish: its system is dense).
+  const int active = p.nc - static_cast<int>(std::count(modes.begin(), modes.end(), Mode::breaking));
+  if (options.polish && result.residuals.max() > p.tolerance && active <= options.polish_max_active) {
+    const double before = result.residuals.max();
+    newton_alart_curnier(w, p, lambda, sigma, result.residuals);
+    if (result.residuals.max() < before) {
+      result.polished = true;
+      classify(p, lambda, sigma, modes);
+    }
+  }
   return result;
 }
 
