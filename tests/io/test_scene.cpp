@@ -939,7 +939,7 @@ TEST_F(Scene, RigidBodyErrors) {
 
 TEST_F(Scene, RigidBodiesRefuseWhatIsNotSupportedYet) {
   // Contact with rigid bodies (docs/method.md "Rigid bodies in contact"): newton_iterations
-  // > 1 and a rigid self-pair are refused. A joint with limits is accepted on either
+  // > 1 with bdf2 and a rigid self-pair are refused. A joint with limits is accepted on either
   // backend (issue 21: the limit is a row of the contact NCP, on the operator columns of
   // its rigid rows; the sparse backend refused it before).
   const SceneDesc limited = load(kRigid + "contact: {friction: 0.5}\n");
@@ -956,9 +956,15 @@ TEST_F(Scene, RigidBodiesRefuseWhatIsNotSupportedYet) {
     const std::string message = error(text, {});
     EXPECT_NE(message.find(part), std::string::npos) << message;
   };
-  expect_message(edit("  dt: 0.01\n", "  dt: 0.01\n  newton_iterations: 2\n", free_key) + "contact: {friction: 0.5}\n",
-                 "contact: contact with rigid bodies and simulation.newton_iterations > 1 is not supported yet (issue "
-                 "21; bodies[1] is rigid): use newton_iterations: 1");
+  // newton_iterations > 1: accepted with implicit Euler (docs/method.md "Newton with rigid
+  // contact"), refused with bdf2.
+  EXPECT_EQ(load(edit("  dt: 0.01\n", "  dt: 0.01\n  newton_iterations: 2\n", free_key) + "contact: {friction: 0.5}\n")
+                .simulation.newton_iterations,
+            2);
+  expect_message(edit("  dt: 0.01\n", "  dt: 0.01\n  newton_iterations: 2\n  integrator: bdf2\n", free_key) +
+                     "contact: {friction: 0.5}\n",
+                 "contact: contact with rigid bodies and simulation.newton_iterations > 1 is supported with "
+                 "implicit_euler only (issue 21; bodies[1] is rigid): use implicit_euler or newton_iterations: 1");
   // The sparse backend takes rigid bodies (SparseDelassus::set_rigid): accepted.
   EXPECT_EQ(load(free_key + "contact: {friction: 0.5, backend: sparse}\n").contact.backend, ContactDesc::Backend::sparse);
   expect_message(free_key + "contact: {pairs: [[key, key, 0.5]]}\n", "a rigid body has no self-contact ('key')");

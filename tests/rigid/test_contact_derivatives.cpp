@@ -392,6 +392,21 @@ TEST_P(RigidContactDerivativesOnBackend, HingedBarAndSliderOnSupports) {
 INSTANTIATE_TEST_SUITE_P(, RigidContactDerivativesOnBackend, ::testing::Values(Backend::sparse, Backend::op),
                          [](const ::testing::TestParamInfo<Backend>& p) { return backend_name(p.param); });
 
+// Newton (newton_iterations 8, docs/method.md "Newton with rigid contact") on the sparse
+// backend: the implicit function theorem at the converged step (G_AA with the converged
+// tangent A_f plus the rigid rows h Kt^T Kt), the cube landing on the soft slab. Newton
+// converges to newton_tolerance 1e-12 (1e-14 is below the equations' round-off floor,
+// measured 1.0e-12 relative): its error on the outputs, ~1e-12 of |v| ~ 0.1 m/s, divided
+// by eps = 5e-9 is ~2e-5 against max |FD| ~4e3, 5e-9 relative, far below tol; eps and
+// tol otherwise as CubeOnASoftSlab.
+TEST(RigidContactStepDerivatives, NewtonCubeOnASoftSlab) {
+  State in;
+  Model model = on_backend(cube_scene(in), Backend::sparse);
+  model.step.newton_iterations = 20;
+  model.step.newton_tolerance = 1e-12;
+  check_step(model, in, 5e-9, 1e-5);
+}
+
 }  // namespace rigid_contact_derivatives_test
 
 namespace rigid_contact_derivatives_test {

@@ -236,12 +236,19 @@ bool StepDerivatives::prepare_rigid(const Model& model, const Data& data, const 
                                     const VecX& rigid, const VecX& rigid_p) {
   if (!model.contact.with_rigid()) return false;
   const auto R = static_cast<Eigen::Index>(model.rigid.size());
-  SOFTDIFF_DEMAND(!is_newton(model) && data.history_weight == 0,
-                  "step derivatives: rigid bodies in contact are differentiated for implicit_euler with "
-                  "newton_iterations 1 only (the step supports nothing else)");
+  SOFTDIFF_DEMAND(data.history_weight == 0,
+                  "step derivatives: rigid bodies in contact are differentiated for implicit_euler only");
   demand_size(rigid, 12 * R, "rigid tangent");
   demand_size(rigid_p, 7 * R, "rigid parameter tangent");
   rigid_.prepare(model, data, out.rigid, h);
+  // Newton (docs/method.md "Newton with rigid contact"): the implicit function theorem at
+  // v_f recomputes G_AA with the converged tangent A_f (prepare_contact), plus the rigid
+  // rows h Kt_A^T Kt_A, which only the sparse backend's record has (Kt); the dense
+  // record's G, and the limit rows' extended G built from it, are the last Newton
+  // factorization's, one iterate earlier (issue 21).
+  SOFTDIFF_DEMAND(!is_newton(model) || (data.contact.G.rows() == 0 && rigid_.limit_rows() == 0),
+                  "step derivatives: newton_iterations > 1 with rigid bodies in contact are differentiated on the "
+                  "sparse contact backend without joint limits in the contact solve only (issue 21)");
   return true;
 }
 
