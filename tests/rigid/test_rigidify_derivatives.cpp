@@ -281,6 +281,50 @@ TEST(RigidifyDerivatives, PartInContactMatchesCentralDifferences) {
   check_dot_product(model, in, true);
 }
 
+// StepDerivatives::actuation_jvps with a part (control's path: the actuation columns of
+// dx_f, no contact): the servo-attached tip plus a cable anchored in the tip (two
+// columns), after 5 steps (the tip turning). Against one jvp() per column (the same
+// reduced solve on the same factor and the same placement tangent: round-off, 1e-12
+// relative per column) and against central differences of the step in each actuator
+// (1e-5 of the largest tension; the placement's exp makes the step non-affine in lambda:
+// truncation O(eps^2) ~1e-10, round-off ~1e-16 |x| / eps ~1e-9 relative: tolerance 1e-6
+// as the blocks above).
+TEST(RigidifyDerivatives, ActuationJvpsMatchJvpAndCentralDifferences) {
+  const Model model =
+      load("actuation_jvps", kServoTip + "      - {name: pull, type: cable, points: [[0.19, 0.02, 0.015], "
+                                         "[0.01, 0.02, 0.015]], force: 0.01}\n");
+  const auto na = static_cast<Eigen::Index>(model.actuation.actuators.size());
+  ASSERT_EQ(na, 2);
+  const Eigen::Index n = 3L * model.fem.num_nodes;
+  const State in = advance(model, 5);
+  Data data(model);
+  State out;
+  ASSERT_TRUE(integrator::implicit_euler_step(model, data, in, out, 1).ok());
+  const VecX lambda0 = data.lambda_a;
+  integrator::StepDerivatives D(model, {});
+  const MatX directions = MatX::Identity(na, na);
+  MatX dx;
+  ASSERT_TRUE(D.actuation_jvps(model, data, in, out, directions, dx));
+  ASSERT_EQ(dx.rows(), n);
+  ASSERT_EQ(dx.cols(), na);
+  const double eps = 1e-5 * lambda0.cwiseAbs().maxCoeff();
+  for (Eigen::Index j = 0; j < na; ++j) {
+    StepTangent t;
+    t.lambda_a = directions.col(j);
+    StateTangent r;
+    ASSERT_TRUE(D.jvp(model, data, in, out, t, r));
+    ASSERT_GT(r.x.norm(), 0);
+    const double solve_error = (dx.col(j) - r.x).norm() / r.x.norm();
+    std::cout << "[rigidify derivatives] actuation_jvps column " << j << " against jvp(): " << solve_error << "\n";
+    EXPECT_LE(solve_error, 1e-12) << "column " << j;
+    VecX lp = lambda0, lm = lambda0;
+    lp[j] += eps;
+    lm[j] -= eps;
+    const VecX fd = (step_output(model, in, &lp) - step_output(model, in, &lm)).head(n) / (2 * eps);
+    expect_close(dx.col(j), fd, 1e-6, "actuation_jvps column " + std::to_string(j));
+  }
+}
+
 // Forward sensitivities over 10 steps (young, two x0 and one v0 direction) against
 // central differences of the whole run, and the adjoint's gradient of
 // l = w_x . x_T + w_v . v_T against the forward sensitivities.

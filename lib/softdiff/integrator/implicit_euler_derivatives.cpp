@@ -385,12 +385,33 @@ bool StepDerivatives::actuation_jvps(const Model& model, const Data& data, const
                                             std::to_string(dlambda.rows()));
   SOFTDIFF_DEMAND(!(model.contact.enabled && !data.contact.contacts.empty()),
                   "actuation_jvps: the step has contacts (their tangent goes through the NCP's modes: jvp() per column)");
-  SOFTDIFF_DEMAND(model.rigidify.empty(), "actuation_jvps: rigidified parts are not covered (issue 21; jvp() per column)");
   const double h = step_size(model, data);
   set_step_size(model, h);
-  LinearSolver* solver = system(model, data, out);
+  const bool parts = !model.rigidify.empty();
+  if (parts) {
+    // Rigidified parts: per column the reduced solve (one solve with the step's factor,
+    // rigidify_derivatives.hpp; dx_i = 0, so no dP terms) and the placement's tangent.
+    demand_parts_supported(model, data);
+    parts_.prepare(model, data, in, out, h);
+  }
+  LinearSolver* solver = system(model, data, parts ? parts_.solve_state() : out);
   if (!solver) return false;
   const Eigen::Index k = dlambda.cols();
+  if (parts) {
+    dx_out.resize(n, k);
+    for (Eigen::Index j = 0; j < k; ++j) {
+      lambda_column_ = dlambda.col(j);
+      r_.setZero();
+      model.actuation.add_forces(in.x, lambda_column_, h, r_);
+      project(model, r_);
+      if (!parts_.solve(model, data, r_, false, y_)) return false;
+      project(model, y_);  // dv~ (dv_i = 0)
+      tmp_ = h * y_;
+      parts_.place_jvp(model, zero_, tmp_, y_);  // the parts' rows of dx_f
+      dx_out.col(j) = tmp_;
+    }
+    return dx_out.allFinite();
+  }
   rhs_columns_.resize(n, k);  // no allocation when k and n are those of the last call
   for (Eigen::Index j = 0; j < k; ++j) {
     // jvp()'s right-hand side with only d.lambda_a: Pi h H_a(x_i)^T dlambda_j.

@@ -64,7 +64,8 @@
 // evaluated at the solve's velocity v~ (before the placement), the arms' dependence on
 // x_i adds the dP terms, and the placement's derivative maps (x_i, v~) to the output.
 // Implicit Euler with one Newton iteration, with or without contact (the record's G),
-// without rigid bodies in contact; actuation_jvps() refuses parts (one jvp() per column).
+// without rigid bodies in contact; actuation_jvps() with parts: per column the reduced
+// solve on the step's factor and the placement's tangent (no contact in the record).
 //
 // Not covered yet (SOFTDIFF_DEMAND with a message): the static integrator (see
 // static_solver_derivatives.hpp), newton_iterations > 1 with psd_projection, friction

@@ -82,12 +82,10 @@ StepStatus InverseDynamics::compute(const Model& model, const State& s, long k, 
     directions_.setOnes(na, 1);
   else
     directions_.setIdentity(na, na);
-  if (!(model.contact.enabled && !data_.contact.contacts.empty()) && model.rigidify.empty()) {
+  if (!(model.contact.enabled && !data_.contact.contacts.empty())) {
     // No contact in the record: all nd columns in one solve with nd right-hand sides
-    // (StepDerivatives::actuation_jvps), BDF2 at (x^, v^). Rigidified parts (issue 21):
-    // their reduced solve and exact placement are jvp()'s (rigidify_derivatives.hpp), so
-    // they take the branch below, one jvp() per column (each one solve with the step's
-    // factor through the parts' Schur complement).
+    // (StepDerivatives::actuation_jvps), BDF2 at (x^, v^); rigidified parts included (the
+    // reduced solve and the placement's tangent per column, rigidify_derivatives.hpp).
     if (!derivatives_->actuation_jvps(model, data_, data_.hat, prediction_, directions_, dx_columns_)) return failed;
     for (Eigen::Index j = 0; j < nd; ++j) {
       column_ = dx_columns_.col(j);
