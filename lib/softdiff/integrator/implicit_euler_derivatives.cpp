@@ -236,9 +236,9 @@ bool StepDerivatives::prepare_rigid(const Model& model, const Data& data, const 
                                     const VecX& rigid, const VecX& rigid_p) {
   if (!model.contact.with_rigid()) return false;
   const auto R = static_cast<Eigen::Index>(model.rigid.size());
-  SOFTDIFF_DEMAND(!is_newton(model) && data.history_weight == 0,
-                  "step derivatives: rigid bodies in contact are differentiated for implicit_euler with "
-                  "newton_iterations 1 only (the step supports nothing else)");
+  // BDF2 (data.history_weight != 0): the stage from the extrapolated states with h' = data.h.
+  SOFTDIFF_DEMAND(!is_newton(model), "step derivatives: rigid bodies in contact are differentiated with "
+                                     "newton_iterations 1 only (the step supports nothing else)");
   demand_size(rigid, 12 * R, "rigid tangent");
   demand_size(rigid_p, 7 * R, "rigid parameter tangent");
   rigid_.prepare(model, data, out.rigid, h);
