@@ -205,10 +205,14 @@ INSTANTIATE_TEST_SUITE_P(, RigidBdf2ContactTrajectoryDerivatives, ::testing::Val
 // A rigid cube (0.02 m, 500 kg/m^3) landing at 0.3 m/s on a soft slab (4 x 4 x 1 boxes of
 // tets, bottom fixed), as test_contact_derivatives.cpp's CubeOnASoftSlab: the slab's top
 // vertices against the cube's bottom faces and its corners against the slab's top faces.
-// 10 steps of 2 ms from 0.3 mm above the slab. The soft part of the x0 direction is scaled
-// by 1e-3 (a unit soft direction deforms every element: its curvature needed eps = 5e-9
-// in one step); eps 1e-7 for x0 and v0, 1e-6 for the parameters; tol 1e-5.
-TEST(RigidBdf2ContactTrajectoryDerivatives, CubeOnASoftSlab) {
+// 4 steps of 2 ms from 0.3 mm above the slab (in contact from the first to the last; over
+// 10 steps it bounces off). The soft part of the x0 direction is scaled by 1e-3 (a unit
+// soft direction deforms every element: its curvature needed eps = 5e-9 in one step);
+// eps 1e-7 for x0 and v0; 1e-4 for the parameters: the 4 g cube's inertia moves the
+// final state by ~3e-5 per unit of its scale, and the NCP's 1e-12 tolerance makes a
+// difference noise of ~1e-12 / eps (measured 4.4e-8 at eps = 1e-6, above 1e-5 relative);
+// at 1e-4 it is 1e-8, the truncation eps^2 ~1e-8 relative. tol 1e-5.
+TEST(RigidBdf2ContactTrajectory, CubeOnASoftSlab) {
   test::BodySpec spec;
   spec.young = 5e4;
   spec.poisson = 0.4;
@@ -226,7 +230,7 @@ TEST(RigidBdf2ContactTrajectoryDerivatives, CubeOnASoftSlab) {
   test::enable_rigid_contact(model, {}, {{"body", "cube", 0.5}}, 1e-3, tight());
   model.contact.ncp.backend = contact::NcpBackend::dense;
   model.step.integrator = IntegratorKind::bdf2;
-  check_trajectory(model, 10, 7, {1e-7, 1e-7, 1e-6, 1e-6}, 1e-5, 3, 1e-3);
+  check_trajectory(model, 4, 7, {1e-7, 1e-7, 1e-4, 1e-4}, 1e-5, 3, 1e-3);
 }
 
 }  // namespace rigid_bdf2_contact_derivatives_test

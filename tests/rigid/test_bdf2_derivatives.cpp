@@ -87,7 +87,9 @@ void check(const Case& c, bool want_bdf2) {
   bdf2_step_jacobian(c.body, c.in, &c.previous, c.restart, hat, out, info, c.h, c.g, J);
   ASSERT_EQ(J.bdf2, want_bdf2);
   ASSERT_TRUE(J.state.allFinite() && J.previous.allFinite() && J.params.allFinite());
-  if (!want_bdf2) EXPECT_EQ(J.previous.norm(), 0.0);
+  if (!want_bdf2) {
+    EXPECT_EQ(J.previous.norm(), 0.0);
+  }
   const double eps = 1e-6, tol = 1e-6;
   for (int side = 0; side < 2; ++side)
     for (int j = 0; j < 12; ++j) {
@@ -132,8 +134,8 @@ TEST(RigidBdf2StepDerivatives, FreeSpinningBodyWithHistory) {
   const RigidState out = bdf2_of(c, c.body, c.in, c.previous, &info, &hat);
   Bdf2StepJacobian J;
   bdf2_step_jacobian(c.body, c.in, &c.previous, false, hat, out, info, c.h, c.g, J);
-  EXPECT_GT(J.previous.block<3, 3>(3, 3).norm(), 0.1);
-  EXPECT_GT(J.previous.block<3, 3>(9, 9).norm(), 0.1);
+  EXPECT_GT((J.previous.block<3, 3>(3, 3).norm()), 0.1);
+  EXPECT_GT((J.previous.block<3, 3>(9, 9).norm()), 0.1);
 }
 
 TEST(RigidBdf2StepDerivatives, FreeBodySlowSpin) {
