@@ -134,7 +134,7 @@ int run_control(const ControlOptions& o, const std::string& command_line) {
   for (const auto& w : report.warnings) warn(w);
   // Rigid bodies (issue 21): their state is the step's input, not controlled; the step's
   // derivative goes through rigid contact. parse_theta below refuses what it does not
-  // cover (bdf2 with rigid bodies, a limited joint in contact, rigidified parts beyond
+  // cover (a limited joint in contact on the sparse backend, rigidified parts beyond
   // implicit Euler with one Newton iteration on the dense backend).
   if (model.step.integrator == IntegratorKind::static_equilibrium)
     throw InputError("control: the scene's integrator must be implicit_euler or bdf2 (inverse dynamics is per time step)");

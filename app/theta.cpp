@@ -40,10 +40,9 @@ void demand_differentiable(const std::string& option, const Model& model) {
       throw InputError(option + ": derivatives with rigidified parts and rigid bodies in contact are not supported "
                                 "yet (issue 21; " + part + ")");
   }
-  // BDF2 with rigid bodies steps (rigid/rigid_bdf2.hpp) but is not differentiated yet.
-  if (model.step.integrator == IntegratorKind::bdf2 && !model.rigid.empty())
-    throw InputError(option + ": derivatives with bdf2 and rigid bodies are not supported yet (issue 21; rigid body '" +
-                     model.rigid.front().name + "'): use implicit_euler");
+  // BDF2 with rigid bodies (rigid/rigid_bdf2_derivatives.hpp): differentiated as implicit
+  // Euler is, with and without contact (the scene reader refuses bdf2 with a limited joint
+  // in contact).
   // Issue 21, item 4: the rigid step is differentiated with and without contact, a
   // joint limit's rows in the contact solve included (contact/rigid_contact_derivatives.hpp).
   // The limit rows' derivative rebuilds the dense extended G (prepare_limits); the

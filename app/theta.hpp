@@ -30,8 +30,8 @@ struct ThetaSelection {
 // psd_projection; a static scene with psd_projection, a pressure cavity or a rotation
 // servo; x0, v0 for a static scene), naming the option.
 // parse_theta differentiates rigid bodies with and without contact, joint limits in
-// contact included (on the dense contact backend); it refuses (issue 21) bdf2 with
-// rigid bodies, and limits in contact on contact.backend: sparse.
+// contact included (on the dense contact backend), under implicit_euler and bdf2; it
+// refuses (issue 21) limits in contact on contact.backend: sparse.
 
 // The name of row k (0..5) of rigid body `body`'s block of a state's rows (output.md's
 // /jacobians rows): "x[key].x" ... "x[key].rz" (position, rotation vector) or

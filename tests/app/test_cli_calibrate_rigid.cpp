@@ -227,8 +227,7 @@ TEST(CliCalibrateRigid, BadInputExitsTwoWithoutOutput) {
        "no_orientation.h5: /bodies/pendulum/position without /bodies/pendulum/orientation"},
       {"scene.yaml", "--param pendulum.mass --target scaled.h5",
        "scaled.h5: /bodies/pendulum/orientation: frame 0 is not a unit quaternion (norm 1.01)"},
-      {"scene.yaml", "--param pendulum.mass --target target.h5 --set simulation.integrator=bdf2",
-       "--param: derivatives with bdf2 and rigid bodies are not supported yet (issue 21"},
+      // bdf2 with rigid bodies is differentiated since issue 21's rbd2 (no refusal).
   };
   for (const Case& c : cases) {
     const CliRun r = run_cli("calibrate " + c.scene + " " + c.args + " -o out.h5", dir);

@@ -377,8 +377,8 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
        "derivatives with newton_iterations > 1 and rigid bodies in contact are not supported yet (issue 21"},
       {"contact_rigid_self", beam_and_sphere("", plane + "contact: {pairs: [[ball, ball, 0.3]]}\n"),
        "simulate scene.yaml -o out.h5", "a rigid body has no self-contact ('ball')"},
-      {"bdf2_jacobian", beam_and_sphere(), "simulate scene.yaml -o out.h5 --set simulation.integrator=bdf2 --jacobian x0",
-       "--jacobian: derivatives with bdf2 and rigid bodies are not supported yet (issue 21; rigid body 'ball')"},
+      // bdf2 with rigid bodies is differentiated since issue 21's rbd2
+      // (test_cli_rigid_derivatives.cpp CheckGradUnderBdf2).
       // static with rigid bodies (Cli.RigidBodyRestsStatically): a body with dofs needs
       // contact; joint limits and derivatives are refused.
       {"static", beam_and_sphere(),

@@ -60,7 +60,7 @@ void RigidContactDerivative::prepare(const Model& model, const Data& data, const
     const auto& in = rd.in[r];
     const auto& fr = rd.free[r];
     rigid::StepJacobian J;
-    rigid::step_jacobian(body, in, fr, data.rigid[r], model.step.dt, model.step.gravity, Vec3::Zero(), J);
+    rigid::step_jacobian(body, in, fr, data.rigid[r], h, model.step.gravity, Vec3::Zero(), J);
     B.Jf << J.state, J.params;
     // A limited hinge or slider: u_free is the free step WITHOUT its limits
     // (begin_rigid_contact), so du_free is that step's Jacobian (Ju); W keeps the clamped
@@ -72,10 +72,10 @@ void RigidContactDerivative::prepare(const Model& model, const Data& data, const
       const rigid::RigidState* f = &fr;
       rigid::RigidState unclamped;
       if (body.joint.limits && (hinge || body.joint.kind == rigid::Joint::Kind::slider)) {
-        const rigid::StepInfo info = rigid::step(body, in, model.step.dt, model.step.gravity, Vec3::Zero(),
+        const rigid::StepInfo info = rigid::step(body, in, h, model.step.gravity, Vec3::Zero(),
                                                  Vec3::Zero(), unclamped, false);
         rigid::StepJacobian JU;
-        rigid::step_jacobian(body, in, unclamped, info, model.step.dt, model.step.gravity, Vec3::Zero(), JU);
+        rigid::step_jacobian(body, in, unclamped, info, h, model.step.gravity, Vec3::Zero(), JU);
         Ju << JU.state, JU.params;
         f = &unclamped;
       }

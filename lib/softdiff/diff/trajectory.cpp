@@ -84,6 +84,8 @@ ForwardSensitivity::ForwardSensitivity(const Model& model, ThetaLayout theta)
     : theta_(std::move(theta)), step_(std::make_unique<integrator::StepDerivatives>(model, theta_.parameters)) {
   const Eigen::Index n = num_rows(model), k = theta_.size(model);
   rigid_jacobian_.resize(model.rigid.size());
+  previous_rigid_.resize(model.rigid.size());
+  restart_.assign(model.rigid.size(), 0);
   for (const auto& p : theta_.rigid_parameters)
     SOFTDIFF_DEMAND(p.body >= 0 && p.body < static_cast<int>(model.rigid.size()) && p.index >= 0 &&
                         p.index < rigid::kRigidParameters,
@@ -113,16 +115,33 @@ bool ForwardSensitivity::advance(const Model& model, const Data& data, const Sta
   // rows through the one contact solve (contact/rigid_contact_derivatives.hpp). Otherwise
   // each body's 12 x 12 (and 12 x 7) step Jacobian, once per step.
   const bool coupled = model.contact.with_rigid();
-  for (std::size_t r = 0; !coupled && r < model.rigid.size(); ++r)
-    rigid::step_jacobian(model.rigid[r], in.rigid[r], out.rigid[r], data.rigid[r], model.step.dt, model.step.gravity,
-                         Vec3::Zero(), rigid_jacobian_[r]);
+  // BDF2 (data.history_weight != 0): the step also depends on the previous state, whose
+  // sensitivities are kept (one more pair of 3n x k matrices), and the rigid bodies on
+  // their previous states (kept from the last advance()).
+  const bool multistep = data.history_weight != 0;
+  if (multistep) SOFTDIFF_DEMAND(previous_dx_.cols() == dx_.cols(), "ForwardSensitivity: a BDF2 step without a previous step");
+  // Each body's Jacobian (rigid_bdf2_derivatives.hpp; implicit Euler's when not
+  // multistep). Coupled by contact, only the extrapolation's part is used: the step's JVP
+  // takes the tangent of the extrapolated state.
+  const bool rigid_bdf2 = model.step.integrator == IntegratorKind::bdf2;
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+    auto& J = rigid_jacobian_[r];
+    const rigid::RigidState* prev = multistep ? &previous_rigid_[r] : nullptr;
+    if (!coupled) {
+      rigid::bdf2_step_jacobian(model.rigid[r], in.rigid[r], rigid_bdf2 ? prev : nullptr, restart_[r] != 0,
+                                data.hat.rigid.size() == model.rigid.size() ? data.hat.rigid[r] : in.rigid[r],
+                                out.rigid[r], data.rigid[r], model.step.dt, model.step.gravity, J);
+    } else if (prev) {
+      J.bdf2 = rigid::bdf2_branch_taken(model.rigid[r], in.rigid[r], prev, restart_[r] != 0, model.step.dt,
+                                        model.step.gravity);
+      if (J.bdf2) rigid::extrapolation_jacobian(model.rigid[r], in.rigid[r], *prev, data.hat.rigid[r], J.extrapolation);
+    } else {
+      J.bdf2 = false;
+    }
+  }
   const Eigen::Index nrp = static_cast<Eigen::Index>(theta_.rigid_parameters.size());
   const Eigen::Index rp0 = nrp ? theta_.rigid_parameter_offset(model) : 0;
   const Eigen::Index np = theta_.actuation_offset(), na = theta_.actuation ? num_actuators(model) : 0;
-  // BDF2 (data.history_weight != 0): the step also depends on the previous state, whose
-  // sensitivities are kept (one more pair of 3n x k matrices).
-  const bool multistep = data.history_weight != 0;
-  if (multistep) SOFTDIFF_DEMAND(previous_dx_.cols() == dx_.cols(), "ForwardSensitivity: a BDF2 step without a previous step");
   next_dx_.resize(dx_.rows(), dx_.cols());
   next_dv_.resize(dv_.rows(), dv_.cols());
   for (Eigen::Index c = 0; c < dx_.cols(); ++c) {
@@ -143,8 +162,23 @@ bool ForwardSensitivity::advance(const Model& model, const Data& data, const Sta
         const auto& p = theta_.rigid_parameters[static_cast<std::size_t>(c - rp0)];
         t_.rigid_p = VecX::Unit(7 * nr, 7 * p.body + p.index);
       }
-      previous_.x.resize(0);
-      previous_.v.resize(0);
+      if (multistep) {
+        previous_.x = previous_dx_.col(c).head(n3);
+        previous_.v = previous_dv_.col(c).head(n3);
+        // BDF2: the tangent of the extrapolated rigid states (rigid_bdf2_derivatives.hpp).
+        for (Eigen::Index r = 0; r < nr; ++r) {
+          const auto& J = rigid_jacobian_[static_cast<std::size_t>(r)];
+          if (!J.bdf2) continue;
+          rigid::Vec12 d_prev, d_n = t_.rigid.segment<12>(12 * r);
+          d_prev << previous_dx_.col(c).segment<6>(n3 + 6 * r), previous_dv_.col(c).segment<6>(n3 + 6 * r);
+          rigid::Vec12 d_hat = J.extrapolation.in * d_n + J.extrapolation.previous * d_prev;
+          if (t_.rigid_p.size()) d_hat += J.extrapolation.params * t_.rigid_p.segment<7>(7 * r);
+          t_.rigid.segment<12>(12 * r) = d_hat;
+        }
+      } else {
+        previous_.x.resize(0);
+        previous_.v.resize(0);
+      }
       if (!integrator::multistep_jvp(*step_, model, data, out, t_, previous_, r_)) return false;
       next_dx_.col(c).head(n3) = r_.x;
       next_dv_.col(c).head(n3) = r_.v;
@@ -183,6 +217,11 @@ bool ForwardSensitivity::advance(const Model& model, const Data& data, const Sta
       d_in << dx_.col(c).segment<6>(row), dv_.col(c).segment<6>(row);
       const auto& J = rigid_jacobian_[static_cast<std::size_t>(r)];
       rigid::Vec12 d_out = J.state * d_in;
+      if (J.bdf2) {
+        rigid::Vec12 d_prev;
+        d_prev << previous_dx_.col(c).segment<6>(row), previous_dv_.col(c).segment<6>(row);
+        d_out += J.previous * d_prev;
+      }
       if (c >= rp0 && c < rp0 + nrp) {
         const auto& p = theta_.rigid_parameters[static_cast<std::size_t>(c - rp0)];
         if (p.body == r) d_out += J.params.col(p.index);
@@ -190,6 +229,10 @@ bool ForwardSensitivity::advance(const Model& model, const Data& data, const Sta
       next_dx_.col(c).segment<6>(row) = d_out.head<6>();
       next_dv_.col(c).segment<6>(row) = d_out.tail<6>();
     }
+  }
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+    previous_rigid_[r] = in.rigid[r];
+    restart_[r] = data.rigid.size() == model.rigid.size() && data.rigid[r].at_limit ? 1 : 0;
   }
   previous_dx_.swap(dx_);
   previous_dv_.swap(dv_);
@@ -237,6 +280,8 @@ StepStatus record(const Model& model, Data& data, const State& initial, long ste
   tape.lambda_a.clear();
   tape.lambda_a.reserve(static_cast<std::size_t>(steps));
   tape.warm_start.clear();
+  tape.rigid_at_limit.clear();
+  tape.rigid_at_limit.reserve(static_cast<std::size_t>(steps) * model.rigid.size());
   State next = initial;
   VecX lambda;
   for (long step = 1; step <= steps; ++step) {
@@ -252,6 +297,7 @@ StepStatus record(const Model& model, Data& data, const State& initial, long ste
     if (!st.ok()) return st;
     tape.frames.push_back(next);
     tape.lambda_a.push_back(data.lambda_a);
+    for (std::size_t r = 0; r < model.rigid.size(); ++r) tape.rigid_at_limit.push_back(data.rigid[r].at_limit ? 1 : 0);
   }
   return {};
 }
@@ -271,9 +317,12 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
   // in contact the step's VJP carries them (contact/rigid_contact_derivatives.hpp).
   const bool coupled = model.contact.with_rigid();
   VecX bar_rigid = VecX::Zero(12 * nr), bar_rigid_p = VecX::Zero(7 * nr);
-  rigid::StepJacobian rigid_J;
-  rigid::Vec12 rigid_bar_in;
-  rigid::Vec7 rigid_bar_p;
+  rigid::Bdf2StepJacobian rigid_J;
+  std::vector<char> restart(static_cast<std::size_t>(nr), 0);  // each body's BDF2 restart flag of the step
+  // BDF2: the rigid cotangent of frame s-1 that step s+1 sent back through its history.
+  VecX pending_rigid = VecX::Zero(12 * nr), bar_rigid_previous = VecX::Zero(12 * nr);
+  const bool rigid_bdf2 = model.step.integrator == IntegratorKind::bdf2;
+  const bool restarts = static_cast<long>(tape.rigid_at_limit.size()) == T * nr;
   integrator::StepDerivatives derivatives(model, theta.parameters);
   result.theta = VecX::Zero(theta.size(model));
   result.lambda_a = MatX::Zero(na, T);
@@ -300,6 +349,14 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
       data.contact.previous_lambda = w.lambda;
       data.contact.rigid.limit_lambda = w.limit_lambda;  // the limit rows' warm start (rigid_contact.hpp)
     }
+    // BDF2 with rigid bodies: the restart flags the step began with (the previous step's
+    // at_limit, rigid_bdf2.hpp), as recorded.
+    if (rigid_bdf2 && nr) {
+      data.rigid.resize(static_cast<std::size_t>(nr));
+      for (std::size_t r = 0; r < static_cast<std::size_t>(nr); ++r)
+        data.rigid[r].at_limit = step > 1 && restarts && tape.rigid_at_limit[static_cast<std::size_t>(step - 2) * static_cast<std::size_t>(nr) + r];
+    }
+    for (std::size_t r = 0; r < static_cast<std::size_t>(nr); ++r) restart[r] = data.rigid.size() > r && data.rigid[r].at_limit;
     const StepStatus st =
         integrator::time_step(model, data, in, previous, out, step, &tape.lambda_a[static_cast<std::size_t>(step - 1)]);
     if (!st.ok()) return st;
@@ -318,19 +375,40 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
     bar.v = cot.v + pending.v;
     pending.x = bar_previous.x;
     pending.v = bar_previous.v;
+    bar_rigid_previous.setZero();
+    const bool multistep = data.history_weight != 0 && previous;
     if (coupled) {
       bar_rigid = cot.rigid;
       bar_rigid_p += cot.rigid_p;
+      // BDF2: cot.rigid is the cotangent of the extrapolated states: split it onto the
+      // step's input and previous states and the parameters (rigid_bdf2_derivatives.hpp).
+      for (Eigen::Index r = 0; multistep && r < nr; ++r) {
+        const auto i = static_cast<std::size_t>(r);
+        if (!rigid::bdf2_branch_taken(model.rigid[i], in.rigid[i], &previous->rigid[i], restart[i] != 0, model.step.dt,
+                                      model.step.gravity))
+          continue;
+        rigid::extrapolation_jacobian(model.rigid[i], in.rigid[i], previous->rigid[i], data.hat.rigid[i],
+                                      rigid_J.extrapolation);
+        const rigid::Vec12 bar_hat = cot.rigid.segment<12>(12 * r);
+        bar_rigid.segment<12>(12 * r) = rigid_J.extrapolation.in.transpose() * bar_hat;
+        bar_rigid_previous.segment<12>(12 * r) = rigid_J.extrapolation.previous.transpose() * bar_hat;
+        bar_rigid_p.segment<7>(7 * r) += rigid_J.extrapolation.params.transpose() * bar_hat;
+      }
     }
-    // The rigid bodies without contact: bar_in = J_state^T bar_out, bar_params += J_params^T bar_out.
+    // The rigid bodies without contact: bar_in = J_state^T bar_out, bar_params += J_params^T
+    // bar_out (BDF2: bar_previous = J_previous^T bar_out too).
     for (Eigen::Index r = 0; !coupled && r < nr; ++r) {
       const auto i = static_cast<std::size_t>(r);
-      rigid::step_jacobian(model.rigid[i], in.rigid[i], out.rigid[i], data.rigid[i], model.step.dt, model.step.gravity,
-                           Vec3::Zero(), rigid_J);
-      rigid::step_vjp(rigid_J, bar_rigid.segment<12>(12 * r), rigid_bar_in, rigid_bar_p);
-      bar_rigid.segment<12>(12 * r) = rigid_bar_in;
-      bar_rigid_p.segment<7>(7 * r) += rigid_bar_p;
+      rigid::bdf2_step_jacobian(model.rigid[i], in.rigid[i], multistep && rigid_bdf2 ? &previous->rigid[i] : nullptr,
+                                restart[i] != 0, rigid_bdf2 ? data.hat.rigid[i] : in.rigid[i], out.rigid[i],
+                                data.rigid[i], model.step.dt, model.step.gravity, rigid_J);
+      const rigid::Vec12 bar_out_r = bar_rigid.segment<12>(12 * r);
+      bar_rigid.segment<12>(12 * r) = rigid_J.state.transpose() * bar_out_r;
+      bar_rigid_p.segment<7>(7 * r) += rigid_J.params.transpose() * bar_out_r;
+      if (rigid_J.bdf2) bar_rigid_previous.segment<12>(12 * r) = rigid_J.previous.transpose() * bar_out_r;
     }
+    bar_rigid += pending_rigid;
+    pending_rigid.swap(bar_rigid_previous);
     if (loss) loss(step - 1, in, bar.x, bar.v);
     if (rigid_loss && nr) rigid_loss(step - 1, in, bar_rigid);
   }

@@ -39,6 +39,7 @@
 #include <softdiff/data.hpp>
 #include <softdiff/integrator/implicit_euler_derivatives.hpp>
 #include <softdiff/model.hpp>
+#include <softdiff/rigid/rigid_bdf2_derivatives.hpp>
 #include <softdiff/rigid/rigid_derivatives.hpp>
 
 #include <functional>
@@ -89,7 +90,13 @@ class ForwardSensitivity {
   ThetaLayout theta_;
   std::unique_ptr<integrator::StepDerivatives> step_;
   MatX dx_, dv_;
-  std::vector<rigid::StepJacobian> rigid_jacobian_;  // (model.rigid) of the last step
+  // (model.rigid) of the last step: implicit Euler's, or BDF2's (rigid_bdf2_derivatives.hpp:
+  // the step from the extrapolated state chained with the extrapolation).
+  std::vector<rigid::Bdf2StepJacobian> rigid_jacobian_;
+  // BDF2 with rigid bodies: the input states of the last advance() (the next step's
+  // previous states) and each body's at_limit after it (the next step's restart flag).
+  std::vector<rigid::RigidState> previous_rigid_;
+  std::vector<char> restart_;
   MatX previous_dx_, previous_dv_;  // BDF2: the sensitivities of the previous state
   MatX next_dx_, next_dv_;          // workspace
   integrator::StepTangent t_;
@@ -121,6 +128,10 @@ struct Tape {
     VecX limit_lambda;  // rigid bodies' joint limits in contact: their forces (by slot)
   };
   std::vector<WarmStart> warm_start;
+  // BDF2 with rigid bodies: StepInfo::at_limit of every body after every step (steps x
+  // n_rigid, step-major): the next step's restart flag (rigid_bdf2.hpp), which the reverse
+  // sweep restores before recomputing a step.
+  std::vector<char> rigid_at_limit;
   long steps() const { return static_cast<long>(frames.size()) - 1; }
   std::size_t bytes() const;  // memory held (states and actuation values)
 };

@@ -30,6 +30,10 @@ bool multistep_jvp(StepDerivatives& derivatives, const Model& model, const Data&
   combine(c, d_in.v, d_previous.v, d_hat.v);
   d_hat.lambda_a = d_in.lambda_a;
   d_hat.p = d_in.p;
+  // Rigid bodies in contact: d_in.rigid is already the tangent of their extrapolated
+  // states (the caller applies rigid_bdf2_derivatives.hpp's extrapolation Jacobian).
+  d_hat.rigid = d_in.rigid;
+  d_hat.rigid_p = d_in.rigid_p;
   return derivatives.jvp(model, data, data.hat, out, d_hat, d_out);
 }
 

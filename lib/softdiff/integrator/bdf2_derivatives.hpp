@@ -12,7 +12,10 @@
 //     bar_x_n = (1 + c) bar_x^,  bar_x_{n-1} = -c bar_x^   (and the same for v).
 // On fixed dofs x^ = x_n exactly (bdf2.cpp), so there dx^ = dx_n, bar_x_n = bar_x^.
 // Everything else (lambda_a, parameters, contact through the NCP of the step) is
-// implicit Euler's at (x^, v^, h'). These functions serve both integrators: with
+// implicit Euler's at (x^, v^, h'). Rigid bodies in contact (StepTangent::rigid,
+// StepCotangent::rigid): the tangent passed in and the cotangent returned are those of
+// their EXTRAPOLATED states (data.hat.rigid); the caller (diff/trajectory.cpp) maps them
+// from and to (s_n, s_{n-1}) by rigid_bdf2_derivatives.hpp. These functions serve both integrators: with
 // c = 0 they are StepDerivatives::jvp / vjp.
 #include <softdiff/integrator/implicit_euler_derivatives.hpp>
 

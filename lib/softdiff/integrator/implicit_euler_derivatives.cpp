@@ -236,8 +236,12 @@ bool StepDerivatives::prepare_rigid(const Model& model, const Data& data, const 
                                     const VecX& rigid, const VecX& rigid_p) {
   if (!model.contact.with_rigid()) return false;
   const auto R = static_cast<Eigen::Index>(model.rigid.size());
-  SOFTDIFF_DEMAND(data.history_weight == 0,
-                  "step derivatives: rigid bodies in contact are differentiated for implicit_euler only");
+  // BDF2 (data.history_weight != 0): the stage from the extrapolated states with h' = data.h
+  // (rigid/rigid_bdf2_derivatives.hpp); BDF2's Newton with rigid contact is refused by the
+  // scene reader (issue 21).
+  SOFTDIFF_DEMAND(data.history_weight == 0 || !is_newton(model),
+                  "step derivatives: rigid bodies in contact under bdf2 are differentiated with newton_iterations 1 "
+                  "only (issue 21)");
   demand_size(rigid, 12 * R, "rigid tangent");
   demand_size(rigid_p, 7 * R, "rigid parameter tangent");
   rigid_.prepare(model, data, out.rigid, h);

@@ -1,0 +1,237 @@
+// Derivatives with BDF2 and rigid bodies in contact (issue 21, "rbd2";
+// rigid/rigid_bdf2_derivatives.hpp, diff/trajectory.cpp): the stage of h' = 2h/3 from the
+// extrapolated states (soft and rigid) through the one contact NCP, its rigid input the
+// extrapolated state whose Jacobian carries s_n and s_{n-1} (BDF2's history).
+// Trajectories of 10 steps under integrator bdf2 (the first implicit Euler, then nine
+// BDF2 steps): forward sensitivities with respect to a random direction of x0, one of v0
+// (soft and rigid rows), the rigid body's mass and one inertia component, against central
+// differences of whole BDF2 runs; the adjoint of a loss on the final state (soft and
+// rigid) against the same sensitivities (the same products in another order: 1e-9
+// relative). Scenes: the wedge of test_contact_derivatives.cpp sliding and spinning on a
+// plane (three sliding contacts), on the dense and the sparse contact backends; a rigid
+// cube pressed onto a soft slab (soft-rigid contact both ways; dense).
+#include <softdiff/data.hpp>
+#include <softdiff/diff/trajectory.hpp>
+#include <softdiff/integrator/bdf2.hpp>
+#include <softdiff/rigid/rigid_derivatives.hpp>
+#include <support/meshes.hpp>
+#include <support/rigid_contact.hpp>
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <iostream>
+#include <random>
+
+using namespace softdiff;
+
+namespace rigid_bdf2_contact_derivatives_test {
+
+constexpr double g0 = 9.81;
+
+// A soft anchor far away with every node fixed (build_model needs a soft body).
+Model anchored(double h) {
+  test::BodySpec spec;
+  spec.fixed = [](const Vec3&) { return true; };
+  mesh::TetMesh m = test::box_mesh(1, 1, 1, 0.01, 0.01, 0.01);
+  for (Eigen::Index i = 0; i < m.X.cols(); ++i) m.X.col(i) += Vec3(5, 5, 5);
+  return test::make_model(m, spec, Vec3(0, 0, -g0), h);
+}
+
+// Tight NCP: the polish solves the mode equations to round-off, so that the finite
+// differences see the exact solution of each perturbed problem.
+contact::NcpOptions tight() {
+  contact::NcpOptions o;
+  o.tolerance = 1e-12;
+  o.max_iterations = 5000;
+  return o;
+}
+
+// `steps` steps of the model's integrator from s0 (BDF2: the previous state passed).
+State run_steps(const Model& model, const State& s0, long steps) {
+  Data data(model);
+  State a = s0, b, previous;
+  for (long k = 1; k <= steps; ++k) {
+    const StepStatus st = integrator::time_step(model, data, a, k > 1 ? &previous : nullptr, b, k);
+    EXPECT_TRUE(st.ok()) << describe(model, st);
+    previous = a;
+    std::swap(a, b);
+  }
+  return a;
+}
+
+State moved_initial(const Model& model, const State& s0, const VecX& dx0, const VecX& dv0, double e) {
+  const Eigen::Index n3 = 3L * model.fem.num_nodes;
+  State s = s0;
+  s.x += e * dx0.head(n3);
+  s.v += e * dv0.head(n3);
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+    const Eigen::Index o = n3 + 6 * static_cast<Eigen::Index>(r);
+    rigid::Vec12 d;
+    d << dx0.segment<6>(o), dv0.segment<6>(o);
+    s.rigid[r] = rigid::retract(s0.rigid[r], d, e);
+  }
+  return s;
+}
+
+void rows_from(const Model& model, const State& base, const State& s, VecX& x_rows, VecX& v_rows) {
+  const Eigen::Index n3 = 3L * model.fem.num_nodes, R = static_cast<Eigen::Index>(model.rigid.size());
+  x_rows.resize(n3 + 6 * R);
+  v_rows.resize(n3 + 6 * R);
+  x_rows.head(n3) = s.x - base.x;
+  v_rows.head(n3) = s.v - base.v;
+  for (Eigen::Index r = 0; r < R; ++r) {
+    const rigid::Vec12 t = rigid::tangent_between(base.rigid[static_cast<std::size_t>(r)], s.rigid[static_cast<std::size_t>(r)]);
+    x_rows.segment<6>(n3 + 6 * r) = t.head<6>();
+    v_rows.segment<6>(n3 + 6 * r) = t.tail<6>();
+  }
+}
+
+// Columns: x0 (one direction), v0 (one), the body's mass, its inertia component `inertia`.
+// eps: the central difference's step per column (see each scene); tol relative to each
+// column's largest entry.
+void check_trajectory(const Model& model, long T, unsigned seed, const double (&eps)[4], double tol, int inertia = 3,
+                      double soft_x0 = 1.0) {
+  ASSERT_EQ(model.step.integrator, IntegratorKind::bdf2);
+  const Eigen::Index n3 = 3L * model.fem.num_nodes, rows = n3 + 6;
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> N;
+  diff::ThetaLayout theta;
+  theta.x0 = theta.v0 = true;
+  theta.x0_basis = MatX::NullaryExpr(rows, 1, [&] { return N(rng); });
+  theta.x0_basis.topRows(n3) *= soft_x0;
+  theta.v0_basis = MatX::NullaryExpr(rows, 1, [&] { return N(rng); });
+  theta.rigid_parameters = {{0, 0}, {0, inertia}};
+  Data data(model);
+  State final;
+  MatX dx, dv;
+  ASSERT_TRUE(diff::forward_sensitivities(model, data, model.initial, T, theta, final, dx, dv).ok());
+  ASSERT_EQ(dx.cols(), 4);
+  EXPECT_GT(data.contact.contacts.size(), 0);
+  const VecX zero = VecX::Zero(rows);
+  for (int c = 0; c < 4; ++c) {
+    double scale = 1;
+    State sp, sm;
+    if (c < 2) {
+      const VecX d0 = c == 0 ? VecX(theta.x0_basis.col(0)) : zero, e0 = c == 1 ? VecX(theta.v0_basis.col(0)) : zero;
+      sp = run_steps(model, moved_initial(model, model.initial, d0, e0, eps[c]), T);
+      sm = run_steps(model, moved_initial(model, model.initial, d0, e0, -eps[c]), T);
+    } else {
+      const int index = c == 2 ? 0 : inertia;
+      scale = c == 2 ? model.rigid[0].mass : model.rigid[0].inertia.trace() / 3;
+      Model mpl = model, mmi = model;
+      rigid::set_parameter(mpl.rigid[0], index, rigid::get_parameter(model.rigid[0], index) + eps[c] * scale);
+      rigid::set_parameter(mmi.rigid[0], index, rigid::get_parameter(model.rigid[0], index) - eps[c] * scale);
+      sp = run_steps(mpl, model.initial, T);
+      sm = run_steps(mmi, model.initial, T);
+    }
+    VecX xp, vp, xm, vm;
+    rows_from(model, final, sp, xp, vp);
+    rows_from(model, final, sm, xm, vm);
+    VecX fd(2 * rows), an(2 * rows);
+    fd << (xp - xm) / (2 * eps[c]), (vp - vm) / (2 * eps[c]);
+    an << dx.col(c) * scale, dv.col(c) * scale;
+    const double err = (an - fd).cwiseAbs().maxCoeff(), mag = fd.cwiseAbs().maxCoeff();
+    std::cout << "column " << c << ": max |sensitivity - FD| " << err << " of " << mag << "\n";
+    EXPECT_LT(err, tol * mag) << "column " << c;
+    // The rigid rows alone, relative to their own scale.
+    VecX fd_r(12), an_r(12);
+    fd_r << fd.segment<6>(n3), fd.tail<6>();
+    an_r << an.segment<6>(n3), an.tail<6>();
+    EXPECT_LT((an_r - fd_r).cwiseAbs().maxCoeff(), tol * fd_r.cwiseAbs().maxCoeff()) << "rigid rows, column " << c;
+  }
+  // The adjoint of l = a . x_T + b . v_T + c . (rigid 12-tangent of the final state).
+  const VecX a = VecX::NullaryExpr(n3, [&] { return N(rng); }), b = VecX::NullaryExpr(n3, [&] { return N(rng); });
+  const rigid::Vec12 cr = rigid::Vec12::NullaryExpr([&] { return N(rng); });
+  diff::Tape tape;
+  Data data2(model);
+  ASSERT_TRUE(diff::record(model, data2, model.initial, T, tape).ok());
+  diff::AdjointResult result;
+  ASSERT_TRUE(diff::adjoint(
+                  model, data2, tape, theta,
+                  [&](long k, const State&, VecX& bx, VecX& bv) {
+                    if (k == T) bx += a, bv += b;
+                  },
+                  result,
+                  [&](long k, const State&, VecX& br) {
+                    if (k == T) br += cr;
+                  })
+                  .ok());
+  EXPECT_EQ(result.recompute_mismatch, 0.0);
+  VecX expected(4);
+  for (int c = 0; c < 4; ++c)
+    expected[c] = a.dot(dx.col(c).head(n3)) + b.dot(dv.col(c).head(n3)) + cr.head<6>().dot(dx.col(c).tail<6>()) +
+                  cr.tail<6>().dot(dv.col(c).tail<6>());
+  std::cout << "adjoint " << result.theta.transpose() << " against forward " << expected.transpose() << "\n";
+  for (int c = 0; c < 4; ++c) EXPECT_NEAR(result.theta[c], expected[c], 1e-9 * expected.cwiseAbs().maxCoeff());
+}
+
+rigid::Shape wedge() {
+  rigid::Shape s;
+  s.kind = rigid::Shape::Kind::mesh;
+  s.mesh_vertices.resize(3, 4);
+  s.mesh_vertices << 0, 0.1, 0, 0.03, 0, 0, 0.08, 0.03, 0, 0, 0, 0.05;
+  s.mesh_triangles.resize(3, 4);
+  s.mesh_triangles << 0, 0, 1, 2, 2, 1, 2, 0, 1, 3, 3, 3;
+  return s;
+}
+
+class RigidBdf2ContactTrajectoryDerivatives : public ::testing::TestWithParam<bool> {};
+
+// The wedge sliding at 0.5 m/s and spinning at 0.8 rad/s on a plane with mu = 0.3: three
+// sliding contacts all along. eps as test_contact_derivatives.cpp's wedge trajectory:
+// 1e-8 for x0 (its direction moves and tilts the 5 cm wedge by O(1) per unit: eps^2
+// truncation measured 1.8e-7 relative there at 1e-8), 1e-6 for the others (truncation
+// ~1e-12, round-off ~1e-10 relative). tol 1e-5 relative to each column's largest entry.
+TEST_P(RigidBdf2ContactTrajectoryDerivatives, SlidingWedge) {
+  Model model = anchored(1e-3);
+  const rigid::Shape shape = wedge();
+  const rigid::MassProperties mp = rigid::mass_properties(shape, 800);
+  rigid::RigidState s;
+  s.position = Vec3(0, 0, mp.centre.z());
+  s.velocity = Vec3(0.5, 0.1, 0);
+  s.angular_velocity = Vec3(0, 0, 0.8);
+  test::add_rigid_body(model, "wedge", shape, 800, s);
+  test::enable_rigid_contact(model, {test::plane(Vec3::UnitZ(), 0, "floor")}, {{"wedge", "floor", 0.3}}, 1e-3, tight());
+  model.contact.ncp.backend = GetParam() ? contact::NcpBackend::sparse : contact::NcpBackend::dense;
+  model.step.integrator = IntegratorKind::bdf2;
+  model.initial = run_steps(model, model.initial, 3);
+  check_trajectory(model, 10, 3, {1e-8, 1e-6, 1e-6, 1e-6}, 1e-5);
+}
+
+INSTANTIATE_TEST_SUITE_P(, RigidBdf2ContactTrajectoryDerivatives, ::testing::Values(false, true),
+                         [](const ::testing::TestParamInfo<bool>& p) { return p.param ? "sparse" : "dense"; });
+
+// A rigid cube (0.02 m, 500 kg/m^3) landing at 0.3 m/s on a soft slab (4 x 4 x 1 boxes of
+// tets, bottom fixed), as test_contact_derivatives.cpp's CubeOnASoftSlab: the slab's top
+// vertices against the cube's bottom faces and its corners against the slab's top faces.
+// 4 steps of 2 ms from 0.3 mm above the slab (in contact from the first to the last; over
+// 10 steps it bounces off). The soft part of the x0 direction is scaled by 1e-3 (a unit
+// soft direction deforms every element: its curvature needed eps = 5e-9 in one step);
+// eps 1e-7 for x0 and v0; 1e-4 for the mass, 1e-3 for the inertia: the 4 g cube's
+// inertia moves the final state by only ~3e-5 per unit of its scale, and the NCP's
+// tolerance makes a difference noise proportional to 1/eps (measured 4.4e-8 at
+// eps = 1e-6 and 8.4e-10 at 1e-4, against the column's 2.9e-5: noise, not the
+// derivative); at 1e-3 ~8e-11, the truncation eps^2 ~1e-6 relative. tol 1e-5.
+TEST(RigidBdf2ContactTrajectory, CubeOnASoftSlab) {
+  test::BodySpec spec;
+  spec.young = 5e4;
+  spec.poisson = 0.4;
+  spec.density = 1000;
+  spec.rayleigh_mass = 20;
+  spec.rayleigh_stiffness = 0.01;
+  spec.fixed = [](const Vec3& p) { return p.z() < 1e-9; };
+  const mesh::TetMesh m = test::box_mesh(4, 4, 1, 0.06, 0.06, 0.01);
+  Model model = test::make_model(m, spec, Vec3(0, 0, -g0), 2e-3);
+  rigid::RigidState s;
+  s.position = Vec3(0.0375, 0.0375, 0.01 + 0.01 + 3e-4);
+  s.velocity = Vec3(0.05, 0, -0.3);
+  s.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(0.1, Vec3::UnitZ()));
+  test::add_rigid_body(model, "cube", test::box_shape(Vec3(0.01, 0.01, 0.01)), 500, s);
+  test::enable_rigid_contact(model, {}, {{"body", "cube", 0.5}}, 1e-3, tight());
+  model.contact.ncp.backend = contact::NcpBackend::dense;
+  model.step.integrator = IntegratorKind::bdf2;
+  check_trajectory(model, 4, 7, {1e-7, 1e-7, 1e-4, 1e-3}, 1e-5, 3, 1e-3);
+}
+
+}  // namespace rigid_bdf2_contact_derivatives_test
