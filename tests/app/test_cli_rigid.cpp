@@ -278,6 +278,87 @@ TEST(Cli, RigidBodyRestsStatically) {
   EXPECT_GT(sag, 1e-6);
 }
 
+// A joint with limits in a static scene (docs/method.md "Static equilibrium with joint
+// limits"): the ball on a vertical slider, 1 cm above the floor, its lower limit 4 mm
+// below its start. The static solve stops it on the limit (no contact within the margin:
+// the joint's own LCP, exact), frame 1 holds it there.
+TEST(Cli, LimitedSliderRestsStatically) {
+  const fs::path dir = softdiff::test::fresh_dir(kRigidWork, "static_limited_slider");
+  write_text(dir / "scene.yaml",
+             beam_and_sphere("    joint: {type: slider, anchor: [0.1, 0.1, 0], axis: [0, 0, 1], limits: [-0.004, 0.01]}\n",
+                             "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.02}]\n"
+                             "contact: {pairs: [[ball, floor, 0.3]]}\n"));
+  const auto r = run_cli("simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null "
+                         "--set simulation.steps=null",
+                         dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const std::string file = (dir / "out.h5").string();
+  const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const std::vector<double> position = h5_read(f, "/bodies/ball/position");
+  H5Fclose(f);
+  ASSERT_EQ(position.size(), 6u);  // rest and load step 1
+  EXPECT_NEAR(position[3], 0.1, 1e-15);
+  EXPECT_NEAR(position[4], 0.1, 1e-15);
+  EXPECT_NEAR(position[5], -0.004, 1e-15);  // the limit, in closed form
+}
+
+// configs/rigid_stack.yaml solved statically (docs/method.md "Static equilibrium of rigid
+// bodies only"), the margin widened to 2 mm so that the 1 mm gaps of its upper boxes are
+// within it: the boxes close the gaps in the first iteration and rest stacked; each
+// interface carries the weight above it (the contact forces' normal components summed by
+// pair: floor 26.33 N, base-middle 6.71 N, middle-top 1.06 N).
+TEST(Cli, RigidStackRestsStatically) {
+  const fs::path dir = softdiff::test::fresh_dir(kRigidWork, "rigid_stack_static");
+  const fs::path scene = kRigidRoot / "configs/rigid_stack.yaml";
+  const auto r = run_cli("simulate '" + scene.string() + "' -o out.h5 --quiet --set simulation.integrator=static "
+                         "--set simulation.dt=null --set simulation.duration=null --set contact.margin=0.002",
+                         dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const std::string file = (dir / "out.h5").string();
+  const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const double density = 500, g = 9.81;
+  struct Box {
+    std::string name;
+    double hx, hy, hz, x, y, z;
+  };
+  const Box boxes[3] = {{"base", 0.1, 0.1, 0.05, 0, 0, 0.05},
+                        {"middle", 0.06, 0.06, 0.04, 0.01, 0, 0.14},
+                        {"top", 0.03, 0.03, 0.03, -0.01, 0.005, 0.21}};
+  double weight[3];
+  for (int b = 0; b < 3; ++b) {
+    SCOPED_TRACE(boxes[b].name);
+    const std::vector<double> p = h5_read(f, "/bodies/" + boxes[b].name + "/position");
+    ASSERT_EQ(p.size(), 6u);  // rest and load step 1
+    // Stacked and touching: the NCP's gap rows hold to its tolerance relative to |g|
+    // (the free increment, 0.01 of the scene's size: ~3e-3 m): 1e-9 m.
+    EXPECT_NEAR(p[3], boxes[b].x, 1e-9);
+    EXPECT_NEAR(p[4], boxes[b].y, 1e-9);
+    EXPECT_NEAR(p[5], boxes[b].z, 1e-9);
+    weight[b] = density * 8 * boxes[b].hx * boxes[b].hy * boxes[b].hz * g;
+  }
+  const std::vector<double> offsets = h5_read(f, "/contact/offsets");
+  const std::vector<double> pair = h5_read(f, "/contact/pair");
+  const std::vector<double> force = h5_read(f, "/contact/force");
+  H5Fclose(f);
+  ASSERT_EQ(offsets.size(), 3u);
+  // names: base 0, middle 1, top 2, floor 3. Interfaces: floor-base, base-middle, middle-top.
+  double carried[3] = {0, 0, 0};
+  for (auto i = static_cast<std::size_t>(offsets[1]); i < static_cast<std::size_t>(offsets[2]); ++i) {
+    const int a = static_cast<int>(pair[2 * i]), b = static_cast<int>(pair[2 * i + 1]);
+    const int lo = std::min(a, b), hi = std::max(a, b);
+    const int k = hi == 3 ? 0 : (lo == 0 && hi == 1 ? 1 : 2);
+    carried[k] += force[3 * i + 2];
+  }
+  const double above[3] = {weight[0] + weight[1] + weight[2], weight[1] + weight[2], weight[2]};
+  std::cout << "[rigid stack static] interfaces carry " << carried[0] << ", " << carried[1] << ", " << carried[2]
+            << " N (weights above " << above[0] << ", " << above[1] << ", " << above[2] << " N)\n";
+  // The rigid equations hold to static.tolerance relative to each body's weight (the
+  // scene's default tolerance, 1e-8 or tighter): 1e-7 of the weight above.
+  for (int k = 0; k < 3; ++k) EXPECT_NEAR(carried[k], above[k], 1e-7 * above[k]) << k;
+}
+
 // A scene of rigid bodies only: one free sphere.
 const std::string kBallOnly =
     "softdiff: 1\nsimulation: {dt: 0.01, steps: 3}\nbodies:\n  - {name: ball, type: rigid, shape: {type: sphere, "
@@ -380,20 +461,12 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
       // bdf2 with rigid bodies is differentiated since issue 21's rbd2
       // (test_cli_rigid_derivatives.cpp CheckGradUnderBdf2).
       // static with rigid bodies (Cli.RigidBodyRestsStatically): a body with dofs needs
-      // contact; joint limits and derivatives are refused.
+      // contact; derivatives are refused (joint limits run: Cli.LimitedSliderRestsStatically).
       {"static", beam_and_sphere(),
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null",
        "a static scene needs contact for a rigid body that is not fixed: bodies[1] ('ball') has no equilibrium under "
        "gravity without a support"},
-      {"static_limits",
-       beam_and_sphere("    joint: {type: hinge, anchor: [0.1, 0.1, 0.01], axis: [1, 0, 0], limits: [-0.1, 0.1]}\n",
-                       "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.01}]\n"
-                       "contact: {pairs: [[ball, floor, 0.3]]}\n"),
-       "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
-       "simulation.steps=null",
-       "integrator 'static' with a rigid body whose joint has limits is not supported yet (issue 21; bodies[1].joint "
-       "has limits)"},
       {"static_jacobian",
        beam_and_sphere("", "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.01}]\n"
                            "contact: {pairs: [[ball, floor, 0.3]]}\n"),
@@ -403,8 +476,8 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
       // calibrate and control with rigid bodies run since issue 21's rcal and rctl
       // (test_cli_calibrate_rigid.cpp, test_cli_control.cpp PushesAFreeRigidBlock); what
       // their derivatives do not cover is refused there.
-      // A scene of rigid bodies only runs (Cli.RigidStackRests); its derivatives, the
-      // sparse backend and static are refused.
+      // A scene of rigid bodies only runs (Cli.RigidStackRests); its derivatives and the
+      // sparse backend are refused.
       {"rigid_only_jacobian", kBallOnly, "simulate scene.yaml -o out.h5 --jacobian x0",
        "--jacobian: derivatives of a scene of rigid bodies only are not supported yet (issue 21; rigid body 'ball', "
        "no soft body)"},
@@ -417,10 +490,11 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
        "simulate scene.yaml -o out.h5",
        "contact.backend: backend: sparse in a scene of rigid bodies only is not supported yet (issue 21; bodies[0] is "
        "rigid, there is no soft body): use dense or auto"},
+      // static runs (Cli.RigidStackRestsStatically); a free body still needs contact.
       {"rigid_only_static", kBallOnly,
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null",
-       "integrator 'static' with rigid bodies only (no soft body) is not supported yet (issue 21"},
+       "a static scene needs contact for a rigid body that is not fixed: bodies[0] ('ball')"},
       {"missing_mesh", beam_and_sphere("", "", "{type: mesh, mesh: nope.msh}"),
        "simulate scene.yaml -o out.h5", "bodies[1].shape.mesh: mesh file not found"},
       {"open_mesh", beam_and_sphere("", "", "{type: mesh, mesh: open.stl}"),

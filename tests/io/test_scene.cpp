@@ -982,11 +982,15 @@ TEST_F(Scene, RigidBodiesRefuseWhatIsNotSupportedYet) {
   expect_message(edit("  dt: 0.01\n", "  integrator: bdf2\n  dt: 0.01\n", kRigid) + "contact: {friction: 0.5}\n",
                  "contact: contact with bdf2 and a rigid body whose joint has limits is not supported yet (issue 21; "
                  "bodies[1].joint has limits): use implicit_euler");
-  // static with rigid bodies (integrator/static_rigid.hpp): a joint with limits is
-  // refused, a body with dofs needs contact; a fixed one, or one in contact, is accepted.
+  // static with rigid bodies (integrator/static_rigid.hpp): a body with dofs needs
+  // contact; a fixed one, or one in contact, is accepted, a joint with limits too
+  // (rstat2: the limits are rows of the static contact solve).
   expect_message(rigid_edit("  dt: 0.01\n  steps: 10\n", "  integrator: static\n"),
-                 "simulation.integrator: integrator 'static' with a rigid body whose joint has limits is not supported "
-                 "yet (issue 21; bodies[1].joint has limits): use implicit_euler or bdf2");
+                 "simulation.integrator: a static scene needs contact for a rigid body that is not fixed: bodies[1] "
+                 "('key') has no equilibrium under gravity without a support");
+  EXPECT_EQ(load(rigid_edit("  dt: 0.01\n  steps: 10\n", "  integrator: static\n") + "contact: {friction: 0.5}\n")
+                .simulation.integrator,
+            Integrator::static_equilibrium);
   const std::string static_free = edit("  dt: 0.01\n  steps: 10\n", "  integrator: static\n", free_key);
   expect_message(static_free, "simulation.integrator: a static scene needs contact for a rigid body that is not fixed: "
                               "bodies[1] ('key') has no equilibrium under gravity without a support");

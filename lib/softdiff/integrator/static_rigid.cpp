@@ -1,6 +1,7 @@
 // Rigid bodies in the static solver: see static_rigid.hpp.
 #include <softdiff/integrator/static_rigid.hpp>
 
+#include <softdiff/contact/contact_step.hpp>
 #include <softdiff/contact/rigid_contact.hpp>
 #include <softdiff/core/assert.hpp>
 #include <softdiff/rigid/rotation.hpp>
@@ -132,14 +133,50 @@ StepStatus end_static_rigid(const Model& model, Data& data, std::vector<rigid::R
   return status;
 }
 
+void static_limits_without_contact(const Model& model, Data& data) {
+  auto& rd = data.contact.rigid;
+  rd.limit_rows.clear();  // capacity kept
+  const int slots = contact::num_limit_slots(model);
+  if (rd.limit_lambda.size() != slots) rd.limit_lambda.resize(slots);
+  rd.limit_lambda.setZero();
+  int slot = 0;
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+    const auto& body = model.rigid[r];
+    if (!limited(body)) continue;
+    const Eigen::Index o = 6 * static_cast<Eigen::Index>(r);
+    const rigid::Vec6 T = rigid::joint_motion_basis(body, rd.in[r]).col(0);
+    // a = T^T A_r T from begin_static_rigid's L_r = T / sqrt(a).
+    const double a = T.squaredNorm() / rd.L[r].col(0).squaredNorm();
+    const double dc_free = T.dot(rd.u_free.segment<6>(o)) / T.squaredNorm();
+    const double c = rigid::joint_coordinate(body, rd.in[r]);
+    const double gap[2] = {c - body.joint.limits->first, body.joint.limits->second - c};
+    double dc = dc_free;
+    for (int side = 0; side < 2; ++side) {
+      const double sign = side == 0 ? 1.0 : -1.0;
+      if (gap[side] + sign * dc_free < 0) {  // the free increment crosses this limit: stop on it
+        dc = -sign * gap[side];
+        rd.limit_lambda[slot + side] = a * (dc - dc_free) * sign;  // >= 0
+        rd.limit_rows.push_back({static_cast<int>(r), side, slot + side});
+        break;
+      }
+    }
+    rd.u.segment<6>(o) = T * dc;
+    slot += 2;
+  }
+}
+
 int static_rigid_unsupported(const Model& model, const Data& data) {
   const auto& cd = data.contact;
   const auto& rd = cd.rigid;
   const bool any = cd.contacts.size() > 0 && rd.Ht.rows() == 6 * static_cast<Eigen::Index>(model.rigid.size());
   for (std::size_t r = 0; r < model.rigid.size(); ++r) {
     if (model.rigid[r].joint.kind == rigid::Joint::Kind::fixed) continue;
-    if (rd.u_free.segment<6>(6 * static_cast<Eigen::Index>(r)).squaredNorm() == 0) continue;  // no load on its dofs
-    if (!any || rd.Ht.middleRows<6>(6 * static_cast<Eigen::Index>(r)).squaredNorm() == 0) return static_cast<int>(r);
+    const Eigen::Index o = 6 * static_cast<Eigen::Index>(r);
+    if (rd.u_free.segment<6>(o).squaredNorm() == 0) continue;  // no load on its dofs
+    // A limited joint has a limit on each side: the load drives it onto one, which holds
+    // it (a far limit is reached over several iterations, |dc_free| each).
+    if (limited(model.rigid[r])) continue;
+    if (!any || rd.Ht.middleRows<6>(o).squaredNorm() == 0) return static_cast<int>(r);
   }
   return -1;
 }
@@ -183,6 +220,111 @@ double static_rigid_residual(const Model& model, const Data& data, const std::ve
     }
   }
   return rel;
+}
+
+StepStatus solve_static_rigid_only(const Model& model, Data& data, const State& in, State& out,
+                                   const std::function<void(long, const State&)>& on_load_step) {
+  const auto& settings = model.step;
+  const int L = std::max(1, settings.static_load_steps);
+  out = in;
+  out.x.resize(0);
+  out.v.resize(0);
+  data.timings = {};
+  for (auto& s : out.rigid) {
+    s.velocity.setZero();
+    s.angular_velocity.setZero();
+  }
+  StepStatus status;
+  SOFTDIFF_DEMAND(model.contact.with_rigid() || std::all_of(model.rigid.begin(), model.rigid.end(), [](const auto& b) {
+                    return b.joint.kind == rigid::Joint::Kind::fixed;
+                  }),
+                  "solve_static: rigid bodies with dofs need contact (the scene reader refuses the rest)");
+  // The scene's size: the largest diagonal of a rigid body's surface box (body axes).
+  double size = 0;
+  for (const auto& b : model.rigid)
+    if (b.surface.vertices.cols() > 0)
+      size = std::max(size, (b.surface.vertices.rowwise().maxCoeff() - b.surface.vertices.rowwise().minCoeff()).norm());
+  const double k = static_rigid_stiffness(model, size, true);
+  auto& cd = data.contact;
+  const bool with_contact = model.contact.with_rigid();
+  if (with_contact) {
+    cd.lambda.resize(0);
+    cd.contacts.contacts.clear();
+    cd.previous_keys.clear();
+    cd.previous_lambda.resize(0);
+    cd.result = {};
+    cd.result.converged = true;
+  }
+  VecX none_x, none_v, increment;  // no soft dof: empty
+  int total = 0;
+  double rel = 0;
+  std::string worst;
+  for (long s = 1; s <= L; ++s) {
+    const double factor = static_cast<double>(s) / L;
+    if (with_contact) cd.detector->set_time(factor);
+    bool solved = false;  // an NCP (or the limits' LCPs) ran in this load step
+    for (int it = 0;; ++it) {
+      rel = static_rigid_residual(model, data, out.rigid, factor, with_contact && solved, &worst);
+      if (!std::isfinite(rel)) {
+        status.code = StepStatus::Code::non_finite;
+        status.step = s;
+        status.detail = "the rigid equations' residual is not finite (rigid body '" + worst + "')";
+        return status;
+      }
+      if (rel <= settings.static_tolerance && (!with_contact || (solved && cd.result.converged))) break;
+      if (it >= settings.static_max_iterations) {
+        StepStatus ns;
+        ns.code = StepStatus::Code::not_converged;
+        ns.step = s;
+        ns.iterations = it;
+        ns.residual = rel;
+        ns.detail = "static equilibrium not reached: rigid body '" + worst +
+                    "' is out of balance (increase static.max_iterations or static.load_steps)";
+        return ns;
+      }
+      begin_static_rigid(model, data, out.rigid, k, factor);
+      if (with_contact) {
+        const StepStatus cs = contact::resolve_contacts(model, data, none_x, none_v, 1.0, increment, s, false);
+        if (!cs.ok()) return cs;
+        if (cd.contacts.size() == 0) static_limits_without_contact(model, data);
+        const int unsupported = static_rigid_unsupported(model, data);
+        if (unsupported >= 0) {
+          StepStatus ns;
+          ns.code = StepStatus::Code::not_converged;
+          ns.step = s;
+          ns.iterations = it;
+          ns.residual = rel;
+          ns.detail = "rigid body '" + model.rigid[static_cast<std::size_t>(unsupported)].name +
+                      "' touches no support within contact.margin: no equilibrium under its load (rest it on an "
+                      "obstacle or another body, or fix its joint)";
+          return ns;
+        }
+      }
+      solved = true;
+      double moved = 0;
+      int body = -1;
+      const StepStatus rs = end_static_rigid(model, data, out.rigid, s, moved, body);
+      if (!rs.ok()) return rs;
+      ++total;
+      if (!(moved <= size)) {
+        StepStatus ns;
+        ns.code = StepStatus::Code::not_converged;
+        ns.step = s;
+        ns.iterations = it;
+        ns.residual = rel;
+        ns.detail = "rigid body '" + model.rigid[static_cast<std::size_t>(body)].name +
+                    "' moved by more than the scene's size in one Newton iteration: its contacts do not hold it";
+        return ns;
+      }
+    }
+    out.t = factor;
+    status.iterations = total;
+    status.residual = rel;
+    data.newton_iterations_used = total;
+    data.newton_residual = rel;
+    if (on_load_step) on_load_step(s, out);
+  }
+  return status;
 }
 
 }  // namespace softdiff::integrator

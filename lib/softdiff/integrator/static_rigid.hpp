@@ -32,6 +32,7 @@
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
 
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -53,9 +54,20 @@ void begin_static_rigid(const Model& model, Data& data, const std::vector<rigid:
 StepStatus end_static_rigid(const Model& model, Data& data, std::vector<rigid::RigidState>& poses, long load_step,
                             double& moved, int& body);
 
+// Joint limits (docs/method.md "Static equilibrium with joint limits"): with contacts,
+// each limit near enough is a frictionless unilateral row of the iteration's NCP
+// (contact_step.cpp, h = 1: select_limit_rows, gap = the distance to the limit, g =
+// s dc_free + gap; the limit's force is the reaction on the joint coordinate). Without
+// any contact detected no NCP runs; then this function solves each limited body's own
+// size-1 LCP exactly: dc = dc_free + s lambda / a, gap_s + s dc >= 0, lambda >= 0,
+// complementary (dc_free = T.u_free / |T|^2, a = T^T A_r T), writing rigid.u, the
+// selected rows (rigid.limit_rows) and their reactions (rigid.limit_lambda, by slot).
+// Call after resolve_contacts when data.contact.contacts is empty.
+void static_limits_without_contact(const Model& model, Data& data);
+
 // After the contact solve: the first body with dofs and a load along them that no
 // contact of this solve touches (it has no support within contact.margin: no
-// equilibrium), or -1.
+// equilibrium), or -1. A body on a limited joint is held by a limit on either side.
 int static_rigid_unsupported(const Model& model, const Data& data);
 
 // The rigid equations' residual at `poses` with the contact forces of the last contact
@@ -65,6 +77,18 @@ int static_rigid_unsupported(const Model& model, const Data& data);
 // vertex from the centre of mass, or from the hinge's axis). 0 without rigid dofs.
 double static_rigid_residual(const Model& model, const Data& data, const std::vector<rigid::RigidState>& poses,
                              double load_factor, bool with_contact, std::string* worst = nullptr);
+
+// A scene of rigid bodies only (no soft node; docs/method.md "Static equilibrium of
+// rigid bodies only"): solve_static's load steps and Newton iterations without the soft
+// stage. Per iteration: begin_static_rigid (k from the rigid bodies' size: the largest
+// diagonal of a body's surface box), the contact stage on the rigid increments alone
+// (contact::resolve_contacts with h = 1 and no soft dof: the dense G = sum_r H_r W_r
+// H_r^T, the limit rows as above), the poses moved (end_static_rigid). A load step has
+// converged when the rigid residual (static_rigid_residual, with this load step's NCP)
+// is below static.tolerance and that NCP met its own. The soft state stays empty.
+// `on_load_step` as solve_static's; status.iterations the total count.
+StepStatus solve_static_rigid_only(const Model& model, Data& data, const State& in, State& out,
+                                   const std::function<void(long, const State&)>& on_load_step);
 
 // Rigidified parts in the static solver (docs/method.md "Static equilibrium with
 // rigidified parts"; defined in rigidify.cpp beside the dynamic step's functions): the

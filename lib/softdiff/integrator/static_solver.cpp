@@ -43,6 +43,8 @@ StepStatus not_converged(long load_step, int iterations, double residual, const 
 
 StepStatus solve_static(const Model& model, Data& data, const State& in, State& out,
                         const LoadStepCallback& on_load_step) {
+  // A scene of rigid bodies only: no soft stage (static_rigid.hpp).
+  if (model.fem.num_nodes == 0) return solve_static_rigid_only(model, data, in, out, on_load_step);
   const auto& fem = model.fem;
   const auto& settings = model.step;
   const int L = std::max(1, settings.static_load_steps);
@@ -70,6 +72,16 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
   SOFTDIFF_DEMAND(!actuated || model.actuation.stiffness_fits(fem.pattern),
                   "the FEM pattern lacks the actuators' stiffness cliques: build it with "
                   "build_fem_model(..., model.actuation.stiffness_cliques())");
+  // Rotation servos (follower torques, no potential): the line search works on the
+  // potential of the rest with the servos' forces frozen at x_k, Pi_k(x) = E(x) - P.x +
+  // U_cons(x) - f_rot(x_k).x (docs/method.md "Static equilibrium with rotation servos").
+  // Its gradient at x_k is minus the full residual, and the tangent (without the servos'
+  // derivative) is its Hessian, so the step is a descent direction of Pi_k. Open
+  // pressure faces keep the residual-norm search.
+  bool frozen_followers = actuated && !conservative;
+  VecX lambda_conservative, follower_force;
+  for (const auto& a : model.actuation.actuators)
+    if (const auto* cavity = std::get_if<actuation::Cavity>(&a.kind); cavity && !cavity->closed()) frozen_followers = false;
   bool constant_values = true;
   for (const auto& a : model.actuation.actuators) constant_values = constant_values && a.value.points.empty();
   double shift = 0;  // the last diagonal shift of the tangent (0: the exact tangent)
@@ -277,6 +289,8 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
         // The contact stage with h = 1: dx <- dx_free + K^{-1} H_c^T lambda.
         const StepStatus cs = contact::resolve_contacts(model, data, out.x, dx_previous, 1.0, dx, s, false);
         if (!cs.ok()) return cs;
+        // No contact detected: no NCP ran; the joint limits' own LCPs (static_rigid.hpp).
+        if (with_rigid && cd.contacts.size() == 0) static_limits_without_contact(model, data);
         // The rigid poses move by their corrected increments; a body that no contact
         // holds moves by ~10 x the scene's size (its free increment): no support.
         if (with_rigid) {
@@ -301,7 +315,11 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
           }
         }
         contact_solved = true;
-        contact_force.noalias() = cd.Ht * cd.lambda;
+        // (No contact detected: no force; cd.Ht may be unsized, never built in this run.)
+        if (cd.contacts.size() > 0)
+          contact_force.noalias() = cd.Ht * cd.lambda;
+        else
+          contact_force.setZero();
         if (rigidified) project_rigidified_residual(model, data, contact_force);
         // A body held by contact alone moves rigidly (by its weight over tau_p) unless a
         // contact stops it: a move beyond the scene's size means it rests on nothing.
@@ -362,8 +380,24 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       // actuators: backtracking on the residual norm.
       t0 = Clock::now();
       const double load_work = factor * fem.gravity_force.dot(out.x);
+      // Frozen followers: lambda of the conservative actuators (rotation servos zeroed)
+      // and the rotation servos' forces at x_k.
+      if (frozen_followers) {
+        lambda_conservative = data.lambda_a;
+        follower_force.setZero(out.x.size());
+        for (std::size_t a = 0; a < model.actuation.actuators.size(); ++a) {
+          const auto& act = model.actuation.actuators[a];
+          const auto* servo = std::get_if<actuation::Servo>(&act.kind);
+          if (!servo || !servo->is_rotation()) continue;
+          const double l = data.lambda_a[static_cast<Eigen::Index>(a)];
+          if (l != 0) act.add_force(out.x, l, 1.0, follower_force);
+          lambda_conservative[static_cast<Eigen::Index>(a)] = 0;
+        }
+      }
       const double actuation_potential =
-          actuated && conservative ? model.actuation.potential(out.x, data.lambda_a) : 0.0;
+          actuated && conservative ? model.actuation.potential(out.x, data.lambda_a)
+          : frozen_followers       ? model.actuation.potential(out.x, lambda_conservative) - follower_force.dot(out.x)
+                                   : 0.0;
       const double pi0 = data.fem.energy - load_work + actuation_potential;
       // The round-off of Pi is that of its terms, not of their sum: near an equilibrium
       // the strain energy and the load's work nearly cancel (the quadratic beam of
@@ -390,10 +424,14 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
           accepted = true;
           break;
         }
-        if (!actuated || conservative) {
+        if (!actuated || conservative || frozen_followers) {
           if (!fem::evaluate(fem, trial, {true, false, false}, data.fem)) continue;  // inverted: shorter step
-          const double pi = data.fem.energy - factor * fem.gravity_force.dot(trial) +
-                            (actuated ? model.actuation.potential(trial, data.lambda_a) : 0.0);
+          const double pi =
+              data.fem.energy - factor * fem.gravity_force.dot(trial) +
+              (!actuated ? 0.0
+               : frozen_followers
+                   ? model.actuation.potential(trial, lambda_conservative) - follower_force.dot(trial)
+                   : model.actuation.potential(trial, data.lambda_a));
           if (pi <= pi0 + 1e-4 * alpha * slope || std::abs(pi - pi0) <= pi_roundoff) {
             accepted = true;
             break;
@@ -414,7 +452,8 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       data.timings.other += seconds_since(t0);
       if (!accepted)
         return not_converged(s, it, rel,
-                             actuated && !conservative ? "line search found no decrease of the residual norm"
+                             actuated && !conservative && !frozen_followers
+                                 ? "line search found no decrease of the residual norm"
                                       : "line search found no decrease of the potential energy");
       out.x = trial;
       ++total_iterations;

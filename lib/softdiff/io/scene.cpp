@@ -301,27 +301,15 @@ class Reader {
   }
 
   // Rigid bodies (issue 21): stepped by implicit Euler or BDF2 (rigid/rigid_bdf2.hpp),
-  // with or without contact; static (integrator/static_rigid.hpp) beside a soft body,
-  // every rigid body with dofs held by contact (a fixed one needs nothing), without
-  // joint limits. The rest of static is refused.
+  // with or without contact; static (integrator/static_rigid.hpp) beside a soft body or
+  // alone (solve_static_rigid_only), every rigid body with dofs held by contact (a fixed one needs nothing); joint limits
+  // are rows of its contact solve (static_rigid.hpp). The rest of static is refused.
   void check_rigid_support(const Node& root, const SceneDesc& scene) const {
     if (scene.rigid_bodies.empty()) return;
-    const std::string first = scene.rigid_bodies.front().where.path;
     if (scene.simulation.integrator != Integrator::static_equilibrium) return;
     const Entry* integrator = root.get("simulation")->find("integrator");
-    auto refuse = [&](const std::string& why) {
-      ctx_.fail(integrator->key_mark, "simulation.integrator",
-                "integrator '" + integrator->value.scalar + "' with " + why + " is not supported yet (issue 21; " + first +
-                    " is rigid): use implicit_euler or bdf2");
-    };
-    if (scene.bodies.empty()) refuse("rigid bodies only (no soft body)");
     for (const auto& rb : scene.rigid_bodies) {
       const bool fixed = rb.joint && rb.joint->kind == JointDesc::Kind::fixed;
-      if (rb.joint && rb.joint->limits)
-        ctx_.fail(integrator->key_mark, "simulation.integrator",
-                  "integrator '" + integrator->value.scalar +
-                      "' with a rigid body whose joint has limits is not supported yet (issue 21; " + rb.joint->where.path +
-                      " has limits): use implicit_euler or bdf2");
       if (!fixed && !scene.contact.enabled)
         ctx_.fail(integrator->key_mark, "simulation.integrator",
                   "a static scene needs contact for a rigid body that is not fixed: " + rb.where.path + " ('" + rb.name +
