@@ -8,6 +8,7 @@
 // the problem and leaves no output file.
 #include <support/cli.hpp>
 #include <support/h5.hpp>
+#include <rigid/rigid_scenes.hpp>
 
 #include <gtest/gtest.h>
 #include <hdf5.h>
@@ -26,18 +27,9 @@ namespace fs = std::filesystem;
 
 namespace cli_calibrate_rigid_test {
 
-const fs::path kRoot = SOFTDIFF_SOURCE_DIR;
 const fs::path kWork = fs::path(SOFTDIFF_TEST_DATA_DIR) / "cli_calibrate_rigid";
 
-std::string beam() {
-  return "softdiff: 1\n"
-         "simulation: {dt: 0.01, steps: 10}\n"
-         "bodies:\n"
-         "  - name: beam\n"
-         "    mesh: " + (kRoot / "meshes/beam.msh").string() + "\n"
-         "    material: {young: 1.0e6, poisson: 0.45, density: 1070}\n"
-         "    fixed: [{group: clamp}]\n";
-}
+std::string beam() { return rigid_scenes::clamped_beam_yaml(10); }
 
 // Truth: the pendulum's mass 1000 x 0.01 x 0.04 x 0.01 = 0.004 kg; the spinner's inertia
 // xx m (0.02^2 + 0.01^2) / 12 = 3.3333e-7 kg m^2 (m = 0.008 kg).
@@ -50,16 +42,7 @@ std::string pendulum() {
          "    angular_velocity: [2, 0, 0]\n"
          "    joint: {type: hinge, anchor: [0.3, -0.08, 0], axis: [1, 0, 0]}\n";
 }
-std::string spinner() {
-  return "  - name: spinner\n"
-         "    type: rigid\n"
-         "    shape: {type: box, half_extents: [0.02, 0.01, 0.005]}\n"
-         "    density: 1000\n"
-         "    position: [0.3, 0.1, 0]\n"
-         "    orientation: [0.9689124217106447, 0.24740395925452294, 0, 0]\n"
-         "    velocity: [0, 0.1, 0.5]\n"
-         "    angular_velocity: [1, 2, 8]\n";
-}
+std::string spinner() { return rigid_scenes::spinner_yaml(); }
 
 double json_number(const std::string& json, const std::string& key) {
   const auto k = json.find("\"" + key + "\":");

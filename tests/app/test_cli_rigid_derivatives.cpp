@@ -7,6 +7,7 @@
 // without rigid bodies is refused with exit 2.
 #include <support/cli.hpp>
 #include <support/h5.hpp>
+#include <rigid/rigid_scenes.hpp>
 
 #include <gtest/gtest.h>
 #include <hdf5.h>
@@ -23,28 +24,11 @@ const fs::path kRoot = SOFTDIFF_SOURCE_DIR;
 const fs::path kWork = fs::path(SOFTDIFF_TEST_DATA_DIR) / "cli_rigid_derivatives";
 
 std::string beam() {
-  return "softdiff: 1\n"
-         "simulation: {dt: 0.01, steps: 3}\n"
-         "bodies:\n"
-         "  - name: beam\n"
-         "    mesh: " +
-         (kRoot / "meshes/beam.msh").string() +
-         "\n"
-         "    material: {young: 1.0e6, poisson: 0.45, density: 1070}\n"
-         "    damping: {rayleigh_mass: 0.5, rayleigh_stiffness: 0.001}\n"
-         "    fixed: [{group: clamp}]\n";
+  return rigid_scenes::clamped_beam_yaml(3, "    damping: {rayleigh_mass: 0.5, rayleigh_stiffness: 0.001}\n");
 }
 
 std::string rigid_scene() {
-  return beam() +
-         "  - name: spinner\n"
-         "    type: rigid\n"
-         "    shape: {type: box, half_extents: [0.02, 0.01, 0.005]}\n"
-         "    density: 1000\n"
-         "    position: [0.3, 0.1, 0]\n"
-         "    orientation: [0.9689124217106447, 0.24740395925452294, 0, 0]\n"
-         "    velocity: [0, 0.1, 0.5]\n"
-         "    angular_velocity: [1, 2, 8]\n"
+  return beam() + rigid_scenes::spinner_yaml() +
          "  - name: pendulum\n"
          "    type: rigid\n"
          "    shape: {type: box, half_extents: [0.005, 0.02, 0.005]}\n"

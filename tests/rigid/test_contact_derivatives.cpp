@@ -16,6 +16,7 @@
 #include <softdiff/diff/parameters.hpp>
 #include <support/meshes.hpp>
 #include <support/rigid_contact.hpp>
+#include <rigid/rigid_scenes.hpp>
 
 #include <gtest/gtest.h>
 
@@ -31,22 +32,11 @@ constexpr double g0 = 9.81;
 
 // A soft anchor far away with every node fixed (build_model needs a soft body); it takes
 // part in no contact pair.
-Model anchored(double h) {
-  test::BodySpec spec;
-  spec.fixed = [](const Vec3&) { return true; };
-  mesh::TetMesh m = test::box_mesh(1, 1, 1, 0.01, 0.01, 0.01);
-  for (Eigen::Index i = 0; i < m.X.cols(); ++i) m.X.col(i) += Vec3(5, 5, 5);
-  return test::make_model(m, spec, Vec3(0, 0, -g0), h);
-}
+Model anchored(double h) { return test::rigid_scenes::anchored(h, g0); }
 
 // Tight NCP: the polish then solves the mode equations to round-off, so that the finite
 // differences see the exact solution of each perturbed problem.
-contact::NcpOptions tight() {
-  contact::NcpOptions o;
-  o.tolerance = 1e-12;
-  o.max_iterations = 5000;
-  return o;
-}
+contact::NcpOptions tight() { return test::rigid_scenes::tight_ncp(1e-12); }
 
 // The contact backends (as in validation_rigid_contact.cpp). dense: G with the rigid
 // part h H_r W_r H_r^T (add_rigid_delassus), the derivative on the record's G. sparse:
@@ -205,26 +195,12 @@ void check_step(const Model& model, const State& in, double eps, double tol, uns
 // normal forces statically indeterminate, rank 3 of 4, and with friction their split,
 // which the solver picks, moves the friction torque; the derivative takes the
 // minimum-norm split, a finite difference the solver's. Three are determinate.)
-rigid::Shape wedge() {
-  rigid::Shape s;
-  s.kind = rigid::Shape::Kind::mesh;
-  s.mesh_vertices.resize(3, 4);
-  s.mesh_vertices << 0, 0.1, 0, 0.03, 0, 0, 0.08, 0.03, 0, 0, 0, 0.05;
-  s.mesh_triangles.resize(3, 4);
-  s.mesh_triangles << 0, 0, 1, 2, 2, 1, 2, 0, 1, 3, 3, 3;
-  return s;
-}
+rigid::Shape wedge() { return test::rigid_scenes::wedge_shape(); }
 
 // The scenes (dense backend; `in`: the state of the step differentiated).
 Model wedge_scene(State& in) {
   Model model = anchored(1e-3);
-  const rigid::Shape shape = wedge();
-  const rigid::MassProperties mp = rigid::mass_properties(shape, 800);
-  rigid::RigidState s;
-  s.position = Vec3(0, 0, mp.centre.z());
-  s.velocity = Vec3(0.5, 0.1, 0);
-  s.angular_velocity = Vec3(0, 0, 0.8);
-  test::add_rigid_body(model, "wedge", shape, 800, s);
+  test::rigid_scenes::add_sliding_wedge(model);
   test::enable_rigid_contact(model, {test::plane(Vec3::UnitZ(), 0, "floor")}, {{"wedge", "floor", 0.3}}, 1e-3, tight());
   model.contact.ncp.backend = contact::NcpBackend::dense;
   in = warm_up(model, 5);
@@ -268,13 +244,7 @@ TEST(RigidContactStepDerivatives, BlockStickingOnAnIncline) {
 // the cube's corners against the slab's top faces (vertex-face both ways), so the
 // geometry derivative runs through the soft nodes and the pseudo-nodes together.
 Model cube_scene(State& in) {
-  test::BodySpec spec;
-  spec.young = 5e4;
-  spec.poisson = 0.4;
-  spec.density = 1000;
-  spec.rayleigh_mass = 20;
-  spec.rayleigh_stiffness = 0.01;
-  spec.fixed = [](const Vec3& p) { return p.z() < 1e-9; };
+  const test::BodySpec spec = test::rigid_scenes::damped_slab_spec();
   const mesh::TetMesh m = test::box_mesh(4, 4, 1, 0.06, 0.06, 0.01);
   Model model = test::make_model(m, spec, Vec3(0, 0, -g0), 2e-3);
   rigid::RigidState s;
@@ -589,22 +559,8 @@ Model limit_scene(State& in, long warm, double upper = 0.0) {
   const mesh::TetMesh pad_a = placed(Vec3(0.175, -0.0125, 0.02)), pad_b = placed(Vec3(1.0, -0.0125, 0.04));
   std::vector<test::BodyInput> pads{{pad_a, spec, "pad_a"}, {pad_b, spec, "pad_b"}};
   Model model = test::make_model(pads, Vec3(0, 0, -g0), 1e-3);
-  rigid::RigidState bar;
-  bar.position = Vec3(0.1, 0, 0.01);
-  test::add_rigid_body(model, "bar", test::box_shape(Vec3(0.1, 0.02, 0.01)), 800, bar, 0.06, rigid::Joint::Kind::hinge);
-  model.rigid[0].joint.anchor = Vec3(0, 0, 0.01);
-  model.rigid[0].joint.axis = Vec3::UnitY();
-  model.rigid[0].joint.limits = std::make_pair(-0.1, upper);
-  rigid::initialize(model.rigid[0], bar);
+  test::rigid_scenes::add_limited_bar_and_block(model, upper, 0.06);
   model.initial.rigid[0] = model.rigid[0].reference;
-  rigid::RigidState block;
-  block.position = Vec3(1, 0, 0.02);
-  test::add_rigid_body(model, "block", test::box_shape(Vec3(0.02, 0.02, 0.02)), 500, block, 0.06,
-                       rigid::Joint::Kind::slider);
-  model.rigid[1].joint.anchor = block.position;
-  model.rigid[1].joint.axis = Vec3::UnitZ();
-  model.rigid[1].joint.limits = std::make_pair(0.0, 0.05);
-  rigid::initialize(model.rigid[1], block);
   model.initial.rigid[1] = model.rigid[1].reference;
   test::enable_rigid_contact(model, {}, {{"pad_a", "bar", 0.0}, {"pad_b", "block", 0.0}}, 1e-3, tight());
   model.contact.ncp.backend = contact::NcpBackend::dense;

@@ -10,6 +10,7 @@
 #include <softdiff/rigid/rotation.hpp>
 #include <support/meshes.hpp>
 #include <support/rigid_contact.hpp>
+#include <rigid/rigid_scenes.hpp>
 
 #include <gtest/gtest.h>
 
@@ -21,11 +22,7 @@ namespace rigid_contact_unit {
 
 // A fixed soft anchor (a 1x1x1-box mesh, every node fixed, far away) and one free box.
 Model anchor_and_box(const rigid::RigidState& s) {
-  test::BodySpec spec;
-  spec.fixed = [](const Vec3&) { return true; };
-  mesh::TetMesh m = test::box_mesh(1, 1, 1, 0.01, 0.01, 0.01);
-  for (Eigen::Index i = 0; i < m.X.cols(); ++i) m.X.col(i) += Vec3(5, 5, 5);
-  Model model = test::make_model(m, spec, Vec3(0, 0, -9.81), 1e-3);
+  Model model = test::rigid_scenes::anchored(1e-3);
   test::add_rigid_body(model, "box", test::box_shape(Vec3(0.05, 0.03, 0.02)), 800, s);
   contact::NcpOptions ncp;
   test::enable_rigid_contact(model, {test::plane(Vec3::UnitZ(), 0)}, {{"box", "floor", 0.5}}, 1e-3, ncp);

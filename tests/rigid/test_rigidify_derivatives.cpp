@@ -28,6 +28,7 @@
 #include <support/cli.hpp>
 #include <support/fd.hpp>
 #include <support/meshes.hpp>
+#include <rigid/rigid_scenes.hpp>
 
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -47,41 +48,20 @@ using integrator::StepTangent;
 namespace rigidify_derivatives_test {
 
 // A bar of 8 x 2 x 2 cells (0.2 x 0.04 x 0.02 m, 81 nodes) as MSH 2.2.
-std::string bar_msh() {
-  const auto m = test::box_mesh(8, 2, 2, 0.2, 0.04, 0.02);
-  std::string s = "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n" + std::to_string(m.X.cols()) + "\n";
-  char buf[128];
-  for (int i = 0; i < m.X.cols(); ++i) {
-    std::snprintf(buf, sizeof buf, "%d %.17g %.17g %.17g\n", i + 1, m.X(0, i), m.X(1, i), m.X(2, i));
-    s += buf;
-  }
-  s += "$EndNodes\n$Elements\n" + std::to_string(m.tets.cols()) + "\n";
-  for (int e = 0; e < m.tets.cols(); ++e) {
-    std::snprintf(buf, sizeof buf, "%d 4 2 1 1 %d %d %d %d\n", e + 1, m.tets(0, e) + 1, m.tets(1, e) + 1,
-                  m.tets(2, e) + 1, m.tets(3, e) + 1);
-    s += buf;
-  }
-  return s + "$EndElements\n";
-}
+std::string bar_msh() { return test::rigid_scenes::box_msh_text(8, 2, 2, 0.2, 0.04, 0.02); }
 
 // The bar scene with `body_extra` appended to the body and `top_extra` to the file.
 Model load(const std::string& name, const std::string& body_extra, const std::string& top_extra = "",
            const std::string& simulation = "{dt: 0.01, steps: 10}") {
-  const fs::path dir =
-      fs::path(SOFTDIFF_TEST_DATA_DIR) / ("rigidify_derivatives_" + std::to_string(::getpid())) / name;
-  fs::remove_all(dir);
-  test::write_text(dir / "bar.msh", bar_msh());
-  test::write_text(dir / "scene.yaml", "softdiff: 1\n"
+  return test::rigid_scenes::load_scene_text("rigidify_derivatives", name, "softdiff: 1\n"
                                        "simulation: " + simulation + "\n"
                                        "bodies:\n"
                                        "  - name: bar\n"
                                        "    mesh: bar.msh\n"
                                        "    material: {law: corotational, young: 2.0e4, poisson: 0.4, density: 1000}\n"
                                        "    damping: {rayleigh_mass: 0.5, rayleigh_stiffness: 0.01}\n" +
-                                           body_extra + top_extra);
-  Model model = io::build_model(io::load_scene(dir / "scene.yaml"));
-  fs::remove_all(dir);
-  return model;
+                                           body_extra + top_extra,
+                                           {{"bar.msh", bar_msh()}});
 }
 
 const std::string kClamp = "    fixed: [{box: [-1, -1, -1, 0.001, 1, 1]}]\n";

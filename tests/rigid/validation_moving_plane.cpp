@@ -19,6 +19,7 @@
 #include <support/meshes.hpp>
 #include <support/model_builder.hpp>
 #include <support/rigid_contact.hpp>
+#include <rigid/rigid_scenes.hpp>
 
 #include <gtest/gtest.h>
 
@@ -34,13 +35,7 @@ constexpr double g0 = 9.81;
 
 // A soft anchor far away with every node fixed (build_model's rule: a scene needs a soft
 // body); it takes part in no contact pair.
-Model anchored(double h) {
-  test::BodySpec spec;
-  spec.fixed = [](const Vec3&) { return true; };
-  mesh::TetMesh m = test::box_mesh(1, 1, 1, 0.01, 0.01, 0.01);
-  for (Eigen::Index i = 0; i < m.X.cols(); ++i) m.X.col(i) += Vec3(5, 5, 5);
-  return test::make_model(m, spec, Vec3(0, 0, -g0), h);
-}
+Model anchored(double h) { return test::rigid_scenes::anchored(h, g0); }
 
 collision::Obstacle moving_plane(std::vector<std::array<double, 2>> schedule) {
   collision::Obstacle o;
@@ -53,12 +48,7 @@ collision::Obstacle moving_plane(std::vector<std::array<double, 2>> schedule) {
   return o;
 }
 
-contact::NcpOptions tight() {
-  contact::NcpOptions o;
-  o.tolerance = 1e-10;
-  o.max_iterations = 5000;
-  return o;
-}
+contact::NcpOptions tight() { return test::rigid_scenes::tight_ncp(1e-10); }
 
 // The schedule: piecewise linear, held outside, scaled with a non-unit normal.
 TEST(MovingPlane, OffsetScheduleIsPiecewiseLinearAndHeldOutside) {

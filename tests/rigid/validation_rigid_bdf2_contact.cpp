@@ -12,6 +12,7 @@
 #include <softdiff/integrator/bdf2.hpp>
 #include <support/meshes.hpp>
 #include <support/rigid_contact.hpp>
+#include <rigid/rigid_scenes.hpp>
 
 #include <gtest/gtest.h>
 
@@ -30,19 +31,13 @@ class RigidBdf2Contact : public ::testing::TestWithParam<contact::NcpBackend> {}
 
 // A soft anchor far away with every node fixed (the step needs a soft body), BDF2.
 Model anchored(double h) {
-  test::BodySpec spec;
-  spec.fixed = [](const Vec3&) { return true; };
-  mesh::TetMesh m = test::box_mesh(1, 1, 1, 0.01, 0.01, 0.01);
-  for (Eigen::Index i = 0; i < m.X.cols(); ++i) m.X.col(i) += Vec3(5, 5, 5);
-  Model model = test::make_model(m, spec, Vec3(0, 0, -g0), h);
+  Model model = test::rigid_scenes::anchored(h, g0);
   model.step.integrator = IntegratorKind::bdf2;
   return model;
 }
 
 contact::NcpOptions tight(contact::NcpBackend backend) {
-  contact::NcpOptions o;
-  o.tolerance = 1e-10;
-  o.max_iterations = 5000;
+  contact::NcpOptions o = test::rigid_scenes::tight_ncp(1e-10);
   o.backend = backend;
   return o;
 }
@@ -63,18 +58,7 @@ State run(const Model& model, Data& data, long steps, bool sparse) {
   return a;
 }
 
-Vec3 force_on_rigid(const Data& data, int side, int* count) {
-  Vec3 f = Vec3::Zero();
-  int k = 0;
-  for (int i = 0; i < data.contact.contacts.size(); ++i) {
-    const auto& c = data.contact.contacts.contacts[static_cast<std::size_t>(i)];
-    const Vec3 w = c.frame * data.contact.lambda.segment<3>(3 * i);
-    if (c.side_a == side) f += w, ++k;
-    else if (c.side_b == side) f -= w, ++k;
-  }
-  *count = k;
-  return f;
-}
+Vec3 force_on_rigid(const Data& data, int side, int* count) { return test::rigid_scenes::contact_force_on(data, side, count); }
 
 // Tolerances as the implicit Euler test's: the NCP tolerance 1e-10 bounds the force
 // error per step to ~1e-10 of the weight, 1e-7 relative after 200 steps is far above it.

@@ -16,6 +16,7 @@
 #include <softdiff/integrator/bdf2.hpp>
 #include <support/meshes.hpp>
 #include <support/rigid_contact.hpp>
+#include <rigid/rigid_scenes.hpp>
 
 #include <gtest/gtest.h>
 
@@ -50,20 +51,9 @@ class RigidContactValidation : public ::testing::TestWithParam<Backend> {
 
 // A soft anchor far away with every node fixed: the step needs a soft body (build_model
 // refuses a scene of rigid bodies only); it takes part in no contact pair.
-Model anchored(double h) {
-  test::BodySpec spec;
-  spec.fixed = [](const Vec3&) { return true; };
-  mesh::TetMesh m = test::box_mesh(1, 1, 1, 0.01, 0.01, 0.01);
-  for (Eigen::Index i = 0; i < m.X.cols(); ++i) m.X.col(i) += Vec3(5, 5, 5);
-  return test::make_model(m, spec, Vec3(0, 0, -g0), h);
-}
+Model anchored(double h) { return test::rigid_scenes::anchored(h, g0); }
 
-contact::NcpOptions tight() {
-  contact::NcpOptions o;
-  o.tolerance = 1e-10;
-  o.max_iterations = 5000;
-  return on_backend(o);
-}
+contact::NcpOptions tight() { return on_backend(test::rigid_scenes::tight_ncp(1e-10)); }
 
 // Runs `steps` steps from model.initial; returns the last state (asserts every step ok).
 State run(const Model& model, Data& data, long steps) {
@@ -86,17 +76,8 @@ State run(const Model& model, Data& data, long steps) {
 // Sum of the world contact forces of the last step on the rigid body (the first side
 // when the body is side a, the reaction otherwise), and the number of contacts.
 Vec3 force_on_rigid(const Model& model, const Data& data, int side, int* count = nullptr) {
-  Vec3 f = Vec3::Zero();
-  int k = 0;
-  for (int i = 0; i < data.contact.contacts.size(); ++i) {
-    const auto& c = data.contact.contacts.contacts[static_cast<std::size_t>(i)];
-    const Vec3 w = c.frame * data.contact.lambda.segment<3>(3 * i);
-    if (c.side_a == side) f += w, ++k;
-    else if (c.side_b == side) f -= w, ++k;
-  }
   (void)model;
-  if (count) *count = k;
-  return f;
+  return test::rigid_scenes::contact_force_on(data, side, count);
 }
 
 // The block: 0.1 x 0.06 x 0.04 m, rotated by the incline's angle a about y so that its
@@ -591,20 +572,7 @@ void limits_carry_contact_loads(double upper, bool pad_on_bar) {
   pads.push_back({pad_b, spec, "pad_b"});
   Model model = test::make_model(pads, Vec3(0, 0, -g0), h);
   const int bar_side = pad_on_bar ? 2 : 1, block_side = bar_side + 1;  // names: pads, bar, block
-  rigid::RigidState bar;
-  bar.position = Vec3(0.1, 0, 0.01);
-  test::add_rigid_body(model, "bar", test::box_shape(Vec3(0.1, 0.02, 0.01)), 800, bar, 0.01, rigid::Joint::Kind::hinge);
-  model.rigid[0].joint.anchor = Vec3(0, 0, 0.01);
-  model.rigid[0].joint.axis = Vec3::UnitY();
-  model.rigid[0].joint.limits = std::make_pair(-0.1, upper);
-  rigid::initialize(model.rigid[0], bar);
-  rigid::RigidState block;
-  block.position = Vec3(1, 0, 0.02);
-  test::add_rigid_body(model, "block", test::box_shape(Vec3(0.02, 0.02, 0.02)), 500, block, 0.01, rigid::Joint::Kind::slider);
-  model.rigid[1].joint.anchor = block.position;
-  model.rigid[1].joint.axis = Vec3::UnitZ();
-  model.rigid[1].joint.limits = std::make_pair(0.0, 0.05);
-  rigid::initialize(model.rigid[1], block);
+  test::rigid_scenes::add_limited_bar_and_block(model, upper, 0.01);
   // The default NCP tolerance (1e-8), as CubeRestsOnASoftSlab: at 1e-10 one step of the
   // pads' redundant frictional manifold stalls at 1.04e-10.
   const contact::NcpOptions ncp = on_backend(contact::NcpOptions{});

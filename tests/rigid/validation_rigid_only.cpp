@@ -12,6 +12,7 @@
 #include <softdiff/data.hpp>
 #include <softdiff/integrator/bdf2.hpp>
 #include <support/rigid_contact.hpp>
+#include <rigid/rigid_scenes.hpp>
 
 #include <gtest/gtest.h>
 
@@ -35,27 +36,14 @@ Model rigid_only(double h) {
 }
 
 contact::NcpOptions tight() {
-  contact::NcpOptions o;
-  o.tolerance = 1e-10;
-  o.max_iterations = 5000;
+  contact::NcpOptions o = test::rigid_scenes::tight_ncp(1e-10);
   o.backend = contact::NcpBackend::dense;
   return o;
 }
 
 // Sum of the world contact forces of the last step on side `side` (a name index), as
 // validation_rigid_contact.cpp's force_on_rigid.
-Vec3 force_on(const Data& data, int side, int* count = nullptr) {
-  Vec3 f = Vec3::Zero();
-  int k = 0;
-  for (int i = 0; i < data.contact.contacts.size(); ++i) {
-    const auto& c = data.contact.contacts.contacts[static_cast<std::size_t>(i)];
-    const Vec3 w = c.frame * data.contact.lambda.segment<3>(3 * i);
-    if (c.side_a == side) f += w, ++k;
-    else if (c.side_b == side) f -= w, ++k;
-  }
-  if (count) *count = k;
-  return f;
-}
+Vec3 force_on(const Data& data, int side, int* count = nullptr) { return test::rigid_scenes::contact_force_on(data, side, count); }
 
 // Lowest world z of body r's surface vertices.
 double lowest(const Model& model, const State& s, int r) {

@@ -21,6 +21,7 @@
 #include <support/cli.hpp>
 #include <support/meshes.hpp>
 #include <support/rigid_contact.hpp>
+#include <rigid/rigid_scenes.hpp>
 
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -39,18 +40,7 @@ namespace rigid_static_validation {
 constexpr double g0 = 9.81;
 
 // Sum of the world contact forces of the last contact solve on side `side`.
-Vec3 force_on(const Data& data, int side, int* count = nullptr) {
-  Vec3 f = Vec3::Zero();
-  int k = 0;
-  for (int i = 0; i < data.contact.contacts.size(); ++i) {
-    const auto& c = data.contact.contacts.contacts[static_cast<std::size_t>(i)];
-    const Vec3 w = c.frame * data.contact.lambda.segment<3>(3 * i);
-    if (c.side_a == side) f += w, ++k;
-    else if (c.side_b == side) f -= w, ++k;
-  }
-  if (count) *count = k;
-  return f;
-}
+Vec3 force_on(const Data& data, int side, int* count = nullptr) { return test::rigid_scenes::contact_force_on(data, side, count); }
 
 // The moment about the axis (anchor a, unit n) of the contact forces on side `side`,
 // each applied at its point on that side (point on side a, point_b on side b).
@@ -92,13 +82,7 @@ Model static_of(Model model) {
 // The soft slab of validation_rigid_contact.cpp CubeRestsOnASoftSlab: 0.12 x 0.12 x
 // 0.01 m, E = 50 kPa, bottom fixed, damped (the damping only matters to the dynamic run).
 Model slab_and_cube(double h) {
-  test::BodySpec spec;
-  spec.young = 5e4;
-  spec.poisson = 0.4;
-  spec.density = 1000;
-  spec.rayleigh_mass = 20;
-  spec.rayleigh_stiffness = 0.01;
-  spec.fixed = [](const Vec3& p) { return p.z() < 1e-9; };
+  const test::BodySpec spec = test::rigid_scenes::damped_slab_spec();
   const mesh::TetMesh m = test::box_mesh(8, 8, 2, 0.12, 0.12, 0.01);
   Model model = test::make_model(m, spec, Vec3(0, 0, -g0), h);
   rigid::RigidState s;
@@ -351,12 +335,7 @@ std::string static_beam(const std::string& body_extra, const std::string& gravit
 }
 
 Model load(const std::string& name, const std::string& text) {
-  const fs::path dir = fs::path(SOFTDIFF_TEST_DATA_DIR) / ("validation_rigid_static_" + std::to_string(::getpid())) / name;
-  fs::remove_all(dir);
-  test::write_text(dir / "scene.yaml", text);
-  Model model = io::build_model(io::load_scene(dir / "scene.yaml"));
-  fs::remove_all(dir);
-  return model;
+  return test::rigid_scenes::load_scene_text("validation_rigid_static", name, text);
 }
 
 State solve(const Model& model, Data& data) {

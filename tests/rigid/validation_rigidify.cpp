@@ -37,6 +37,7 @@
 #include <softdiff/io/scene.hpp>
 #include <support/cli.hpp>
 #include <support/meshes.hpp>
+#include <rigid/rigid_scenes.hpp>
 
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -75,12 +76,7 @@ std::string beam_scene(const std::string& body_extra, const std::string& gravity
 }
 
 Model load(const std::string& name, const std::string& text) {
-  const fs::path dir = fs::path(SOFTDIFF_TEST_DATA_DIR) / ("validation_rigidify_" + std::to_string(::getpid())) / name;
-  fs::remove_all(dir);
-  test::write_text(dir / "scene.yaml", text);
-  Model model = io::build_model(io::load_scene(dir / "scene.yaml"));
-  fs::remove_all(dir);
-  return model;
+  return test::rigid_scenes::load_scene_text("validation_rigidify", name, text);
 }
 
 // Runs `steps` steps from the model's initial state; returns the final state.
@@ -352,22 +348,7 @@ TEST(RigidifyValidation, ServoSpinsTheWholeBodyAsTheTorqueSays) {
 // ---- Contact with rigidified parts ----
 
 // A bar of 8 x 2 x 2 cells (0.2 x 0.04 x 0.02 m, 81 nodes) as MSH 2.2, lying on z = 0.
-std::string bar_msh() {
-  const auto m = test::box_mesh(8, 2, 2, 0.2, 0.04, 0.02);
-  std::string s = "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n" + std::to_string(m.X.cols()) + "\n";
-  char buf[128];
-  for (int i = 0; i < m.X.cols(); ++i) {
-    std::snprintf(buf, sizeof buf, "%d %.17g %.17g %.17g\n", i + 1, m.X(0, i), m.X(1, i), m.X(2, i));
-    s += buf;
-  }
-  s += "$EndNodes\n$Elements\n" + std::to_string(m.tets.cols()) + "\n";
-  for (int e = 0; e < m.tets.cols(); ++e) {
-    std::snprintf(buf, sizeof buf, "%d 4 2 1 1 %d %d %d %d\n", e + 1, m.tets(0, e) + 1, m.tets(1, e) + 1,
-                  m.tets(2, e) + 1, m.tets(3, e) + 1);
-    s += buf;
-  }
-  return s + "$EndElements\n";
-}
+std::string bar_msh() { return test::rigid_scenes::box_msh_text(8, 2, 2, 0.2, 0.04, 0.02); }
 
 // The bar released at zero gap on the plane z = 0 (friction 0.5), damped, its middle
 // block x in [0.075, 0.125] (3 node layers, 27 nodes) rigidified; `rigidify_extra`

@@ -36,12 +36,9 @@ void add_rigid_surfaces(Model& model) {
   }
 }
 
-void begin_rigid_contact(const Model& model, Data& data, const std::vector<rigid::RigidState>& in,
-                         const std::vector<rigid::RigidState>& free) {
-  const std::size_t R = model.rigid.size();
-  SOFTDIFF_DEMAND(in.size() == R && free.size() == R, "begin_rigid_contact: expected " + std::to_string(R) +
-                                                          " rigid states, got " + std::to_string(in.size()) + " and " +
-                                                          std::to_string(free.size()));
+ContactData::Rigid& size_rigid_record(Data& data, const std::vector<rigid::RigidState>& in,
+                                      const std::vector<rigid::RigidState>& free) {
+  const std::size_t R = in.size();
   auto& rd = data.contact.rigid;
   rd.in = in;  // same size after the first step: no allocation
   rd.free = free;
@@ -51,6 +48,16 @@ void begin_rigid_contact(const Model& model, Data& data, const std::vector<rigid
     rd.L.resize(R);
     rd.rank.resize(R);
   }
+  return rd;
+}
+
+void begin_rigid_contact(const Model& model, Data& data, const std::vector<rigid::RigidState>& in,
+                         const std::vector<rigid::RigidState>& free) {
+  const std::size_t R = model.rigid.size();
+  SOFTDIFF_DEMAND(in.size() == R && free.size() == R, "begin_rigid_contact: expected " + std::to_string(R) +
+                                                          " rigid states, got " + std::to_string(in.size()) + " and " +
+                                                          std::to_string(free.size()));
+  auto& rd = size_rigid_record(data, in, free);
   for (std::size_t r = 0; r < R; ++r) {
     const auto& body = model.rigid[r];
     rd.u_free.segment<3>(6 * r) = free[r].velocity;

@@ -39,6 +39,13 @@ namespace softdiff::contact {
 // rigid bodies, obstacles). Nothing without rigid bodies.
 void add_rigid_surfaces(Model& model);
 
+// The record's per-body storage (data.contact.rigid): in, free (copies), u_free (6R), W,
+// L, rank (R entries, R = in.size()), resized only when R changes (no allocation after the
+// first step). Their values are the caller's: begin_rigid_contact (a dynamic step) and
+// integrator::begin_static_rigid (a static Newton iteration, free = in) fill them.
+ContactData::Rigid& size_rigid_record(Data& data, const std::vector<rigid::RigidState>& in,
+                                      const std::vector<rigid::RigidState>& free);
+
 // Before the soft step: records the rigid bodies' start states and free velocities
 // (`free`: rigid::step without contact, from `in`) and each body's W_r.
 void begin_rigid_contact(const Model& model, Data& data, const std::vector<rigid::RigidState>& in,

@@ -34,6 +34,7 @@ void RigidContactDerivative::prepare(const Model& model, const Data& data, const
   const auto& rd = cd.rigid;
   const int n = model.fem.num_nodes;
   const std::size_t R = model.rigid.size();
+  ++prepares_;
   h_ = h;
   contacts_ = cd.contacts.size() > 0;
   bodies_.resize(R);

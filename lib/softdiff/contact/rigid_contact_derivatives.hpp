@@ -67,6 +67,9 @@ class RigidContactDerivative {
   // steps' StepInfo; data.contact: contacts, lambda) and the step's rigid end states.
   void prepare(const Model& model, const Data& data, const std::vector<rigid::RigidState>& out, double h);
   bool with_contacts() const { return contacts_; }
+  // How many times prepare ran (the step derivative calls it once per step: its cache key,
+  // integrator::StepDerivatives::prepare_rigid; tests count it).
+  long prepare_count() const { return prepares_; }
 
   // Tangents. z: 12 R (the rigid input states), zp: 7 R (mass, inertia per body); empty: zero.
   // dX: the extended positions' tangent; its pseudo-node part is set from z.
@@ -147,6 +150,7 @@ class RigidContactDerivative {
   VecX F_;     // (3 pseudo) the contact force on each pseudo-node, h sum_i w_k C_i lambda_i
   bool contacts_ = false;
   double h_ = 0;
+  long prepares_ = 0;
 };
 
 }  // namespace softdiff::contact

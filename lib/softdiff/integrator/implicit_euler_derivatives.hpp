@@ -121,6 +121,9 @@ class StepDerivatives {
   // The contact forces' tangent d lambda_c (3 nc, in the contact frames) of the last
   // jvp() of a step with contact (the control's contact-force objective).
   const VecX& contact_force_tangent() const { return dlambda_; }
+  // How many times the rigid contact maps were prepared (once per step, whatever the
+  // number of jvp / vjp calls: prepare_rigid's cache key).
+  long rigid_prepare_count() const { return rigid_.prepare_count(); }
 
   // Valid when data holds the record of the step in -> out: right after
   // implicit_euler_step(model, data, in, out) returned ok. Returns false (outputs
@@ -184,6 +187,7 @@ class StepDerivatives {
   contact::RigidContactDerivative rigid_;
   VecX ext_dx_, ext_r_, ext_u_, ext_y_, ext_bar_x_, du0_, bar_du0_;
   VecX contact_v_;                   // the v_f (and rigid u) the contact derivatives were prepared for
+  VecX rigid_key_, rigid_key_now_;   // the step rigid_ was prepared for (prepare_rigid), and this call's
   VecX b_, dlambda_, bar_lambda_, bar_b_, bar_mu_, y2_;
   SparseMatrix newton_A_;            // Newton: dR/dv at x_f (the pattern's structure)
   std::unique_ptr<LinearSolver> newton_solver_;

@@ -48,15 +48,7 @@ void begin_static_rigid(const Model& model, Data& data, const std::vector<rigid:
   const std::size_t R = model.rigid.size();
   SOFTDIFF_DEMAND(poses.size() == R, "begin_static_rigid: expected " + std::to_string(R) + " rigid states, got " +
                                          std::to_string(poses.size()));
-  auto& rd = data.contact.rigid;
-  rd.in = poses;
-  rd.free = poses;
-  if (rd.u_free.size() != static_cast<Eigen::Index>(6 * R)) rd.u_free.resize(6 * R);
-  if (rd.W.size() != R) {
-    rd.W.resize(R);
-    rd.L.resize(R);
-    rd.rank.resize(R);
-  }
+  auto& rd = contact::size_rigid_record(data, poses, poses);  // the static step has no free step: in = free
   for (std::size_t r = 0; r < R; ++r) {
     const auto& body = model.rigid[r];
     const auto o = 6 * static_cast<Eigen::Index>(r);

@@ -340,9 +340,9 @@ Mat6 step_matrix(const RigidBody& body, const RigidState& in, const RigidState& 
   return M;
 }
 
-Eigen::Matrix<double, 6, Eigen::Dynamic> joint_motion_basis(const RigidBody& body, const RigidState& state) {
+JointBasis joint_motion_basis(const RigidBody& body, const RigidState& state) {
   const Joint& j = body.joint;
-  Eigen::Matrix<double, 6, Eigen::Dynamic> T;
+  JointBasis T;
   switch (j.kind) {
     case Joint::Kind::free: T = Mat6::Identity(); break;
     case Joint::Kind::fixed: T.resize(6, 0); break;

@@ -136,7 +136,10 @@ Mat3X world_vertices(const RigidBody& body, const RigidState& state);
 Mat6 step_matrix(const RigidBody& body, const RigidState& in, const RigidState& out, double h);
 
 // The joint's allowed velocities at a state: 6 x k, (v, omega) = T qdot. free: the 6x6
-// identity; fixed: 6 x 0; hinge: [n x (x - anchor); n]; slider: [n; 0].
-Eigen::Matrix<double, 6, Eigen::Dynamic> joint_motion_basis(const RigidBody& body, const RigidState& state);
+// identity; fixed: 6 x 0; hinge: [n x (x - anchor); n]; slider: [n; 0]. Fixed-size
+// storage (at most 6 columns, cols() = k): no allocation, so it may be called in the
+// per-limit and per-body loops of every step and derivative.
+using JointBasis = Eigen::Matrix<double, 6, Eigen::Dynamic, Eigen::ColMajor, 6, 6>;
+JointBasis joint_motion_basis(const RigidBody& body, const RigidState& state);
 
 }  // namespace softdiff::rigid

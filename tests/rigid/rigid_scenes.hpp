@@ -1,0 +1,190 @@
+#pragma once
+// The set-ups shared by the rigid-body tests (issue 21; tests/rigid and the rigid tests of
+// tests/app), as tests/optim/rigid_calibration_scene.hpp: scene builders and helpers that
+// several test files repeated word for word (`duplicates --change --base e65241c`, D1-D8
+// of session 10). Set-up only: no assertion lives here. Everything is inline (the test
+// binaries are unity builds: several files that include this share one translation unit).
+#include <softdiff/data.hpp>
+#include <softdiff/io/build_model.hpp>
+#include <softdiff/io/scene.hpp>
+#include <softdiff/model.hpp>
+#include <support/cli.hpp>
+#include <support/meshes.hpp>
+#include <support/rigid_contact.hpp>
+
+#include <cstdio>
+#include <filesystem>
+#include <string>
+#include <unistd.h>
+#include <utility>
+#include <vector>
+
+namespace softdiff::test::rigid_scenes {
+
+// A soft anchor far away (a 1x1x1-box mesh of 1 cm at (5, 5, 5)) with every node fixed,
+// gravity (0, 0, -g), step h: the soft body a scene with rigid bodies in contact is built
+// around where the test wants the soft stage present; it takes part in no contact pair.
+inline Model anchored(double h, double g = 9.81) {
+  BodySpec spec;
+  spec.fixed = [](const Vec3&) { return true; };
+  mesh::TetMesh m = box_mesh(1, 1, 1, 0.01, 0.01, 0.01);
+  for (Eigen::Index i = 0; i < m.X.cols(); ++i) m.X.col(i) += Vec3(5, 5, 5);
+  return make_model(m, spec, Vec3(0, 0, -g), h);
+}
+
+// A model without soft bodies (test::make_model of no body: 0 nodes, an empty pattern),
+// gravity (0, 0, -g), step h: a scene of rigid bodies only.
+inline Model rigid_only_model(double h, double g = 9.81) {
+  return make_model(std::vector<BodyInput>{}, Vec3(0, 0, -g), h);
+}
+
+// A tetrahedron (base triangle (0,0,0), (0.1,0,0), (0,0.08,0), apex (0.03,0.03,0.05) m):
+// three contacts on a plane, determinate (a box's four corners are not).
+inline rigid::Shape wedge_shape() {
+  rigid::Shape s;
+  s.kind = rigid::Shape::Kind::mesh;
+  s.mesh_vertices.resize(3, 4);
+  s.mesh_vertices << 0, 0.1, 0, 0.03, 0, 0, 0.08, 0.03, 0, 0, 0, 0.05;
+  s.mesh_triangles.resize(3, 4);
+  s.mesh_triangles << 0, 0, 1, 2, 2, 1, 2, 0, 1, 3, 3, 3;
+  return s;
+}
+
+// The wedge (800 kg/m^3) standing on its base on z = 0, sliding at (0.5, 0.1, 0) m/s and
+// spinning at 0.8 rad/s about z: appended to `model` as "wedge".
+inline void add_sliding_wedge(Model& model) {
+  const rigid::Shape shape = wedge_shape();
+  const rigid::MassProperties mp = rigid::mass_properties(shape, 800);
+  rigid::RigidState s;
+  s.position = Vec3(0, 0, mp.centre.z());
+  s.velocity = Vec3(0.5, 0.1, 0);
+  s.angular_velocity = Vec3(0, 0, 0.8);
+  add_rigid_body(model, "wedge", shape, 800, s);
+}
+
+// A tight NCP: `tolerance`, 5000 iterations (the polish then solves the mode equations to
+// round-off, so that finite differences and closed forms see the exact solution).
+inline contact::NcpOptions tight_ncp(double tolerance) {
+  contact::NcpOptions o;
+  o.tolerance = tolerance;
+  o.max_iterations = 5000;
+  return o;
+}
+
+// Sum of the world contact forces of the last contact solve on side `side` (a name index:
+// soft bodies, rigid bodies, obstacles): + when it is side a, the reaction when side b;
+// `count`: the number of its contacts.
+inline Vec3 contact_force_on(const Data& data, int side, int* count = nullptr) {
+  Vec3 f = Vec3::Zero();
+  int k = 0;
+  for (int i = 0; i < data.contact.contacts.size(); ++i) {
+    const auto& c = data.contact.contacts.contacts[static_cast<std::size_t>(i)];
+    const Vec3 w = c.frame * data.contact.lambda.segment<3>(3 * i);
+    if (c.side_a == side) f += w, ++k;
+    else if (c.side_b == side) f -= w, ++k;
+  }
+  if (count) *count = k;
+  return f;
+}
+
+// The damped soft slab's material (E = 50 kPa, nu = 0.4, 1000 kg/m^3, Rayleigh 20 1/s and
+// 0.01 s), bottom (z = 0) fixed: the slab under the rigid cube of the cube-on-slab tests.
+inline BodySpec damped_slab_spec() {
+  BodySpec spec;
+  spec.young = 5e4;
+  spec.poisson = 0.4;
+  spec.density = 1000;
+  spec.rayleigh_mass = 20;
+  spec.rayleigh_stiffness = 0.01;
+  spec.fixed = [](const Vec3& p) { return p.z() < 1e-9; };
+  return spec;
+}
+
+// The two limited joints of the limits-in-contact tests, appended to `model`: a bar (0.2 x
+// 0.04 x 0.02 m, 800 kg/m^3) hinged about y at its left end (anchor (0, 0, 0.01)), limits
+// [-0.1, upper], and a block (0.04 m, 500 kg/m^3) on a vertical slider at (1, 0, 0.02),
+// limits [0, 0.05]; both surfaces meshed with `max_edge`. Bodies 0 and 1 of the model's
+// rigid list (the model has no rigid body before).
+inline void add_limited_bar_and_block(Model& model, double upper, double max_edge) {
+  rigid::RigidState bar;
+  bar.position = Vec3(0.1, 0, 0.01);
+  add_rigid_body(model, "bar", box_shape(Vec3(0.1, 0.02, 0.01)), 800, bar, max_edge, rigid::Joint::Kind::hinge);
+  model.rigid[0].joint.anchor = Vec3(0, 0, 0.01);
+  model.rigid[0].joint.axis = Vec3::UnitY();
+  model.rigid[0].joint.limits = std::make_pair(-0.1, upper);
+  rigid::initialize(model.rigid[0], bar);
+  rigid::RigidState block;
+  block.position = Vec3(1, 0, 0.02);
+  add_rigid_body(model, "block", box_shape(Vec3(0.02, 0.02, 0.02)), 500, block, max_edge,
+                 rigid::Joint::Kind::slider);
+  model.rigid[1].joint.anchor = block.position;
+  model.rigid[1].joint.axis = Vec3::UnitZ();
+  model.rigid[1].joint.limits = std::make_pair(0.0, 0.05);
+  rigid::initialize(model.rigid[1], block);
+}
+
+// A box of nx x ny x nz cells of size (lx, ly, lz) (test::box_mesh) as MSH 2.2 text.
+inline std::string box_msh_text(int nx, int ny, int nz, double lx, double ly, double lz) {
+  const auto m = box_mesh(nx, ny, nz, lx, ly, lz);
+  std::string s = "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n" + std::to_string(m.X.cols()) + "\n";
+  char buf[128];
+  for (int i = 0; i < m.X.cols(); ++i) {
+    std::snprintf(buf, sizeof buf, "%d %.17g %.17g %.17g\n", i + 1, m.X(0, i), m.X(1, i), m.X(2, i));
+    s += buf;
+  }
+  s += "$EndNodes\n$Elements\n" + std::to_string(m.tets.cols()) + "\n";
+  for (int e = 0; e < m.tets.cols(); ++e) {
+    std::snprintf(buf, sizeof buf, "%d 4 2 1 1 %d %d %d %d\n", e + 1, m.tets(0, e) + 1, m.tets(1, e) + 1,
+                  m.tets(2, e) + 1, m.tets(3, e) + 1);
+    s += buf;
+  }
+  return s + "$EndElements\n";
+}
+
+// The model of the scene `text` (YAML), written with `files` (name, contents: meshes the
+// scene names) to SOFTDIFF_TEST_DATA_DIR/<tag>_<pid>/<name>/ and removed after loading.
+inline Model load_scene_text(const std::string& tag, const std::string& name, const std::string& text,
+                             const std::vector<std::pair<std::string, std::string>>& files = {}) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::path(SOFTDIFF_TEST_DATA_DIR) / (tag + "_" + std::to_string(::getpid())) / name;
+  fs::remove_all(dir);
+  for (const auto& [file, contents] : files) write_text(dir / file, contents);
+  write_text(dir / "scene.yaml", text);
+  Model model = io::build_model(io::load_scene(dir / "scene.yaml"));
+  fs::remove_all(dir);
+  return model;
+}
+
+// The shipped clamped beam (meshes/beam.msh: 0.2 x 0.02 x 0.02 m, E = 1 MPa, nu = 0.45,
+// 1070 kg/m^3) as the first body of a scene of `steps` steps of 0.01 s, with `damping`
+// (a body line such as "    damping: {...}\n", or empty) before its clamp.
+inline std::string clamped_beam_yaml(int steps, const std::string& damping = "") {
+  const std::filesystem::path root = SOFTDIFF_SOURCE_DIR;
+  return "softdiff: 1\n"
+         "simulation: {dt: 0.01, steps: " +
+         std::to_string(steps) +
+         "}\n"
+         "bodies:\n"
+         "  - name: beam\n"
+         "    mesh: " +
+         (root / "meshes/beam.msh").string() +
+         "\n"
+         "    material: {young: 1.0e6, poisson: 0.45, density: 1070}\n" +
+         damping + "    fixed: [{group: clamp}]\n";
+}
+
+// A free box spinning about an axis off its principal axes (0.04 x 0.02 x 0.01 m, 1000
+// kg/m^3, at (0.3, 0.1, 0), turned 0.5 rad about x, v (0, 0.1, 0.5) m/s, omega (1, 2, 8)
+// rad/s) as a scene's rigid body entry: beside the clamped beam, in no contact.
+inline std::string spinner_yaml() {
+  return "  - name: spinner\n"
+         "    type: rigid\n"
+         "    shape: {type: box, half_extents: [0.02, 0.01, 0.005]}\n"
+         "    density: 1000\n"
+         "    position: [0.3, 0.1, 0]\n"
+         "    orientation: [0.9689124217106447, 0.24740395925452294, 0, 0]\n"
+         "    velocity: [0, 0.1, 0.5]\n"
+         "    angular_velocity: [1, 2, 8]\n";
+}
+
+}  // namespace softdiff::test::rigid_scenes
