@@ -476,8 +476,8 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
       // calibrate and control with rigid bodies run since issue 21's rcal and rctl
       // (test_cli_calibrate_rigid.cpp, test_cli_control.cpp PushesAFreeRigidBlock); what
       // their derivatives do not cover is refused there.
-      // A scene of rigid bodies only runs (Cli.RigidStackRests); its derivatives and the
-      // sparse backend are refused.
+      // A scene of rigid bodies only runs (Cli.RigidStackRests; on the sparse backend too:
+      // tests/rigid/validation_rigid_only_sparse.cpp); its derivatives are refused.
       {"rigid_only_jacobian", kBallOnly, "simulate scene.yaml -o out.h5 --jacobian x0",
        "--jacobian: derivatives of a scene of rigid bodies only are not supported yet (issue 21; rigid body 'ball', "
        "no soft body)"},
@@ -485,11 +485,6 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
        "derivatives of a scene of rigid bodies only are not supported yet (issue 21"},
       {"rigid_only_calibrate", kBallOnly, "calibrate scene.yaml --param young --target target.h5 -o out.h5",
        "--param: derivatives of a scene of rigid bodies only are not supported yet (issue 21"},
-      {"rigid_only_sparse", kBallOnly + "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.01}]\n"
-                                        "contact: {friction: 0.3, backend: sparse}\n",
-       "simulate scene.yaml -o out.h5",
-       "contact.backend: backend: sparse in a scene of rigid bodies only is not supported yet (issue 21; bodies[0] is "
-       "rigid, there is no soft body): use dense or auto"},
       // static runs (Cli.RigidStackRestsStatically); a free body still needs contact.
       {"rigid_only_static", kBallOnly,
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "

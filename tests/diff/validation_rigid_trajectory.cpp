@@ -8,6 +8,12 @@
 // bodies' mass and inertia; and the adjoint against the forward mode. Soft parameters have zero rigid rows and rigid parameters
 // zero soft rows (no contact couples them).
 //
+// Both integrators (value-parametrized): implicit Euler, and BDF2 (rigid/rigid_bdf2_derivatives.hpp),
+// whose forward sensitivities carry the rigid bodies' previous states as BDF2's history
+// (the extrapolation's Jacobian chained with the implicit Euler step of 2h/3; implicit
+// Euler of h at the slider's limit and after it: the restarts) and whose adjoint returns
+// the history's cotangent one step later.
+//
 // Steps: 1e-6 on initial states of size ~1 (m, rad, m/s, rad/s) and 1e-6 times a
 // parameter's scale (the mass; the inertia's trace / 3): the truncation error (eps^2,
 // ~1e-12) is far below the round-off carried over 20 steps (the rotational Newton stops
@@ -42,7 +48,7 @@ rigid::RigidBody rigid_box(const std::string& name, rigid::Joint::Kind kind) {
   return b;
 }
 
-Model scene() {
+Model scene(IntegratorKind integrator) {
   test::BodySpec spec;
   spec.young = 1e5;
   spec.rayleigh_mass = 0.5;
@@ -74,15 +80,18 @@ Model scene() {
   s.position = Vec3(0.7, 0, 0);
   s.angular_velocity.setZero();
   add(slider, s);
+  model.step.integrator = integrator;
   return model;
 }
 
 State run(const Model& model, const State& initial) {
   Data data(model);
-  State s = initial, next;
+  State s = initial, next, previous;
+  const bool bdf2 = model.step.integrator == IntegratorKind::bdf2;
   for (long k = 1; k <= kSteps; ++k) {
-    const StepStatus st = integrator::time_step(model, data, s, nullptr, next, k);
+    const StepStatus st = integrator::time_step(model, data, s, bdf2 && k > 1 ? &previous : nullptr, next, k);
     EXPECT_TRUE(st.ok()) << st.detail;
+    previous = s;
     std::swap(s, next);
   }
   return s;
@@ -101,8 +110,10 @@ void rigid_rows(const State& base, const State& s, VecX& x, VecX& v) {
   }
 }
 
-TEST(RigidTrajectory, JacobianRowsAgainstWholeRuns) {
-  const Model model = scene();
+class RigidTrajectory : public ::testing::TestWithParam<IntegratorKind> {};
+
+TEST_P(RigidTrajectory, JacobianRowsAgainstWholeRuns) {
+  const Model model = scene(GetParam());
   const Eigen::Index n3 = 3L * model.fem.num_nodes, nr = static_cast<Eigen::Index>(model.rigid.size());
   diff::ThetaLayout theta;
   theta.parameters.push_back({Parameter::young, 0});
@@ -170,8 +181,8 @@ TEST(RigidTrajectory, JacobianRowsAgainstWholeRuns) {
 // The adjoint (reverse sweep through the rigid bodies' step Jacobians) against the forward
 // sensitivities for l = a.x_T + b.v_T + c.(rigid rows of frame T) with random a, b, c,
 // every theta column: the same products in another order, so to round-off (1e-9 relative).
-TEST(RigidTrajectory, AdjointMatchesForward) {
-  const Model model = scene();
+TEST_P(RigidTrajectory, AdjointMatchesForward) {
+  const Model model = scene(GetParam());
   const Eigen::Index n3 = 3L * model.fem.num_nodes, nr = static_cast<Eigen::Index>(model.rigid.size());
   diff::ThetaLayout theta;
   theta.parameters.push_back({Parameter::young, 0});
@@ -211,5 +222,9 @@ TEST(RigidTrajectory, AdjointMatchesForward) {
   // The rigid parameters' entries are not zero (the loss sees the rigid states).
   EXPECT_GT(result.theta.tail(7 * nr).norm(), 0.0);
 }
+
+INSTANTIATE_TEST_SUITE_P(Integrators, RigidTrajectory,
+                         ::testing::Values(IntegratorKind::implicit_euler, IntegratorKind::bdf2),
+                         [](const auto& tp) { return tp.param == IntegratorKind::bdf2 ? "bdf2" : "implicit_euler"; });
 
 }  // namespace rigid_trajectory_test

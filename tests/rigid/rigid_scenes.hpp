@@ -187,4 +187,26 @@ inline std::string spinner_yaml() {
          "    angular_velocity: [1, 2, 8]\n";
 }
 
+// A 1.3 kg block with a full (non-diagonal) SPD inertia, so that every component of a
+// derivative matters, on a joint of the given kind (its axis and anchor the defaults).
+inline rigid::RigidBody rigid_block(rigid::Joint::Kind kind) {
+  rigid::RigidBody b;
+  b.name = "block";
+  b.mass = 1.3;
+  b.inertia << 0.021, 0.002, -0.001, 0.002, 0.034, 0.003, -0.001, 0.003, 0.047;
+  b.joint.kind = kind;
+  return b;
+}
+
+// A generic rigid state: off the origin, rotated about a generic axis, moving and spinning
+// mostly about z (a gyroscopic term).
+inline rigid::RigidState generic_state() {
+  rigid::RigidState s;
+  s.position = Vec3(0.1, 0.2, 0.3);
+  s.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(0.7, Vec3(1, 2, 3).normalized()));
+  s.velocity = Vec3(0.3, -0.2, 0.1);
+  s.angular_velocity = Vec3(1, 2, 10);
+  return s;
+}
+
 }  // namespace softdiff::test::rigid_scenes

@@ -8,6 +8,8 @@
 #include <softdiff/rigid/rigid_bdf2.hpp>
 #include <softdiff/rigid/rigid_bdf2_derivatives.hpp>
 
+#include <rigid/rigid_scenes.hpp>
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -26,24 +28,8 @@ struct Case {
   Vec3 g = Vec3(0, 0, -9.81);
 };
 
-RigidBody make_body(Joint::Kind kind) {
-  RigidBody b;
-  b.name = "block";
-  b.mass = 1.3;
-  // A full (non-diagonal) SPD inertia, so that every component matters.
-  b.inertia << 0.021, 0.002, -0.001, 0.002, 0.034, 0.003, -0.001, 0.003, 0.047;
-  b.joint.kind = kind;
-  return b;
-}
-
-RigidState generic_state() {
-  RigidState s;
-  s.position = Vec3(0.1, 0.2, 0.3);
-  s.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(0.7, Vec3(1, 2, 3).normalized()));
-  s.velocity = Vec3(0.3, -0.2, 0.1);
-  s.angular_velocity = Vec3(1, 2, 10);
-  return s;
-}
+using test::rigid_scenes::generic_state;
+using test::rigid_scenes::rigid_block;
 
 RigidState bdf2_of(const Case& c, const RigidBody& body, const RigidState& in, const RigidState& previous,
                    StepInfo* info = nullptr, RigidState* hat_out = nullptr) {
@@ -123,7 +109,7 @@ void check(const Case& c, bool want_bdf2) {
 
 TEST(RigidBdf2StepDerivatives, FreeSpinningBodyWithHistory) {
   Case c;
-  c.body = make_body(Joint::Kind::free);
+  c.body = rigid_block(Joint::Kind::free);
   initialize(c.body, generic_state());
   c.h = 0.02;  // h |omega| = 0.2: the rotation between s_{n-1} and s_n far from I
   run(c, 4);
@@ -141,7 +127,7 @@ TEST(RigidBdf2StepDerivatives, FreeSpinningBodyWithHistory) {
 TEST(RigidBdf2StepDerivatives, FreeBodySlowSpin) {
   // |h omega| < 1e-3: the Taylor branches of the exponential map, logarithm and Jacobians.
   Case c;
-  c.body = make_body(Joint::Kind::free);
+  c.body = rigid_block(Joint::Kind::free);
   RigidState s = generic_state();
   s.angular_velocity = Vec3(0.01, -0.02, 0.03);
   initialize(c.body, s);
@@ -151,7 +137,7 @@ TEST(RigidBdf2StepDerivatives, FreeBodySlowSpin) {
 
 Case hinge_case() {
   Case c;
-  c.body = make_body(Joint::Kind::hinge);
+  c.body = rigid_block(Joint::Kind::hinge);
   c.body.joint.anchor = Vec3(0.1, 0.2, 0.5);
   c.body.joint.axis = Vec3(1, 0.3, 0.2).normalized();
   initialize(c.body, generic_state());  // projects the velocity onto the hinge
@@ -166,7 +152,7 @@ TEST(RigidBdf2StepDerivatives, HingePendulum) {
 
 TEST(RigidBdf2StepDerivatives, Slider) {
   Case c;
-  c.body = make_body(Joint::Kind::slider);
+  c.body = rigid_block(Joint::Kind::slider);
   c.body.joint.anchor = Vec3(0.1, 0.2, 0.3);
   c.body.joint.axis = Vec3(0.2, 0.5, -1).normalized();  // downhill
   initialize(c.body, generic_state());
@@ -176,7 +162,7 @@ TEST(RigidBdf2StepDerivatives, Slider) {
 
 TEST(RigidBdf2StepDerivatives, Fixed) {
   Case c;
-  c.body = make_body(Joint::Kind::fixed);
+  c.body = rigid_block(Joint::Kind::fixed);
   initialize(c.body, generic_state());
   run(c, 2);
   check(c, true);

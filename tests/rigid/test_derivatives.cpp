@@ -6,6 +6,8 @@
 #include <softdiff/rigid/rigid_derivatives.hpp>
 #include <softdiff/rigid/rotation.hpp>
 
+#include <rigid/rigid_scenes.hpp>
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -24,24 +26,8 @@ struct Case {
   Vec3 g = Vec3(0, 0, -9.81), f = Vec3::Zero(), tau = Vec3::Zero();
 };
 
-RigidBody make_body(Joint::Kind kind) {
-  RigidBody b;
-  b.name = "block";
-  b.mass = 1.3;
-  // A full (non-diagonal) SPD inertia, so that every component matters.
-  b.inertia << 0.021, 0.002, -0.001, 0.002, 0.034, 0.003, -0.001, 0.003, 0.047;
-  b.joint.kind = kind;
-  return b;
-}
-
-RigidState generic_state() {
-  RigidState s;
-  s.position = Vec3(0.1, 0.2, 0.3);
-  s.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(0.7, Vec3(1, 2, 3).normalized()));
-  s.velocity = Vec3(0.3, -0.2, 0.1);
-  s.angular_velocity = Vec3(1, 2, 10);
-  return s;
-}
+using test::rigid_scenes::generic_state;
+using test::rigid_scenes::rigid_block;
 
 RigidState step_of(const Case& c, const RigidBody& body, const RigidState& in, StepInfo* info = nullptr) {
   RigidState out;
@@ -99,7 +85,7 @@ void check(const Case& c, bool want_limit) {
 
 TEST(RigidStepDerivatives, FreeSpinningBodyWithGyroscopicTerm) {
   Case c;
-  c.body = make_body(Joint::Kind::free);
+  c.body = rigid_block(Joint::Kind::free);
   c.in = generic_state();
   initialize(c.body, c.in);
   c.f = Vec3(0.5, -0.2, 1.0);    // an external force: the mass column is not zero
@@ -117,7 +103,7 @@ TEST(RigidStepDerivatives, FreeSpinningBodyWithGyroscopicTerm) {
 TEST(RigidStepDerivatives, FreeBodySlowSpin) {
   // |h omega| < 1e-3: the Taylor branches of the exponential map and right Jacobian.
   Case c;
-  c.body = make_body(Joint::Kind::free);
+  c.body = rigid_block(Joint::Kind::free);
   c.in = generic_state();
   c.in.angular_velocity = Vec3(0.01, -0.02, 0.03);
   initialize(c.body, c.in);
@@ -127,7 +113,7 @@ TEST(RigidStepDerivatives, FreeBodySlowSpin) {
 
 Case hinge_case() {
   Case c;
-  c.body = make_body(Joint::Kind::hinge);
+  c.body = rigid_block(Joint::Kind::hinge);
   c.body.joint.anchor = Vec3(0.1, 0.2, 0.5);
   c.body.joint.axis = Vec3(1, 0.3, 0.2).normalized();
   c.in = generic_state();
@@ -163,7 +149,7 @@ TEST(RigidStepDerivatives, HingeAtLimit) {
 
 Case slider_case() {
   Case c;
-  c.body = make_body(Joint::Kind::slider);
+  c.body = rigid_block(Joint::Kind::slider);
   c.body.joint.anchor = Vec3(0.1, 0.2, 0.3);
   c.body.joint.axis = Vec3(0.2, 0.5, -1).normalized();  // downhill
   c.in = generic_state();
@@ -188,7 +174,7 @@ TEST(RigidStepDerivatives, SliderAtLimit) {
 
 TEST(RigidStepDerivatives, Fixed) {
   Case c;
-  c.body = make_body(Joint::Kind::fixed);
+  c.body = rigid_block(Joint::Kind::fixed);
   c.in = generic_state();
   initialize(c.body, c.in);
   c.in = c.body.reference;
@@ -229,14 +215,14 @@ TEST(RigidStepDerivatives, JvpVjpDotProduct) {
     expect_dot_product(c, "joint");
   }
   Case c;
-  c.body = make_body(Joint::Kind::free);
+  c.body = rigid_block(Joint::Kind::free);
   c.in = generic_state();
   initialize(c.body, c.in);
   expect_dot_product(c, "free");
 }
 
 TEST(RigidStepDerivatives, ParameterErrors) {
-  RigidBody b = make_body(Joint::Kind::free);
+  RigidBody b = rigid_block(Joint::Kind::free);
   EXPECT_THROW(set_parameter(b, 0, -1.0), std::invalid_argument);
   EXPECT_THROW(set_parameter(b, 4, 1.0), std::invalid_argument);  // xy = 1: not positive definite
   EXPECT_NO_THROW(set_parameter(b, 1, 0.03));

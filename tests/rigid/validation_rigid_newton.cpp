@@ -7,6 +7,8 @@
 #include <support/meshes.hpp>
 #include <support/rigid_contact.hpp>
 
+#include <rigid/rigid_scenes.hpp>
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -19,31 +21,14 @@ namespace rigid_newton_validation {
 
 constexpr double g0 = 9.81;
 
-Vec3 force_on_rigid(const Data& data, int side, int* count = nullptr) {
-  Vec3 f = Vec3::Zero();
-  int k = 0;
-  for (int i = 0; i < data.contact.contacts.size(); ++i) {
-    const auto& c = data.contact.contacts.contacts[static_cast<std::size_t>(i)];
-    const Vec3 w = c.frame * data.contact.lambda.segment<3>(3 * i);
-    if (c.side_a == side) f += w, ++k;
-    else if (c.side_b == side) f -= w, ++k;
-  }
-  if (count) *count = k;
-  return f;
-}
+using test::rigid_scenes::contact_force_on;
 
 // The cube on a soft slab of validation_rigid_contact.cpp (CubeRestsOnASoftSlab), the
 // slab Neo-Hookean: 0.12 x 0.12 x 0.01 m, E = 50 kPa, bottom fixed, damped; the 40 mm
 // cube (32 g) released at zero gap.
 Model cube_on_slab(double h, int newton_iterations) {
-  test::BodySpec spec;
+  test::BodySpec spec = test::rigid_scenes::damped_slab_spec();
   spec.law = material::Law::neo_hookean;
-  spec.young = 5e4;
-  spec.poisson = 0.4;
-  spec.density = 1000;
-  spec.rayleigh_mass = 20;
-  spec.rayleigh_stiffness = 0.01;
-  spec.fixed = [](const Vec3& p) { return p.z() < 1e-9; };
   const mesh::TetMesh m = test::box_mesh(8, 8, 2, 0.12, 0.12, 0.01);
   Model model = test::make_model(m, spec, Vec3(0, 0, -g0), h);
   model.step.newton_iterations = newton_iterations;
@@ -100,7 +85,7 @@ TEST(RigidNewton, CubeRestsOnANeoHookeanSlab) {
   const RunResult r = run(model, data, 200);
   const auto& e = r.end.rigid[0];
   int count = 0;
-  const Vec3 f = force_on_rigid(data, 1, &count);
+  const Vec3 f = contact_force_on(data, 1, &count);
   const double weight = model.rigid[0].mass * g0;
   const double min_gap = min_gap_at(model, data, r.end);
   // The reference: the static equilibrium of the same scene.

@@ -148,7 +148,19 @@ void detect_contacts(const Model& model, Data& data, const VecX& x, const VecX& 
   data.timings.delassus += seconds_since(t0);
 }
 
+void clear_contact_record(ContactData& cd) {
+  cd.contacts.contacts.clear();
+  cd.result = {};
+  cd.result.converged = true;
+  cd.lambda.resize(0);
+  cd.sigma.resize(0);
+  cd.modes.clear();
+  cd.previous_keys.clear();
+  cd.previous_lambda.resize(0);
+}
+
 namespace {
+
 StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX& v, long step_index, bool all_limits);
 }  // namespace
 
@@ -166,13 +178,7 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   const int nc = cd.contacts.size();
   cd.v_free = v;
   if (nc == 0) {
-    cd.result = {};
-    cd.result.converged = true;
-    cd.lambda.resize(0);
-    cd.sigma.resize(0);
-    cd.modes.clear();
-    cd.previous_keys.clear();
-    cd.previous_lambda.resize(0);
+    clear_contact_record(cd);
     return status;
   }
 
@@ -187,11 +193,11 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
   // through the reduced solve; on the sparse backend the operator on the soft rows H_f
   // plus the parts' rank-6m part as rigid rows (rigidified_rows).
   const bool rigidified = !model.rigidify.empty();
-  // A scene of rigid bodies only (no soft dof: nothing to factorize) takes the dense
-  // backend (the scene reader refuses backend: sparse there).
-  const bool sparse = model.fem.num_nodes > 0 &&
-                      (ncp.backend == NcpBackend::sparse ||
-                       (ncp.backend == NcpBackend::automatic && nc > ncp.dense_max_contacts));
+  // A scene of rigid bodies only (no soft dof: nothing factorized) takes either backend:
+  // the operator then has the rigid rows alone (SparseDelassus with an empty soft part:
+  // no solve; docs/method.md "Scenes of rigid bodies only").
+  const bool sparse = ncp.backend == NcpBackend::sparse ||
+                      (ncp.backend == NcpBackend::automatic && nc > ncp.dense_max_contacts);
   if (sparse) {
     cd.G.resize(0, 0);
     if (rigidified) integrator::rigidified_rows(model, data, cd.Ht);  // H_f^T, K_p

@@ -42,6 +42,10 @@ StepStatus resolve_contacts(const Model& model, Data& data, const VecX& x, const
 // H_c^T and mu into data.contact.
 void detect_contacts(const Model& model, Data& data, const VecX& x, const VecX& v_previous, double h, const VecX& v,
                      bool free_motion_widens);
+// An empty contact record: no contact, a trivially converged solve, no warm start (a
+// step or load step without contacts, and the start of a static solve).
+void clear_contact_record(ContactData& cd);
+
 // solve_contact_problem: on data.contact's contacts and H_c^T and the current
 // factorization of data.A: G = h H A^{-1} H^T (or its operator), g = H v + (0, 0,
 // phi_i / h), the NCP warm-started from the last solve's forces of the same contacts,

@@ -247,6 +247,7 @@ struct Buffers {
   std::vector<Eigen::Matrix<double, 3, 3>> ac_E, ac_R;  // (nc) rows of J: E on the own contact, R on sigma's rows
   MatX ac_J;                     // (3 na x 3 na)
   VecX ac_rhs, ac_du;            // (3 na)
+  VecX ac_in_l, ac_in_s;         // (n) the stage's input, restored unless it converges
 
   void resize(Eigen::Index n) {
     if (x.size() == n) return;
@@ -256,7 +257,7 @@ struct Buffers {
     in_c.resize(static_cast<std::size_t>(n / 3));
     for (VecX* v : {&x, &y, &z, &s, &rhs, &x_prev, &y_prev, &power, &d3, &d3_sqrt_inv, &lambda_best, &lambda_p, &sigma_p, &lambda_kept,
                      &sigma_kept, &gw, &lw, &sw, &lambda_alt, &sigma_alt, &ac_l, &ac_s, &ac_F, &ac_d, &ac_Gd, &ac_lt, &ac_st,
-                     &ac_Ft, &ac_best_l, &ac_best_s})
+                     &ac_Ft, &ac_best_l, &ac_best_s, &ac_in_l, &ac_in_s})
       v->resize(n);
     ac_rho.resize(n / 3);
     ac_modes.resize(static_cast<std::size_t>(n / 3));
@@ -882,6 +883,7 @@ constexpr double newton_ac_armijo = 1e-4;
 // stall at a stationary point of the merit that is not a solution; measured on the
 // grip and pads_lift: such runs never recovered later, docs/method.md).
 constexpr int newton_ac_stall_steps = 8;
+constexpr double newton_ac_exact = 1e-6;  // the stage iterates to this fraction of the tolerance (round-off)
 int newton_alart_curnier(Buffers& w, const Problem& p, VecRef lambda, VecRef sigma, NcpResiduals& residuals) {
   const int nc = p.nc;
   const Eigen::Index n = 3 * static_cast<Eigen::Index>(nc);
@@ -947,7 +949,10 @@ int newton_alart_curnier(Buffers& w, const Problem& p, VecRef lambda, VecRef sig
   const NcpResiduals start = best;
   double merit = evaluate(l, s, F, true);
   int steps = 0, since_best = 0;
-  for (; steps < newton_ac_max_steps && best.max() > p.tolerance; ++steps) {
+  // Past the tolerance to round-off (Newton converges quadratically there: one or two more
+  // steps): a solution only at the tolerance would carry 1e-8-level noise into the
+  // finite differences of a derivative check (the polish's solutions are exact).
+  for (; steps < newton_ac_max_steps && best.max() > newton_ac_exact * p.tolerance; ++steps) {
     if (!std::isfinite(merit) || merit == 0) break;
     // The step: d_B = -lambda_B on the breaking contacts, then the active system.
     w.ac_active.clear();
@@ -1042,7 +1047,7 @@ int newton_alart_curnier(Buffers& w, const Problem& p, VecRef lambda, VecRef sig
 
 // ADMM (when it stalls: the polish, then PGS from there) or PGS on p, then the polish.
 NcpResult solve_core(Buffers& w, const Problem& p, const NcpOptions& options, VecRef lambda, VecRef sigma,
-                     std::vector<Mode>& modes) {
+                     std::vector<Mode>& modes, bool newton_stage = true) {
   NcpResult result = options.solver == NcpSolverKind::admm
                          ? admm(w, p, lambda, sigma, options.admm_fallback ? admm_stall_window : 0, options.admm_scaling)
                          : pgs(w, p, lambda, sigma);
@@ -1067,12 +1072,23 @@ NcpResult solve_core(Buffers& w, const Problem& p, const NcpOptions& options, Ve
   // The semismooth Newton stage where the solver and the polish missed the tolerance
   // (newton_alart_curnier(); the same size limit as the polish: its system is dense).
   const int active = p.nc - static_cast<int>(std::count(modes.begin(), modes.end(), Mode::breaking));
-  if (options.polish && result.residuals.max() > p.tolerance && active <= options.polish_max_active) {
-    const double before = result.residuals.max();
+  // Its result is taken only where it reaches the tolerance: a lower residual still above
+  // it keeps the solver's iterate (the callers' fallbacks, e.g. the operator's candidate
+  // rounds, decide from that iterate and its modes; a partial improvement there changed
+  // which contacts they add and made CubeRestsOnASoftSlab/operator miss, 2026-12-03).
+  if (newton_stage && options.polish && result.residuals.max() > p.tolerance && active <= options.polish_max_active) {
+    const Eigen::Index n = 3 * static_cast<Eigen::Index>(p.nc);
+    w.ac_in_l.head(n) = lambda;
+    w.ac_in_s.head(n) = sigma;
+    const NcpResiduals kept = result.residuals;
     newton_alart_curnier(w, p, lambda, sigma, result.residuals);
-    if (result.residuals.max() < before) {
+    if (result.residuals.max() <= p.tolerance) {
       result.polished = true;
       classify(p, lambda, sigma, modes);
+    } else {
+      lambda = w.ac_in_l.head(n);
+      sigma = w.ac_in_s.head(n);
+      result.residuals = kept;
     }
   }
   return result;
@@ -1627,7 +1643,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
       const int left = options.max_iterations - (result.iterations - spent) - sub.iterations;
       if (left <= 0) break;
       const Problem pc{w.Gs, w.ga, w.mua, nc_c, vscale, tol, left};
-      const NcpResult q = solve_core(w, pc, inner, w.la, w.sa, w.modes_a);
+      const NcpResult q = solve_core(w, pc, inner, w.la, w.sa, w.modes_a, false);
       sub.iterations += q.iterations;
       sub.rho_updates += q.rho_updates;
       sub.factorization_seconds += q.factorization_seconds;

@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <utility>
 
 namespace softdiff::integrator {
 
@@ -239,18 +240,20 @@ StepStatus solve_static_rigid_only(const Model& model, Data& data, const State& 
   const double k = static_rigid_stiffness(model, size, true);
   auto& cd = data.contact;
   const bool with_contact = model.contact.with_rigid();
-  if (with_contact) {
-    cd.lambda.resize(0);
-    cd.contacts.contacts.clear();
-    cd.previous_keys.clear();
-    cd.previous_lambda.resize(0);
-    cd.result = {};
-    cd.result.converged = true;
-  }
+  if (with_contact) contact::clear_contact_record(cd);
   VecX none_x, none_v, increment;  // no soft dof: empty
   int total = 0;
   double rel = 0;
   std::string worst;
+  auto not_converged = [&rel](long step, int iterations, std::string detail) {
+    StepStatus ns;
+    ns.code = StepStatus::Code::not_converged;
+    ns.step = step;
+    ns.iterations = iterations;
+    ns.residual = rel;
+    ns.detail = std::move(detail);
+    return ns;
+  };
   for (long s = 1; s <= L; ++s) {
     const double factor = static_cast<double>(s) / L;
     if (with_contact) cd.detector->set_time(factor);
@@ -265,14 +268,8 @@ StepStatus solve_static_rigid_only(const Model& model, Data& data, const State& 
       }
       if (rel <= settings.static_tolerance && (!with_contact || (solved && cd.result.converged))) break;
       if (it >= settings.static_max_iterations) {
-        StepStatus ns;
-        ns.code = StepStatus::Code::not_converged;
-        ns.step = s;
-        ns.iterations = it;
-        ns.residual = rel;
-        ns.detail = "static equilibrium not reached: rigid body '" + worst +
-                    "' is out of balance (increase static.max_iterations or static.load_steps)";
-        return ns;
+        return not_converged(s, it, "static equilibrium not reached: rigid body '" + worst +
+                                        "' is out of balance (increase static.max_iterations or static.load_steps)");
       }
       begin_static_rigid(model, data, out.rigid, k, factor);
       if (with_contact) {
@@ -281,15 +278,10 @@ StepStatus solve_static_rigid_only(const Model& model, Data& data, const State& 
         if (cd.contacts.size() == 0) static_limits_without_contact(model, data);
         const int unsupported = static_rigid_unsupported(model, data);
         if (unsupported >= 0) {
-          StepStatus ns;
-          ns.code = StepStatus::Code::not_converged;
-          ns.step = s;
-          ns.iterations = it;
-          ns.residual = rel;
-          ns.detail = "rigid body '" + model.rigid[static_cast<std::size_t>(unsupported)].name +
-                      "' touches no support within contact.margin: no equilibrium under its load (rest it on an "
-                      "obstacle or another body, or fix its joint)";
-          return ns;
+          return not_converged(s, it,
+                               "rigid body '" + model.rigid[static_cast<std::size_t>(unsupported)].name +
+                                   "' touches no support within contact.margin: no equilibrium under its load (rest "
+                                   "it on an obstacle or another body, or fix its joint)");
         }
       }
       solved = true;
@@ -299,14 +291,10 @@ StepStatus solve_static_rigid_only(const Model& model, Data& data, const State& 
       if (!rs.ok()) return rs;
       ++total;
       if (!(moved <= size)) {
-        StepStatus ns;
-        ns.code = StepStatus::Code::not_converged;
-        ns.step = s;
-        ns.iterations = it;
-        ns.residual = rel;
-        ns.detail = "rigid body '" + model.rigid[static_cast<std::size_t>(body)].name +
-                    "' moved by more than the scene's size in one Newton iteration: its contacts do not hold it";
-        return ns;
+        return not_converged(s, it,
+                             "rigid body '" + model.rigid[static_cast<std::size_t>(body)].name +
+                                 "' moved by more than the scene's size in one Newton iteration: its contacts do not "
+                                 "hold it");
       }
     }
     out.t = factor;

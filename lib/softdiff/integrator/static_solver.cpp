@@ -124,14 +124,7 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
   VecX dx_previous = VecX::Zero(3L * fem.num_nodes);  // the last corrected increment (widens the margin)
   VecX contact_force = VecX::Zero(with_contact ? 3L * fem.num_nodes : 0);  // H_c^T lambda of the last NCP
   bool contact_solved = false;  // an NCP was solved in this load step
-  if (with_contact) {
-    cd.lambda.resize(0);
-    cd.contacts.contacts.clear();
-    cd.previous_keys.clear();
-    cd.previous_lambda.resize(0);
-    cd.result = {};
-    cd.result.converged = true;
-  }
+  if (with_contact) contact::clear_contact_record(cd);
 
   for (long s = 1; s <= L; ++s) {
     const double factor = static_cast<double>(s) / L;

@@ -332,12 +332,8 @@ class Reader {
       ctx_.fail(contact->key_mark, "contact",
                 "contact with rigid bodies and simulation.newton_iterations > 1 is supported with implicit_euler only "
                 "(issue 21; " + first + " is rigid): use implicit_euler or newton_iterations: 1");
-    // A scene of rigid bodies only: no soft factor for the operator; the dense G is
-    // h sum_r H_r W_r H_r^T (integrator/bdf2.cpp time_step_rigid_only).
-    if (scene.bodies.empty() && scene.contact.backend == ContactDesc::Backend::sparse)
-      ctx_.fail(contact->key_mark, "contact.backend",
-                "backend: sparse in a scene of rigid bodies only is not supported yet (issue 21; " + first +
-                    " is rigid, there is no soft body): use dense or auto");
+    // A scene of rigid bodies only runs on either backend: the operator with the rigid
+    // rows alone (docs/method.md "Scenes of rigid bodies only").
     // BDF2 in contact: a joint limit's NCP row with BDF2's history (the restart of
     // rigid/rigid_bdf2.hpp is the free step's) is not built or validated yet.
     if (scene.simulation.integrator == Integrator::bdf2)
