@@ -17,6 +17,8 @@
 #include <support/meshes.hpp>
 #include <support/rigid_contact.hpp>
 
+#include <rigid/rigid_scenes.hpp>
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -29,23 +31,11 @@ namespace rigid_bdf2_contact_derivatives_test {
 
 constexpr double g0 = 9.81;
 
-// A soft anchor far away with every node fixed (build_model needs a soft body).
-Model anchored(double h) {
-  test::BodySpec spec;
-  spec.fixed = [](const Vec3&) { return true; };
-  mesh::TetMesh m = test::box_mesh(1, 1, 1, 0.01, 0.01, 0.01);
-  for (Eigen::Index i = 0; i < m.X.cols(); ++i) m.X.col(i) += Vec3(5, 5, 5);
-  return test::make_model(m, spec, Vec3(0, 0, -g0), h);
-}
+using test::rigid_scenes::anchored;
 
 // Tight NCP: the polish solves the mode equations to round-off, so that the finite
 // differences see the exact solution of each perturbed problem.
-contact::NcpOptions tight() {
-  contact::NcpOptions o;
-  o.tolerance = 1e-12;
-  o.max_iterations = 5000;
-  return o;
-}
+contact::NcpOptions tight() { return test::rigid_scenes::tight_ncp(1e-12); }
 
 // `steps` steps of the model's integrator from s0 (BDF2: the previous state passed).
 State run_steps(const Model& model, const State& s0, long steps) {
@@ -166,16 +156,6 @@ void check_trajectory(const Model& model, long T, unsigned seed, const double (&
   for (int c = 0; c < 4; ++c) EXPECT_NEAR(result.theta[c], expected[c], 1e-9 * expected.cwiseAbs().maxCoeff());
 }
 
-rigid::Shape wedge() {
-  rigid::Shape s;
-  s.kind = rigid::Shape::Kind::mesh;
-  s.mesh_vertices.resize(3, 4);
-  s.mesh_vertices << 0, 0.1, 0, 0.03, 0, 0, 0.08, 0.03, 0, 0, 0, 0.05;
-  s.mesh_triangles.resize(3, 4);
-  s.mesh_triangles << 0, 0, 1, 2, 2, 1, 2, 0, 1, 3, 3, 3;
-  return s;
-}
-
 class RigidBdf2ContactTrajectoryDerivatives : public ::testing::TestWithParam<bool> {};
 
 // The wedge sliding at 0.5 m/s and spinning at 0.8 rad/s on a plane with mu = 0.3: three
@@ -185,13 +165,7 @@ class RigidBdf2ContactTrajectoryDerivatives : public ::testing::TestWithParam<bo
 // ~1e-12, round-off ~1e-10 relative). tol 1e-5 relative to each column's largest entry.
 TEST_P(RigidBdf2ContactTrajectoryDerivatives, SlidingWedge) {
   Model model = anchored(1e-3);
-  const rigid::Shape shape = wedge();
-  const rigid::MassProperties mp = rigid::mass_properties(shape, 800);
-  rigid::RigidState s;
-  s.position = Vec3(0, 0, mp.centre.z());
-  s.velocity = Vec3(0.5, 0.1, 0);
-  s.angular_velocity = Vec3(0, 0, 0.8);
-  test::add_rigid_body(model, "wedge", shape, 800, s);
+  test::rigid_scenes::add_sliding_wedge(model);
   test::enable_rigid_contact(model, {test::plane(Vec3::UnitZ(), 0, "floor")}, {{"wedge", "floor", 0.3}}, 1e-3, tight());
   model.contact.ncp.backend = GetParam() ? contact::NcpBackend::sparse : contact::NcpBackend::dense;
   model.step.integrator = IntegratorKind::bdf2;
