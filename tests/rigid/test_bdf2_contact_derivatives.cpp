@@ -130,30 +130,7 @@ void check_trajectory(const Model& model, long T, unsigned seed, const double (&
     an_r << an.segment<6>(n3), an.tail<6>();
     EXPECT_LT((an_r - fd_r).cwiseAbs().maxCoeff(), tol * fd_r.cwiseAbs().maxCoeff()) << "rigid rows, column " << c;
   }
-  // The adjoint of l = a . x_T + b . v_T + c . (rigid 12-tangent of the final state).
-  const VecX a = VecX::NullaryExpr(n3, [&] { return N(rng); }), b = VecX::NullaryExpr(n3, [&] { return N(rng); });
-  const rigid::Vec12 cr = rigid::Vec12::NullaryExpr([&] { return N(rng); });
-  diff::Tape tape;
-  Data data2(model);
-  ASSERT_TRUE(diff::record(model, data2, model.initial, T, tape).ok());
-  diff::AdjointResult result;
-  ASSERT_TRUE(diff::adjoint(
-                  model, data2, tape, theta,
-                  [&](long k, const State&, VecX& bx, VecX& bv) {
-                    if (k == T) bx += a, bv += b;
-                  },
-                  result,
-                  [&](long k, const State&, VecX& br) {
-                    if (k == T) br += cr;
-                  })
-                  .ok());
-  EXPECT_EQ(result.recompute_mismatch, 0.0);
-  VecX expected(4);
-  for (int c = 0; c < 4; ++c)
-    expected[c] = a.dot(dx.col(c).head(n3)) + b.dot(dv.col(c).head(n3)) + cr.head<6>().dot(dx.col(c).tail<6>()) +
-                  cr.tail<6>().dot(dv.col(c).tail<6>());
-  std::cout << "adjoint " << result.theta.transpose() << " against forward " << expected.transpose() << "\n";
-  for (int c = 0; c < 4; ++c) EXPECT_NEAR(result.theta[c], expected[c], 1e-9 * expected.cwiseAbs().maxCoeff());
+  test::rigid_scenes::expect_adjoint_matches_forward(model, T, theta, dx, dv, rng, N);
 }
 
 class RigidBdf2ContactTrajectoryDerivatives : public ::testing::TestWithParam<bool> {};

@@ -491,31 +491,7 @@ TEST_P(RigidContactTrajectoryDerivatives, SensitivitiesAndAdjointOfASlidingWedge
     std::cout << "column " << c << ": max |sensitivity - FD| " << err << " of " << mag << "\n";
     EXPECT_LT(err, 1e-5 * mag) << "column " << c;
   }
-  // The adjoint of l = a . x_T + b . v_T (soft rows) + c . (rigid 12-tangent of the final
-  // state): its theta gradient is a^T dx + b^T dv + the rigid rows'.
-  const VecX a = VecX::NullaryExpr(n3, [&] { return N(rng); }), b = VecX::NullaryExpr(n3, [&] { return N(rng); });
-  const rigid::Vec12 cr = rigid::Vec12::NullaryExpr([&] { return N(rng); });
-  diff::Tape tape;
-  Data data2(model);
-  ASSERT_TRUE(diff::record(model, data2, model.initial, T, tape).ok());
-  diff::AdjointResult result;
-  ASSERT_TRUE(diff::adjoint(
-                  model, data2, tape, theta,
-                  [&](long k, const State&, VecX& bx, VecX& bv) {
-                    if (k == T) bx += a, bv += b;
-                  },
-                  result,
-                  [&](long k, const State&, VecX& br) {
-                    if (k == T) br += cr;
-                  })
-                  .ok());
-  EXPECT_EQ(result.recompute_mismatch, 0.0);
-  VecX expected(4);
-  for (int c = 0; c < 4; ++c)
-    expected[c] = a.dot(dx.col(c).head(n3)) + b.dot(dv.col(c).head(n3)) + cr.head<6>().dot(dx.col(c).tail<6>()) +
-                  cr.tail<6>().dot(dv.col(c).tail<6>());
-  std::cout << "adjoint " << result.theta.transpose() << " against forward " << expected.transpose() << "\n";
-  for (int c = 0; c < 4; ++c) EXPECT_NEAR(result.theta[c], expected[c], 1e-9 * expected.cwiseAbs().maxCoeff());
+  test::rigid_scenes::expect_adjoint_matches_forward(model, T, theta, dx, dv, rng, N);
 }
 
 INSTANTIATE_TEST_SUITE_P(, RigidContactTrajectoryDerivatives,
@@ -670,32 +646,7 @@ TEST(RigidContactLimitTrajectoryDerivatives, SensitivitiesAndAdjointThroughLimit
               << 2 * rows << ": " << an[worst] << " against " << fd[worst] << ")\n";
     EXPECT_LT(err, 1e-5 * mag) << "column " << c;
   }
-  const VecX a = VecX::NullaryExpr(n3, [&] { return N(rng); }), b = VecX::NullaryExpr(n3, [&] { return N(rng); });
-  const VecX cr = VecX::NullaryExpr(24, [&] { return N(rng); });
-  diff::Tape tape;
-  Data data2(model);
-  ASSERT_TRUE(diff::record(model, data2, model.initial, T, tape).ok());
-  diff::AdjointResult result;
-  ASSERT_TRUE(diff::adjoint(
-                  model, data2, tape, theta,
-                  [&](long k, const State&, VecX& bx, VecX& bv) {
-                    if (k == T) bx += a, bv += b;
-                  },
-                  result,
-                  [&](long k, const State&, VecX& br) {
-                    if (k == T) br += cr;
-                  })
-                  .ok());
-  EXPECT_EQ(result.recompute_mismatch, 0.0);
-  VecX expected(3);
-  for (int c = 0; c < 3; ++c) {
-    expected[c] = a.dot(dx.col(c).head(n3)) + b.dot(dv.col(c).head(n3));
-    for (int r = 0; r < 2; ++r)
-      expected[c] += cr.segment<6>(12 * r).dot(dx.col(c).segment<6>(n3 + 6 * r)) +
-                     cr.segment<6>(12 * r + 6).dot(dv.col(c).segment<6>(n3 + 6 * r));
-  }
-  std::cout << "adjoint " << result.theta.transpose() << " against forward " << expected.transpose() << "\n";
-  for (int c = 0; c < 3; ++c) EXPECT_NEAR(result.theta[c], expected[c], 1e-9 * expected.cwiseAbs().maxCoeff());
+  test::rigid_scenes::expect_adjoint_matches_forward(model, T, theta, dx, dv, rng, N);
 }
 
 }  // namespace rigid_contact_derivatives_test
