@@ -320,8 +320,8 @@ TEST(Cli, JacobianWithRigidifiedServoPart) {
   Eigen::VectorXd y(3 * part.size());
   for (std::size_t p = 0; p < part.size(); ++p) {
     const std::size_t i = part[p];
-    const double r[3] = {x[last + 3 * i] - c[0], x[last + 3 * i + 1] - c[1], x[last + 3 * i + 2] - c[2]};
-    const double R[3][6] = {{1, 0, 0, 0, r[2], -r[1]}, {0, 1, 0, -r[2], 0, r[0]}, {0, 0, 1, r[1], -r[0], 0}};
+    const double arm[3] = {x[last + 3 * i] - c[0], x[last + 3 * i + 1] - c[1], x[last + 3 * i + 2] - c[2]};
+    const double R[3][6] = {{1, 0, 0, 0, arm[2], -arm[1]}, {0, 1, 0, -arm[2], 0, arm[0]}, {0, 0, 1, arm[1], -arm[0], 0}};
     for (int k = 0; k < 3; ++k) {
       for (int j = 0; j < 6; ++j) A(static_cast<Eigen::Index>(3 * p + k), j) = R[k][j];
       y[static_cast<Eigen::Index>(3 * p + k)] = J[3 * i + k];
