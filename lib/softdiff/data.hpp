@@ -9,6 +9,7 @@
 #include <softdiff/integrator/linear_solver.hpp>
 #include <softdiff/model.hpp>
 
+#include <cstdint>
 #include <memory>
 #include <string>
 #include <utility>
@@ -70,6 +71,12 @@ struct ContactData {
   // Warm start: the previous step's contacts (by key) and forces.
   std::vector<std::pair<collision::Contact::Key, int>> previous_keys;  // sorted (key, index into previous_lambda)
   VecX previous_lambda;
+  // The record's serial number: a new one, unique in the process (contact::
+  // next_record_serial), each time the contact stage writes the record (detection, the
+  // NCP solve, the rigid bodies' correction; a Tape replay recomputes the step through
+  // them): a derivative that prepared its maps for one record knows in O(1) whether
+  // the record changed since (integrator::StepDerivatives::prepare_rigid).
+  std::uint64_t serial = 0;
   // Rigid bodies in the contact stage (contact/rigid_contact.hpp; model.contact.with_rigid()).
   struct Rigid {
     VecX x, v_previous, v_free;            // (3 (n + pseudo-nodes)) extended positions/velocities for detection

@@ -2,9 +2,10 @@
 // review, rmend item 2): contact::RigidContactDerivative::prepare (with a limited joint in
 // the NCP, prepare_limits, which rebuilds the extended dense G) runs on the first jvp or
 // vjp of a step and is reused by every further column of that step
-// (integrator::StepDerivatives::prepare_rigid's cache key: v_f, the corrected rigid
-// velocities, the rigid start states, the contact forces and h), and runs again for the
-// next step. The reused maps give the same columns to the bit.
+// (integrator::StepDerivatives::prepare_rigid's cache key: the contact record's serial
+// number ContactData::serial, a new one each time the contact stage writes the record;
+// an O(1) test, 2026-12-03 review mend), and runs again for the next step. The reused
+// maps give the same columns to the bit.
 #include <softdiff/data.hpp>
 #include <softdiff/integrator/bdf2.hpp>
 #include <softdiff/integrator/implicit_euler_derivatives.hpp>
@@ -85,9 +86,8 @@ TEST(RigidContactStepDerivatives, RigidMapsPreparedOncePerStepWithALimitInContac
   EXPECT_EQ(again.v, first.v);
   EXPECT_EQ(again.rigid, first.rigid);
 
-  // Another step: prepared again, once. (Not simply the next one: the block rests on its
-  // limit, so the next step's record is this one's bit for bit, and reusing the maps is
-  // right there; here the block is pushed onto its limit at 5 cm/s.)
+  // Another step: prepared again, once (a new record serial; the block is pushed onto its
+  // limit at 5 cm/s, so that the maps also differ).
   State c = b;
   c.rigid[0].velocity = Vec3(0, 0, -0.05);
   const StepStatus st = integrator::time_step(model, data, c, nullptr, a, 11);

@@ -5,6 +5,7 @@
 #include <softdiff/core/timer.hpp>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 
 namespace softdiff::contact {
@@ -97,9 +98,15 @@ StepStatus resolve_contacts(const Model& model, Data& data, const VecX& x, const
   return solve_contact_problem(model, data, h, v, step_index);
 }
 
+std::uint64_t next_record_serial() {
+  static std::atomic<std::uint64_t> serial{0};
+  return ++serial;
+}
+
 void detect_contacts(const Model& model, Data& data, const VecX& x, const VecX& v_previous, double h, const VecX& v,
                      bool free_motion_widens) {
   auto& cd = data.contact;
+  cd.serial = next_record_serial();
   auto t0 = Clock::now();
   // Speculative margin: a pair further apart than the margin at x_i may still close
   // within the step. Widening the margin to twice the largest node displacement the
@@ -149,6 +156,7 @@ void detect_contacts(const Model& model, Data& data, const VecX& x, const VecX& 
 }
 
 void clear_contact_record(ContactData& cd) {
+  cd.serial = next_record_serial();
   cd.contacts.contacts.clear();
   cd.result = {};
   cd.result.converged = true;
@@ -173,6 +181,7 @@ namespace {
 // crossed; rigid_contact.hpp select_limit_rows).
 StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX& v, long step_index, bool all_limits) {
   auto& cd = data.contact;
+  cd.serial = next_record_serial();
   StepStatus status;
   status.step = step_index;
   const int nc = cd.contacts.size();

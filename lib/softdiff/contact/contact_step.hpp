@@ -42,6 +42,10 @@ StepStatus resolve_contacts(const Model& model, Data& data, const VecX& x, const
 // H_c^T and mu into data.contact.
 void detect_contacts(const Model& model, Data& data, const VecX& x, const VecX& v_previous, double h, const VecX& v,
                      bool free_motion_widens);
+// A new contact record serial number (ContactData::serial), unique in the process
+// (an atomic counter): every function above that writes data.contact takes one.
+std::uint64_t next_record_serial();
+
 // An empty contact record: no contact, a trivially converged solve, no warm start (a
 // step or load step without contacts, and the start of a static solve).
 void clear_contact_record(ContactData& cd);

@@ -1,6 +1,8 @@
 // Rigid bodies in the contact stage: see rigid_contact.hpp.
 #include <softdiff/contact/rigid_contact.hpp>
 
+#include <softdiff/contact/contact_step.hpp>
+
 #include <softdiff/core/assert.hpp>
 #include <softdiff/rigid/rotation.hpp>
 
@@ -216,6 +218,7 @@ void rigid_delassus_rows(const Model& model, Data& data, MatX& Kt, VecX& g) {
 
 void correct_rigid_velocities(const Model& model, Data& data, double h, const VecX& lambda) {
   auto& rd = data.contact.rigid;
+  data.contact.serial = next_record_serial();  // the record's corrected velocities change
   rd.u = rd.u_free;
   for (std::size_t r = 0; r < model.rigid.size(); ++r) {
     if (!has_dofs(model.rigid[r])) continue;

@@ -244,22 +244,11 @@ bool StepDerivatives::prepare_rigid(const Model& model, const Data& data, const 
                   "only (issue 21)");
   demand_size(rigid, 12 * R, "rigid tangent");
   demand_size(rigid_p, 7 * R, "rigid parameter tangent");
-  // Once per step, not per tangent: the key of prepare_contact (v_f, the corrected rigid
-  // velocities u) with the rigid start states, the contact forces and h, which identify the
-  // step's record; the JVP / VJP columns of one step share it (prepare_limits' extended G
-  // is rebuilt only for a new step).
-  const auto& rd = data.contact.rigid;
-  const Eigen::Index nv = out.v.size(), nu = rd.u.size(), nl = data.contact.lambda.size();
-  rigid_key_now_.resize(nv + nu + 13 * R + nl + 1);  // the same size within a step: no allocation
-  rigid_key_now_.head(nv) = out.v;
-  rigid_key_now_.segment(nv, nu) = rd.u;
-  for (Eigen::Index r = 0; r < R; ++r) {
-    const auto& s = rd.in[static_cast<std::size_t>(r)];
-    rigid_key_now_.segment<13>(nv + nu + 13 * r) << s.position, s.orientation.coeffs(), s.velocity, s.angular_velocity;
-  }
-  rigid_key_now_.segment(nv + nu + 13 * R, nl) = data.contact.lambda;
-  rigid_key_now_[rigid_key_now_.size() - 1] = h;
-  if (rigid_key_.size() == rigid_key_now_.size() && rigid_key_ == rigid_key_now_) return true;
+  // Once per step, not per tangent: the record's serial number (ContactData::serial, a
+  // new one each time the contact stage writes the record, unique in the process), an
+  // O(1) test; the JVP / VJP columns of one step share it (prepare_limits' extended G
+  // is rebuilt only for a new record).
+  if (rigid_serial_ != 0 && rigid_serial_ == data.contact.serial) return true;
   rigid_.prepare(model, data, out.rigid, h);
   // Newton (docs/method.md "Newton with rigid contact"): the implicit function theorem at
   // v_f recomputes G_AA with the converged tangent A_f (prepare_contact), plus the rigid
@@ -269,7 +258,7 @@ bool StepDerivatives::prepare_rigid(const Model& model, const Data& data, const 
   SOFTDIFF_DEMAND(!is_newton(model) || (data.contact.G.rows() == 0 && rigid_.limit_rows() == 0),
                   "step derivatives: newton_iterations > 1 with rigid bodies in contact are differentiated on the "
                   "sparse contact backend without joint limits in the contact solve only (issue 21)");
-  rigid_key_ = rigid_key_now_;
+  rigid_serial_ = data.contact.serial;
   return true;
 }
 

@@ -187,7 +187,7 @@ class StepDerivatives {
   contact::RigidContactDerivative rigid_;
   VecX ext_dx_, ext_r_, ext_u_, ext_y_, ext_bar_x_, du0_, bar_du0_;
   VecX contact_v_;                   // the v_f (and rigid u) the contact derivatives were prepared for
-  VecX rigid_key_, rigid_key_now_;   // the step rigid_ was prepared for (prepare_rigid), and this call's
+  std::uint64_t rigid_serial_ = 0;   // the record rigid_ was prepared for (ContactData::serial; 0: none)
   VecX b_, dlambda_, bar_lambda_, bar_b_, bar_mu_, y2_;
   SparseMatrix newton_A_;            // Newton: dR/dv at x_f (the pattern's structure)
   std::unique_ptr<LinearSolver> newton_solver_;

@@ -150,6 +150,23 @@ class CholmodSolver final : public LinearSolver {
 
   void refactorize_next() override { refactor_next_ = true; }
 
+  bool factor_kept() const override { return stale_; }
+  void apply_factor_as_is(const VecX& r, VecX& z) override {
+    SOFTDIFF_DEMAND(factored_, "apply_factor_as_is() without a valid factorization");
+    apply_factor(r, z);
+  }
+  void count_outside_pcg(int iterations) override {
+    ++counters_.pcg_solves;
+    counters_.pcg_iterations += iterations;
+    counters_.last_pcg_iterations = iterations;
+    if (iterations > options_.refactor_iterations) refactor_next_ = true;
+  }
+  FactorStatus factorize_recorded() override {
+    ++counters_.pcg_fallbacks;
+    refresh_factor();
+    return solve_factor_status_;
+  }
+
   bool solve_from(const VecX& b, VecX& x) override {
     SOFTDIFF_DEMAND(factored_, "solve() without a valid factorization");
     solve_factor_status_ = {};

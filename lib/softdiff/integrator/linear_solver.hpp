@@ -85,6 +85,19 @@ class LinearSolver {
   // Factor reuse: the next factorize() factorizes (called after a failed step, so that
   // the step after a failure never solves with a kept factor). No-op otherwise.
   virtual void refactorize_next() {}
+  // Factor reuse with rigidified parts (integrator/rigidify.cpp: conjugate gradients on
+  // the reduced system P^T A P, preconditioned by the kept factor's reduced inverse).
+  // factor_kept(): the factor is an earlier matrix's (factorize() recorded A, kept L).
+  virtual bool factor_kept() const { return false; }
+  // z = (L L^T)^{-1} r with the factor as it is, kept or current (no PCG); r, z may not alias.
+  virtual void apply_factor_as_is(const VecX& r, VecX& z) { solve(r, z); }
+  // An outside PCG solve's iterations: counted as a PCG solve with the kept factor, and
+  // the refactorization rule applied (more than refactor_iterations: the next
+  // factorize() factorizes).
+  virtual void count_outside_pcg(int /*iterations*/) {}
+  // Factorize the recorded matrix now (an outside PCG that did not converge: counted as
+  // a fallback); its status (solve_factor_status() too).
+  virtual FactorStatus factorize_recorded() { return {}; }
 
  protected:
   SolverCounters counters_;

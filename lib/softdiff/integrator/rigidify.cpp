@@ -1,5 +1,6 @@
 // Rigidified parts of soft bodies: see rigidify.hpp and docs/method.md "Rigidified parts".
 #include <softdiff/integrator/rigidify.hpp>
+#include <softdiff/integrator/rigidify_pcg.hpp>
 #include <softdiff/integrator/static_rigid.hpp>
 #include <softdiff/rigid/rotation.hpp>
 
@@ -79,31 +80,15 @@ Eigen::Matrix<double, 6, 1> part_velocity(const Model& model, const RigidifiedPa
   return fit(model, part, x, c, v, N);
 }
 
-StepStatus prepare_rigidified(const Model& model, Data& data, const VecX& x, double h, long step_index,
-                              const VecX* K_damping) {
-  SOFTDIFF_DEMAND(!model.solver.factor_reuse, "rigidified parts: without factor reuse (issue 21)");
-  // The static solver (integrator/static_rigid.hpp): A = K, called with h = 1.
+namespace {
+// The step's coupling values (A = (1 + h alpha) M + h beta K_d + h^2 K, the linearized
+// step: K_d = K, with the part's body coefficients; the pattern couples no two bodies):
+// C = A_fr T (3n x 6m) and D = T^T A_rr T (6m x 6m), at the arms of w.x, w.centre.
+void coupling(const Model& model, const Data& data, const RigidifyData& w, double h, const VecX* K_damping, MatX& C,
+              MatX& D) {
   const bool is_static = model.step.integrator == IntegratorKind::static_equilibrium;
   const auto& fem = model.fem;
   const RigidifyModel& rm = model.rigidify;
-  RigidifyData& w = data.rigidify;
-  const int n = 3 * fem.num_nodes, m6 = 6 * rm.size();
-  if (w.C.rows() != n || w.C.cols() != m6) {  // first use: size the workspace
-    w.C.resize(n, m6);
-    w.Y.resize(n, m6);
-    w.S.resize(m6, m6);
-    w.S_factor = Eigen::LLT<MatX>(m6);
-    w.b_soft.resize(n);
-    w.y.resize(n);
-    w.g.resize(m6);
-    w.u.resize(m6);
-    w.centre.resize(rm.parts.size());
-  }
-  w.x = x;
-  for (std::size_t p = 0; p < rm.parts.size(); ++p) w.centre[p] = part_centre(model, rm.parts[p], x);
-
-  // A's coupling values: A = (1 + h alpha) M + h beta K_d + h^2 K (the linearized step:
-  // K_d = K), with the part's body coefficients (the pattern couples no two bodies).
   const double* M = fem.mass_values.data();
   const double* K = data.fem.K_values.data();
   const double* Kd = K_damping ? K_damping->data() : K;
@@ -113,23 +98,29 @@ StepStatus prepare_rigidified(const Model& model, Data& data, const VecX& x, dou
     return (1 + h * b.rayleigh_mass) * M[k] + h * b.rayleigh_stiffness * Kd[k] + h * h * K[k];
   };
   auto row_of = [&](int dof, int part) {
-    return rigid_row(x.segment<3>(3 * (dof / 3)) - w.centre[static_cast<std::size_t>(part)], dof % 3);
+    return rigid_row(w.x.segment<3>(3 * (dof / 3)) - w.centre[static_cast<std::size_t>(part)], dof % 3);
   };
-  w.C.setZero();
-  w.S.setZero();
+  C.setZero();
+  D.setZero();
   for (const auto& e : rm.rigid_free) {
     const int p = rm.dof_part[static_cast<std::size_t>(e.rigid)];
-    w.C.block<1, 6>(e.other, 6 * p).noalias() += value(e.value, p) * row_of(e.rigid, p);
+    C.block<1, 6>(e.other, 6 * p).noalias() += value(e.value, p) * row_of(e.rigid, p);
   }
   for (const auto& e : rm.rigid_rigid) {
     const int p = rm.dof_part[static_cast<std::size_t>(e.rigid)], q = rm.dof_part[static_cast<std::size_t>(e.other)];
     const double a = value(e.value, p);
     const Eigen::Matrix<double, 1, 6> tp = row_of(e.rigid, p), tq = row_of(e.other, q);
-    w.S.block<6, 6>(6 * p, 6 * q).noalias() += a * tp.transpose() * tq;
-    if (e.rigid != e.other) w.S.block<6, 6>(6 * q, 6 * p).noalias() += a * tq.transpose() * tp;
+    D.block<6, 6>(6 * p, 6 * q).noalias() += a * tp.transpose() * tq;
+    if (e.rigid != e.other) D.block<6, 6>(6 * q, 6 * p).noalias() += a * tq.transpose() * tp;
   }
+}
+
+// With w.C and w.S = D set: Y = A_ff^{-1} C (one solve with 6m right-hand sides on the
+// step's factor), S = D - C^T Y and its Cholesky factor.
+StepStatus schur_complement(const Model& model, Data& data, long step_index) {
+  RigidifyData& w = data.rigidify;
+  const int m6 = 6 * model.rigidify.size();
   StepStatus status;
-  // Y = A_ff^{-1} C: one solve with 6m right-hand sides on the step's factor.
   if (!data.solver->solve(w.C, w.Y)) {
     status.code = StepStatus::Code::solver_failed;
     status.step = step_index;
@@ -148,6 +139,141 @@ StepStatus prepare_rigidified(const Model& model, Data& data, const VecX& x, dou
   }
   return status;
 }
+}  // namespace
+
+StepStatus prepare_rigidified(const Model& model, Data& data, const VecX& x, double h, long step_index,
+                              const VecX* K_damping) {
+  const auto& fem = model.fem;
+  const RigidifyModel& rm = model.rigidify;
+  RigidifyData& w = data.rigidify;
+  const int n = 3 * fem.num_nodes, m6 = 6 * rm.size();
+  if (w.C.rows() != n || w.C.cols() != m6) {  // first use: size the workspace
+    w.C.resize(n, m6);
+    w.Y.resize(n, m6);
+    w.S.resize(m6, m6);
+    w.S_factor = Eigen::LLT<MatX>(m6);
+    w.b_soft.resize(n);
+    w.y.resize(n);
+    w.g.resize(m6);
+    w.u.resize(m6);
+    w.centre.resize(rm.parts.size());
+    w.reduced_pcg = false;
+  }
+  w.x = x;
+  for (std::size_t p = 0; p < rm.parts.size(); ++p) w.centre[p] = part_centre(model, rm.parts[p], x);
+  // Factor reuse with a kept factor (docs/method.md "Rigidified parts", *Factor reuse*):
+  // C, Y, S stay the kept factor's (the preconditioner of solve_rigidified's PCG; they
+  // were computed by the step that factorized, or by a fallback); this step's own
+  // coupling only, no solve.
+  w.reduced_pcg = data.solver->factor_kept();
+  if (w.reduced_pcg) {
+    if (w.C_step.rows() != n || w.C_step.cols() != m6) {
+      w.C_step.resize(n, m6);
+      w.D_step.resize(m6, m6);
+      for (VecX* v : {&w.r_f, &w.z_f, &w.p_f, &w.q_f}) v->resize(n);
+      for (VecX* v : {&w.r_u, &w.z_u, &w.p_u, &w.q_u}) v->resize(m6);
+    }
+    coupling(model, data, w, h, K_damping, w.C_step, w.D_step);
+    return {};
+  }
+  coupling(model, data, w, h, K_damping, w.C, w.S);
+  return schur_complement(model, data, step_index);
+}
+
+namespace {
+// (z_f, z_u) = the kept factorization's reduced inverse applied to (r_f, r_u): the
+// Schur-complement solve above with C, Y, S of the factorization (their arms then):
+// y = A'^{-1} r_f (one solve with the kept factor), z_u = S'^{-1} (r_u - C'^T y),
+// z_f = y - Y' z_u. Symmetric positive definite (the exact inverse of that step's
+// P'^T A' P' in its reduced coordinates), so a valid PCG preconditioner.
+void apply_kept_reduced_inverse(const Data& data, const VecX& r_f, const VecX& r_u, VecX& z_f, VecX& z_u, VecX& y) {
+  const RigidifyData& w = data.rigidify;
+  data.solver->apply_factor_as_is(r_f, y);
+  z_u = r_u;
+  z_u.noalias() -= w.C.transpose() * y;
+  w.S_factor.solveInPlace(z_u);
+  z_f = y;
+  z_f.noalias() -= w.Y * z_u;
+}
+
+// (q_f, q_u) = P^T A P (p_f, p_u) in reduced coordinates (the soft dofs' rows, zero on
+// the rigidified and fixed ones, then 6 per part): q_f = A p_f + C p_u, q_u = C^T p_f +
+// D p_u, with this step's A (identity rows on the rigidified and fixed dofs, which p_f
+// keeps zero), C_step and D_step.
+void apply_reduced(const Data& data, const VecX& p_f, const VecX& p_u, VecX& q_f, VecX& q_u) {
+  const RigidifyData& w = data.rigidify;
+  q_f.noalias() = data.A.selfadjointView<Eigen::Upper>() * p_f;
+  q_f.noalias() += w.C_step * p_u;
+  q_u.noalias() = w.C_step.transpose() * p_f;
+  q_u.noalias() += w.D_step * p_u;
+}
+
+double reduced_norm(const VecX& f, const VecX& u) { return std::sqrt(f.squaredNorm() + u.squaredNorm()); }
+}  // namespace
+
+// Each iteration: one solve with the kept factor, one product with A, four products with
+// the 3n x 6m columns (C, Y of the factorization; C_step twice).
+int reduced_pcg(const Model& model, const Data& data, const VecX& b_f, const VecX& g, VecX& f, VecX& u, bool guess,
+                const ReducedPcgWork& work) {
+  SOFTDIFF_DEMAND(data.rigidify.reduced_pcg, "reduced_pcg: the step did not keep a factor");
+  const auto& opt = model.solver;
+  auto& [r_f, z_f, p_f, q_f, r_u, z_u, p_u, q_u, y] = work;
+  const double target = opt.pcg_tolerance * reduced_norm(b_f, g);
+  if (target == 0) {
+    f.setZero(b_f.size());
+    u.setZero(g.size());
+    return 0;
+  }
+  r_f = b_f;
+  r_u = g;
+  if (guess) {
+    apply_reduced(data, f, u, q_f, q_u);
+    r_f -= q_f;
+    r_u -= q_u;
+  } else {
+    f.setZero(b_f.size());
+    u.setZero(g.size());
+  }
+  int it = 0;
+  bool converged = reduced_norm(r_f, r_u) <= target;
+  while (!converged && it < opt.pcg_max_iterations) {
+    // (Re)start from the true residual.
+    apply_kept_reduced_inverse(data, r_f, r_u, z_f, z_u, y);
+    p_f = z_f;
+    p_u = z_u;
+    double rz = r_f.dot(z_f) + r_u.dot(z_u);
+    bool breakdown = false;
+    while (it < opt.pcg_max_iterations) {
+      apply_reduced(data, p_f, p_u, q_f, q_u);
+      const double pq = p_f.dot(q_f) + p_u.dot(q_u);
+      if (!(pq > 0)) {
+        breakdown = true;
+        break;
+      }
+      const double alpha = rz / pq;
+      f.noalias() += alpha * p_f;
+      u.noalias() += alpha * p_u;
+      r_f.noalias() -= alpha * q_f;
+      r_u.noalias() -= alpha * q_u;
+      ++it;
+      if (reduced_norm(r_f, r_u) <= target) break;
+      apply_kept_reduced_inverse(data, r_f, r_u, z_f, z_u, y);
+      const double rz_next = r_f.dot(z_f) + r_u.dot(z_u);
+      const double beta = rz_next / rz;
+      p_f = z_f + beta * p_f;
+      p_u = z_u + beta * p_u;
+      rz = rz_next;
+    }
+    if (breakdown) break;
+    // The recurrence says converged (or the budget is spent): the true residual.
+    apply_reduced(data, f, u, q_f, q_u);
+    r_f = b_f - q_f;
+    r_u = g - q_u;
+    converged = reduced_norm(r_f, r_u) <= target;
+  }
+  data.solver->count_outside_pcg(it);
+  return converged ? it : -1;
+}
 
 bool solve_rigidified(const Model& model, Data& data, const VecX& b, VecX& v) {
   const RigidifyModel& rm = model.rigidify;
@@ -155,21 +281,60 @@ bool solve_rigidified(const Model& model, Data& data, const VecX& b, VecX& v) {
   w.b_soft = b;
   for (const auto& part : rm.parts)
     for (int i : part.nodes) w.b_soft.segment<3>(3 * i).setZero();
-  if (!data.solver->solve(w.b_soft, w.y)) return false;
-  w.g.noalias() = -w.C.transpose() * w.y;
-  for (int p = 0; p < rm.size(); ++p) {
-    const auto& part = rm.parts[static_cast<std::size_t>(p)];
-    for (int i : part.nodes) {
-      const Vec3 r = w.x.segment<3>(3 * i) - w.centre[static_cast<std::size_t>(p)];
-      const Vec3 bi = b.segment<3>(3 * i);  // T_i^T b_i = (b_i, r x b_i)
-      w.g.segment<3>(6 * p) += bi;
-      w.g.segment<3>(6 * p + 3) += r.cross(bi);
+  // g += T^T b_r (the parts' resultants and moments about their centres).
+  auto add_part_loads = [&] {
+    for (int p = 0; p < rm.size(); ++p) {
+      const auto& part = rm.parts[static_cast<std::size_t>(p)];
+      for (int i : part.nodes) {
+        const Vec3 r = w.x.segment<3>(3 * i) - w.centre[static_cast<std::size_t>(p)];
+        const Vec3 bi = b.segment<3>(3 * i);  // T_i^T b_i = (b_i, r x b_i)
+        w.g.segment<3>(6 * p) += bi;
+        w.g.segment<3>(6 * p + 3) += r.cross(bi);
+      }
+    }
+  };
+  bool solved = false;
+  if (w.reduced_pcg) {
+    w.g.setZero();
+    add_part_loads();
+    // Factor reuse: PCG on P^T A P from v's reduced coordinates (the previous step's
+    // answer, as the soft PCG starts from it: its soft rows, and each part's rigid fit).
+    const bool guess = v.size() == b.size() && v.allFinite();
+    if (guess) {
+      w.y = v;  // scratch: v's soft rows (w.y is the preconditioner's, written after)
+      for (int p = 0; p < rm.size(); ++p) {
+        const auto& part = rm.parts[static_cast<std::size_t>(p)];
+        w.u.segment<6>(6 * p) = part_velocity(model, part, w.x, w.centre[static_cast<std::size_t>(p)], v);
+        for (int i : part.nodes) w.y.segment<3>(3 * i).setZero();
+      }
+      v = w.y;
+    } else {
+      v.setZero(b.size());
+    }
+    w.pcg_iterations = reduced_pcg(model, data, w.b_soft, w.g, v, w.u, guess,
+                                   {w.r_f, w.z_f, w.p_f, w.q_f, w.r_u, w.z_u, w.p_u, w.q_u, w.y});
+    solved = w.pcg_iterations >= 0;
+    if (!solved) {
+      // Not converged after pcg_max_iterations (or p^T A p <= 0): factorize this step's
+      // A now and solve directly, as the soft PCG does (a failed factorization is the
+      // solver's solve_factor_status(): not_positive_definite with the dof).
+      if (!data.solver->factorize_recorded().ok) return false;
+      w.reduced_pcg = false;
+      w.C = w.C_step;
+      w.S = w.D_step;
+      if (!schur_complement(model, data, -1).ok()) return false;
     }
   }
-  w.u = w.g;
-  w.S_factor.solveInPlace(w.u);
-  v = w.y;
-  v.noalias() -= w.Y * w.u;
+  if (!solved) {
+    w.pcg_iterations = 0;
+    if (!data.solver->solve(w.b_soft, w.y)) return false;
+    w.g.noalias() = -w.C.transpose() * w.y;
+    add_part_loads();
+    w.u = w.g;
+    w.S_factor.solveInPlace(w.u);
+    v = w.y;
+    v.noalias() -= w.Y * w.u;
+  }
   for (int p = 0; p < rm.size(); ++p) {
     const auto& part = rm.parts[static_cast<std::size_t>(p)];
     const Eigen::Matrix<double, 6, 1> up = w.u.segment<6>(6 * p);

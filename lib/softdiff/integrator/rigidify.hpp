@@ -93,6 +93,15 @@ struct RigidifyData {
   SparseMatrix Ht_soft;
   MatX W, SW;
   VecX f;                       // (3n) Newton: scratch of the projected internal forces
+  // Factor reuse (linear_solver.factor_reuse: pcg; docs/method.md "Rigidified parts",
+  // *Factor reuse*): with a kept factor, C, Y and S above stay the last factorization's
+  // (the preconditioner's) and the step's own coupling is C_step = A_fr T and D_step =
+  // T^T A_rr T; solve_rigidified then runs PCG on P^T A P.
+  bool reduced_pcg = false;     // this step's solves are the reduced PCG
+  MatX C_step, D_step;          // (3n, 6m), (6m, 6m)
+  VecX r_f, z_f, p_f, q_f;      // (3n) reduced PCG: the soft rows of residual, preconditioned residual, direction, A p
+  VecX r_u, z_u, p_u, q_u;      // (6m) the same, the parts' rows
+  int pcg_iterations = 0;       // of the last reduced PCG solve (0: direct)
 };
 
 // Fills r.dof_part and the coupling entries from the pattern (io::build_model, after

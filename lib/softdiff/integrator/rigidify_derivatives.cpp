@@ -3,6 +3,7 @@
 
 #include <softdiff/fem/assembly.hpp>
 #include <softdiff/integrator/rigidify.hpp>
+#include <softdiff/integrator/rigidify_pcg.hpp>
 #include <softdiff/rigid/rotation.hpp>
 
 namespace softdiff::integrator {
@@ -164,19 +165,39 @@ bool RigidifiedStepDerivative::solve(const Model& model, const Data& data, const
   b_soft_ = b;
   for (const auto& part : rm.parts)
     for (int i : part.nodes) b_soft_.segment<3>(3 * i).setZero();
-  if (!data.solver->solve(b_soft_, y_)) return false;
-  g_.noalias() = -w.C.transpose() * y_;
-  for (int p = 0; p < rm.size(); ++p)
-    for (int i : rm.parts[static_cast<std::size_t>(p)].nodes) {
-      const Vec3 a = w.x.segment<3>(3 * i) - w.centre[static_cast<std::size_t>(p)];
-      const Vec3 bi = b.segment<3>(3 * i);
-      g_.segment<3>(6 * p) += bi;
-      g_.segment<3>(6 * p + 3) += a.cross(bi);
-    }
-  if (with_extra) g_ += g_extra_;
-  u_ = w.S_factor.solve(g_);
-  v = y_;
-  v.noalias() -= w.Y * u_;
+  auto add_part_loads = [&] {  // g += T^T b_r
+    for (int p = 0; p < rm.size(); ++p)
+      for (int i : rm.parts[static_cast<std::size_t>(p)].nodes) {
+        const Vec3 a = w.x.segment<3>(3 * i) - w.centre[static_cast<std::size_t>(p)];
+        const Vec3 bi = b.segment<3>(3 * i);
+        g_.segment<3>(6 * p) += bi;
+        g_.segment<3>(6 * p + 3) += a.cross(bi);
+      }
+  };
+  if (w.reduced_pcg) {
+    // Factor reuse: the step kept a factor, and C, Y, S are the factorization's (the
+    // preconditioner): PCG on the step's P^T A P from zero, to the step's PCG tolerance.
+    // Not converged: the derivative fails (false), as a failed solve does.
+    const Eigen::Index n = b.size(), m6 = 6 * rm.size();
+    for (VecX& z : pcg_f_) z.resize(n);
+    for (VecX& z : pcg_u_) z.resize(m6);
+    pcg_y_.resize(n);
+    g_.setZero(m6);
+    add_part_loads();
+    if (with_extra) g_ += g_extra_;
+    if (reduced_pcg(model, data, b_soft_, g_, y_, u_, false,
+                    {pcg_f_[0], pcg_f_[1], pcg_f_[2], pcg_f_[3], pcg_u_[0], pcg_u_[1], pcg_u_[2], pcg_u_[3], pcg_y_}) < 0)
+      return false;
+    v = y_;
+  } else {
+    if (!data.solver->solve(b_soft_, y_)) return false;
+    g_.noalias() = -w.C.transpose() * y_;
+    add_part_loads();
+    if (with_extra) g_ += g_extra_;
+    u_ = w.S_factor.solve(g_);
+    v = y_;
+    v.noalias() -= w.Y * u_;
+  }
   for (int p = 0; p < rm.size(); ++p) {
     const Vec6 up = u_.segment<6>(6 * p);
     for (int i : rm.parts[static_cast<std::size_t>(p)].nodes) {

@@ -90,6 +90,10 @@ class RigidifiedStepDerivative {
   VecX da_, dpz_, w_, Mw_, Kw_, Aw_, bar_a_;  // (3n) workspace
   Eigen::Matrix<double, Eigen::Dynamic, 1> g_extra_, g_, u_;  // (6m)
   VecX b_soft_, y_;        // (3n) the reduced solve's
+  // Factor reuse (the step's record kept a factor: data.rigidify.reduced_pcg): the reduced
+  // solves are PCG on the step's own P^T A P (rigidify_pcg.hpp), as the soft derivative's
+  // solves are PCG on its A; their vectors (3n, then 6m).
+  VecX pcg_f_[4], pcg_u_[4], pcg_y_;
 };
 
 }  // namespace softdiff::integrator

@@ -349,23 +349,12 @@ class Reader {
   }
 
   // Rigidified parts (issue 21 item 2): implicit Euler (Newton too), BDF2 and static
-  // (the reduced Newton, integrator/static_rigid.hpp), contact on either backend,
-  // without factor reuse or derivatives (those are refused by the commands).
-  // attach: fixed parts are fixed nodes (io::build_model): nothing to check for them.
-  void check_rigidify_support(const Node& root, const SceneDesc& scene) const {
-    const RigidifyDesc* first = nullptr;
-    for (const auto& b : scene.bodies)
-      for (const auto& r : b.rigidify)
-        if (r.attach != "fixed" && !first) first = &r;
-    if (!first) return;
-    const std::string part = first->where.path;
-    if (scene.linear_solver.factor_reuse) {
-      const Entry* key = root.get("linear_solver")->find("factor_reuse");
-      ctx_.fail(key->key_mark, "linear_solver.factor_reuse",
-                "factor_reuse: pcg with rigidified parts is not supported yet (issue 21; " + part +
-                    "): use factor_reuse: off");
-    }
-  }
+  // (the reduced Newton, integrator/static_rigid.hpp), contact on either backend, factor
+  // reuse where it is available at all (check_factor_reuse: no contact, no Newton, not
+  // static; the reduced PCG, integrator/rigidify_pcg.hpp); derivatives are refused by the
+  // commands where not supported. attach: fixed parts are fixed nodes (io::build_model):
+  // nothing to check for them.
+  void check_rigidify_support(const Node& /*root*/, const SceneDesc& /*scene*/) const {}
 
   RigidBodyDesc read_rigid_body(const Node& body, const std::string& path) const {
     RigidBodyDesc d;
