@@ -981,12 +981,12 @@ TEST_F(Scene, RigidBodiesRefuseWhatIsNotSupportedYet) {
                 .simulation.integrator,
             Integrator::bdf2);
   {
-    const SceneDesc limited = load(edit("  dt: 0.01\n", "  integrator: bdf2\n  dt: 0.01\n", kRigid) + "contact: {friction: 0.5}\n");
-    EXPECT_EQ(limited.simulation.integrator, Integrator::bdf2);
-    ASSERT_EQ(limited.rigid_bodies.size(), 1u);
-    ASSERT_TRUE(limited.rigid_bodies[0].joint.has_value());
-    EXPECT_TRUE(limited.rigid_bodies[0].joint->limits.has_value());
-    EXPECT_TRUE(limited.contact.enabled);
+    const SceneDesc bdf2_limited = load(edit("  dt: 0.01\n", "  integrator: bdf2\n  dt: 0.01\n", kRigid) + "contact: {friction: 0.5}\n");
+    EXPECT_EQ(bdf2_limited.simulation.integrator, Integrator::bdf2);
+    ASSERT_EQ(bdf2_limited.rigid_bodies.size(), 1u);
+    ASSERT_TRUE(bdf2_limited.rigid_bodies[0].joint.has_value());
+    EXPECT_TRUE(bdf2_limited.rigid_bodies[0].joint->limits.has_value());
+    EXPECT_TRUE(bdf2_limited.contact.enabled);
   }
   // static with rigid bodies (integrator/static_rigid.hpp): a body with dofs needs
   // contact; a fixed one, or one in contact, is accepted, a joint with limits too
