@@ -134,8 +134,10 @@ inline void add_limited_bar_and_block(Model& model, double upper, double max_edg
 // sliding wedge (add_sliding_wedge) moved to (0.5, 0.5) on the plane z = 0 ("floor",
 // mu 0.3): three sliding contacts keep the NCP running while gravity turns the bar onto
 // its upper limit. Bodies: 0 the bar, 1 the wedge. Integrator BDF2, NCP `ncp`.
-inline Model bar_onto_its_limit_beside_a_wedge(double h, double start, double upper, const contact::NcpOptions& ncp) {
-  Model model = anchored(h);
+// rigid_only: without the soft anchor (rigid_only_model: a scene of rigid bodies only).
+inline Model bar_onto_its_limit_beside_a_wedge(double h, double start, double upper, const contact::NcpOptions& ncp,
+                                               bool rigid_only = false) {
+  Model model = rigid_only ? rigid_only_model(h) : anchored(h);
   rigid::RigidState bar;
   bar.position = Vec3(0.1, 0, 0.01);
   add_rigid_body(model, "bar", box_shape(Vec3(0.1, 0.02, 0.01)), 800, bar, 0.06, rigid::Joint::Kind::hinge);

@@ -11,7 +11,11 @@
 //  - a bar turning under gravity onto its limit beside a wedge sliding on a plane (the
 //    NCP runs all along): its angle, step by step, is the no-contact BDF2 run's (the
 //    restart of rigid/rigid_bdf2.hpp), it lands at the same step and stays on the limit:
-//    no spurious bounce.
+//    no spurious bounce; the same scene without its soft anchor (rigid bodies only) too;
+//  - a box on a centre-hinged bar (rigid bodies only): on the limit, a BDF2 step whose
+//    free end stays short of the limit has an active limit row (the box pushes) and is
+//    redone as implicit Euler (equal to the implicit Euler step); landings driven by the
+//    box alone rest on the limit with the reaction equal to the box's moment.
 #include <softdiff/data.hpp>
 #include <softdiff/integrator/bdf2.hpp>
 #include <support/meshes.hpp>
@@ -143,7 +147,8 @@ TEST_P(RigidBdf2Limits, LimitsCarryContactLoadsAndAgreeWithImplicitEuler) {
 // NCP's tolerance (1e-12 scaled; measured below 1e-15 rad), and after the landing the bar
 // stays on the limit (1e-12 rad) with rate 0 (1e-9 rad/s): no bounce. Without the restart
 // the BDF2 velocity at the landing, (limit - c^) / h', points away from the limit when the
-// bar arrives early in the step (docs/method.md "BDF2 with rigid bodies").
+// bar arrives early in the step (docs/method.md "BDF2 with rigid bodies"). The scene of
+// rigid bodies only (no soft anchor) gives the same angles and branches.
 TEST_P(RigidBdf2Limits, BarArrivingAtItsLimitInContactDoesNotBounce) {
   const long steps = 60;
   const double upper = 0.02;
@@ -152,8 +157,17 @@ TEST_P(RigidBdf2Limits, BarArrivingAtItsLimitInContactDoesNotBounce) {
   const Model model = test::rigid_scenes::bar_onto_its_limit_beside_a_wedge(1e-3, 0.0, upper, ncp);
   Model alone = model;
   alone.contact.enabled = false;
-  Data data(model), data_a(alone);
-  std::vector<double> angle, rate, angle_a;
+  // The same scene without the soft anchor: a scene of rigid bodies only takes the same
+  // path (bdf2.cpp time_step_rigid_only in the restart's attempts).
+  const Model rigid_only = test::rigid_scenes::bar_onto_its_limit_beside_a_wedge(1e-3, 0.0, upper, ncp, true);
+  ASSERT_EQ(rigid_only.fem.num_nodes, 0);
+  Data data(model), data_a(alone), data_r(rigid_only);
+  std::vector<double> angle, rate, angle_a, angle_r;
+  long bdf2_r = 0;
+  run(rigid_only, data_r, steps, [&](long, const Data& d, const State& s) {
+    angle_r.push_back(rigid::joint_coordinate(rigid_only.rigid[0], s.rigid[0]));
+    bdf2_r += d.history_weight != 0;
+  });
   std::vector<char> bdf2;
   run(model, data, steps, [&](long, const Data& d, const State& s) {
     angle.push_back(rigid::joint_coordinate(model.rigid[0], s.rigid[0]));
@@ -166,11 +180,12 @@ TEST_P(RigidBdf2Limits, BarArrivingAtItsLimitInContactDoesNotBounce) {
   });
   ASSERT_EQ(angle.size(), static_cast<std::size_t>(steps));
   ASSERT_EQ(angle_a.size(), static_cast<std::size_t>(steps));
+  ASSERT_EQ(angle_r.size(), static_cast<std::size_t>(steps));
   long landing = -1, bdf2_before = 0, bdf2_after = 0;
   double diff = 0, off_limit = 0, moving = 0;
   for (long n = 0; n < steps; ++n) {
     const auto k = static_cast<std::size_t>(n);
-    diff = std::max(diff, std::abs(angle[k] - angle_a[k]));
+    diff = std::max({diff, std::abs(angle[k] - angle_a[k]), std::abs(angle_r[k] - angle_a[k])});
     if (landing < 0 && angle[k] >= upper - 1e-12) landing = n;
     if (landing < 0) bdf2_before += bdf2[k];
     if (landing >= 0) {
@@ -187,9 +202,115 @@ TEST_P(RigidBdf2Limits, BarArrivingAtItsLimitInContactDoesNotBounce) {
   EXPECT_LT(landing, steps - 20);
   EXPECT_EQ(bdf2_before, landing - 1);  // the first step implicit Euler, then BDF2 until the landing step
   EXPECT_EQ(bdf2_after, 0);             // the landing and the rest restart
+  EXPECT_EQ(bdf2_r, bdf2_before);       // the scene of rigid bodies only: the same branches
   EXPECT_LT(diff, 1e-12);
   EXPECT_LT(off_limit, 1e-12);
   EXPECT_LT(moving, 1e-9);
+}
+
+// A bar (0.2 x 0.04 x 0.02 m, 800 kg/m^3) hinged about y at its centre (gravity has no
+// moment about the hinge), limits [-0.1, 0], from rest at angle `start` <= 0 (its right
+// end raised), and a free box (20 mm, 500 kg/m^3) resting on its right half (centre
+// 0.05 m from the hinge, tilted with the bar), mu 0.5; rigid bodies only, dense NCP at
+// 1e-10. Bodies: 0 the bar, 1 the box.
+Model bar_and_box(double start, IntegratorKind integrator) {
+  Model model = test::rigid_scenes::rigid_only_model(1e-3, g0);
+  rigid::RigidState bar;
+  bar.position = Vec3(0.1, 0, 0.01);
+  test::add_rigid_body(model, "bar", test::box_shape(Vec3(0.1, 0.02, 0.01)), 800, bar, 0.06, rigid::Joint::Kind::hinge);
+  model.rigid[0].joint.anchor = bar.position;
+  model.rigid[0].joint.axis = Vec3::UnitY();
+  model.rigid[0].joint.limits = std::make_pair(-0.1, 0.0);
+  rigid::initialize(model.rigid[0], bar);
+  rigid::move_along_joint(model.rigid[0], model.rigid[0].reference, start, 1.0, model.initial.rigid[0]);
+  model.initial.rigid[0].velocity.setZero();
+  model.initial.rigid[0].angular_velocity.setZero();
+  const Eigen::Quaterniond tilt(Eigen::AngleAxisd(start, Vec3::UnitY()));
+  rigid::RigidState box;
+  box.orientation = tilt;
+  box.position = bar.position + tilt * Vec3(0.05, 0, 0.01 + 0.01);
+  test::add_rigid_body(model, "box", test::box_shape(Vec3(0.01, 0.01, 0.01)), 500, box);
+  test::enable_rigid_contact(model, {}, {{"box", "bar", 0.5}}, 1e-3, test::rigid_scenes::tight_ncp(1e-10));
+  model.step.integrator = integrator;
+  return model;
+}
+
+// The third branch: a limit row made active by a contact while the body's own BDF2 free
+// end stays short of the limit. The bar on its limit (start 0) under the box, at rest, a
+// BDF2 step with previous = in and no restart flag (a fresh Data): the bar's free step
+// (no torque, rate 0) stays at the limit without passing it (rigid::step's clamp is strict),
+// the box's weight pushes the bar onto it through the contacts: the BDF2 attempt's limit
+// row is active, so the step is redone as the implicit Euler contact step from s_n. Its
+// record says so (history_weight 0, h), its end is the implicit Euler model's step from
+// the same state (to the NCP's tolerance 1e-10 on forces ~0.04 N: the redo warm-starts
+// from the attempt's forces, the implicit Euler step from zero; 1e-12 asserted on the
+// states, whose velocities are ~h g = 1e-2), and the limit carries the box's moment.
+TEST(RigidBdf2LimitsActiveRow, ContactPushesTheBarOntoItsLimit) {
+  const Model model = bar_and_box(0.0, IntegratorKind::bdf2), euler = bar_and_box(0.0, IntegratorKind::implicit_euler);
+  const State in = model.initial;
+  rigid::RigidState hat, free;
+  double h_used = 0;
+  rigid::bdf2_step(model.rigid[0], in.rigid[0], &in.rigid[0], 1e-3, model.step.gravity, Vec3::Zero(), Vec3::Zero(), hat,
+                   free, true, false, &h_used);
+  EXPECT_LT(h_used, 1e-3);  // the bar's BDF2 free end does not reach past the limit
+  Data data(model), data_e(euler);
+  State out, out_e;
+  ASSERT_TRUE(integrator::time_step(model, data, in, &in, out, 2).ok());
+  ASSERT_TRUE(integrator::time_step(euler, data_e, in, nullptr, out_e, 1).ok());
+  EXPECT_EQ(data.history_weight, 0.0);
+  EXPECT_EQ(data.h, 1e-3);
+  EXPECT_TRUE(data.rigid[0].at_limit);
+  double d = 0;
+  for (int r = 0; r < 2; ++r) d = std::max(d, rigid::tangent_between(out_e.rigid[r], out.rigid[r]).cwiseAbs().maxCoeff());
+  std::cout << "active limit row: limit force " << data.contact.rigid.limit_lambda[1] << " N m, BDF2 step - implicit Euler step "
+            << d << "\n";
+  EXPECT_GT(data.contact.rigid.limit_lambda[1], 0);
+  EXPECT_LE(d, 1e-12);
+}
+
+// Landings driven by the contacts alone: the bar of bar_and_box from 12 starts, -4 to
+// -48 urad (landing by step 2 to 6), BDF2. For every start: at rest after 300 steps
+// (1 ms) the bar on its limit (1e-9 rad, the NCP's tolerance 1e-10 scaled), its limit
+// reaction the box's contact moment about the hinge (1e-6 relative), the box's contact
+// forces its weight (1e-6), the last 100 steps all restarts; never past the limit.
+TEST(RigidBdf2LimitsActiveRow, BarTurnedOntoItsLimitByABox) {
+  for (int k = 0; k < 12; ++k) {
+    const double start = -4e-6 * (k + 1);
+    SCOPED_TRACE("start " + std::to_string(start));
+    const Model model = bar_and_box(start, IntegratorKind::bdf2);
+    Data data(model);
+    const rigid::RigidBody& b = model.rigid[0];
+    const long steps = 300;
+    long bdf2_last = 0;
+    double past = 0;
+    State previous, a = model.initial, out;
+    for (long n = 1; n <= steps; ++n) {
+      const StepStatus st = integrator::time_step(model, data, a, n == 1 ? nullptr : &previous, out, n);
+      ASSERT_TRUE(st.ok()) << describe(model, st);
+      ASSERT_TRUE(data.contact.result.converged) << "step " << n;
+      if (n > steps - 100) bdf2_last += data.history_weight != 0;
+      previous = a;
+      std::swap(a, out);
+      past = std::max(past, rigid::joint_coordinate(b, a.rigid[0]));
+    }
+    double moment = 0, on_box = 0;
+    for (int i = 0; i < data.contact.contacts.size(); ++i) {
+      const auto& c = data.contact.contacts.contacts[static_cast<std::size_t>(i)];
+      Vec3 f = c.frame * data.contact.lambda.segment<3>(3 * i);  // on side a
+      if (c.side_a != 0) f = -f;                                 // on the bar (names: bar 0, box 1)
+      moment += (c.point - b.joint.anchor).cross(f).y();
+      on_box -= f.z();
+    }
+    const double reaction = data.contact.rigid.limit_lambda[1], weight = model.rigid[1].mass * g0;
+    std::cout << "start " << start << ": angle " << rigid::joint_coordinate(b, a.rigid[0]) << ", limit reaction "
+              << reaction << " N m (box moment " << moment << "), box support " << on_box << " N (weight " << weight
+              << ")\n";
+    EXPECT_NEAR(rigid::joint_coordinate(b, a.rigid[0]), 0.0, 1e-9);
+    EXPECT_LT(past, 1e-9);
+    EXPECT_NEAR(reaction, moment, 1e-6 * std::abs(moment));
+    EXPECT_NEAR(on_box, weight, 1e-6 * weight);
+    EXPECT_EQ(bdf2_last, 0);
+  }
 }
 
 INSTANTIATE_TEST_SUITE_P(, RigidBdf2Limits, ::testing::Values(contact::NcpBackend::dense, contact::NcpBackend::sparse),
