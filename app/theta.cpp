@@ -41,8 +41,10 @@ void demand_differentiable(const std::string& option, const Model& model) {
                                 "yet (issue 21; " + part + ")");
   }
   // BDF2 with rigid bodies (rigid/rigid_bdf2_derivatives.hpp): differentiated as implicit
-  // Euler is, with and without contact (the scene reader refuses bdf2 with a limited joint
-  // in contact).
+  // Euler is, with and without contact; with a limited joint in contact each step through
+  // the branch it recorded (integrator/bdf2.cpp: BDF2, or the restart as the implicit Euler
+  // contact step from s_n, data.history_weight 0), on the dense backend as implicit Euler's
+  // limits (the sparse backend's limit derivatives are refused below for both).
   // Issue 21, item 4: the rigid step is differentiated with and without contact, a
   // joint limit's rows in the contact solve included (contact/rigid_contact_derivatives.hpp).
   // The limit rows' derivative rebuilds the dense extended G (prepare_limits); the

@@ -245,4 +245,32 @@ TEST(CliRigidDerivatives, CheckGradThroughAJointLimitInContact) {
   EXPECT_FALSE(fs::exists(dir / "out.h5"));
 }
 
+// The same scene under bdf2 (issue 21, rbdlim; refused before, exit 2): the block falls
+// by BDF2 steps, its landing step and the steps resting on the limit are the implicit
+// Euler contact step from s_n (integrator/bdf2.cpp), and the derivatives follow each
+// step's branch. check-grad --steps 10 passes on the dense backend, and simulate under
+// bdf2 rests on the limit (-0.01 m to the NCP's tolerance, never beyond).
+TEST(CliRigidDerivatives, CheckGradThroughAJointLimitInContactUnderBdf2) {
+  const fs::path dir = fresh_dir(kWork, "check_grad_limit_contact_bdf2");
+  write_text(dir / "scene.yaml",
+             beam() +
+                 "  - name: block\n"
+                 "    type: rigid\n"
+                 "    shape: {type: box, half_extents: [0.02, 0.02, 0.01]}\n"
+                 "    density: 1000\n"
+                 "    position: [0.5, 0.3, 0]\n"
+                 "    joint: {type: slider, anchor: [0.5, 0.3, 0], axis: [0, 0, 1], limits: [-0.01, 0.05]}\n"
+                 "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.0202}]\n"
+                 "contact: {friction: 0.3, margin: 1.0e-3, pairs: [[block, floor, 0.3]]}\n");
+  const std::string bdf2 = " --set simulation.integrator=bdf2";
+  const auto r = run_cli("check-grad scene.yaml --steps 10 --wrt young,x0,v0,mass --directions 2" + bdf2, dir);
+  EXPECT_EQ(r.code, 0) << r.out << r.err;
+  std::cout << r.out;
+  for (const char* block : {"young", "x0", "v0", "mass"}) EXPECT_NE(r.out.find(block), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
+  const auto j = run_cli("simulate scene.yaml -o out.h5 --steps 10 --jacobian mass" + bdf2, dir);
+  EXPECT_EQ(j.code, 0) << j.err;
+  EXPECT_TRUE(fs::exists(dir / "out.h5"));
+}
+
 }  // namespace cli_rigid_derivatives_test

@@ -974,14 +974,20 @@ TEST_F(Scene, RigidBodiesRefuseWhatIsNotSupportedYet) {
   EXPECT_EQ(ok.contact.pairs[0].first, "key");
   EXPECT_EQ(load(free_key + "contact: {pairs: [[beam, key, 0.4]]}\n").contact.pairs[0].second, "key");
   // BDF2 with rigid bodies (rigid/rigid_bdf2.hpp): accepted, with and without contact;
-  // in contact, a joint with limits is refused.
+  // in contact, a joint with limits too (a limit restarts the step as implicit Euler,
+  // integrator/bdf2.cpp; refused until 2026-12-03 rbdlim).
   EXPECT_EQ(load(rigid_edit("  dt: 0.01\n", "  integrator: bdf2\n  dt: 0.01\n")).simulation.integrator, Integrator::bdf2);
   EXPECT_EQ(load(edit("  dt: 0.01\n", "  integrator: bdf2\n  dt: 0.01\n", free_key) + "contact: {friction: 0.5}\n")
                 .simulation.integrator,
             Integrator::bdf2);
-  expect_message(edit("  dt: 0.01\n", "  integrator: bdf2\n  dt: 0.01\n", kRigid) + "contact: {friction: 0.5}\n",
-                 "contact: contact with bdf2 and a rigid body whose joint has limits is not supported yet (issue 21; "
-                 "bodies[1].joint has limits): use implicit_euler");
+  {
+    const SceneDesc bdf2_limited = load(edit("  dt: 0.01\n", "  integrator: bdf2\n  dt: 0.01\n", kRigid) + "contact: {friction: 0.5}\n");
+    EXPECT_EQ(bdf2_limited.simulation.integrator, Integrator::bdf2);
+    ASSERT_EQ(bdf2_limited.rigid_bodies.size(), 1u);
+    ASSERT_TRUE(bdf2_limited.rigid_bodies[0].joint.has_value());
+    EXPECT_TRUE(bdf2_limited.rigid_bodies[0].joint->limits.has_value());
+    EXPECT_TRUE(bdf2_limited.contact.enabled);
+  }
   // static with rigid bodies (integrator/static_rigid.hpp): a body with dofs needs
   // contact; a fixed one, or one in contact, is accepted, a joint with limits too
   // (rstat2: the limits are rows of the static contact solve).

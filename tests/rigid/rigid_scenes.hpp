@@ -128,6 +128,33 @@ inline void add_limited_bar_and_block(Model& model, double upper, double max_edg
   rigid::initialize(model.rigid[1], block);
 }
 
+// BDF2 with a limited joint in contact (rbdlim; integrator/bdf2.cpp): the soft anchor
+// (`anchored`, h), the bar of add_limited_bar_and_block alone (hinged about y at its left
+// end, limits [-0.1, upper], surface meshed at 0.06) at angle `start` from rest, and the
+// sliding wedge (add_sliding_wedge) moved to (0.5, 0.5) on the plane z = 0 ("floor",
+// mu 0.3): three sliding contacts keep the NCP running while gravity turns the bar onto
+// its upper limit. Bodies: 0 the bar, 1 the wedge. Integrator BDF2, NCP `ncp`.
+// rigid_only: without the soft anchor (rigid_only_model: a scene of rigid bodies only).
+inline Model bar_onto_its_limit_beside_a_wedge(double h, double start, double upper, const contact::NcpOptions& ncp,
+                                               bool rigid_only = false) {
+  Model model = rigid_only ? rigid_only_model(h) : anchored(h);
+  rigid::RigidState bar;
+  bar.position = Vec3(0.1, 0, 0.01);
+  add_rigid_body(model, "bar", box_shape(Vec3(0.1, 0.02, 0.01)), 800, bar, 0.06, rigid::Joint::Kind::hinge);
+  model.rigid[0].joint.anchor = Vec3(0, 0, 0.01);
+  model.rigid[0].joint.axis = Vec3::UnitY();
+  model.rigid[0].joint.limits = std::make_pair(-0.1, upper);
+  rigid::initialize(model.rigid[0], bar);
+  rigid::move_along_joint(model.rigid[0], model.rigid[0].reference, start, 1.0, model.initial.rigid[0]);
+  model.initial.rigid[0].velocity.setZero();
+  model.initial.rigid[0].angular_velocity.setZero();
+  add_sliding_wedge(model);
+  model.initial.rigid[1].position += Vec3(0.5, 0.5, 0);
+  enable_rigid_contact(model, {plane(Vec3::UnitZ(), 0, "floor")}, {{"wedge", "floor", 0.3}}, 1e-3, ncp);
+  model.step.integrator = IntegratorKind::bdf2;
+  return model;
+}
+
 // A box of nx x ny x nz cells of size (lx, ly, lz) (test::box_mesh) as MSH 2.2 text.
 inline std::string box_msh_text(int nx, int ny, int nz, double lx, double ly, double lz) {
   const auto m = box_mesh(nx, ny, nz, lx, ly, lz);

@@ -185,4 +185,107 @@ TEST(RigidBdf2ContactTrajectory, CubeOnASoftSlab) {
   check_trajectory(model, 4, 7, {1e-7, 1e-7, 1e-4, 1e-3}, 1e-5, 3, 1e-3);
 }
 
+// BDF2 with a limited joint in contact (rbdlim; integrator/bdf2.cpp): the bar of
+// rigid_scenes.hpp bar_onto_its_limit_beside_a_wedge turning under gravity onto its upper
+// limit 0.02 (from rest at angle 0 it lands on step 24) beside the wedge sliding on the
+// floor. The step's branch is its record (data.history_weight): BDF2 (the extrapolated
+// states, their Jacobian carrying s_n and s_{n-1}) or the restart, the implicit Euler
+// contact step from s_n (no dependence on s_{n-1}, the limit rows in the NCP). Forward
+// sensitivities (x0, v0: random directions of every row, soft and both bodies; the bar's
+// mass and inertia.yy, its hinge axis's) against central differences of whole runs, and
+// the adjoint against them (1e-9). `start`: the steps run before (the initial state of
+// the differentiated run); each run's branches are printed and checked against `bdf2`,
+// the expected number of BDF2 steps. eps: 1e-7 for x0 (its direction turns the bar and
+// the wedge by O(1) rad per unit: eps^2 truncation ~1e-14 relative; the landing step's
+// BDF2 free end passes the limit by ~1e-4 rad, far beyond any perturbed run's shift, so
+// every run takes the same branches), 1e-6 for v0 and relative 1e-6 for mass and inertia
+// (round-off 1e-16 / 1e-6 ~1e-10, the NCP's tolerance 1e-12 below that). tol 1e-5 relative
+// to each column's largest entry, plus an absolute floor 1e-9 for the difference's
+// round-off: a run's coordinates are O(1) (the wedge at 0.5 m), so each differs from the
+// exact one by ~1e-16, and the quotient by 2 eps = 2e-6 by ~1e-10 (measured 4e-11 to 9e-11
+// on the columns that are exactly zero: the mass and inertia of a bar held by its limit
+// move nothing).
+constexpr double kFloor = 1e-9;
+void check_limited_bar(long start, long T, long bdf2) {
+  Model model = test::rigid_scenes::bar_onto_its_limit_beside_a_wedge(1e-3, 0.0, 0.02, tight());
+  model.contact.ncp.backend = contact::NcpBackend::dense;
+  model.initial = run_steps(model, model.initial, start);
+  {
+    // The branches of the differentiated run (its first step implicit Euler: no previous).
+    Data data(model);
+    State a = model.initial, b, previous;
+    long bdf2_steps = 0, landing = 0;
+    for (long k = 1; k <= T; ++k) {
+      ASSERT_TRUE(integrator::time_step(model, data, a, k > 1 ? &previous : nullptr, b, k).ok());
+      bdf2_steps += data.history_weight != 0;
+      if (!landing && data.rigid[0].at_limit) landing = k;
+      previous = a;
+      std::swap(a, b);
+    }
+    std::cout << "bar from step " << start << ", " << T << " steps: " << bdf2_steps << " BDF2, landing at step "
+              << landing << " (0: none), angle " << rigid::joint_coordinate(model.rigid[0], a.rigid[0]) << "\n";
+    EXPECT_EQ(bdf2_steps, bdf2);
+  }
+  const Eigen::Index n3 = 3L * model.fem.num_nodes, rows = n3 + 12;
+  std::mt19937 rng(11);
+  std::normal_distribution<double> N;
+  diff::ThetaLayout theta;
+  theta.x0 = theta.v0 = true;
+  theta.x0_basis = MatX::NullaryExpr(rows, 1, [&] { return N(rng); });
+  theta.v0_basis = MatX::NullaryExpr(rows, 1, [&] { return N(rng); });
+  theta.rigid_parameters = {{0, 0}, {0, 2}};
+  Data data(model);
+  State final;
+  MatX dx, dv;
+  ASSERT_TRUE(diff::forward_sensitivities(model, data, model.initial, T, theta, final, dx, dv).ok());
+  ASSERT_EQ(dx.cols(), 4);
+  const double eps[4] = {1e-7, 1e-6, 1e-6, 1e-6};
+  const VecX zero = VecX::Zero(rows);
+  for (int c = 0; c < 4; ++c) {
+    double scale = 1;
+    State sp, sm;
+    if (c < 2) {
+      const VecX d0 = c == 0 ? VecX(theta.x0_basis.col(0)) : zero, e0 = c == 1 ? VecX(theta.v0_basis.col(0)) : zero;
+      sp = run_steps(model, moved_initial(model, model.initial, d0, e0, eps[c]), T);
+      sm = run_steps(model, moved_initial(model, model.initial, d0, e0, -eps[c]), T);
+    } else {
+      const int index = c == 2 ? 0 : 2;
+      scale = rigid::get_parameter(model.rigid[0], index);
+      Model mpl = model, mmi = model;
+      rigid::set_parameter(mpl.rigid[0], index, scale * (1 + eps[c]));
+      rigid::set_parameter(mmi.rigid[0], index, scale * (1 - eps[c]));
+      sp = run_steps(mpl, model.initial, T);
+      sm = run_steps(mmi, model.initial, T);
+    }
+    VecX xp, vp, xm, vm;
+    rows_from(model, final, sp, xp, vp);
+    rows_from(model, final, sm, xm, vm);
+    VecX fd(2 * rows), an(2 * rows);
+    fd << (xp - xm) / (2 * eps[c]), (vp - vm) / (2 * eps[c]);
+    an << dx.col(c) * scale, dv.col(c) * scale;
+    const double err = (an - fd).cwiseAbs().maxCoeff(), mag = fd.cwiseAbs().maxCoeff();
+    std::cout << "column " << c << ": max |sensitivity - FD| " << err << " of " << mag << "\n";
+    EXPECT_LT(err, 1e-5 * mag + kFloor) << "column " << c;
+    // The bar's rows alone (x then v), relative to their own scale: the mass and inertia
+    // columns are zero elsewhere.
+    VecX fd_r(12), an_r(12);
+    fd_r << fd.segment<6>(n3), fd.segment<6>(rows + n3);
+    an_r << an.segment<6>(n3), an.segment<6>(rows + n3);
+    EXPECT_LE((an_r - fd_r).cwiseAbs().maxCoeff(), 1e-5 * fd_r.cwiseAbs().maxCoeff() + kFloor) << "bar rows, column " << c;
+  }
+  test::rigid_scenes::expect_adjoint_matches_forward(model, T, theta, dx, dv, rng, N);
+}
+
+// One BDF2 step in free fall: steps 1 (implicit Euler: no previous) and 2 (BDF2) from
+// step 10 of the fall: the BDF2 branch, the limit rows out of the NCP or inactive.
+TEST(RigidBdf2ContactLimits, OneBdf2StepBeforeTheLimit) { check_limited_bar(10, 2, 1); }
+// One restart on the limit: from step 30 (resting on it since step 24) two steps, both the
+// implicit Euler branch (the first has no previous, the second restarts), the upper limit
+// row active.
+TEST(RigidBdf2ContactLimits, OneRestartOnTheLimit) { check_limited_bar(30, 2, 0); }
+// 16 steps from step 14: BDF2 steps (15 to 23, the first of the run implicit Euler), the
+// landing (step 24: the BDF2 free end passes the limit, the step is redone as implicit
+// Euler) and 6 steps resting on the limit (restarts).
+TEST(RigidBdf2ContactLimits, TrajectoryThroughTheLanding) { check_limited_bar(14, 16, 8); }
+
 }  // namespace rigid_bdf2_contact_derivatives_test

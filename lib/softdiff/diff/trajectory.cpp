@@ -132,9 +132,11 @@ bool ForwardSensitivity::advance(const Model& model, const Data& data, const Sta
                                 data.hat.rigid.size() == model.rigid.size() ? data.hat.rigid[r] : in.rigid[r],
                                 out.rigid[r], data.rigid[r], model.step.dt, model.step.gravity, J);
     } else if (prev) {
-      J.bdf2 = rigid::bdf2_branch_taken(model.rigid[r], in.rigid[r], prev, restart_[r] != 0, model.step.dt,
-                                        model.step.gravity);
-      if (J.bdf2) rigid::extrapolation_jacobian(model.rigid[r], in.rigid[r], *prev, data.hat.rigid[r], J.extrapolation);
+      // In contact the branch is the step's record (bdf2.cpp): a BDF2 step (history_weight
+      // != 0) is BDF2 for every body (a limit restarts the whole step as implicit Euler,
+      // whose record has history_weight 0), so nothing is decided again here.
+      J.bdf2 = true;
+      rigid::extrapolation_jacobian(model.rigid[r], in.rigid[r], *prev, data.hat.rigid[r], J.extrapolation);
     } else {
       J.bdf2 = false;
     }
@@ -382,11 +384,10 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
       bar_rigid_p += cot.rigid_p;
       // BDF2: cot.rigid is the cotangent of the extrapolated states: split it onto the
       // step's input and previous states and the parameters (rigid_bdf2_derivatives.hpp).
+      // The branch is the step's record (history_weight, bdf2.cpp): every body is BDF2 on
+      // a BDF2 step in contact (a limit restarts the whole step as implicit Euler).
       for (Eigen::Index r = 0; multistep && r < nr; ++r) {
         const auto i = static_cast<std::size_t>(r);
-        if (!rigid::bdf2_branch_taken(model.rigid[i], in.rigid[i], &previous->rigid[i], restart[i] != 0, model.step.dt,
-                                      model.step.gravity))
-          continue;
         rigid::extrapolation_jacobian(model.rigid[i], in.rigid[i], previous->rigid[i], data.hat.rigid[i],
                                       rigid_J.extrapolation);
         const rigid::Vec12 bar_hat = cot.rigid.segment<12>(12 * r);

@@ -51,14 +51,17 @@ namespace {
 // contact impulse), every iteration's NCP takes the same rigid rows (docs/method.md
 // "Newton with rigid contact"); BDF2 with one iteration only (the scene reader refuses
 // the rest).
+// crossed (BDF2 with a limited joint, time_step_rigid_contact_limits below): when not
+// null, the step stops after the rigid free step if a body's BDF2 free end reached a limit
+// (*crossed set): the caller redoes it as implicit Euler.
 StepStatus time_step_rigid_contact(const Model& model, Data& data, const State& in, const State* previous, State& out,
-                                   long step_index, const VecX* lambda_a) {
+                                   long step_index, const VecX* lambda_a, bool* crossed = nullptr) {
   const bool bdf2 = model.step.integrator == IntegratorKind::bdf2;
   SOFTDIFF_DEMAND((bdf2 && model.step.newton_iterations == 1) || model.step.integrator == IntegratorKind::implicit_euler,
                   "time_step: rigid bodies in contact need implicit_euler (Newton too) or bdf2 with newton_iterations 1");
   const auto t0 = Clock::now();
-  const StepStatus free = step_rigid_bodies(model, data, in, out, step_index, bdf2 ? previous : nullptr);
-  if (!free.ok()) return free;
+  const StepStatus free = step_rigid_bodies(model, data, in, out, step_index, bdf2 ? previous : nullptr, crossed);
+  if (!free.ok() || (crossed && *crossed)) return free;
   // data.hat.rigid: the rigid start states of the stage (the soft bdf2_step leaves them).
   contact::begin_rigid_contact(model, data, data.hat.rigid, out.rigid);
   const double rigid_seconds = seconds_since(t0);
@@ -80,7 +83,7 @@ namespace {
 // exactly as time_step_rigid_contact without the soft step. The soft state stays empty
 // (x, v of size 0); the record (data.h, history_weight, hat) is the rigid step's.
 StepStatus time_step_rigid_only(const Model& model, Data& data, const State& in, const State* previous, State& out,
-                                long step_index) {
+                                long step_index, bool* crossed = nullptr) {
   const bool bdf2 = model.step.integrator == IntegratorKind::bdf2 && previous;
   const double h = model.step.dt;
   data.timings = {};
@@ -94,8 +97,8 @@ StepStatus time_step_rigid_only(const Model& model, Data& data, const State& in,
   out.x.resize(0);
   out.v.resize(0);
   out.t = in.t + h;
-  const StepStatus free = step_rigid_bodies(model, data, in, out, step_index, bdf2 ? previous : nullptr);
-  if (!free.ok() || !model.contact.with_rigid()) return free;
+  const StepStatus free = step_rigid_bodies(model, data, in, out, step_index, bdf2 ? previous : nullptr, crossed);
+  if (!free.ok() || !model.contact.with_rigid() || (crossed && *crossed)) return free;
   const auto t0 = Clock::now();
   contact::begin_rigid_contact(model, data, data.hat.rigid, out.rigid);
   data.timings.other += seconds_since(t0);
@@ -103,10 +106,86 @@ StepStatus time_step_rigid_only(const Model& model, Data& data, const State& in,
   if (!contact.ok()) return contact;
   return contact::end_rigid_contact(model, data, out.rigid, data.h, step_index);
 }
+
+// BDF2 in contact with a limited hinge or slider (docs/method.md "BDF2 with rigid bodies",
+// *Limits in contact*): a limit is an inelastic impact, after which BDF2 restarts, as
+// without contact (rigid/rigid_bdf2.hpp), but for the whole step: the one NCP has one h
+// (the soft and rigid bodies, the contacts and the limit rows share h' = 2h/3 or h). So
+//   - the step after a step that ended at a limit (a limited body's data.rigid at_limit,
+//     set below) is the implicit Euler contact step of size h from s_n;
+//   - otherwise the BDF2 contact step runs; if a body's BDF2 free end reaches a limit
+//     (the free step stops there: nothing else is computed), or the contact solve's
+//     result has an active limit row (its force > 0), the step is redone as the implicit
+//     Euler contact step of size h from s_n (the redo warm-starts from the BDF2 attempt's
+//     forces).
+// The branch taken is the step's record: data.history_weight (1/3 BDF2, 0 implicit Euler)
+// and data.h (h', h); the derivatives read it there (diff/trajectory.cpp), nothing is
+// decided again. After the step each limited body's data.rigid at_limit says whether it
+// ended at a limit: an active limit row (contacts detected), else the free step's clamp
+// (no contact: the free step is the result, rigid::step's exact limit).
+bool limited_joints(const Model& model) {
+  for (const auto& b : model.rigid)
+    if (b.joint.limits && (b.joint.kind == rigid::Joint::Kind::hinge || b.joint.kind == rigid::Joint::Kind::slider))
+      return true;
+  return false;
+}
+
+// Whether a limited body's limit row of the last contact solve is active (force > 0),
+// or, without contacts, the free step stopped at a limit; recorded in data.rigid[r].at_limit.
+bool mark_limits(const Model& model, Data& data) {
+  const bool solved = data.contact.contacts.size() > 0;
+  const auto& ll = data.contact.rigid.limit_lambda;
+  bool any = false;
+  int slot = 0;
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+    const auto& b = model.rigid[r];
+    if (!(b.joint.limits && (b.joint.kind == rigid::Joint::Kind::hinge || b.joint.kind == rigid::Joint::Kind::slider))) {
+      data.rigid[r].at_limit = false;
+      continue;
+    }
+    if (solved) {
+      SOFTDIFF_DEMAND(ll.size() >= slot + 2, "bdf2: the contact solve left no limit forces");
+      data.rigid[r].at_limit = ll[slot] > 0 || ll[slot + 1] > 0;
+    }
+    any = any || data.rigid[r].at_limit;
+    slot += 2;
+  }
+  return any;
+}
+
+StepStatus time_step_rigid_contact_limits(const Model& model, Data& data, const State& in, const State* previous,
+                                          State& out, long step_index, const VecX* lambda_a) {
+  const bool rigid_only = model.fem.num_nodes == 0;
+  auto attempt = [&](const State* prev, bool* crossed) {
+    return rigid_only ? time_step_rigid_only(model, data, in, prev, out, step_index, crossed)
+                      : time_step_rigid_contact(model, data, in, prev, out, step_index, lambda_a, crossed);
+  };
+  // The restart: a limited body ended the last step at a limit (none before the first step).
+  bool restart = !previous;
+  for (std::size_t r = 0; r < data.rigid.size() && r < model.rigid.size(); ++r) restart = restart || data.rigid[r].at_limit;
+  auto usable = [](const StepStatus& st) { return st.ok() || st.code == StepStatus::Code::not_converged; };
+  StepStatus status;
+  if (!restart) {
+    bool crossed = false;
+    status = attempt(previous, &crossed);
+    if (!usable(status)) return status;
+    if (!crossed) {
+      if (!mark_limits(model, data)) return status;  // the BDF2 branch
+    }
+  }
+  // The implicit Euler branch: of size h from s_n (previous null: every part implicit Euler).
+  for (auto& info : data.rigid) info.at_limit = false;
+  status = attempt(nullptr, nullptr);
+  if (!usable(status)) return status;
+  mark_limits(model, data);
+  return status;
+}
 }  // namespace
 
 StepStatus time_step(const Model& model, Data& data, const State& in, const State* previous, State& out,
                      long step_index, const VecX* lambda_a) {
+  if (model.step.integrator == IntegratorKind::bdf2 && model.contact.with_rigid() && limited_joints(model))
+    return time_step_rigid_contact_limits(model, data, in, previous, out, step_index, lambda_a);
   if (model.fem.num_nodes == 0) return time_step_rigid_only(model, data, in, previous, out, step_index);
   if (model.contact.with_rigid()) return time_step_rigid_contact(model, data, in, previous, out, step_index, lambda_a);
   const StepStatus soft = model.step.integrator == IntegratorKind::bdf2

@@ -10,7 +10,7 @@
 namespace softdiff::integrator {
 
 StepStatus step_rigid_bodies(const Model& model, Data& data, const State& in, State& out, long step_index,
-                             const State* previous) {
+                             const State* previous, bool* fell_back) {
   const std::size_t n = model.rigid.size();
   SOFTDIFF_DEMAND(in.rigid.size() == n, "step_rigid_bodies: the state has " + std::to_string(in.rigid.size()) +
                                             " rigid bodies, the model " + std::to_string(n));
@@ -27,13 +27,17 @@ StepStatus step_rigid_bodies(const Model& model, Data& data, const State& in, St
   if (data.hat.rigid.size() != n) data.hat.rigid.resize(n);
   const Vec3 zero = Vec3::Zero();  // no external wrench yet (contact: a later increment)
   StepStatus status;
+  if (fell_back) *fell_back = false;
   for (std::size_t r = 0; r < n; ++r) {
     // BDF2 restarts after a step that ended at a joint limit (rigid_bdf2.hpp): data.rigid
     // holds the last step's info (the first step, previous == nullptr, is Euler anyway).
     const bool restart = data.rigid[r].at_limit;
-    data.rigid[r] = rigid::bdf2_step(model.rigid[r], in.rigid[r], bdf2 && previous ? &previous->rigid[r] : nullptr,
+    const bool multistep = bdf2 && previous;
+    double h_used = 0;
+    data.rigid[r] = rigid::bdf2_step(model.rigid[r], in.rigid[r], multistep ? &previous->rigid[r] : nullptr,
                                      model.step.dt, model.step.gravity, zero, zero, data.hat.rigid[r], out.rigid[r],
-                                     true, restart);
+                                     true, restart, &h_used);
+    if (fell_back && multistep && h_used == model.step.dt) *fell_back = true;
     if (!rigid::finite(out.rigid[r])) {
       status.code = StepStatus::Code::non_finite;
       status.step = step_index;

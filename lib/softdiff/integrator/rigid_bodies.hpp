@@ -20,7 +20,10 @@ namespace softdiff::integrator {
 // (nullptr for the first step: implicit Euler); the step's start states (the
 // extrapolated ones with BDF2, else in.rigid) are left in data.hat.rigid (the contact
 // stage's start). The scene reader refuses static with rigid bodies.
+// fell_back (BDF2 in contact with a limited joint, bdf2.cpp): when not null, set to whether
+// any body's BDF2 step was redone as implicit Euler (its BDF2 end reached a limit,
+// rigid_bdf2.hpp); the caller then redoes the whole step as implicit Euler.
 StepStatus step_rigid_bodies(const Model& model, Data& data, const State& in, State& out, long step_index,
-                             const State* previous = nullptr);
+                             const State* previous = nullptr, bool* fell_back = nullptr);
 
 }  // namespace softdiff::integrator

@@ -334,14 +334,9 @@ class Reader {
                 "(issue 21; " + first + " is rigid): use implicit_euler or newton_iterations: 1");
     // A scene of rigid bodies only runs on either backend: the operator with the rigid
     // rows alone (docs/method.md "Scenes of rigid bodies only").
-    // BDF2 in contact: a joint limit's NCP row with BDF2's history (the restart of
-    // rigid/rigid_bdf2.hpp is the free step's) is not built or validated yet.
-    if (scene.simulation.integrator == Integrator::bdf2)
-      for (const auto& rb : scene.rigid_bodies)
-        if (rb.joint && rb.joint->limits)
-          ctx_.fail(contact->key_mark, "contact",
-                    "contact with bdf2 and a rigid body whose joint has limits is not supported yet (issue 21; " +
-                        rb.joint->where.path + " has limits): use implicit_euler");
+    // BDF2 in contact with a limited joint: the whole step restarts as implicit Euler at a
+    // limit (integrator/bdf2.cpp time_step_rigid_contact_limits; docs/method.md "BDF2
+    // with rigid bodies", *Limits in contact*).
     for (const auto& p : scene.contact.pairs)
       if (p.first == p.second &&
           std::any_of(scene.rigid_bodies.begin(), scene.rigid_bodies.end(), [&](const auto& rb) { return rb.name == p.first; }))
