@@ -449,13 +449,7 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
        "simulate scene.yaml -o out.h5 --set simulation.newton_iterations=2 --set simulation.integrator=bdf2",
        "contact with rigid bodies and simulation.newton_iterations > 1 is supported with implicit_euler only (issue 21; "
        "bodies[1] is rigid)"},
-      {"contact_newton_jacobian", beam_and_sphere("", plane + "contact: {friction: 0.3}\n"),
-       "simulate scene.yaml -o out.h5 --set simulation.newton_iterations=2 --jacobian x0",
-       "--jacobian: derivatives with newton_iterations > 1 and rigid bodies in contact are not supported yet (issue 21; "
-       "rigid body 'ball')"},
-      {"contact_newton_check_grad", beam_and_sphere("", plane + "contact: {friction: 0.3}\n"),
-       "check-grad scene.yaml --set simulation.newton_iterations=2",
-       "derivatives with newton_iterations > 1 and rigid bodies in contact are not supported yet (issue 21"},
+      // Their derivatives run (test_cli_rigid_derivatives.cpp CheckGradThroughContactWithNewton).
       {"contact_rigid_self", beam_and_sphere("", plane + "contact: {pairs: [[ball, ball, 0.3]]}\n"),
        "simulate scene.yaml -o out.h5", "a rigid body has no self-contact ('ball')"},
       // bdf2 with rigid bodies is differentiated since issue 21's rbd2

@@ -625,10 +625,16 @@ TEST(RigidContactStepDerivatives, LimitsCarryingContactLoads) {
 // state (soft and rigid rows) against the same sensitivities (exact algebra: 1e-9
 // relative). The bodies' masses are not columns: held by their limits, the bodies' states
 // do not depend on them (only the limits' reactions do).
-TEST(RigidContactLimitTrajectoryDerivatives, SensitivitiesAndAdjointThroughLimitsInContact) {
+// newton: the same with newton_iterations 20 at tolerance 1e-10 (rnewtd; the Newton step's
+// implicit-function derivative, NewtonLimitsCarryingContactLoads), the same eps and tol.
+void check_limit_trajectory(bool newton) {
   State in;
   Model model = limit_scene(in, 300);
   model.initial = in;
+  if (newton) {
+    model.step.newton_iterations = 20;
+    model.step.newton_tolerance = 1e-10;
+  }
   const long T = 10;
   const Eigen::Index n3 = 3L * model.fem.num_nodes, rows = n3 + 12;
   std::mt19937 rng(3);
@@ -686,6 +692,14 @@ TEST(RigidContactLimitTrajectoryDerivatives, SensitivitiesAndAdjointThroughLimit
     EXPECT_LT(err, 1e-5 * mag) << "column " << c;
   }
   test::rigid_scenes::expect_adjoint_matches_forward(model, T, theta, dx, dv, rng, N);
+}
+
+TEST(RigidContactLimitTrajectoryDerivatives, SensitivitiesAndAdjointThroughLimitsInContact) {
+  check_limit_trajectory(false);
+}
+
+TEST(RigidContactLimitTrajectoryDerivatives, NewtonSensitivitiesAndAdjointThroughLimitsInContact) {
+  check_limit_trajectory(true);
 }
 
 }  // namespace rigid_contact_derivatives_test
