@@ -160,7 +160,8 @@ TEST(CliRigidDerivatives, CheckGradThroughContactOnTheSparseBackends) {
 // Newton with rigid bodies in contact (rnewtd; it was refused, exit 2): the sphere sliding
 // on the floor beside the clamped beam with newton_iterations 8 (the beam's own Newton
 // needs 5-8 at this dt), on the dense and the sparse contact backends: check-grad passes
-// on every default block, and simulate --jacobian runs.
+// on every default block, and simulate --jacobian runs (mass and friction: v0's 3n + 6
+// columns are a forward sensitivity each, minutes on the loaded machine).
 TEST(CliRigidDerivatives, CheckGradThroughContactWithNewton) {
   const fs::path dir = fresh_dir(kWork, "check_grad_contact_newton");
   write_text(dir / "scene.yaml", sphere_on_floor());
@@ -172,7 +173,7 @@ TEST(CliRigidDerivatives, CheckGradThroughContactWithNewton) {
       EXPECT_NE(r.out.find(block), std::string::npos) << newton << "\n" << r.out;
     EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << newton << "\n" << r.out;
     fs::remove(dir / "out.h5");
-    const auto j = run_cli("simulate scene.yaml -o out.h5 --quiet --jacobian mass,v0" + newton, dir);
+    const auto j = run_cli("simulate scene.yaml -o out.h5 --quiet --force --jacobian mass,friction" + newton, dir);
     EXPECT_EQ(j.code, 0) << newton << "\n" << j.err;
     EXPECT_TRUE(fs::exists(dir / "out.h5")) << newton;
   }

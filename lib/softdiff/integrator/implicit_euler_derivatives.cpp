@@ -238,11 +238,8 @@ bool StepDerivatives::prepare_rigid(const Model& model, const Data& data, const 
   if (!model.contact.with_rigid()) return false;
   const auto R = static_cast<Eigen::Index>(model.rigid.size());
   // BDF2 (data.history_weight != 0): the stage from the extrapolated states with h' = data.h
-  // (rigid/rigid_bdf2_derivatives.hpp); BDF2's Newton with rigid contact is refused by the
-  // scene reader (issue 21).
-  SOFTDIFF_DEMAND(data.history_weight == 0 || !is_newton(model),
-                  "step derivatives: rigid bodies in contact under bdf2 are differentiated with newton_iterations 1 "
-                  "only (issue 21)");
+  // (rigid/rigid_bdf2_derivatives.hpp), with Newton too: the stage is implicit Euler's from
+  // (x^, v^, s^) (the rigid record's `in`), so its derivative is the same.
   demand_size(rigid, 12 * R, "rigid tangent");
   demand_size(rigid_p, 7 * R, "rigid parameter tangent");
   // Once per step, not per tangent: the key of prepare_contact (v_f, the corrected rigid
