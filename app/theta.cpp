@@ -55,11 +55,8 @@ void demand_differentiable(const std::string& option, const Model& model) {
         throw InputError(option + ": derivatives through contact of a rigid body whose joint has limits on "
                                   "contact.backend: sparse are not supported yet (issue 21; rigid body '" + b.name +
                                   "'): use dense or auto");
-  // Newton with rigid bodies in contact steps (docs/method.md "Newton with rigid contact")
-  // but its implicit-function derivative does not take the rigid rows yet.
-  if (model.step.newton_iterations > 1 && model.contact.with_rigid())
-    throw InputError(option + ": derivatives with newton_iterations > 1 and rigid bodies in contact are not supported "
-                              "yet (issue 21; rigid body '" + model.rigid.front().name + "'): use newton_iterations: 1");
+  // Newton with rigid bodies in contact (docs/method.md "Newton with rigid contact") is
+  // differentiated on both backends, joint limits in contact on the dense one (above).
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
     // Static with rigid bodies (integrator/static_rigid.hpp) solves; its implicit-function
     // derivative does not include the rigid equations yet.

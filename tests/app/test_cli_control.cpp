@@ -158,10 +158,14 @@ std::string block(const std::string& joint = "") {
 }
 const std::string kBlockContact = "contact: {friction: 0.3, pairs: [[beam, block, 0.3]]}\n";
 
-TEST(CliControl, PushesAFreeRigidBlock) {
-  const auto dir = fresh_dir(kWork, "rigid_block");
+// newton: the same with newton_iterations 4 (rnewtd: the Newton step with rigid contact
+// is differentiated; it was refused, exit 2), the same assertions.
+void pushes_a_free_rigid_block(bool newton) {
+  const auto dir = fresh_dir(kWork, newton ? "rigid_block_newton" : "rigid_block");
   write_text(dir / "scene.yaml", scene(block(), kBlockContact));
-  const CliRun r = run_cli("control scene.yaml --target 0.2,0.025,0.01 --axes y --weights 1,1 -o c.h5 --json", dir);
+  const CliRun r = run_cli(std::string("control scene.yaml --target 0.2,0.025,0.01 --axes y --weights 1,1 -o c.h5 --json") +
+                               (newton ? " --set simulation.newton_iterations=4" : ""),
+                           dir);
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.out.find("\"within_limits\":true"), std::string::npos) << r.out;
   const hid_t f = H5Fopen((dir / "c.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
@@ -178,6 +182,10 @@ TEST(CliControl, PushesAFreeRigidBlock) {
   for (double v : a) EXPECT_TRUE(v >= -0.05 && v <= 0.05) << v;
   for (double v : kkt) EXPECT_LE(v, 1e-8);
 }
+
+TEST(CliControl, PushesAFreeRigidBlock) { pushes_a_free_rigid_block(false); }
+
+TEST(CliControl, PushesAFreeRigidBlockWithNewton) { pushes_a_free_rigid_block(true); }
 
 TEST(CliControl, RigidBodiesRefuseWhatTheDerivativeDoesNotCoverYet) {
   const auto dir = fresh_dir(kWork, "rigid_refused");

@@ -170,12 +170,15 @@ TEST(Cli, InfoListsRigidBodies) {
 // On both contact backends (`backend: sparse`: the operator with the rigid rows,
 // SparseDelassus::set_rigid), with the same assertions.
 // The same with newton_iterations 8 on either backend, --strict (docs/method.md "Newton
-// with rigid contact"; formerly refused): the same rest, the same reaction. (8: the soft
+// with rigid contact"; formerly refused), and with bdf2 as well (rnewtd; formerly
+// refused): the same rest, the same reaction. (8: the soft
 // beam's own Newton needs 5-8 iterations at step 3 at this dt, without contact as well.)
 TEST(Cli, RigidBodyRestsOnTheFloorThroughContact) {
-  for (const std::string variant : {"dense", "sparse", "dense_newton", "sparse_newton"}) {
+  for (const std::string variant : {"dense", "sparse", "dense_newton", "sparse_newton", "dense_newton_bdf2",
+                                    "sparse_newton_bdf2"}) {
     SCOPED_TRACE("variant " + variant);
     const bool newton = variant.find("_newton") != std::string::npos;
+    const bool bdf2 = variant.find("_bdf2") != std::string::npos;
     const std::string backend = variant.substr(0, variant.find('_'));
     const fs::path dir = softdiff::test::fresh_dir(kRigidWork, "contact_" + variant);
     // The sphere's lowest tessellation vertex is its pole at z = -0.01 (radius 0.01 about
@@ -185,7 +188,8 @@ TEST(Cli, RigidBodyRestsOnTheFloorThroughContact) {
                                    "contact: {friction: 0.3, backend: " + backend + ", pairs: [[ball, floor, 0.3]]}\n"
                                    "output: {fields: [x, contact]}\n"));
     const auto r = run_cli(std::string("simulate scene.yaml -o out.h5") +
-                               (newton ? " --strict --set simulation.newton_iterations=8" : ""),
+                               (newton ? " --strict --set simulation.newton_iterations=8" : "") +
+                               (bdf2 ? " --set simulation.integrator=bdf2" : ""),
                            dir);
     ASSERT_EQ(r.code, 0) << r.err;
     const std::string file = (dir / "out.h5").string();
@@ -445,17 +449,8 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
   const std::vector<Case> cases = {
       // Newton with rigid bodies in contact runs with implicit_euler (Cli.RigidContactWithNewtonRuns);
       // bdf2's Newton and the derivatives are refused.
-      {"contact_newton_bdf2", beam_and_sphere("", plane + "contact: {friction: 0.3}\n"),
-       "simulate scene.yaml -o out.h5 --set simulation.newton_iterations=2 --set simulation.integrator=bdf2",
-       "contact with rigid bodies and simulation.newton_iterations > 1 is supported with implicit_euler only (issue 21; "
-       "bodies[1] is rigid)"},
-      {"contact_newton_jacobian", beam_and_sphere("", plane + "contact: {friction: 0.3}\n"),
-       "simulate scene.yaml -o out.h5 --set simulation.newton_iterations=2 --jacobian x0",
-       "--jacobian: derivatives with newton_iterations > 1 and rigid bodies in contact are not supported yet (issue 21; "
-       "rigid body 'ball')"},
-      {"contact_newton_check_grad", beam_and_sphere("", plane + "contact: {friction: 0.3}\n"),
-       "check-grad scene.yaml --set simulation.newton_iterations=2",
-       "derivatives with newton_iterations > 1 and rigid bodies in contact are not supported yet (issue 21"},
+      // Under bdf2 too (Cli.RigidBodyRestsOnTheFloorThroughContact), and their derivatives
+      // run (test_cli_rigid_derivatives.cpp CheckGradThroughContactWithNewton).
       {"contact_rigid_self", beam_and_sphere("", plane + "contact: {pairs: [[ball, ball, 0.3]]}\n"),
        "simulate scene.yaml -o out.h5", "a rigid body has no self-contact ('ball')"},
       // bdf2 with rigid bodies is differentiated since issue 21's rbd2

@@ -157,6 +157,28 @@ TEST(CliRigidDerivatives, CheckGradThroughContactOnTheSparseBackends) {
   }
 }
 
+// Newton with rigid bodies in contact (rnewtd; it was refused, exit 2): the sphere sliding
+// on the floor beside the clamped beam with newton_iterations 8 (the beam's own Newton
+// needs 5-8 at this dt), on the dense and the sparse contact backends: check-grad passes
+// on every default block, and simulate --jacobian runs (mass and friction: v0's 3n + 6
+// columns are a forward sensitivity each, minutes on the loaded machine).
+TEST(CliRigidDerivatives, CheckGradThroughContactWithNewton) {
+  const fs::path dir = fresh_dir(kWork, "check_grad_contact_newton");
+  write_text(dir / "scene.yaml", sphere_on_floor());
+  for (const std::string set : {"", " --set contact.backend=sparse"}) {
+    const std::string newton = " --set simulation.newton_iterations=8" + set;
+    const auto r = run_cli("check-grad scene.yaml --quiet --steps 3" + newton, dir);
+    EXPECT_EQ(r.code, 0) << newton << "\n" << r.out << r.err;
+    for (const char* block : {"young", "friction", "x0", "v0", "mass", "inertia"})
+      EXPECT_NE(r.out.find(block), std::string::npos) << newton << "\n" << r.out;
+    EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << newton << "\n" << r.out;
+    fs::remove(dir / "out.h5");
+    const auto j = run_cli("simulate scene.yaml -o out.h5 --quiet --force --jacobian mass,friction" + newton, dir);
+    EXPECT_EQ(j.code, 0) << newton << "\n" << j.err;
+    EXPECT_TRUE(fs::exists(dir / "out.h5")) << newton;
+  }
+}
+
 // BDF2 with rigid bodies (issue 21, "rbd2"; it was refused, exit 2): the spinner and the
 // pendulum beside the beam, and the sphere sliding on the floor through contact, under
 // integrator bdf2 over 5 steps (four BDF2 steps after the implicit Euler start, so that

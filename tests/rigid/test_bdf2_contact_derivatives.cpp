@@ -164,7 +164,11 @@ INSTANTIATE_TEST_SUITE_P(, RigidBdf2ContactTrajectoryDerivatives, ::testing::Val
 // tolerance makes a difference noise proportional to 1/eps (measured 4.4e-8 at
 // eps = 1e-6 and 8.4e-10 at 1e-4, against the column's 2.9e-5: noise, not the
 // derivative); at 1e-3 ~8e-11, the truncation eps^2 ~1e-6 relative. tol 1e-5.
-TEST(RigidBdf2ContactTrajectory, CubeOnASoftSlab) {
+// newton: newton_iterations 20 at tolerance 1e-12 (rnewtd: BDF2's Newton stage with rigid
+// contact, its implicit-function derivative at the converged stage), the same eps and tol
+// (Newton's error ~1e-12 relative divided by eps 1e-7 is 1e-5 of the outputs at worst,
+// measured far below: Newton converges quadratically past the tolerance).
+void check_cube_on_a_soft_slab(bool newton, contact::NcpBackend backend) {
   test::BodySpec spec;
   spec.young = 5e4;
   spec.poisson = 0.4;
@@ -180,9 +184,23 @@ TEST(RigidBdf2ContactTrajectory, CubeOnASoftSlab) {
   s.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(0.1, Vec3::UnitZ()));
   test::add_rigid_body(model, "cube", test::box_shape(Vec3(0.01, 0.01, 0.01)), 500, s);
   test::enable_rigid_contact(model, {}, {{"body", "cube", 0.5}}, 1e-3, tight());
-  model.contact.ncp.backend = contact::NcpBackend::dense;
+  model.contact.ncp.backend = backend;
   model.step.integrator = IntegratorKind::bdf2;
+  if (newton) {
+    model.step.newton_iterations = 20;
+    model.step.newton_tolerance = 1e-12;
+  }
   check_trajectory(model, 4, 7, {1e-7, 1e-7, 1e-4, 1e-3}, 1e-5, 3, 1e-3);
+}
+
+TEST(RigidBdf2ContactTrajectory, CubeOnASoftSlab) { check_cube_on_a_soft_slab(false, contact::NcpBackend::dense); }
+
+TEST(RigidBdf2ContactTrajectory, NewtonCubeOnASoftSlabDense) {
+  check_cube_on_a_soft_slab(true, contact::NcpBackend::dense);
+}
+
+TEST(RigidBdf2ContactTrajectory, NewtonCubeOnASoftSlabSparse) {
+  check_cube_on_a_soft_slab(true, contact::NcpBackend::sparse);
 }
 
 // BDF2 with a limited joint in contact (rbdlim; integrator/bdf2.cpp): the bar of

@@ -377,6 +377,45 @@ TEST(RigidContactStepDerivatives, NewtonCubeOnASoftSlab) {
   check_step(model, in, 5e-9, 1e-5);
 }
 
+// The same on the dense backend (rnewtd): the record's G is the last Newton
+// factorization's, one iterate before v_f; the derivative recomputes G_AA with A_f and
+// the rigid rows Kt formed from the record's H_r^T and L_r (ContactStageDerivative::
+// rigid_rows). eps and tol as above; then the dense JVP equal to the sparse one from the
+// same state (check_backend's 1e-8 relative: both Newton steps converge to 1e-12 and
+// their NCPs to round-off after the polish).
+TEST(RigidContactStepDerivatives, NewtonCubeOnASoftSlabDense) {
+  State in;
+  Model model = cube_scene(in);
+  model.step.newton_iterations = 20;
+  model.step.newton_tolerance = 1e-12;
+  check_backend(model, in, Backend::sparse, 5e-9, 1e-5);
+}
+
+// Newton with joint limits in the contact solve (rnewtd; dense backend): the limit rows'
+// extended G built from the contacts' G with the converged tangent A_f
+// (ContactStageDerivative::full_G), not the record's. The limits scene below
+// (LimitsCarryingContactLoads), declared here; eps and tol as there.
+Model limit_scene(State& in, long warm, double upper = 0.0);
+VecX limit_forces(const Model& model, const State& in);
+
+TEST(RigidContactStepDerivatives, NewtonLimitsCarryingContactLoads) {
+  State in0;
+  Model model = limit_scene(in0, 300);
+  // Newton to 1e-10: at rest the equations' round-off floor is ~2e-12 relative (1e-12 was
+  // missed, measured 1.8-5.8e-12), and Newton's quadratic convergence leaves the accepted
+  // iterate far below the tolerance it passed.
+  model.step.newton_iterations = 20;
+  model.step.newton_tolerance = 1e-10;
+  model.initial = in0;
+  const State in = warm_up(model, 20);  // from the settled state: 20 Newton steps
+  const VecX lim = limit_forces(model, in);
+  std::cout << "limit forces " << lim.transpose() << "\n";
+  ASSERT_EQ(lim.size(), 4);
+  EXPECT_GT(lim[1], 0);
+  EXPECT_GT(lim[2], 0);
+  check_step(model, in, 1e-8, 1e-5);
+}
+
 }  // namespace rigid_contact_derivatives_test
 
 namespace rigid_contact_derivatives_test {
@@ -518,7 +557,7 @@ namespace rigid_contact_derivatives_test {
 // stick-slip boundary (no tangential load) and the solver's modes changed under
 // perturbations of 1e-8 (measured), so no finite difference is of one piece there.
 // `upper`: the bar's upper limit (0: it starts on it). Warmed up `warm` steps.
-Model limit_scene(State& in, long warm, double upper = 0.0) {
+Model limit_scene(State& in, long warm, double upper) {
   test::BodySpec spec;
   spec.young = 1e5;
   spec.density = 1000;
@@ -586,10 +625,16 @@ TEST(RigidContactStepDerivatives, LimitsCarryingContactLoads) {
 // state (soft and rigid rows) against the same sensitivities (exact algebra: 1e-9
 // relative). The bodies' masses are not columns: held by their limits, the bodies' states
 // do not depend on them (only the limits' reactions do).
-TEST(RigidContactLimitTrajectoryDerivatives, SensitivitiesAndAdjointThroughLimitsInContact) {
+// newton: the same with newton_iterations 20 at tolerance 1e-10 (rnewtd; the Newton step's
+// implicit-function derivative, NewtonLimitsCarryingContactLoads), the same eps and tol.
+void check_limit_trajectory(bool newton) {
   State in;
   Model model = limit_scene(in, 300);
   model.initial = in;
+  if (newton) {
+    model.step.newton_iterations = 20;
+    model.step.newton_tolerance = 1e-10;
+  }
   const long T = 10;
   const Eigen::Index n3 = 3L * model.fem.num_nodes, rows = n3 + 12;
   std::mt19937 rng(3);
@@ -647,6 +692,14 @@ TEST(RigidContactLimitTrajectoryDerivatives, SensitivitiesAndAdjointThroughLimit
     EXPECT_LT(err, 1e-5 * mag) << "column " << c;
   }
   test::rigid_scenes::expect_adjoint_matches_forward(model, T, theta, dx, dv, rng, N);
+}
+
+TEST(RigidContactLimitTrajectoryDerivatives, SensitivitiesAndAdjointThroughLimitsInContact) {
+  check_limit_trajectory(false);
+}
+
+TEST(RigidContactLimitTrajectoryDerivatives, NewtonSensitivitiesAndAdjointThroughLimitsInContact) {
+  check_limit_trajectory(true);
 }
 
 }  // namespace rigid_contact_derivatives_test

@@ -26,12 +26,13 @@ using test::rigid_scenes::contact_force_on;
 // The cube on a soft slab of validation_rigid_contact.cpp (CubeRestsOnASoftSlab), the
 // slab Neo-Hookean: 0.12 x 0.12 x 0.01 m, E = 50 kPa, bottom fixed, damped; the 40 mm
 // cube (32 g) released at zero gap.
-Model cube_on_slab(double h, int newton_iterations) {
+Model cube_on_slab(double h, int newton_iterations, IntegratorKind integrator = IntegratorKind::implicit_euler) {
   test::BodySpec spec = test::rigid_scenes::damped_slab_spec();
   spec.law = material::Law::neo_hookean;
   const mesh::TetMesh m = test::box_mesh(8, 8, 2, 0.12, 0.12, 0.01);
   Model model = test::make_model(m, spec, Vec3(0, 0, -g0), h);
   model.step.newton_iterations = newton_iterations;
+  model.step.integrator = integrator;
   rigid::RigidState s;
   s.position = Vec3(0.06, 0.06, 0.01 + 0.02);
   test::add_rigid_body(model, "cube", test::box_shape(Vec3(0.02, 0.02, 0.02)), 500, s);
@@ -50,15 +51,18 @@ struct RunResult {
 };
 RunResult run(const Model& model, Data& data, long steps) {
   RunResult out;
-  State a = model.initial, b;
+  State a = model.initial, b, prev;
+  const bool bdf2 = model.step.integrator == IntegratorKind::bdf2;
   for (long n = 1; n <= steps; ++n) {
-    const StepStatus st = integrator::time_step(model, data, a, nullptr, b, n);
+    // BDF2: the first step is implicit Euler (no previous state), then from (s_{n-1}, s_n).
+    const StepStatus st = integrator::time_step(model, data, a, bdf2 && n > 1 ? &prev : nullptr, b, n);
     EXPECT_TRUE(st.ok()) << describe(model, st) << " (contact residual " << data.contact.result.residuals.max()
                          << ", " << data.contact.contacts.size() << " contacts)";
     if (!st.ok()) break;
     if (!data.contact.result.converged) ++out.ncp_misses;
     out.max_ncp_residual = std::max(out.max_ncp_residual, data.contact.result.residuals.max());
     out.max_newton = std::max(out.max_newton, data.newton_iterations_used);
+    if (bdf2) prev = a;
     std::swap(a, b);
   }
   out.end = a;
@@ -79,8 +83,13 @@ double min_gap_at(const Model& model, Data& data, const State& s) {
 // every step's Newton converges; at rest the reaction equals the weight, no contact
 // penetrates beyond the contact solve's tolerance, and the cube's height is the static
 // solution's (integrator::solve_static on the same scene: the reference).
-TEST(RigidNewton, CubeRestsOnANeoHookeanSlab) {
-  const Model model = cube_on_slab(2e-3, 8);
+// Under bdf2 too (rnewtd; it was refused): BDF2's stage (implicit Euler of size 2h/3 from
+// the extrapolated states) with Newton, the same assertions.
+class RigidNewtonIntegrator : public ::testing::TestWithParam<IntegratorKind> {};
+std::string integrator_name(IntegratorKind k) { return k == IntegratorKind::bdf2 ? "bdf2" : "implicit_euler"; }
+
+TEST_P(RigidNewtonIntegrator, CubeRestsOnANeoHookeanSlab) {
+  const Model model = cube_on_slab(2e-3, 8, GetParam());
   Data data(model);
   const RunResult r = run(model, data, 200);
   const auto& e = r.end.rigid[0];
@@ -99,7 +108,7 @@ TEST(RigidNewton, CubeRestsOnANeoHookeanSlab) {
   const StepStatus st = integrator::solve_static(stat, sdata, stat.initial, eq);
   ASSERT_TRUE(st.ok()) << describe(stat, st);
   const double sink = 0.03 - e.position.z(), sink_static = 0.03 - eq.rigid[0].position.z();
-  std::cout << "Newton (8) cube on a Neo-Hookean slab: reaction " << f.transpose() << " N, weight " << weight
+  std::cout << integrator_name(GetParam()) << ", Newton (8) cube on a Neo-Hookean slab: reaction " << f.transpose() << " N, weight " << weight
             << " N, contacts " << count << ", speed " << e.velocity.norm() << " m/s, sink " << sink
             << " m (static " << sink_static << " m, difference " << sink - sink_static << " m), min gap " << min_gap
             << " m, Newton iterations <= " << r.max_newton << ", contact solves missing 1e-8: " << r.ncp_misses
@@ -128,7 +137,7 @@ struct PadAndBlock {
   Model model;
   double m_pad = 0;
 };
-PadAndBlock pad_and_block(int newton_iterations) {
+PadAndBlock pad_and_block(int newton_iterations, IntegratorKind integrator = IntegratorKind::implicit_euler) {
   const double a = 20 * std::numbers::pi / 180, mu = 0.5, h = 1e-3;
   test::BodySpec spec;
   spec.law = material::Law::neo_hookean;
@@ -140,6 +149,7 @@ PadAndBlock pad_and_block(int newton_iterations) {
   for (Eigen::Index i = 0; i < m.X.cols(); ++i) m.X.col(i) += Vec3(-0.015, -0.02, 0.005);
   PadAndBlock pb{test::make_model(m, spec, Vec3(0, g0 * std::sin(a), -g0 * std::cos(a)), h)};
   pb.model.step.newton_iterations = newton_iterations;
+  pb.model.step.integrator = integrator;
   pb.m_pad = pb.model.fem.mass_diagonal.sum() / 3;
   rigid::RigidState s;
   s.position = Vec3(0, 0.02, 0.02);
@@ -161,9 +171,9 @@ double push_on_block(const Data& data) {
   return f;
 }
 
-TEST(RigidNewton, NeoHookeanPadOnABlockNewtonMatchesLinearized) {
+TEST_P(RigidNewtonIntegrator, NeoHookeanPadOnABlockNewtonMatchesLinearized) {
   const double a = 20 * std::numbers::pi / 180;
-  PadAndBlock newton = pad_and_block(8), linear = pad_and_block(1);
+  PadAndBlock newton = pad_and_block(8, GetParam()), linear = pad_and_block(1, GetParam());
   Data dn(newton.model), dl(linear.model);
   const RunResult rn = run(newton.model, dn, 300), rl = run(linear.model, dl, 300);
   const double expected = newton.m_pad * g0 * std::sin(a);
@@ -183,7 +193,7 @@ TEST(RigidNewton, NeoHookeanPadOnABlockNewtonMatchesLinearized) {
       strain_l[k] = (rl.end.x.segment<3>(3 * i) - rl.end.x.segment<3>(3 * j)).norm() - rest;
     }
   const double deformation = strain_l.norm(), difference = (strain_n - strain_l).norm();
-  std::cout << "Newton (8) vs linearized: Neo-Hookean pad on a block, push " << push_n << " / " << push_l
+  std::cout << integrator_name(GetParam()) << ", Newton (8) vs linearized: Neo-Hookean pad on a block, push " << push_n << " / " << push_l
             << " N (m_p g sin a = " << expected << "), block drift " << drift << " m, pad deformation (distance changes) "
             << deformation << " m, Newton - linearized " << difference << " m, Newton iterations <= "
             << rn.max_newton << "\n";
@@ -199,5 +209,9 @@ TEST(RigidNewton, NeoHookeanPadOnABlockNewtonMatchesLinearized) {
   EXPECT_LT(difference, 1e-6 * deformation);
   EXPECT_GT(rn.max_newton, 1);  // Newton did iterate
 }
+
+INSTANTIATE_TEST_SUITE_P(RigidNewton, RigidNewtonIntegrator,
+                         ::testing::Values(IntegratorKind::implicit_euler, IntegratorKind::bdf2),
+                         [](const ::testing::TestParamInfo<IntegratorKind>& p) { return integrator_name(p.param); });
 
 }  // namespace rigid_newton_validation

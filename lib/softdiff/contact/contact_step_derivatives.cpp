@@ -73,19 +73,18 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
       if (modes[static_cast<std::size_t>(i)] != Mode::breaking) active_ids_.push_back(i);
     select_contact_columns(cd.Ht, active_ids_, Ht_active_);
     const int na = static_cast<int>(active_ids_.size());
-    // Rigid bodies on the sparse backend (issue 21): the step's G had their part h Kt^T Kt
-    // (SparseDelassus::set_rigid; Kt = L_r^T H_r^T, k x 3 nc, formed by
-    // rigid_delassus_rows on that path only), so every G_AA below adds h Kt_A^T Kt_A, Kt_A
-    // = Kt's columns of the active contacts. On the dense backend the record's G holds it;
-    // a G_AA recomputed there (use_record_G false) would have no Kt: refused.
+    // Rigid bodies (issue 21): the step's G had their part h sum_r H_r W_r H_r^T = h Kt^T Kt
+    // (Kt = L_r^T H_r^T stacked, k x 3 nc), so every G_AA below adds h Kt_A^T Kt_A, Kt_A =
+    // Kt's columns of the active contacts. The sparse backend's record has Kt
+    // (rigid_delassus_rows); the dense backend's has G instead, and a G_AA recomputed there
+    // (Newton: with the converged tangent A_f, docs/method.md "Newton with rigid contact")
+    // takes Kt from the record's H_r^T and L_r (rigid_rows).
     Kt_active_.resize(0, 3 * na);
-    if (model.contact.with_rigid()) {
-      SOFTDIFF_DEMAND(cd.G.rows() == 0 && cd.rigid.Kt.cols() == 3 * static_cast<Eigen::Index>(nc),
-                      "contact derivative: with rigid bodies, G_AA is formed on the sparse backend only (the "
-                      "dense backend's record holds G)");
-      Kt_active_.resize(cd.rigid.Kt.rows(), 3 * na);
+    const MatX* Kt = model.contact.with_rigid() ? &rigid_rows(model, cd) : nullptr;
+    if (Kt) {
+      Kt_active_.resize(Kt->rows(), 3 * na);
       for (int b = 0; b < na; ++b)
-        Kt_active_.middleCols<3>(3 * b) = cd.rigid.Kt.middleCols<3>(3 * active_ids_[static_cast<std::size_t>(b)]);
+        Kt_active_.middleCols<3>(3 * b) = Kt->middleCols<3>(3 * active_ids_[static_cast<std::size_t>(b)]);
     }
     bool all_sticking = true;
     for (int i : active_ids_) all_sticking = all_sticking && modes[static_cast<std::size_t>(i)] == Mode::sticking;
@@ -153,7 +152,7 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
       OperatorModeSystem::FactorizeReduced reduce;
       if (A_upper) {
         shifted_.bind(solver, *A_upper, cd.Ht, h, model.solver);
-        if (Kt_active_.rows() > 0) shifted_.set_rigid(cd.rigid.Kt);  // + h Kt^T Kt (bind clears it)
+        if (Kt_active_.rows() > 0) shifted_.set_rigid(*Kt);  // + h Kt^T Kt (bind clears it)
         shifted_.restrict_to(active_ids_);
         // B is positive definite where A is; where it does not factorize (the static
         // solver's tangent need not be), the system is solved unpreconditioned.
@@ -189,6 +188,43 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
       if (Kt_active_.rows() > 0) G_active_.noalias() += h * (Kt_active_.transpose() * Kt_active_);
       ncp_.compute_active(G_active_, cd.mu, cd.lambda, sigma, modes);
     }
+  }
+  return true;
+}
+
+const MatX& ContactStageDerivative::rigid_rows(const Model& model, const ContactData& cd) {
+  const auto& rd = cd.rigid;
+  const Eigen::Index cols = rd.Ht.cols();
+  // The sparse backend's record: its Kt (the limit rows cut back, remove_limit_rows).
+  if (cd.G.rows() == 0) {
+    SOFTDIFF_DEMAND(rd.Kt.cols() == cols, "contact derivative: the sparse record's rigid rows Kt have " +
+                                              std::to_string(rd.Kt.cols()) + " columns, expected " +
+                                              std::to_string(cols));
+    return rd.Kt;
+  }
+  // The dense backend's: Kt = L_r^T H_r^T of each body with dofs (rank_r rows; a body
+  // without contact has zero rows, which add nothing), as rigid_delassus_rows forms it.
+  Eigen::Index rows = 0;
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) rows += rd.rank[r];
+  Kt_record_.resize(rows, cols);  // once per step's preparation, not per contact
+  rows = 0;
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+    const int k = rd.rank[r];
+    if (k == 0) continue;
+    Kt_record_.middleRows(rows, k).noalias() =
+        rd.L[r].leftCols(k).transpose() * rd.Ht.middleRows<6>(6 * static_cast<Eigen::Index>(r));
+    rows += k;
+  }
+  return Kt_record_;
+}
+
+bool ContactStageDerivative::full_G(const Model& model, const ContactData& cd, integrator::LinearSolver& solver,
+                                    double h, MatX& G) {
+  if (!solver.inverse_congruence(cd.Ht, G)) return false;
+  G *= h;
+  if (model.contact.with_rigid()) {
+    const MatX& Kt = rigid_rows(model, cd);
+    if (Kt.rows() > 0) G.noalias() += h * (Kt.transpose() * Kt);
   }
   return true;
 }

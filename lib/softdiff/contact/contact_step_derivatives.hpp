@@ -65,6 +65,15 @@ class ContactStageDerivative {
   static void add_friction_cotangent(const Model& model, const ContactData& cd,
                                      const std::vector<ParameterId>& parameters, const VecX& bar_mu, VecX& bar_p);
 
+  // The contacts' whole G = h H A^{-1} H^T (`solver`: A's factorization) plus, with rigid
+  // bodies, h Kt^T Kt (rigid_rows): the dense G of the step with another A (Newton's
+  // converged tangent A_f; the joint limits' extended G is built from it,
+  // rigid_contact_derivatives.hpp). Returns false if the solve failed.
+  bool full_G(const Model& model, const ContactData& cd, integrator::LinearSolver& solver, double h, MatX& G);
+  // The rigid bodies' rows Kt (k x 3 nc, h sum_r H_r W_r H_r^T = h Kt^T Kt): the sparse
+  // record's, or formed from the dense record's H_r^T and L_r.
+  const MatX& rigid_rows(const Model& model, const ContactData& cd);
+
   const NcpDerivative& ncp() const { return ncp_; }
   // The operator path's power iteration for the scale L (ncp().scale()) of the last
   // prepare where every active contact sticks (default-constructed otherwise: then L is
@@ -90,7 +99,8 @@ class ContactStageDerivative {
   MatX sample_B_, sample_X_;     // mixed sets: (3n x 3 s) the sampled columns of H_A^T and A^{-1} times them
   bool sampled_max_diagonal(integrator::LinearSolver& solver, double h, double& L);
   VecX op_u_, op_w_;             // operator path: (3n) scratch of the products with G_AA
-  MatX Kt_active_;               // rigid bodies on the sparse backend: (k x 3 na) Kt's active columns
+  MatX Kt_active_;               // rigid bodies: (k x 3 na) Kt's active columns
+  MatX Kt_record_;               //   Kt formed from the dense record (rigid_rows)
   VecX op_k_;                    //   (k) scratch of their products
   // out += h Kt_A^T (Kt_A y): the rigid part of G_AA y (nothing without rigid rows).
   void add_rigid_product(double h, const VecX& y, VecX& out);

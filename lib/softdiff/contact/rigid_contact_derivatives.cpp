@@ -29,7 +29,7 @@ int RigidContactDerivative::body_of(const Model& model, int node) const {
 }
 
 void RigidContactDerivative::prepare(const Model& model, const Data& data, const std::vector<rigid::RigidState>& out,
-                                     double h) {
+                                     double h, const MatX* G_contacts) {
   const auto& cd = data.contact;
   const auto& rd = cd.rigid;
   const int n = model.fem.num_nodes;
@@ -53,7 +53,7 @@ void RigidContactDerivative::prepare(const Model& model, const Data& data, const
     const auto r = static_cast<std::size_t>(model.contact.rigid_node_body[static_cast<std::size_t>(k)]);
     rho_.segment<3>(3 * k) = rd.in[r].orientation * model.rigid[r].surface.vertices.col(n + k - model.contact.rigid_node_begin[r]);
   }
-  prepare_limits(model, data, h);
+  prepare_limits(model, data, h, G_contacts);
   const Mat3 I3 = Mat3::Identity();
   for (std::size_t r = 0; r < R; ++r) {
     const auto& body = model.rigid[r];
@@ -368,7 +368,7 @@ void RigidContactDerivative::extended_velocities(const Model& model, const Conta
   }
 }
 
-void RigidContactDerivative::prepare_limits(const Model& model, const Data& data, double h) {
+void RigidContactDerivative::prepare_limits(const Model& model, const Data& data, double h, const MatX* G_contacts) {
   const auto& cd = data.contact;
   const auto& rd = cd.rigid;
   const int nc = contacts_ ? cd.contacts.size() : 0;
@@ -384,8 +384,10 @@ void RigidContactDerivative::prepare_limits(const Model& model, const Data& data
     lambda_.head(n0) = cd.lambda.head(n0);
   }
   if (L == 0) return;
-  SOFTDIFF_DEMAND(cd.G.rows() == n0 && rd.limit_lambda.size() == num_limit_slots(model),
-                  "rigid contact derivative: joint limits in contact need the dense backend's record (G)");
+  const MatX& G = G_contacts ? *G_contacts : cd.G;
+  SOFTDIFF_DEMAND(G.rows() == n0 && G.cols() == n0 && rd.limit_lambda.size() == num_limit_slots(model),
+                  "rigid contact derivative: joint limits in contact need the dense backend's record (G) or the "
+                  "contacts' G");
   Ht_.rightCols(3 * L).setZero();
   lambda_.tail(3 * L).setZero();
   for (int l = 0; l < L; ++l) {
@@ -413,10 +415,11 @@ void RigidContactDerivative::prepare_limits(const Model& model, const Data& data
     Ht_.col(n0 + 3 * l + 2).segment<6>(6 * static_cast<Eigen::Index>(r)) = lim.j;
     lambda_[n0 + 3 * l + 2] = lim.lambda;
   }
-  // The solve's G on the extended rows: the record's G (contacts), then each limit
-  // column h H_r^T W_r j over every row (only its body's rows are nonzero), mirrored.
+  // The solve's G on the extended rows: the record's G (contacts; Newton: G_contacts, with
+  // the converged tangent), then each limit column h H_r^T W_r j over every row (only its
+  // body's rows are nonzero; rigid only, so the same with any soft tangent), mirrored.
   G_ext_.setZero(n1, n1);
-  G_ext_.topLeftCorner(n0, n0) = cd.G;
+  G_ext_.topLeftCorner(n0, n0) = G;
   for (int l = 0; l < L; ++l) {
     const Limit& lim = limits_[static_cast<std::size_t>(l)];
     const Eigen::Index o = 6 * static_cast<Eigen::Index>(lim.body), col = n0 + 3 * l + 2;

@@ -65,7 +65,10 @@ class RigidContactDerivative {
  public:
   // From the step's record (data.contact.rigid: in, free, u, W, Ht; data.rigid: the free
   // steps' StepInfo; data.contact: contacts, lambda) and the step's rigid end states.
-  void prepare(const Model& model, const Data& data, const std::vector<rigid::RigidState>& out, double h);
+  // G_contacts: the contacts' G for the limit rows' extended G (3 nc square) instead of the
+  // dense record's (Newton: G with the converged tangent, ContactStageDerivative::full_G).
+  void prepare(const Model& model, const Data& data, const std::vector<rigid::RigidState>& out, double h,
+               const MatX* G_contacts = nullptr);
   bool with_contacts() const { return contacts_; }
   // How many times prepare ran (the step derivative calls it once per step: its cache key,
   // integrator::StepDerivatives::prepare_rigid; tests count it).
@@ -135,7 +138,7 @@ class RigidContactDerivative {
     int coordinate_block = 0;
     Vec3 axis = Vec3::UnitZ();
   };
-  void prepare_limits(const Model& model, const Data& data, double h);
+  void prepare_limits(const Model& model, const Data& data, double h, const MatX* G_contacts);
 
   std::vector<Body> bodies_;
   std::vector<Limit> limits_;

@@ -46,19 +46,18 @@ namespace {
 // solves the one NCP on the soft and rigid velocities (with the stage's h: h' for
 // BDF2, as the soft bodies), then the rigid poses integrated with the corrected
 // velocities from the step's start states (the extrapolated ones for BDF2: the BDF2
-// pose update p_{n+1} = p^ + h' v_{n+1}). Implicit Euler with Newton iterations too: the
-// rigid free step and W_r are fixed for the step (the rigid step is linear in the
-// contact impulse), every iteration's NCP takes the same rigid rows (docs/method.md
-// "Newton with rigid contact"); BDF2 with one iteration only (the scene reader refuses
-// the rest).
+// pose update p_{n+1} = p^ + h' v_{n+1}). With Newton iterations too (implicit Euler, and
+// BDF2's stage from the extrapolated states): the rigid free step and W_r are fixed for
+// the step (the rigid step is linear in the contact impulse), every iteration's NCP takes
+// the same rigid rows (docs/method.md "Newton with rigid contact").
 // crossed (BDF2 with a limited joint, time_step_rigid_contact_limits below): when not
 // null, the step stops after the rigid free step if a body's BDF2 free end reached a limit
 // (*crossed set): the caller redoes it as implicit Euler.
 StepStatus time_step_rigid_contact(const Model& model, Data& data, const State& in, const State* previous, State& out,
                                    long step_index, const VecX* lambda_a, bool* crossed = nullptr) {
   const bool bdf2 = model.step.integrator == IntegratorKind::bdf2;
-  SOFTDIFF_DEMAND((bdf2 && model.step.newton_iterations == 1) || model.step.integrator == IntegratorKind::implicit_euler,
-                  "time_step: rigid bodies in contact need implicit_euler (Newton too) or bdf2 with newton_iterations 1");
+  SOFTDIFF_DEMAND(bdf2 || model.step.integrator == IntegratorKind::implicit_euler,
+                  "time_step: rigid bodies in contact need implicit_euler or bdf2 (Newton too)");
   const auto t0 = Clock::now();
   const StepStatus free = step_rigid_bodies(model, data, in, out, step_index, bdf2 ? previous : nullptr, crossed);
   if (!free.ok() || (crossed && *crossed)) return free;

@@ -2,6 +2,7 @@
 #include <softdiff/integrator/implicit_euler_derivatives.hpp>
 
 #include <softdiff/core/assert.hpp>
+#include <softdiff/core/error.hpp>
 #include <softdiff/fem/assembly.hpp>
 #include <softdiff/fem/fem_derivatives.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
@@ -237,11 +238,8 @@ bool StepDerivatives::prepare_rigid(const Model& model, const Data& data, const 
   if (!model.contact.with_rigid()) return false;
   const auto R = static_cast<Eigen::Index>(model.rigid.size());
   // BDF2 (data.history_weight != 0): the stage from the extrapolated states with h' = data.h
-  // (rigid/rigid_bdf2_derivatives.hpp); BDF2's Newton with rigid contact is refused by the
-  // scene reader (issue 21).
-  SOFTDIFF_DEMAND(data.history_weight == 0 || !is_newton(model),
-                  "step derivatives: rigid bodies in contact under bdf2 are differentiated with newton_iterations 1 "
-                  "only (issue 21)");
+  // (rigid/rigid_bdf2_derivatives.hpp), with Newton too: the stage is implicit Euler's from
+  // (x^, v^, s^) (the rigid record's `in`), so its derivative is the same.
   demand_size(rigid, 12 * R, "rigid tangent");
   demand_size(rigid_p, 7 * R, "rigid parameter tangent");
   // Once per step, not per tangent: the record's serial number (ContactData::serial, a
@@ -249,15 +247,27 @@ bool StepDerivatives::prepare_rigid(const Model& model, const Data& data, const 
   // O(1) test; the JVP / VJP columns of one step share it (prepare_limits' extended G
   // is rebuilt only for a new record).
   if (rigid_serial_ != 0 && rigid_serial_ == data.contact.serial) return true;
-  rigid_.prepare(model, data, out.rigid, h);
+  const auto& rd = data.contact.rigid;
   // Newton (docs/method.md "Newton with rigid contact"): the implicit function theorem at
-  // v_f recomputes G_AA with the converged tangent A_f (prepare_contact), plus the rigid
-  // rows h Kt_A^T Kt_A, which only the sparse backend's record has (Kt); the dense
-  // record's G, and the limit rows' extended G built from it, are the last Newton
-  // factorization's, one iterate earlier (issue 21).
-  SOFTDIFF_DEMAND(!is_newton(model) || (data.contact.G.rows() == 0 && rigid_.limit_rows() == 0),
-                  "step derivatives: newton_iterations > 1 with rigid bodies in contact are differentiated on the "
-                  "sparse contact backend without joint limits in the contact solve only (issue 21)");
+  // v_f needs G with the converged tangent A_f. G_AA is recomputed with it in
+  // prepare_contact (with the rigid rows h Kt_A^T Kt_A, from the record's Kt or, on the
+  // dense backend, from its H_r^T and L_r); joint limits in the contact solve take the
+  // contacts' whole G with A_f (newton_solver_, factorized by system() for this v_f) in
+  // their extended G, the dense record's G being the last Newton factorization's, one
+  // iterate earlier.
+  const bool limits = data.contact.contacts.size() > 0 && !rd.limit_rows.empty();
+  const MatX* G_contacts = nullptr;
+  if (is_newton(model) && limits) {
+    SOFTDIFF_DEMAND(newton_solver_ && newton_v_.size() == out.v.size() && newton_v_ == out.v,
+                    "step derivatives: the Newton system is not factorized for this step's v_f");
+    // (A solve with the factor just made failing is a computation failure, not "no rigid
+    // bodies", which false means here.)
+    if (!contact_.full_G(model, data.contact, *newton_solver_, h, newton_G_))
+      throw ComputationError("step derivatives: the contacts' Delassus matrix with Newton's converged tangent "
+                             "(joint limits in contact) failed: a solve with its factorization failed");
+    G_contacts = &newton_G_;
+  }
+  rigid_.prepare(model, data, out.rigid, h, G_contacts);
   rigid_serial_ = data.contact.serial;
   return true;
 }

@@ -191,6 +191,7 @@ class StepDerivatives {
   VecX b_, dlambda_, bar_lambda_, bar_b_, bar_mu_, y2_;
   SparseMatrix newton_A_;            // Newton: dR/dv at x_f (the pattern's structure)
   std::unique_ptr<LinearSolver> newton_solver_;
+  MatX newton_G_;                    // Newton with joint limits in contact: the contacts' G with A_f
   VecX newton_v_;                    // the v_f newton_A_ was factorized for
   double newton_h_ = 0;              // and its step size
   // Rigidified parts (model.rigidify; rigidify_derivatives.hpp): the reduced solve's and

@@ -320,18 +320,13 @@ class Reader {
 
   // Rigid bodies in contact (docs/method.md "Rigid bodies in contact"): free, fixed,
   // hinge and slider bodies (limits: rows of the NCP, on either backend), implicit
-  // Euler (Newton too) or BDF2 with one Newton iteration, either NCP backend. The rest
-  // is refused (issue 21).
+  // Euler or BDF2 (Newton too), either NCP backend. The rest is refused (issue 21).
   void check_rigid_contact(const Node& root, const SceneDesc& scene) const {
     if (scene.rigid_bodies.empty() || !scene.contact.enabled) return;
-    const std::string first = scene.rigid_bodies.front().where.path;
     const Entry* contact = root.find("contact");
-    // Newton (newton_iterations > 1) with rigid bodies in contact: implicit Euler only
-    // (docs/method.md "Newton with rigid contact"); BDF2's Newton stage is not validated.
-    if (scene.simulation.newton_iterations > 1 && scene.simulation.integrator != Integrator::implicit_euler)
-      ctx_.fail(contact->key_mark, "contact",
-                "contact with rigid bodies and simulation.newton_iterations > 1 is supported with implicit_euler only "
-                "(issue 21; " + first + " is rigid): use implicit_euler or newton_iterations: 1");
+    // Newton (newton_iterations > 1) with rigid bodies in contact: implicit Euler and BDF2
+    // (docs/method.md "Newton with rigid contact"); bdf2 with a limited joint in contact is
+    // refused below either way.
     // A scene of rigid bodies only runs on either backend: the operator with the rigid
     // rows alone (docs/method.md "Scenes of rigid bodies only").
     // BDF2 in contact with a limited joint: the whole step restarts as implicit Euler at a
