@@ -24,18 +24,14 @@ void demand_soft_body(const std::string& what, const Model& model) {
 void demand_differentiable(const std::string& option, const Model& model) {
   demand_soft_body(option, model);
   // Rigidified parts (issue 21 item 4 for item 2; integrator/rigidify_derivatives.hpp):
-  // implicit Euler with one Newton iteration, with or without contact on the dense
-  // backend (the derivative takes the record's dense G; `auto` keeps a scene below
-  // dense_max_contacts on it, beyond that the step derivative stops naming issue 21),
-  // without rigid bodies in contact.
+  // implicit Euler with one Newton iteration, with or without contact on either backend
+  // (dense: the record's G; sparse: the operator's rows H_f^T and K_p, rpsp), without
+  // rigid bodies in contact.
   if (!model.rigidify.empty()) {
     const std::string& part = model.rigidify.parts.front().name;
     if (model.step.integrator != IntegratorKind::implicit_euler || model.step.newton_iterations > 1)
       throw InputError(option + ": derivatives with rigidified parts are supported for implicit_euler with "
                                 "newton_iterations 1 only (issue 21; " + part + ")");
-    if (model.contact.enabled && model.contact.ncp.backend == contact::NcpBackend::sparse)
-      throw InputError(option + ": derivatives with rigidified parts on contact.backend: sparse are not supported yet "
-                                "(issue 21; " + part + "): use dense or auto");
     if (model.contact.with_rigid())
       throw InputError(option + ": derivatives with rigidified parts and rigid bodies in contact are not supported "
                                 "yet (issue 21; " + part + ")");
@@ -44,15 +40,9 @@ void demand_differentiable(const std::string& option, const Model& model) {
   // Euler is, with and without contact (the scene reader refuses bdf2 with a limited joint
   // in contact).
   // Issue 21, item 4: the rigid step is differentiated with and without contact, a
-  // joint limit's rows in the contact solve included (contact/rigid_contact_derivatives.hpp).
-  // The limit rows' derivative rebuilds the dense extended G (prepare_limits); the
-  // sparse backend runs limits in contact (as rigid rows) but is not differentiated there.
-  if (model.contact.with_rigid() && model.contact.ncp.backend == contact::NcpBackend::sparse)
-    for (const auto& b : model.rigid)
-      if (b.joint.limits)
-        throw InputError(option + ": derivatives through contact of a rigid body whose joint has limits on "
-                                  "contact.backend: sparse are not supported yet (issue 21; rigid body '" + b.name +
-                                  "'): use dense or auto");
+  // joint limit's rows in the contact solve included (contact/rigid_contact_derivatives.hpp):
+  // on the dense backend the extended G (prepare_limits), on the sparse one the extended
+  // rigid rows Kt on the operator (rpsp).
   // Newton with rigid bodies in contact steps (docs/method.md "Newton with rigid contact")
   // but its implicit-function derivative does not take the rigid rows yet.
   if (model.step.newton_iterations > 1 && model.contact.with_rigid())
