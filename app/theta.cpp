@@ -24,18 +24,14 @@ void demand_soft_body(const std::string& what, const Model& model) {
 void demand_differentiable(const std::string& option, const Model& model) {
   demand_soft_body(option, model);
   // Rigidified parts (issue 21 item 4 for item 2; integrator/rigidify_derivatives.hpp):
-  // implicit Euler with one Newton iteration, with or without contact on the dense
-  // backend (the derivative takes the record's dense G; `auto` keeps a scene below
-  // dense_max_contacts on it, beyond that the step derivative stops naming issue 21),
-  // without rigid bodies in contact.
+  // implicit Euler with one Newton iteration, with or without contact on either backend
+  // (dense: the record's G; sparse: the operator's rows H_f^T and K_p, rpsp), without
+  // rigid bodies in contact.
   if (!model.rigidify.empty()) {
     const std::string& part = model.rigidify.parts.front().name;
     if (model.step.integrator != IntegratorKind::implicit_euler || model.step.newton_iterations > 1)
       throw InputError(option + ": derivatives with rigidified parts are supported for implicit_euler with "
                                 "newton_iterations 1 only (issue 21; " + part + ")");
-    if (model.contact.enabled && model.contact.ncp.backend == contact::NcpBackend::sparse)
-      throw InputError(option + ": derivatives with rigidified parts on contact.backend: sparse are not supported yet "
-                                "(issue 21; " + part + "): use dense or auto");
     if (model.contact.with_rigid())
       throw InputError(option + ": derivatives with rigidified parts and rigid bodies in contact are not supported "
                                 "yet (issue 21; " + part + ")");
@@ -43,20 +39,14 @@ void demand_differentiable(const std::string& option, const Model& model) {
   // BDF2 with rigid bodies (rigid/rigid_bdf2_derivatives.hpp): differentiated as implicit
   // Euler is, with and without contact; with a limited joint in contact each step through
   // the branch it recorded (integrator/bdf2.cpp: BDF2, or the restart as the implicit Euler
-  // contact step from s_n, data.history_weight 0), on the dense backend as implicit Euler's
-  // limits (the sparse backend's limit derivatives are refused below for both).
+  // contact step from s_n, data.history_weight 0), as implicit Euler's limits (the
+  // finite-difference tests of that case run on the dense backend).
   // Issue 21, item 4: the rigid step is differentiated with and without contact, a
-  // joint limit's rows in the contact solve included (contact/rigid_contact_derivatives.hpp).
-  // The limit rows' derivative rebuilds the dense extended G (prepare_limits); the
-  // sparse backend runs limits in contact (as rigid rows) but is not differentiated there.
-  if (model.contact.with_rigid() && model.contact.ncp.backend == contact::NcpBackend::sparse)
-    for (const auto& b : model.rigid)
-      if (b.joint.limits)
-        throw InputError(option + ": derivatives through contact of a rigid body whose joint has limits on "
-                                  "contact.backend: sparse are not supported yet (issue 21; rigid body '" + b.name +
-                                  "'): use dense or auto");
-  // Newton with rigid bodies in contact (docs/method.md "Newton with rigid contact") is
-  // differentiated on both backends, joint limits in contact on the dense one (above).
+  // joint limit's rows in the contact solve included (contact/rigid_contact_derivatives.hpp):
+  // on the dense backend the extended G (prepare_limits), on the sparse one the extended
+  // rigid rows Kt on the operator (rpsp). Newton with rigid bodies in contact (docs/method.md
+  // "Newton with rigid contact") is differentiated on both backends (with joint limits in
+  // contact, the contacts' G with the converged tangent in the extended G).
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
     // Static with rigid bodies (integrator/static_rigid.hpp) solves; its implicit-function
     // derivative does not include the rigid equations yet.

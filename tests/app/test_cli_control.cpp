@@ -146,9 +146,7 @@ TEST(CliControl, BadInputExitsTwoWithoutOutput) {
 // block (2.7 g, no gravity) standing 0.5 mm beside it; the goal lies 5 mm beyond, so the
 // tip pushes the block away. control runs, writes /control as for soft scenes, with the
 // contact-force norm of the beam's contacts with the block (another side) > 0 once they
-// touch, the servo within its limits, and the block pushed along +y. BDF2 with rigid
-// bodies and a limited joint in contact stay refused (exit 2, issue 21, no output):
-// the step's derivative does not cover them yet (rigidified parts: test_cli_rigidify.cpp).
+// touch, the servo within its limits, and the block pushed along +y.
 std::string block(const std::string& joint = "") {
   return "  - name: block\n"
          "    type: rigid\n"
@@ -187,32 +185,21 @@ TEST(CliControl, PushesAFreeRigidBlock) { pushes_a_free_rigid_block(false); }
 
 TEST(CliControl, PushesAFreeRigidBlockWithNewton) { pushes_a_free_rigid_block(true); }
 
-TEST(CliControl, RigidBodiesRefuseWhatTheDerivativeDoesNotCoverYet) {
+// A limited joint in contact runs on both backends (issue 21's rlim on the dense one; on
+// the sparse one since rpsp: it was refused, exit 2), and bdf2 with rigid bodies in
+// contact since rbd2.
+TEST(CliControl, RigidBodiesWithALimitedJointOrBdf2Run) {
   const auto dir = fresh_dir(kWork, "rigid_refused");
   write_text(dir / "bdf2.yaml", scene(block(), kBlockContact));
   write_text(dir / "limits.yaml",
              scene(block("    joint: {type: slider, anchor: [0.19, 0.0255, 0.01], axis: [0, 1, 0], limits: [-0.01, 0.01]}\n"),
                    kBlockContact));
-  struct Case {
-    std::string args, message;
-  };
-  const Case cases[] = {
-      // A limited joint in contact is differentiated on the dense backend (issue 21's rlim;
-      // it runs below), not on the sparse one.
-      {"limits.yaml --target 0,0,0 --set contact.backend=sparse",
-       "control: derivatives through contact of a rigid body whose joint has limits on contact.backend: sparse are "
-       "not supported yet (issue 21; rigid body 'block')"},
-  };
-  for (const Case& c : cases) {
-    const CliRun r = run_cli("control " + c.args + " -o out.h5", dir);
-    EXPECT_EQ(r.code, 2) << c.args << "\n" << r.err;
-    EXPECT_NE(r.err.find(c.message), std::string::npos) << c.args << "\n" << r.err;
-    EXPECT_FALSE(fs::exists(dir / "out.h5")) << c.args;
-    EXPECT_FALSE(fs::exists(dir / "out.h5.partial")) << c.args;
-  }
   const CliRun ok = run_cli("control limits.yaml --target 0,0,0 -o limits.h5", dir);
   EXPECT_EQ(ok.code, 0) << ok.err;
   EXPECT_TRUE(fs::exists(dir / "limits.h5"));
+  const CliRun sparse = run_cli("control limits.yaml --target 0,0,0 --set contact.backend=sparse -o limits_sparse.h5", dir);
+  EXPECT_EQ(sparse.code, 0) << sparse.err;
+  EXPECT_TRUE(fs::exists(dir / "limits_sparse.h5"));
   // bdf2 with rigid bodies in contact runs since issue 21's rbd2 (it was refused).
   const CliRun bdf2 = run_cli("control bdf2.yaml --target 0,0,0 --set simulation.integrator=bdf2 -o bdf2.h5", dir);
   EXPECT_EQ(bdf2.code, 0) << bdf2.err;

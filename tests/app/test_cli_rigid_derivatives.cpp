@@ -255,16 +255,22 @@ TEST(CliRigidDerivatives, CheckGradThroughAJointLimitInContact) {
   const auto j = run_cli("simulate scene.yaml -o out.h5 --steps 10 --jacobian mass", dir);
   EXPECT_EQ(j.code, 0) << j.err;
   EXPECT_TRUE(fs::exists(dir / "out.h5"));
-  // The sparse backend runs limits in contact, but their derivative is the dense one's
-  // (prepare_limits rebuilds the extended G): refused before any file is written.
-  fs::remove(dir / "out.h5");
-  const auto s = run_cli("simulate scene.yaml -o out.h5 --steps 10 --jacobian mass --set contact.backend=sparse", dir);
-  EXPECT_EQ(s.code, 2) << s.err;
-  EXPECT_NE(s.err.find("--jacobian: derivatives through contact of a rigid body whose joint has limits on "
-                       "contact.backend: sparse are not supported yet (issue 21; rigid body 'block')"),
-            std::string::npos)
-      << s.err;
-  EXPECT_FALSE(fs::exists(dir / "out.h5"));
+  // The sparse backend (rpsp; it was refused, exit 2): the limit rows' derivative on the
+  // extended rigid rows Kt (no dense G), as a dense G_AA and on the operator (the
+  // derivative's crossovers 0); the same check-grad, and --jacobian runs.
+  for (const std::string set :
+       {"--set contact.backend=sparse", "--set contact.backend=sparse --set contact.derivative_dense_max_active=0 "
+                                        "--set contact.derivative_mixed_dense_max_active=0"}) {
+    const auto s = run_cli("check-grad scene.yaml --quiet --steps 10 --wrt young,x0,v0,mass --directions 2 " + set, dir);
+    EXPECT_EQ(s.code, 0) << set << "\n" << s.out << s.err;
+    for (const char* block : {"young", "x0", "v0", "mass"})
+      EXPECT_NE(s.out.find(block), std::string::npos) << set << "\n" << s.out;
+    EXPECT_EQ(s.out.find("ABOVE TOLERANCE"), std::string::npos) << set << "\n" << s.out;
+  }
+  const auto s =
+      run_cli("simulate scene.yaml -o out_sparse.h5 --steps 10 --jacobian mass --set contact.backend=sparse", dir);
+  EXPECT_EQ(s.code, 0) << s.err;
+  EXPECT_TRUE(fs::exists(dir / "out_sparse.h5"));
 }
 
 // The same scene under bdf2 (issue 21, rbdlim; refused before, exit 2): the block falls

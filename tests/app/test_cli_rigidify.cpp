@@ -273,6 +273,23 @@ TEST(Cli, CheckGradWithRigidifiedParts) {
        "--wrt young,poisson,density,rayleigh_mass,rayleigh_stiffness,friction", {"young", "friction"}},
       {"contact_state", beam("    rigidify: [{box: [0.15, -1, 0.004, 1, 1, 1], attach: free}]\n", plane),
        "--wrt x0,v0 --eps 3e-7", {"x0", "v0"}},
+      // The same on the sparse backend (rpsp; it was refused, exit 2): the derivative's
+      // mode-fixed system from the operator's rows H_f^T and K_p (no dense G), as a dense
+      // G_AA and on the operator (the derivative's crossovers 0); the same --eps 3e-7 for
+      // x0, v0 (the stick/slip margin above is the step's, not the backend's).
+      {"contact_sparse", beam("    rigidify: [{box: [0.15, -1, 0.004, 1, 1, 1], attach: free}]\n", plane),
+       "--wrt young,poisson,density,rayleigh_mass,rayleigh_stiffness,friction --set contact.backend=sparse",
+       {"young", "friction"}},
+      {"contact_state_sparse", beam("    rigidify: [{box: [0.15, -1, 0.004, 1, 1, 1], attach: free}]\n", plane),
+       "--wrt x0,v0 --eps 3e-7 --set contact.backend=sparse", {"x0", "v0"}},
+      {"contact_sparse_operator", beam("    rigidify: [{box: [0.15, -1, 0.004, 1, 1, 1], attach: free}]\n", plane),
+       "--wrt young,friction --set contact.backend=sparse --set contact.derivative_dense_max_active=0 "
+       "--set contact.derivative_mixed_dense_max_active=0",
+       {"young", "friction"}},
+      {"contact_state_sparse_operator", beam("    rigidify: [{box: [0.15, -1, 0.004, 1, 1, 1], attach: free}]\n", plane),
+       "--wrt x0,v0 --eps 3e-7 --set contact.backend=sparse --set contact.derivative_dense_max_active=0 "
+       "--set contact.derivative_mixed_dense_max_active=0",
+       {"x0", "v0"}},
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);
@@ -332,24 +349,51 @@ TEST(Cli, JacobianWithRigidifiedServoPart) {
   EXPECT_LE((A * u - y).norm(), 1e-9 * y.norm()) << "the part's column is not a rigid motion";
 }
 
+// --jacobian through contact with a part on the sparse backend (rpsp; it was refused,
+// exit 2 naming issue 21): the tip landing on the plane, 3 steps, against the dense
+// backend's --jacobian of the same run (both NCPs solved to their tolerance: the columns
+// agree to that noise over the system's conditioning, asserted 1e-6 relative).
+TEST(Cli, JacobianWithARigidifiedPartInContactOnTheSparseBackend) {
+  const fs::path dir = fresh_dir(kRigidifyWork, "jacobian_sparse");
+  write_text(dir / "scene.yaml", beam("    rigidify: [{box: [0.15, -1, 0.004, 1, 1, 1], attach: free}]\n",
+                                      "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.0003}]\n"
+                                      "contact: {friction: 0.3}\n"));
+  std::vector<double> J[2];
+  const char* backends[2] = {"sparse", "dense"};
+  for (int k = 0; k < 2; ++k) {
+    const std::string out = std::string("out_") + backends[k] + ".h5";
+    const auto r = run_cli("simulate scene.yaml -o " + out + " --quiet --steps 3 --jacobian young --set contact.backend=" +
+                               backends[k],
+                           dir);
+    ASSERT_EQ(r.code, 0) << r.err;
+    const hid_t f = H5Fopen((dir / out).c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+    ASSERT_GE(f, 0);
+    J[k] = h5_read(f, "/jacobians/young");
+    H5Fclose(f);
+  }
+  ASSERT_EQ(J[0].size(), J[1].size());
+  double diff = 0, norm = 0;
+  for (std::size_t i = 0; i < J[0].size(); ++i) {
+    diff += (J[0][i] - J[1][i]) * (J[0][i] - J[1][i]);
+    norm += J[1][i] * J[1][i];
+  }
+  std::cout << "[cli rigidify] --jacobian young, sparse against dense: " << std::sqrt(diff / norm) << "\n";
+  EXPECT_GT(norm, 0.0);
+  EXPECT_LE(std::sqrt(diff), 1e-6 * std::sqrt(norm));
+}
+
 TEST(Cli, RigidifyRefusesWhatIsNotSupportedYet) {
   struct Case {
     std::string name, scene, args, message;
   };
-  const std::string plane = "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.1}]\n";
   const std::vector<Case> cases = {
       {"static_jacobian", beam(kTip),
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null --jacobian young",
        "--jacobian: derivatives with rigidified parts are supported for implicit_euler with newton_iterations 1 only "
        "(issue 21"},
-      // Contact on the sparse backend runs with parts (the operator takes them as rigid
-      // rows), but their derivative takes the record's dense G.
-      {"jacobian_sparse", beam(kTip, plane + "contact: {friction: 0.3, backend: sparse}\n"),
-       "simulate scene.yaml -o out.h5 --jacobian young",
-       "--jacobian: derivatives with rigidified parts on contact.backend: sparse are not supported yet (issue 21; "
-       "body 'beam' rigidify[0]): use dense or auto"},
-      // factor_reuse: pcg runs with parts (RigidifyWithFactorReuse below).
+      // Contact on the sparse backend (the operator's rows H_f^T and K_p, rpsp) and
+      // factor_reuse: pcg (RigidifyWithFactorReuse below) run and are differentiated with parts.
       // Derivatives with parts (issue 21 item 4 for item 2): implicit Euler with one Newton
       // iteration only (the working cases: CheckGradWithRigidifiedParts below).
       {"jacobian_newton", beam(kTip), "simulate scene.yaml -o out.h5 --jacobian young --set simulation.newton_iterations=3",
@@ -368,10 +412,6 @@ TEST(Cli, RigidifyRefusesWhatIsNotSupportedYet) {
        "simulation.newton_iterations=3",
        "control: derivatives with rigidified parts are supported for implicit_euler with newton_iterations 1 only "
        "(issue 21; body 'beam' rigidify[0])"},
-      {"calibrate_sparse", beam(kTip, plane + "contact: {friction: 0.3, backend: sparse}\n"),
-       "calibrate scene.yaml --param young --target target.h5 -o out.h5",
-       "--param: derivatives with rigidified parts on contact.backend: sparse are not supported yet (issue 21; "
-       "body 'beam' rigidify[0]): use dense or auto"},
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);

@@ -61,33 +61,64 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
     }
   }
   if (nc == 0) return true;
-  if (extended) {
+  if (extended && extended->G) {
     ncp_.compute(*extended->G, *extended->mu, *extended->lambda, *extended->sigma, *extended->modes);
-  } else if (use_record_G && cd.G.rows() == 3 * nc) {
+  } else if (!extended && use_record_G && cd.G.rows() == 3 * nc) {
     ncp_.compute(cd.G, cd.mu, cd.lambda, sigma, modes);
   } else {
+    // The system's rows: cd's, or an extended system's on the operator (NcpSystem without
+    // G: the limit rows after the contacts, or a rigidified part's rows K_p).
+    const SparseMatrix* Ht = extended && extended->Ht ? extended->Ht : &cd.Ht;
+    const bool with_rigid = model.contact.with_rigid();
+    const MatX* Kt = extended && extended->Kt ? extended->Kt : with_rigid ? &rigid_rows(model, cd) : &cd.rigid.Kt;
+    const MatX* Kt_more = extended ? extended->Kt_more : nullptr;
+    const VecX& mu = extended ? *extended->mu : cd.mu;
+    const VecX& lambda = extended ? *extended->lambda : cd.lambda;
+    const VecX& sys_sigma = extended ? *extended->sigma : sigma;
+    const std::vector<Mode>& sys_modes = extended ? *extended->modes : modes;
+    const int n_rows = static_cast<int>(sys_modes.size());  // nc, or nc + the limit rows
+    if (3L * n_rows > Ht->cols()) {  // rows without a soft dof (limit rows): zero columns
+      Ht_padded_ = *Ht;
+      Ht_padded_.conservativeResize(Ht_padded_.rows(), 3L * n_rows);
+      Ht_padded_.makeCompressed();
+      Ht = &Ht_padded_;
+    }
     // The mode-fixed system needs G_AA of the active contacts only: one congruence
     // with the factorization of A (never the whole G).
     active_ids_.clear();
-    for (int i = 0; i < nc; ++i)
-      if (modes[static_cast<std::size_t>(i)] != Mode::breaking) active_ids_.push_back(i);
-    select_contact_columns(cd.Ht, active_ids_, Ht_active_);
+    for (int i = 0; i < n_rows; ++i)
+      if (sys_modes[static_cast<std::size_t>(i)] != Mode::breaking) active_ids_.push_back(i);
+    select_contact_columns(*Ht, active_ids_, Ht_active_);
     const int na = static_cast<int>(active_ids_.size());
     // Rigid bodies (issue 21): the step's G had their part h sum_r H_r W_r H_r^T = h Kt^T Kt
     // (Kt = L_r^T H_r^T stacked, k x 3 nc), so every G_AA below adds h Kt_A^T Kt_A, Kt_A =
     // Kt's columns of the active contacts. The sparse backend's record has Kt
-    // (rigid_delassus_rows); the dense backend's has G instead, and a G_AA recomputed there
+    // (rigid_delassus_rows, SparseDelassus::set_rigid; an extended system's Kt has the limit
+    // rows' columns too); the dense backend's has G instead, and a G_AA recomputed there
     // (Newton: with the converged tangent A_f, docs/method.md "Newton with rigid contact")
     // takes Kt from the record's H_r^T and L_r (rigid_rows).
+    // Rigidified parts on the sparse backend (rpsp): their rank-6m part h K_p^T K_p is
+    // rigid rows the same way (Kt_more, after the bodies' rows).
     Kt_active_.resize(0, 3 * na);
-    const MatX* Kt = model.contact.with_rigid() ? &rigid_rows(model, cd) : nullptr;
-    if (Kt) {
-      Kt_active_.resize(Kt->rows(), 3 * na);
-      for (int b = 0; b < na; ++b)
-        Kt_active_.middleCols<3>(3 * b) = Kt->middleCols<3>(3 * active_ids_[static_cast<std::size_t>(b)]);
+    if (with_rigid)
+      SOFTDIFF_DEMAND(Kt->cols() == 3L * n_rows, "contact derivative: the rigid rows Kt have " +
+                                                     std::to_string(Kt->cols()) + " columns, expected " +
+                                                     std::to_string(3L * n_rows));
+    const Eigen::Index k_bodies = with_rigid ? Kt->rows() : 0;
+    const Eigen::Index k_more = Kt_more ? Kt_more->rows() : 0;
+    if (Kt_more)
+      SOFTDIFF_DEMAND(cd.G.rows() == 0 && Kt_more->cols() == 3 * static_cast<Eigen::Index>(nc),
+                      "contact derivative: a rigidified part's rows K_p are the sparse backend's (3 nc columns)");
+    if (k_bodies + k_more > 0) {
+      Kt_active_.setZero(k_bodies + k_more, 3 * na);
+      for (int b = 0; b < na; ++b) {
+        const int id = active_ids_[static_cast<std::size_t>(b)];
+        if (k_bodies > 0) Kt_active_.block(0, 3 * b, k_bodies, 3) = Kt->middleCols<3>(3 * id);
+        if (k_more > 0 && id < nc) Kt_active_.block(k_bodies, 3 * b, k_more, 3) = Kt_more->middleCols<3>(3 * id);
+      }
     }
     bool all_sticking = true;
-    for (int i : active_ids_) all_sticking = all_sticking && modes[static_cast<std::size_t>(i)] == Mode::sticking;
+    for (int i : active_ids_) all_sticking = all_sticking && sys_modes[static_cast<std::size_t>(i)] == Mode::sticking;
     const auto& ncp = model.contact.ncp;
     const int dense_max = all_sticking ? ncp.derivative_dense_max_active : ncp.derivative_mixed_dense_max_active;
     if (na > dense_max && (all_sticking || A_upper || na <= operator_unpreconditioned_mixed_max_active)) {
@@ -151,8 +182,11 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
       OperatorModeSystem::Precondition M, reduce_apply;
       OperatorModeSystem::FactorizeReduced reduce;
       if (A_upper) {
-        shifted_.bind(solver, *A_upper, cd.Ht, h, model.solver);
-        if (Kt_active_.rows() > 0) shifted_.set_rigid(*Kt);  // + h Kt^T Kt (bind clears it)
+        shifted_.bind(solver, *A_upper, *Ht, h, model.solver);
+        if (Kt_active_.rows() > 0) {  // + h Kt^T Kt (bind clears it)
+          static const MatX none;
+          shifted_.set_rigid(k_bodies > 0 ? *Kt : none, Kt_more);
+        }
         shifted_.restrict_to(active_ids_);
         // B is positive definite where A is; where it does not factorize (the static
         // solver's tangent need not be), the system is solved unpreconditioned.
@@ -181,12 +215,12 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
             add_rigid_product(h, y, out);
             return true;
           },
-          L, cd.mu, cd.lambda, sigma, modes, std::move(M), std::move(reduce), std::move(reduce_apply));
+          L, mu, lambda, sys_sigma, sys_modes, std::move(M), std::move(reduce), std::move(reduce_apply));
     } else {
       if (!solver.inverse_congruence(Ht_active_, G_active_)) return false;
       G_active_ *= h;
       if (Kt_active_.rows() > 0) G_active_.noalias() += h * (Kt_active_.transpose() * Kt_active_);
-      ncp_.compute_active(G_active_, cd.mu, cd.lambda, sigma, modes);
+      ncp_.compute_active(G_active_, mu, lambda, sys_sigma, sys_modes);
     }
   }
   return true;

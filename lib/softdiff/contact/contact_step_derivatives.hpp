@@ -40,10 +40,18 @@ class ContactStageDerivative {
   // extended: the NCP derivative on this system instead (rigid bodies' joint limits in
   // contact: the contacts' rows then the limit rows, rigid_contact_derivatives.hpp); the
   // geometry derivatives stay the contacts'.
+  // Without G (the sparse backend's record, rpsp): G_AA is formed as above from the
+  // system's soft columns Ht (nullptr: cd.Ht; columns beyond Ht's have no soft dof: zero,
+  // e.g. the limit rows) and rigid rows Kt (nullptr: cd.rigid.Kt with rigid bodies; the
+  // limit rows' extended Kt) and Kt_more (rigidified parts: K_p = L_S^-1 W,
+  // data.rigidify.SW, beside H_f^T = data.rigidify.Ht_soft), as the step's operator had
+  // them: G_AA = h H_A A^-1 H_A^T + h [Kt; Kt_more]_A^T [Kt; Kt_more]_A.
   struct NcpSystem {
     const MatX* G = nullptr;
     const VecX *mu = nullptr, *lambda = nullptr, *sigma = nullptr;
     const std::vector<Mode>* modes = nullptr;
+    const SparseMatrix* Ht = nullptr;
+    const MatX *Kt = nullptr, *Kt_more = nullptr;
   };
   bool prepare(const Model& model, const ContactData& cd, const VecX& x, integrator::LinearSolver& solver, double h,
                bool use_record_G, const std::vector<Mode>* modes = nullptr, const VecX* sigma = nullptr,
@@ -99,6 +107,7 @@ class ContactStageDerivative {
   MatX sample_B_, sample_X_;     // mixed sets: (3n x 3 s) the sampled columns of H_A^T and A^{-1} times them
   bool sampled_max_diagonal(integrator::LinearSolver& solver, double h, double& L);
   VecX op_u_, op_w_;             // operator path: (3n) scratch of the products with G_AA
+  SparseMatrix Ht_padded_;       // an NcpSystem's Ht with zero columns up to its Kt's (limit rows)
   MatX Kt_active_;               // rigid bodies: (k x 3 na) Kt's active columns
   MatX Kt_record_;               //   Kt formed from the dense record (rigid_rows)
   VecX op_k_;                    //   (k) scratch of their products

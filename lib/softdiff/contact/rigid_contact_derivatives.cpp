@@ -384,10 +384,14 @@ void RigidContactDerivative::prepare_limits(const Model& model, const Data& data
     lambda_.head(n0) = cd.lambda.head(n0);
   }
   if (L == 0) return;
+  // The dense backend's record holds G; the sparse one's the rigid rows Kt (rpsp: the
+  // extended Kt below instead of the extended G). Newton gives the contacts' G with the
+  // converged tangent (G_contacts) on either backend.
+  const bool on_operator = !G_contacts && cd.G.rows() == 0 && n0 > 0 && rd.Kt.cols() == n0;
   const MatX& G = G_contacts ? *G_contacts : cd.G;
-  SOFTDIFF_DEMAND(G.rows() == n0 && G.cols() == n0 && rd.limit_lambda.size() == num_limit_slots(model),
-                  "rigid contact derivative: joint limits in contact need the dense backend's record (G) or the "
-                  "contacts' G");
+  SOFTDIFF_DEMAND(((G.rows() == n0 && G.cols() == n0) || on_operator) && rd.limit_lambda.size() == num_limit_slots(model),
+                  "rigid contact derivative: joint limits in contact need the record's G (dense backend), the "
+                  "contacts' G (Newton) or its rigid rows Kt (sparse backend)");
   Ht_.rightCols(3 * L).setZero();
   lambda_.tail(3 * L).setZero();
   for (int l = 0; l < L; ++l) {
@@ -415,20 +419,27 @@ void RigidContactDerivative::prepare_limits(const Model& model, const Data& data
     Ht_.col(n0 + 3 * l + 2).segment<6>(6 * static_cast<Eigen::Index>(r)) = lim.j;
     lambda_[n0 + 3 * l + 2] = lim.lambda;
   }
-  // The solve's G on the extended rows: the record's G (contacts; Newton: G_contacts, with
-  // the converged tangent), then each limit column h H_r^T W_r j over every row (only its
-  // body's rows are nonzero; rigid only, so the same with any soft tangent), mirrored.
-  G_ext_.setZero(n1, n1);
-  G_ext_.topLeftCorner(n0, n0) = G;
-  for (int l = 0; l < L; ++l) {
-    const Limit& lim = limits_[static_cast<std::size_t>(l)];
-    const Eigen::Index o = 6 * static_cast<Eigen::Index>(lim.body), col = n0 + 3 * l + 2;
-    G_ext_.col(col) = h * (Ht_.middleRows<6>(o).transpose() * (rd.W[static_cast<std::size_t>(lim.body)] * lim.j));
-  }
-  for (int l = 0; l < L; ++l) {
-    const Eigen::Index o = n0 + 3 * l;
-    G_ext_.row(o + 2) = G_ext_.col(o + 2).transpose();
-    G_ext_(o, o) = G_ext_(o + 1, o + 1) = G_ext_(o + 2, o + 2);  // finish_limit_rows
+  if (on_operator) {
+    G_ext_.resize(0, 0);
+    extended_rigid_rows(model, data);
+  } else {
+    Kt_ext_.resize(0, 0);
+    // The solve's G on the extended rows: the record's G (contacts; Newton: G_contacts,
+    // with the converged tangent), then each limit column h H_r^T W_r j over every row
+    // (only its body's rows are nonzero; rigid only, so the same with any soft tangent),
+    // mirrored.
+    G_ext_.setZero(n1, n1);
+    G_ext_.topLeftCorner(n0, n0) = G;
+    for (int l = 0; l < L; ++l) {
+      const Limit& lim = limits_[static_cast<std::size_t>(l)];
+      const Eigen::Index o = 6 * static_cast<Eigen::Index>(lim.body), col = n0 + 3 * l + 2;
+      G_ext_.col(col) = h * (Ht_.middleRows<6>(o).transpose() * (rd.W[static_cast<std::size_t>(lim.body)] * lim.j));
+    }
+    for (int l = 0; l < L; ++l) {
+      const Eigen::Index o = n0 + 3 * l;
+      G_ext_.row(o + 2) = G_ext_.col(o + 2).transpose();
+      G_ext_(o, o) = G_ext_(o + 1, o + 1) = G_ext_(o + 2, o + 2);  // finish_limit_rows
+    }
   }
   mu_ext_.setZero(nc + L);
   mu_ext_.head(nc) = cd.mu.head(nc);
@@ -446,6 +457,31 @@ void RigidContactDerivative::prepare_limits(const Model& model, const Data& data
     // By contact mode: an active limit is a bilateral row, an inactive one drops.
     modes_ext_.push_back(lim.lambda > 0 ? Mode::sticking : Mode::breaking);
   }
+}
+
+// The sparse backend's extended rigid rows (contact/rigid_contact.cpp rigid_delassus_rows
+// with the limit columns, before remove_limit_rows cut them): the record's Kt (the
+// contacts' columns, sum of the bodies' ranks rows), each limit's normal column L_r^T j in
+// its body's rows, and two rows per limit holding its tangential diagonals |L_r^T j| (h
+// times their square: the normal diagonal h j W_r j, as finish_limit_rows).
+void RigidContactDerivative::extended_rigid_rows(const Model& model, const Data& data) {
+  const auto& rd = data.contact.rigid;
+  const Eigen::Index n0 = 3 * static_cast<Eigen::Index>(nc_), L = static_cast<Eigen::Index>(limits_.size());
+  const Eigen::Index k0 = rd.Kt.rows();
+  Kt_ext_.setZero(k0 + 2 * L, n0 + 3 * L);
+  Kt_ext_.topLeftCorner(k0, n0) = rd.Kt;
+  for (Eigen::Index l = 0; l < L; ++l) {
+    const Limit& lim = limits_[static_cast<std::size_t>(l)];
+    Eigen::Index row = 0;  // the body's first row of Kt
+    for (int r = 0; r < lim.body; ++r) row += rd.rank[static_cast<std::size_t>(r)];
+    const int k = rd.rank[static_cast<std::size_t>(lim.body)];
+    const Eigen::Index o = n0 + 3 * l;
+    Kt_ext_.block(row, o + 2, k, 1) = rd.L[static_cast<std::size_t>(lim.body)].leftCols(k).transpose() * lim.j;
+    const double d = Kt_ext_.col(o + 2).head(k0).norm();
+    Kt_ext_(k0 + 2 * l, o) = d;
+    Kt_ext_(k0 + 2 * l + 1, o + 1) = d;
+  }
+  (void)model;
 }
 
 void RigidContactDerivative::limit_sigma_jvp(const VecX& z, const VecX& du0, VecX& b) const {

@@ -106,6 +106,12 @@ class RigidContactDerivative {
   // The extended system of the solve (3 (nc + L)): G, mu, lambda, sigma and the modes by
   // contact mode (valid when limit_rows() > 0).
   const MatX& extended_G() const { return G_ext_; }
+  // On the sparse backend (the record has no G; rpsp) the extended system is the
+  // operator's instead: extended_G() is empty and extended_Kt() (k + 2L x 3 (nc + L)) the
+  // rigid rows with the limit columns (rigid_contact.cpp rigid_delassus_rows), the soft
+  // part h H_s A^-1 H_s^T with zero columns for the limit rows.
+  bool extended_on_operator() const { return !limits_.empty() && G_ext_.rows() == 0; }
+  const MatX& extended_Kt() const { return Kt_ext_; }
   const VecX& extended_mu() const { return mu_ext_; }
   const VecX& extended_lambda() const { return lambda_; }
   const VecX& extended_sigma() const { return sigma_ext_; }
@@ -146,6 +152,8 @@ class RigidContactDerivative {
   VecX u_;                     // (6R) the corrected velocities
   VecX lambda_;                // (3 (nc + L)) the contacts' forces, then the limits'
   MatX G_ext_;                 // (3 (nc + L)) square: the solve's G (limit rows only)
+  MatX Kt_ext_;                // sparse backend: the extended rigid rows (extended_rigid_rows)
+  void extended_rigid_rows(const Model& model, const Data& data);
   VecX mu_ext_, sigma_ext_;    //   its mu (nc + L), sigma (3 (nc + L))
   std::vector<Mode> modes_ext_;
   int nc_ = 0;

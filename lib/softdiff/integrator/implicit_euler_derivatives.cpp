@@ -33,9 +33,8 @@ void demand_parts_supported(const Model& model, const Data& data) {
                       "): implicit_euler with newton_iterations 1 only (issue 21)");
   SOFTDIFF_DEMAND(!model.contact.with_rigid(),
                   "step derivatives with rigidified parts (" + part + ") and rigid bodies in contact (issue 21)");
-  const auto nc = static_cast<Eigen::Index>(data.contact.contacts.size());
-  SOFTDIFF_DEMAND(!model.contact.enabled || nc == 0 || data.contact.G.rows() == 3 * nc,
-                  "step derivatives with rigidified parts (" + part + ") in contact: the dense backend only (issue 21)");
+  // In contact: the dense record's G, or on the sparse backend the operator's rows
+  // (H_f^T, K_p: data.rigidify.Ht_soft, SW; prepare_contact).
 }
 
 // The step size of the record: data.h (dt for implicit Euler, 2 dt / 3 for BDF2), or
@@ -185,12 +184,25 @@ bool StepDerivatives::prepare_contact(const Model& model, const Data& data, cons
   const VecX& x = model.contact.with_rigid() ? data.contact.rigid.x : in.x;
   // Joint limits in the step's NCP (rigid_contact_derivatives.hpp): the NCP derivative on
   // the extended system (the contacts' rows, then the limit rows).
+  // On the sparse backend (no G in the record) the extended system is the operator's rows
+  // (rpsp): the limit rows' extended Kt; a rigidified part's H_f^T and K_p (the step's
+  // rigidified_rows, data.rigidify) beside the contacts' rows.
   contact::ContactStageDerivative::NcpSystem extended;
-  if (with_rigid && rigid_.limit_rows() > 0)
+  if (with_rigid && rigid_.limit_rows() > 0) {
     extended = {&rigid_.extended_G(), &rigid_.extended_mu(), &rigid_.extended_lambda(), &rigid_.extended_sigma(),
                 &rigid_.extended_modes()};
+    if (rigid_.extended_on_operator()) {
+      extended.G = nullptr;
+      extended.Kt = &rigid_.extended_Kt();
+    }
+  } else if (!model.rigidify.empty() && data.contact.G.rows() == 0) {
+    const auto& cd = data.contact;
+    extended = {nullptr, &cd.mu, &cd.lambda, &cd.sigma, &cd.modes};
+    extended.Ht = &data.rigidify.Ht_soft;
+    extended.Kt_more = &data.rigidify.SW;
+  }
   if (!contact_.prepare(model, data.contact, x, solver, step_size(model, data), !is_newton(model), nullptr, nullptr, A,
-                        extended.G ? &extended : nullptr))
+                        extended.modes ? &extended : nullptr))
     return false;
   contact_v_.resize(key_size);
   contact_v_.head(out.v.size()) = out.v;
