@@ -26,12 +26,17 @@ bool is_newton(const Model& model) { return model.step.newton_iterations > 1; }
 // Rigidified parts: what rigidify_derivatives.hpp covers (the rest is issue 21).
 void demand_parts_supported(const Model& model, const Data& data) {
   const std::string part = model.rigidify.parts.front().name;
-  SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler && data.history_weight == 0 &&
+  // BDF2: the stage from the extrapolated state (the record's hat) is this step; the
+  // extrapolation's derivative is multistep_jvp / multistep_vjp's (rigidify_bdf2_derivatives.hpp).
+  SOFTDIFF_DEMAND((model.step.integrator == IntegratorKind::implicit_euler || model.step.integrator == IntegratorKind::bdf2) &&
                       model.step.newton_iterations == 1,
                   "step derivatives with rigidified parts (" + part +
-                      "): implicit_euler with newton_iterations 1 only (issue 21)");
-  SOFTDIFF_DEMAND(!model.contact.with_rigid(),
-                  "step derivatives with rigidified parts (" + part + ") and rigid bodies in contact (issue 21)");
+                      "): implicit_euler or bdf2 with newton_iterations 1 only (issue 21)");
+  // Rigid bodies in contact (branch rpint): the extended pseudo-node vectors take the
+  // soft rows' cotangents and tangents from the parts' reduced solves (jvp / vjp below use
+  // the reduced solve wherever the step solves); the record's dense G holds both the
+  // parts' rank-6m term and the rigid blocks. With Newton (refused above) the rigid rows
+  // would need the converged tangent's Schur complement.
   const auto nc = static_cast<Eigen::Index>(data.contact.contacts.size());
   SOFTDIFF_DEMAND(!model.contact.enabled || nc == 0 || data.contact.G.rows() == 3 * nc,
                   "step derivatives with rigidified parts (" + part + ") in contact: the dense backend only (issue 21)");
