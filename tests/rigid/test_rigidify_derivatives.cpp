@@ -46,7 +46,6 @@
 #include <unistd.h>
 
 #include <cstdio>
-#include <cstdlib>
 #include <filesystem>
 #include <iostream>
 #include <memory>
@@ -609,14 +608,20 @@ TEST(RigidifyDerivatives, Bdf2ServoAttachedPartMatchesCentralDifferences) {
   check_bdf2_step(model, previous, in, false);
 }
 
-// The bar resting on the plane with its rigidified middle (bar_on_plane), under BDF2.
+// The bar resting on the plane with its rigidified middle (bar_on_plane), under BDF2,
+// after 4 steps: 27 contacts, 2 of them sliding (the friction column is not zero), none
+// switching mode inside the differences (checked). After 10 steps all 27 stick, two at
+// the cone's edge: the x_n difference (its 4/3 weight on x^) turns them to sliding
+// (measured error 2.7e-2, the mode check fails) and the friction column is zero
+// (sticking contacts do not depend on mu) against a difference of 1.4e-11 (the NCP's
+// noise): that state is a stick/slip switch, not a test of the derivative (docs/method.md,
+// the landing tip's x0/v0 check). At 2, 3, 4 and 6 steps the errors are <= 1.9e-8.
 TEST(RigidifyDerivatives, Bdf2PartInContactMatchesCentralDifferences) {
   const Model model = load("bdf2_plane", "    rigidify: [{box: [0.07, -1, 0.009, 0.13, 1, 1]}]\n",
                            "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: 0}]\n"
                            "contact: {friction: 0.5, tolerance: 1.0e-12, max_iterations: 5000}\n",
                            "{integrator: bdf2, dt: 0.005, steps: 10}");
-  const int warm = std::getenv("RPINT_WARM") ? std::atoi(std::getenv("RPINT_WARM")) : 10;
-  const auto [previous, in] = advance_pair(model, warm);
+  const auto [previous, in] = advance_pair(model, 4);
   check_bdf2_step(model, previous, in, true);
 }
 
