@@ -24,17 +24,20 @@ void demand_soft_body(const std::string& what, const Model& model) {
 void demand_differentiable(const std::string& option, const Model& model) {
   demand_soft_body(option, model);
   // Rigidified parts (issue 21 item 4 for item 2; integrator/rigidify_derivatives.hpp):
-  // implicit Euler with one Newton iteration, with or without contact on either backend
-  // (dense: the record's G; sparse: the operator's rows H_f^T and K_p, rpsp), without
-  // rigid bodies in contact.
+  // implicit Euler and BDF2 (rigidify_bdf2_derivatives.hpp) with one Newton iteration,
+  // with or without contact on either backend (dense: the record's G; sparse: the
+  // operator's rows H_f^T and K_p, rpsp), with rigid bodies in contact on the dense
+  // backend (rpint; `auto` keeps a scene below dense_max_contacts on it, beyond that the
+  // step derivative stops naming issue 21).
   if (!model.rigidify.empty()) {
     const std::string& part = model.rigidify.parts.front().name;
-    if (model.step.integrator != IntegratorKind::implicit_euler || model.step.newton_iterations > 1)
-      throw InputError(option + ": derivatives with rigidified parts are supported for implicit_euler with "
+    if ((model.step.integrator != IntegratorKind::implicit_euler && model.step.integrator != IntegratorKind::bdf2) ||
+        model.step.newton_iterations > 1)
+      throw InputError(option + ": derivatives with rigidified parts are supported for implicit_euler and bdf2 with "
                                 "newton_iterations 1 only (issue 21; " + part + ")");
-    if (model.contact.with_rigid())
-      throw InputError(option + ": derivatives with rigidified parts and rigid bodies in contact are not supported "
-                                "yet (issue 21; " + part + ")");
+    if (model.contact.with_rigid() && model.contact.ncp.backend == contact::NcpBackend::sparse)
+      throw InputError(option + ": derivatives with rigidified parts and rigid bodies in contact on contact.backend: "
+                                "sparse are not supported yet (issue 21; " + part + "): use dense or auto");
   }
   // BDF2 with rigid bodies (rigid/rigid_bdf2_derivatives.hpp): differentiated as implicit
   // Euler is, with and without contact; with a limited joint in contact each step through

@@ -290,6 +290,18 @@ TEST(Cli, CheckGradWithRigidifiedParts) {
        "--wrt x0,v0 --eps 3e-7 --set contact.backend=sparse --set contact.derivative_dense_max_active=0 "
        "--set contact.derivative_mixed_dense_max_active=0",
        {"x0", "v0"}},
+      // BDF2 (branch rpint; refused before): the stage's derivative chained with the parts'
+      // rigid extrapolation (rigidify_bdf2_derivatives.hpp), 3 steps so two are BDF2 steps.
+      {"bdf2", beam(kTip), "--set simulation.integrator=bdf2", {"young", "rayleigh_stiffness", "x0", "v0"}},
+      // The actuation with --eps 1e-5 and the other blocks at the default, as "servo" (at
+      // 1e-5 x0 is at its round-off floor: measured 1.3e-5 under BDF2).
+      {"bdf2_servo", beam(kTipServo + kServo), "--set simulation.integrator=bdf2 --wrt young,x0,v0",
+       {"young", "x0", "v0"}},
+      {"bdf2_servo_actuation", beam(kTipServo + kServo), "--set simulation.integrator=bdf2 --wrt actuation --eps 1e-5",
+       {"actuation"}},
+      {"bdf2_contact", beam("    rigidify: [{box: [0.15, -1, 0.004, 1, 1, 1], attach: free}]\n", plane),
+       "--set simulation.integrator=bdf2 --wrt young,poisson,density,rayleigh_mass,rayleigh_stiffness,friction",
+       {"young", "friction"}},
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);
@@ -390,27 +402,21 @@ TEST(Cli, RigidifyRefusesWhatIsNotSupportedYet) {
       {"static_jacobian", beam(kTip),
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null --jacobian young",
-       "--jacobian: derivatives with rigidified parts are supported for implicit_euler with newton_iterations 1 only "
+       "--jacobian: derivatives with rigidified parts are supported for implicit_euler and bdf2 with newton_iterations 1 only "
        "(issue 21"},
       // Contact on the sparse backend (the operator's rows H_f^T and K_p, rpsp) and
       // factor_reuse: pcg (RigidifyWithFactorReuse below) run and are differentiated with parts.
-      // Derivatives with parts (issue 21 item 4 for item 2): implicit Euler with one Newton
-      // iteration only (the working cases: CheckGradWithRigidifiedParts below).
+      // Derivatives with parts (issue 21 item 4 for item 2): implicit Euler and BDF2 with one
+      // Newton iteration only (the working cases: CheckGradWithRigidifiedParts below; BDF2
+      // was refused here before, check_grad_bdf2 and calibrate_bdf2, branch rpint).
       {"jacobian_newton", beam(kTip), "simulate scene.yaml -o out.h5 --jacobian young --set simulation.newton_iterations=3",
-       "--jacobian: derivatives with rigidified parts are supported for implicit_euler with newton_iterations 1 only "
+       "--jacobian: derivatives with rigidified parts are supported for implicit_euler and bdf2 with newton_iterations 1 only "
        "(issue 21; body 'beam' rigidify[0])"},
-      {"check_grad_bdf2", beam(kTip), "check-grad scene.yaml --set simulation.integrator=bdf2",
-       "--wrt: derivatives with rigidified parts are supported for implicit_euler with newton_iterations 1 only "
-       "(issue 21"},
       // calibrate and control with parts run (CalibrateWithARigidifiedTip,
       // ControlWithAServoAttachedPart below) where the step's derivative does.
-      {"calibrate_bdf2", beam(kTip),
-       "calibrate scene.yaml --param young --target target.h5 -o out.h5 --set simulation.integrator=bdf2",
-       "--param: derivatives with rigidified parts are supported for implicit_euler with newton_iterations 1 only "
-       "(issue 21; body 'beam' rigidify[0])"},
       {"control_newton", beam(kTipServo + kServo), "control scene.yaml --target 0,0,0 -o out.h5 --set "
        "simulation.newton_iterations=3",
-       "control: derivatives with rigidified parts are supported for implicit_euler with newton_iterations 1 only "
+       "control: derivatives with rigidified parts are supported for implicit_euler and bdf2 with newton_iterations 1 only "
        "(issue 21; body 'beam' rigidify[0])"},
   };
   for (const Case& c : cases) {
@@ -490,25 +496,32 @@ TEST(Cli, RigidifyWithFactorReuse) {
 }
 
 TEST(Cli, CalibrateWithARigidifiedTip) {
-  const fs::path dir = fresh_dir(kRigidifyWork, "calibrate");
-  write_text(dir / "scene.yaml", beam(kTip));
-  ASSERT_EQ(run_cli("simulate scene.yaml -o target.h5 --quiet", dir).code, 0);
-  const auto r = run_cli("calibrate scene.yaml --param young --init 1.5e6 --target target.h5 -o cal.h5 --json", dir);
-  ASSERT_EQ(r.code, 0) << r.out << r.err;
-  EXPECT_NEAR(rigidify_json_number(r.out, "young") / 1e6, 1.0, 1e-6) << r.out;
-  EXPECT_NE(r.out.find("\"converged\":true"), std::string::npos) << r.out;
-  const hid_t f = H5Fopen((dir / "cal.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-  ASSERT_GE(f, 0);
-  EXPECT_EQ(h5_string_attribute(f, "/", "status"), "complete");
-  const std::vector<double> x = h5_read(f, "/bodies/beam/x");
-  H5Fclose(f);
-  const hid_t t = H5Fopen((dir / "target.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-  const std::vector<double> xt = h5_read(t, "/bodies/beam/x");
-  H5Fclose(t);
-  ASSERT_EQ(x.size(), xt.size());
-  double worst = 0;
-  for (std::size_t i = 0; i < x.size(); ++i) worst = std::max(worst, std::abs(x[i] - xt[i]));
-  EXPECT_LT(worst, 1e-8);
+  // Implicit Euler, and BDF2 (branch rpint; refused before, calibrate_bdf2): the target and
+  // the calibration run with the same integrator.
+  for (const std::string integrator : {"implicit_euler", "bdf2"}) {
+    SCOPED_TRACE(integrator);
+    const std::string set = " --set simulation.integrator=" + integrator;
+    const fs::path dir = fresh_dir(kRigidifyWork, "calibrate_" + integrator);
+    write_text(dir / "scene.yaml", beam(kTip));
+    ASSERT_EQ(run_cli("simulate scene.yaml -o target.h5 --quiet" + set, dir).code, 0);
+    const auto r =
+        run_cli("calibrate scene.yaml --param young --init 1.5e6 --target target.h5 -o cal.h5 --json" + set, dir);
+    ASSERT_EQ(r.code, 0) << r.out << r.err;
+    EXPECT_NEAR(rigidify_json_number(r.out, "young") / 1e6, 1.0, 1e-6) << r.out;
+    EXPECT_NE(r.out.find("\"converged\":true"), std::string::npos) << r.out;
+    const hid_t f = H5Fopen((dir / "cal.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+    ASSERT_GE(f, 0);
+    EXPECT_EQ(h5_string_attribute(f, "/", "status"), "complete");
+    const std::vector<double> x = h5_read(f, "/bodies/beam/x");
+    H5Fclose(f);
+    const hid_t t = H5Fopen((dir / "target.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+    const std::vector<double> xt = h5_read(t, "/bodies/beam/x");
+    H5Fclose(t);
+    ASSERT_EQ(x.size(), xt.size());
+    double worst = 0;
+    for (std::size_t i = 0; i < x.size(); ++i) worst = std::max(worst, std::abs(x[i] - xt[i]));
+    EXPECT_LT(worst, 1e-8);
+  }
 }
 
 // control with the tip part attached to the torque servo (issue 21; docs/method.md
@@ -516,32 +529,41 @@ TEST(Cli, CalibrateWithARigidifiedTip) {
 // steps; from the scene's 1 mN m the controller (J_a by one jvp() per column through the
 // reduced step) closes the distance.
 TEST(Cli, ControlWithAServoAttachedPart) {
-  const fs::path dir = fresh_dir(kRigidifyWork, "control");
-  const std::string servo =
-      "    actuators:\n"
-      "      - {name: turn, type: servo, nodes: {group: tip}, axis: [1, 0, 0], center: [0.2, 0.01, 0.01], "
-      "force: 0.001, limits: [-0.005, 0.005]}\n"
-      "    effectors:\n"
-      "      - {name: corner, point: [0.2, 0.02, 0.02]}\n";
-  write_text(dir / "scene.yaml", beam(kTipServo + servo));
-  ASSERT_EQ(run_cli("simulate scene.yaml -o goal.h5 --quiet --steps 20 --set bodies.beam.actuators.turn.force=0.002", dir).code, 0);
-  hid_t f = H5Fopen((dir / "goal.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-  ASSERT_GE(f, 0);
-  const std::vector<double> p = h5_read(f, "/bodies/beam/effectors/corner");
-  H5Fclose(f);
-  char target[128];
-  std::snprintf(target, sizeof target, "%.17g,%.17g,%.17g", p[p.size() - 3], p[p.size() - 2], p[p.size() - 1]);
-  const auto r = run_cli(std::string("control scene.yaml --steps 20 --target=") + target + " -o c.h5 --json", dir);
-  ASSERT_EQ(r.code, 0) << r.out << r.err;
-  EXPECT_NE(r.out.find("\"within_limits\":true"), std::string::npos) << r.out;
-  f = H5Fopen((dir / "c.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-  ASSERT_GE(f, 0);
-  const std::vector<double> d = h5_read(f, "/control/distance"), a = h5_read(f, "/control/actuation");
-  H5Fclose(f);
-  ASSERT_EQ(d.size(), 21u);
-  std::printf("distance %.4e -> %.4e m, torque %.4e -> %.4e N m\n", d[1], d.back(), a[1], a.back());
-  EXPECT_GT(a.back(), 0.001);          // the controller turned harder than the scene's 1 mN m
-  EXPECT_LT(d.back(), 0.1 * d[1]);     // and closed 90% of the distance (measured: 48 mm -> 0.09 mm)
+  // Implicit Euler, and BDF2 (branch rpint; refused before): J_a at BDF2's (x^, v^).
+  for (const std::string integrator : {"implicit_euler", "bdf2"}) {
+    SCOPED_TRACE(integrator);
+    const std::string set = " --set simulation.integrator=" + integrator;
+    const fs::path dir = fresh_dir(kRigidifyWork, "control_" + integrator);
+    const std::string servo =
+        "    actuators:\n"
+        "      - {name: turn, type: servo, nodes: {group: tip}, axis: [1, 0, 0], center: [0.2, 0.01, 0.01], "
+        "force: 0.001, limits: [-0.005, 0.005]}\n"
+        "    effectors:\n"
+        "      - {name: corner, point: [0.2, 0.02, 0.02]}\n";
+    write_text(dir / "scene.yaml", beam(kTipServo + servo));
+    ASSERT_EQ(run_cli("simulate scene.yaml -o goal.h5 --quiet --steps 20 --set bodies.beam.actuators.turn.force=0.002" + set,
+                      dir)
+                  .code,
+              0);
+    hid_t f = H5Fopen((dir / "goal.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+    ASSERT_GE(f, 0);
+    const std::vector<double> p = h5_read(f, "/bodies/beam/effectors/corner");
+    H5Fclose(f);
+    char target[128];
+    std::snprintf(target, sizeof target, "%.17g,%.17g,%.17g", p[p.size() - 3], p[p.size() - 2], p[p.size() - 1]);
+    const auto r = run_cli(std::string("control scene.yaml --steps 20 --target=") + target + " -o c.h5 --json" + set, dir);
+    ASSERT_EQ(r.code, 0) << r.out << r.err;
+    EXPECT_NE(r.out.find("\"within_limits\":true"), std::string::npos) << r.out;
+    f = H5Fopen((dir / "c.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+    ASSERT_GE(f, 0);
+    const std::vector<double> d = h5_read(f, "/control/distance"), a = h5_read(f, "/control/actuation");
+    H5Fclose(f);
+    ASSERT_EQ(d.size(), 21u);
+    std::printf("%s: distance %.4e -> %.4e m, torque %.4e -> %.4e N m\n", integrator.c_str(), d[1], d.back(), a[1],
+                a.back());
+    EXPECT_GT(a.back(), 0.001);          // the controller turned harder than the scene's 1 mN m
+    EXPECT_LT(d.back(), 0.1 * d[1]);     // and closed 90% of the distance (measured: 48 mm -> 0.09 mm)
+  }
 }
 
 }  // namespace

@@ -181,7 +181,7 @@ bool ForwardSensitivity::advance(const Model& model, const Data& data, const Sta
         previous_.x.resize(0);
         previous_.v.resize(0);
       }
-      if (!integrator::multistep_jvp(*step_, model, data, out, t_, previous_, r_)) return false;
+      if (!integrator::multistep_jvp(*step_, model, data, out, t_, previous_, r_, &in, &previous_state_)) return false;
       next_dx_.col(c).head(n3) = r_.x;
       next_dv_.col(c).head(n3) = r_.v;
       for (Eigen::Index r = 0; r < nr; ++r) {
@@ -208,7 +208,7 @@ bool ForwardSensitivity::advance(const Model& model, const Data& data, const Sta
       next_dx_.col(c).head(n3).setZero();
       next_dv_.col(c).head(n3).setZero();
     } else {
-      if (!integrator::multistep_jvp(*step_, model, data, out, t_, previous_, r_)) return false;
+      if (!integrator::multistep_jvp(*step_, model, data, out, t_, previous_, r_, &in, &previous_state_)) return false;
       next_dx_.col(c).head(n3) = r_.x;
       next_dv_.col(c).head(n3) = r_.v;
     }
@@ -235,6 +235,10 @@ bool ForwardSensitivity::advance(const Model& model, const Data& data, const Sta
   for (std::size_t r = 0; r < model.rigid.size(); ++r) {
     previous_rigid_[r] = in.rigid[r];
     restart_[r] = data.rigid.size() == model.rigid.size() && data.rigid[r].at_limit ? 1 : 0;
+  }
+  if (!model.rigidify.empty()) {  // BDF2 with rigidified parts: the next step's x_{n-1}
+    previous_state_.x = in.x;
+    previous_state_.v = in.v;
   }
   previous_dx_.swap(dx_);
   previous_dv_.swap(dv_);
@@ -369,7 +373,7 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
       bar.rigid = bar_rigid;
     else
       bar.rigid.resize(0);
-    if (!integrator::multistep_vjp(derivatives, model, data, out, bar, cot, bar_previous)) return derivative_failed(step);
+    if (!integrator::multistep_vjp(derivatives, model, data, out, bar, cot, bar_previous, &in, previous)) return derivative_failed(step);
     result.theta.head(np) += cot.p;
     result.lambda_a.col(step - 1) = cot.lambda_a;
     if (theta.actuation) result.theta.segment(np, na) += cot.lambda_a;

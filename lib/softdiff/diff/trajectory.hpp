@@ -98,6 +98,7 @@ class ForwardSensitivity {
   std::vector<rigid::RigidState> previous_rigid_;
   std::vector<char> restart_;
   MatX previous_dx_, previous_dv_;  // BDF2: the sensitivities of the previous state
+  State previous_state_;            // BDF2 with rigidified parts: the input state of the last advance()
   MatX next_dx_, next_dv_;          // workspace
   integrator::StepTangent t_;
   integrator::StateTangent r_, previous_;

@@ -17,6 +17,10 @@
 // their EXTRAPOLATED states (data.hat.rigid); the caller (diff/trajectory.cpp) maps them
 // from and to (s_n, s_{n-1}) by rigid_bdf2_derivatives.hpp. These functions serve both integrators: with
 // c = 0 they are StepDerivatives::jvp / vjp.
+// Rigidified parts (model.rigidify): the parts' rows of (x^, v^) are not the linear blend
+// but rigidify_extrapolated_state's rigid pose and field; their tangent and cotangent are
+// rigidify_bdf2_derivatives.hpp's, which need the step's states x_n (in) and x_{n-1}
+// (previous): demanded when c != 0 and the model has parts.
 #include <softdiff/integrator/implicit_euler_derivatives.hpp>
 
 namespace softdiff::integrator {
@@ -25,11 +29,13 @@ namespace softdiff::integrator {
 // zero). data: the record of the step (implicit_euler_step, bdf2_step or time_step)
 // that produced out.
 bool multistep_jvp(StepDerivatives& derivatives, const Model& model, const Data& data, const State& out,
-                   const StepTangent& d_in, const StateTangent& d_previous, StateTangent& d_out);
+                   const StepTangent& d_in, const StateTangent& d_previous, StateTangent& d_out,
+                   const State* in = nullptr, const State* previous = nullptr);
 
 // bar_in: cotangents of x_n, v_n, lambda_a, p; bar_previous: of x_{n-1}, v_{n-1}
 // (zero vectors for an implicit Euler step).
 bool multistep_vjp(StepDerivatives& derivatives, const Model& model, const Data& data, const State& out,
-                   const StateTangent& bar_out, StepCotangent& bar_in, StateTangent& bar_previous);
+                   const StateTangent& bar_out, StepCotangent& bar_in, StateTangent& bar_previous,
+                   const State* in = nullptr, const State* previous = nullptr);
 
 }  // namespace softdiff::integrator

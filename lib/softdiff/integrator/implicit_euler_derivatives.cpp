@@ -27,14 +27,22 @@ bool is_newton(const Model& model) { return model.step.newton_iterations > 1; }
 // Rigidified parts: what rigidify_derivatives.hpp covers (the rest is issue 21).
 void demand_parts_supported(const Model& model, const Data& data) {
   const std::string part = model.rigidify.parts.front().name;
-  SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler && data.history_weight == 0 &&
+  // BDF2: the stage from the extrapolated state (the record's hat) is this step; the
+  // extrapolation's derivative is multistep_jvp / multistep_vjp's (rigidify_bdf2_derivatives.hpp).
+  SOFTDIFF_DEMAND((model.step.integrator == IntegratorKind::implicit_euler || model.step.integrator == IntegratorKind::bdf2) &&
                       model.step.newton_iterations == 1,
                   "step derivatives with rigidified parts (" + part +
-                      "): implicit_euler with newton_iterations 1 only (issue 21)");
-  SOFTDIFF_DEMAND(!model.contact.with_rigid(),
-                  "step derivatives with rigidified parts (" + part + ") and rigid bodies in contact (issue 21)");
-  // In contact: the dense record's G, or on the sparse backend the operator's rows
-  // (H_f^T, K_p: data.rigidify.Ht_soft, SW; prepare_contact).
+                      "): implicit_euler or bdf2 with newton_iterations 1 only (issue 21)");
+  // In contact: the dense record's G (it holds the parts' rank-6m term, and with rigid
+  // bodies in contact their blocks too: rpint; the extended pseudo-node vectors take the
+  // soft rows' cotangents and tangents from the parts' reduced solves), or on the sparse
+  // backend the operator's rows (H_f^T, K_p: data.rigidify.Ht_soft, SW; prepare_contact;
+  // rpsp), without rigid bodies in contact there. With Newton (refused above) the rigid
+  // rows would need the converged tangent's Schur complement.
+  const auto nc = static_cast<Eigen::Index>(data.contact.contacts.size());
+  SOFTDIFF_DEMAND(!model.contact.enabled || nc == 0 || data.contact.G.rows() == 3 * nc || !model.contact.with_rigid(),
+                  "step derivatives with rigidified parts (" + part +
+                      ") and rigid bodies in contact: the dense contact backend only (issue 21)");
 }
 
 // The step size of the record: data.h (dt for implicit Euler, 2 dt / 3 for BDF2), or

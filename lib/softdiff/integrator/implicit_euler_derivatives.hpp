@@ -63,8 +63,10 @@
 // parts"): the solves are the reduced ones on the step's factor, the terms above are
 // evaluated at the solve's velocity v~ (before the placement), the arms' dependence on
 // x_i adds the dP terms, and the placement's derivative maps (x_i, v~) to the output.
-// Implicit Euler with one Newton iteration, with or without contact (the record's G),
-// without rigid bodies in contact; actuation_jvps() with parts: per column the reduced
+// One Newton iteration, implicit Euler or BDF2's stage (the parts' rigid extrapolation:
+// rigidify_bdf2_derivatives.hpp, chained by bdf2_derivatives.hpp), with or without
+// contact (the record's G), rigid bodies in contact included (their pseudo-node terms
+// beside the reduced solves); actuation_jvps() with parts: per column the reduced
 // solve on the step's factor and the placement's tangent (no contact in the record).
 //
 // Not covered yet (SOFTDIFF_DEMAND with a message): the static integrator (see

@@ -1,9 +1,10 @@
 #pragma once
 // Derivatives of the implicit Euler step with rigidified parts (issue 21 item 4 for
 // item 2; docs/method.md "Rigidified parts", "Derivatives"). Used by StepDerivatives
-// (implicit_euler_derivatives.hpp) when model.rigidify is not empty: implicit Euler with
-// one Newton iteration, with or without contact (dense backend: the record's G, formed
-// by rigidified_congruence, is the mode-fixed system's).
+// (implicit_euler_derivatives.hpp) when model.rigidify is not empty: implicit Euler (or
+// BDF2's stage, from the record's hat state) with one Newton iteration, with or without
+// contact (dense backend: the record's G, formed by rigidified_congruence, is the
+// mode-fixed system's), rigid bodies in contact included.
 //
 // The step with parts (rigidify.hpp): P^T A P z = P^T (b + h H^T lambda), Delta = P z,
 // v~ = v_i + Delta (the solve's velocity), then the exact placement of every part from
