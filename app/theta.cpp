@@ -13,16 +13,10 @@ namespace {
 
 
 // A scene of rigid bodies only (no soft node) steps without the soft stage
-// (integrator/bdf2.cpp time_step_rigid_only); its derivatives, which run through the
-// soft step's factor, are not built.
-void demand_soft_body(const std::string& what, const Model& model) {
-  if (model.fem.num_nodes == 0)
-    throw InputError(what + ": derivatives of a scene of rigid bodies only are not supported yet (issue 21; rigid body '" +
-                     (model.rigid.empty() ? std::string("?") : model.rigid.front().name) + "', no soft body)");
-}
-
+// (integrator/bdf2.cpp time_step_rigid_only) and is differentiated without it
+// (implicit_euler_derivatives.cpp: an empty soft system, the rigid rows alone; docs/method.md
+// "Scenes of rigid bodies only"); its static case is refused below with static's.
 void demand_differentiable(const std::string& option, const Model& model) {
-  demand_soft_body(option, model);
   // Rigidified parts (issue 21 item 4 for item 2; integrator/rigidify_derivatives.hpp):
   // implicit Euler with one Newton iteration, with or without contact on the dense
   // backend (the derivative takes the record's dense G; `auto` keeps a scene below
@@ -54,8 +48,9 @@ void demand_differentiable(const std::string& option, const Model& model) {
                                   "contact.backend: sparse are not supported yet (issue 21; rigid body '" + b.name +
                                   "'): use dense or auto");
   // Newton with rigid bodies in contact steps (docs/method.md "Newton with rigid contact")
-  // but its implicit-function derivative does not take the rigid rows yet.
-  if (model.step.newton_iterations > 1 && model.contact.with_rigid())
+  // but its implicit-function derivative does not take the rigid rows yet. (A scene of
+  // rigid bodies only has no Newton: its step is linear in the contact impulse.)
+  if (model.step.newton_iterations > 1 && model.contact.with_rigid() && model.fem.num_nodes > 0)
     throw InputError(option + ": derivatives with newton_iterations > 1 and rigid bodies in contact are not supported "
                               "yet (issue 21; rigid body '" + model.rigid.front().name + "'): use newton_iterations: 1");
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
@@ -127,6 +122,9 @@ ThetaSelection parse_theta(const std::string& option, const std::string& list, c
         for (int r = 0; r < static_cast<int>(model.contact.detection.pairs.size()); ++r)
           sel.layout.parameters.push_back({*p, r});
       } else {
+        if (model.fem.bodies.empty())  // a scene of rigid bodies only: its parameters are mass, inertia
+          throw InputError(option + ": '" + n + "' needs soft bodies, and this scene has none (rigid bodies only: "
+                                             "mass, inertia, x0, v0" + (model.contact.enabled ? ", friction" : "") + ")");
         for (int b = 0; b < static_cast<int>(model.fem.bodies.size()); ++b) sel.layout.parameters.push_back({*p, b});
       }
       params_given.push_back(n);
