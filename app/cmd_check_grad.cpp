@@ -157,10 +157,12 @@ int run_check_grad(const CheckGradOptions& o) {
   if (wrt.empty()) {
     // A static equilibrium depends on neither the damping nor the initial state.
     wrt = is_static ? "young,poisson,density" : "young,poisson,density,rayleigh_mass,rayleigh_stiffness";
+    if (model.fem.bodies.empty()) wrt = "";  // a scene of rigid bodies only: no soft parameter
     if (!model.actuation.empty()) wrt += ",actuation";
     if (model.contact.enabled) wrt += ",friction";
     if (!is_static) wrt += ",x0,v0";
     if (!model.rigid.empty()) wrt += ",mass,inertia";
+    if (!wrt.empty() && wrt.front() == ',') wrt.erase(0, 1);
   }
   ThetaSelection sel = parse_theta("--wrt", wrt, model);
   const Eigen::Index n3 = 3L * model.fem.num_nodes, nr = static_cast<Eigen::Index>(model.rigid.size());

@@ -13,16 +13,10 @@ namespace {
 
 
 // A scene of rigid bodies only (no soft node) steps without the soft stage
-// (integrator/bdf2.cpp time_step_rigid_only); its derivatives, which run through the
-// soft step's factor, are not built.
-void demand_soft_body(const std::string& what, const Model& model) {
-  if (model.fem.num_nodes == 0)
-    throw InputError(what + ": derivatives of a scene of rigid bodies only are not supported yet (issue 21; rigid body '" +
-                     (model.rigid.empty() ? std::string("?") : model.rigid.front().name) + "', no soft body)");
-}
-
+// (integrator/bdf2.cpp time_step_rigid_only) and is differentiated without it
+// (implicit_euler_derivatives.cpp: an empty soft system, the rigid rows alone; docs/method.md
+// "Scenes of rigid bodies only"); its static case is refused below with static's.
 void demand_differentiable(const std::string& option, const Model& model) {
-  demand_soft_body(option, model);
   // Rigidified parts (issue 21 item 4 for item 2; integrator/rigidify_derivatives.hpp):
   // implicit Euler and BDF2 (rigidify_bdf2_derivatives.hpp) with one Newton iteration,
   // with or without contact on either backend (dense: the record's G; sparse: the
@@ -49,7 +43,8 @@ void demand_differentiable(const std::string& option, const Model& model) {
   // on the dense backend the extended G (prepare_limits), on the sparse one the extended
   // rigid rows Kt on the operator (rpsp). Newton with rigid bodies in contact (docs/method.md
   // "Newton with rigid contact") is differentiated on both backends (with joint limits in
-  // contact, the contacts' G with the converged tangent in the extended G).
+  // contact, the contacts' G with the converged tangent in the extended G). (A scene of
+  // rigid bodies only has no Newton: its step is linear in the contact impulse.)
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
     // Static with rigid bodies (integrator/static_rigid.hpp) solves; its implicit-function
     // derivative does not include the rigid equations yet.
@@ -119,6 +114,9 @@ ThetaSelection parse_theta(const std::string& option, const std::string& list, c
         for (int r = 0; r < static_cast<int>(model.contact.detection.pairs.size()); ++r)
           sel.layout.parameters.push_back({*p, r});
       } else {
+        if (model.fem.bodies.empty())  // a scene of rigid bodies only: its parameters are mass, inertia
+          throw InputError(option + ": '" + n + "' needs soft bodies, and this scene has none (rigid bodies only: "
+                                             "mass, inertia, x0, v0" + (model.contact.enabled ? ", friction" : "") + ")");
         for (int b = 0; b < static_cast<int>(model.fem.bodies.size()); ++b) sel.layout.parameters.push_back({*p, b});
       }
       params_given.push_back(n);

@@ -472,14 +472,17 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
       // (test_cli_calibrate_rigid.cpp, test_cli_control.cpp PushesAFreeRigidBlock); what
       // their derivatives do not cover is refused there.
       // A scene of rigid bodies only runs (Cli.RigidStackRests; on the sparse backend too:
-      // tests/rigid/validation_rigid_only_sparse.cpp); its derivatives are refused.
-      {"rigid_only_jacobian", kBallOnly, "simulate scene.yaml -o out.h5 --jacobian x0",
-       "--jacobian: derivatives of a scene of rigid bodies only are not supported yet (issue 21; rigid body 'ball', "
-       "no soft body)"},
-      {"rigid_only_check_grad", kBallOnly, "check-grad scene.yaml",
-       "derivatives of a scene of rigid bodies only are not supported yet (issue 21"},
-      {"rigid_only_calibrate", kBallOnly, "calibrate scene.yaml --param young --target target.h5 -o out.h5",
-       "--param: derivatives of a scene of rigid bodies only are not supported yet (issue 21"},
+      // tests/rigid/validation_rigid_only_sparse.cpp) and is differentiated
+      // (test_cli_rigid_derivatives.cpp RigidOnlyCheckGradAndJacobian); it has no soft
+      // parameter.
+      {"rigid_only_calibrate_young", kBallOnly, "calibrate scene.yaml --param young --target target.h5 -o out.h5",
+       "--param: 'young' needs soft bodies, and this scene has none (rigid bodies only: mass, inertia, x0, v0)"},
+      {"rigid_only_static_jacobian",
+       kBallOnly + "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.01}]\ncontact: {pairs: "
+                   "[[ball, floor, 0.3]]}\n",
+       "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
+       "simulation.steps=null --jacobian mass",
+       "--jacobian: derivatives of a static scene with rigid bodies are not supported yet (issue 21; rigid body 'ball')"},
       // static runs (Cli.RigidStackRestsStatically); a free body still needs contact.
       {"rigid_only_static", kBallOnly,
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "

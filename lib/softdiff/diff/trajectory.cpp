@@ -367,8 +367,12 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
         integrator::time_step(model, data, in, previous, out, step, &tape.lambda_a[static_cast<std::size_t>(step - 1)]);
     if (!st.ok()) return st;
     const State& recorded = tape.frames[static_cast<std::size_t>(step)];
-    result.recompute_mismatch = std::max({result.recompute_mismatch, (out.x - recorded.x).cwiseAbs().maxCoeff(),
-                                          (out.v - recorded.v).cwiseAbs().maxCoeff()});
+    // (A scene of rigid bodies only has no soft coordinate: x, v empty, nothing compared.
+    // The rigid states are not compared: doing so showed 2.7e-16 on the operator backend's
+    // sliding wedge, test_contact_derivatives.cpp; not bit for bit there, not pursued yet.)
+    if (out.x.size() > 0)
+      result.recompute_mismatch = std::max({result.recompute_mismatch, (out.x - recorded.x).cwiseAbs().maxCoeff(),
+                                            (out.v - recorded.v).cwiseAbs().maxCoeff()});
     if (coupled)
       bar.rigid = bar_rigid;
     else

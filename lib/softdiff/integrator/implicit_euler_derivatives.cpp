@@ -22,7 +22,33 @@ void demand_supported(const Model& model) {
                                              b.name + "') is not differentiated in this version");
 }
 
-bool is_newton(const Model& model) { return model.step.newton_iterations > 1; }
+// A scene of rigid bodies only (fem.num_nodes == 0) has no soft stage: its step is linear
+// in the contact impulse whatever newton_iterations says (bdf2.cpp time_step_rigid_only).
+bool is_newton(const Model& model) { return model.step.newton_iterations > 1 && model.fem.num_nodes > 0; }
+
+// A scene of rigid bodies only (docs/method.md "Scenes of rigid bodies only"): no soft dof,
+// so no factorization; the soft system is 0 x 0 and every solve with it is empty. The
+// mode-fixed contact system then has only the rigid rows (the record's dense G = h sum_r
+// H_r W_r H_r^T, or on the sparse backend G_AA = 0 + h Kt_A^T Kt_A).
+class EmptySystem final : public LinearSolver {
+ public:
+  std::string name() const override { return "none (no soft dof)"; }
+  void analyze(const SparseMatrix&) override {}
+  FactorStatus factorize(const SparseMatrix&) override { return {}; }
+  // Only empty systems (a right-hand side with rows is a programming error: false).
+  bool solve(const VecX& b, VecX& x) override {
+    x.resize(0);
+    return b.size() == 0;
+  }
+  bool solve(const MatX& B, MatX& X) override {
+    X.resize(0, B.cols());
+    return B.rows() == 0;
+  }
+  bool inverse_congruence(const SparseMatrix& B, MatX& G) override {
+    G.setZero(B.cols(), B.cols());  // B^T A^{-1} B with no row
+    return B.rows() == 0;
+  }
+};
 
 // Rigidified parts: what rigidify_derivatives.hpp covers (the rest is issue 21).
 void demand_parts_supported(const Model& model, const Data& data) {
@@ -182,7 +208,9 @@ bool StepDerivatives::prepare_contact(const Model& model, const Data& data, cons
   // the last Newton factorization, one iterate before the converged v_f; the implicit
   // function theorem at v_f needs G with the converged tangent A_f (`solver`, this
   // object's factorization), so the record's G is not used and G_AA is formed with A_f.
-  const SparseMatrix* A = is_newton(model) ? &newton_A_ : &data.A;  // the matrix `solver` factorized
+  // (none in a scene of rigid bodies only: no preconditioner for the operator path, whose
+  // products have no soft part there)
+  const SparseMatrix* A = model.fem.num_nodes == 0 ? nullptr : is_newton(model) ? &newton_A_ : &data.A;
   // A failed solve (a PCG that misses its tolerance with a kept factor, an operator
   // product that fails) is the derivative's failure, reported by the caller with its step
   // (diff/trajectory.cpp), not a programming error.
@@ -234,6 +262,10 @@ void StepDerivatives::add_contact_geometry_vjp(const Model& model, const Data& d
 }
 
 LinearSolver* StepDerivatives::system(const Model& model, const Data& data, const State& out) {
+  if (model.fem.num_nodes == 0) {
+    static EmptySystem empty;  // stateless
+    return &empty;
+  }
   if (!is_newton(model)) return data.solver.get();
   // Newton: the implicit function theorem on the converged residual R(v_f) = 0 needs
   // dR/dv = (1 + h alpha) M + h beta K~(x_i) + h^2 K(x_f), the system matrix at the
@@ -332,7 +364,7 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
       return false;
     }
   }
-  if (na > 0) {
+  if (na > 0 && n > 0) {
     if (d.x.size()) model.actuation.add_force_derivatives(in.x, data.lambda_a, dx, h, r_);
     if (d.lambda_a.size()) model.actuation.add_forces(in.x, d.lambda_a, h, r_);
   }
@@ -532,7 +564,9 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
     v_direct = &tmp_;
   }
 
-  if (newton) {
+  if (n == 0) {
+    bar_in.v.resize(0);  // a scene of rigid bodies only: no soft term below
+  } else if (newton) {
     fem::symmetric_multiply(fem, fem.mass_values, y_, bar_in.v);
   } else {
     bar_in.v = *v_direct;
@@ -546,7 +580,9 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
     parts_.add_solve_vjp(model, data, tmp_, y_, bar_in.x);  // the dP terms (bar_in.x holds the placement's)
   else
     bar_in.x = bar_out.x.size() ? bar_out.x : zero_;
-  if (newton) {
+  if (n == 0) {
+    // no soft dof: no stiffness term
+  } else if (newton) {
     fem::symmetric_multiply(fem, data.fem.K_values, y_, tmp2_);
     bar_in.x -= h * tmp2_;
     if (fem::add_stiffness_vjp(fem, in.x, y_, out.v, zero_bodies_, minus_k_coef_, bar_in.x) >= 0) return false;
@@ -574,7 +610,7 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
     bar_in.rigid_p.resize(0);
   }
   bar_in.lambda_a = VecX::Zero(na);
-  if (na > 0) {
+  if (na > 0 && n > 0) {
     model.actuation.add_force_derivatives_transpose(in.x, data.lambda_a, y_, h, bar_in.x);
     model.actuation.add_jacobian_product(in.x, y_, h, bar_in.lambda_a);
   }
