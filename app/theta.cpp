@@ -59,11 +59,17 @@ void demand_differentiable(const std::string& option, const Model& model) {
     throw InputError(option + ": derivatives with newton_iterations > 1 and rigid bodies in contact are not supported "
                               "yet (issue 21; rigid body '" + model.rigid.front().name + "'): use newton_iterations: 1");
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
-    // Static with rigid bodies (integrator/static_rigid.hpp) solves; its implicit-function
-    // derivative does not include the rigid equations yet.
-    if (!model.rigid.empty())
-      throw InputError(option + ": derivatives of a static scene with rigid bodies are not supported yet (issue 21; rigid "
-                                "body '" + model.rigid.front().name + "')");
+    // Static with rigid bodies (integrator/static_solver_derivatives.hpp, the rigid
+    // equations in the implicit function theorem): hinged and fixed bodies; free and
+    // slider bodies and joints with limits are not differentiated yet.
+    for (const auto& b : model.rigid)
+      if (b.joint.kind == rigid::Joint::Kind::free || b.joint.kind == rigid::Joint::Kind::slider)
+        throw InputError(option + ": derivatives of a static scene with a free or slider rigid body are not supported "
+                                  "yet (issue 21; rigid body '" + b.name + "'): hinged and fixed bodies are");
+    for (const auto& b : model.rigid)
+      if (b.joint.limits && (b.joint.kind == rigid::Joint::Kind::hinge || b.joint.kind == rigid::Joint::Kind::slider))
+        throw InputError(option + ": derivatives of a static scene with a joint limit are not supported yet (issue 21; "
+                                  "rigid body '" + b.name + "')");
     for (const auto& b : model.fem.bodies)
       if (b.psd_projection)
         throw InputError(option + ": a static scene with psd_projection (body '" + b.name +
