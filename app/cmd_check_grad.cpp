@@ -62,9 +62,14 @@ VecX run(const Model& model, const State& initial, long steps, Progress& progres
     const StepStatus st = integrator::solve_static(model, data, initial, next,
                                                    [&](long, const State&) { progress.advance(); });
     if (!st.ok()) throw ComputationError("a finite-difference run failed: " + describe(model, st));
+    if (!next.rigid.empty()) {  // velocities zero: stack's velocity rows
+      for (auto& r : next.rigid) r.velocity.setZero(), r.angular_velocity.setZero();
+      next.v.setZero(next.x.size());
+      return stack(next, reference);
+    }
     VecX y = VecX::Zero(2 * next.x.size());
     y.head(next.x.size()) = next.x;
-    return y;  // (no rigid bodies in a static scene)
+    return y;
   }
   State previous;  // BDF2's history
   for (long k = 1; k <= steps; ++k) {
@@ -203,7 +208,9 @@ int run_check_grad(const CheckGradOptions& o) {
     const StepStatus st =
         integrator::solve_static(model, data, model.initial, final, [&](long, const State&) { progress.advance(); });
     if (!st.ok()) throw ComputationError("the analytic run failed: " + describe(model, st));
-    if (!integrator::static_sensitivities(model, data, final, {sel.layout.parameters, sel.layout.actuation}, dx))
+    integrator::StaticTheta theta{sel.layout.parameters, sel.layout.actuation, {}};
+    for (const auto& id : sel.layout.rigid_parameters) theta.rigid_parameters.emplace_back(id.body, id.index);
+    if (!integrator::static_sensitivities(model, data, final, theta, dx))
       throw ComputationError("the derivative of the equilibrium failed");
     dv = MatX::Zero(dx.rows(), dx.cols());
   } else {

@@ -458,7 +458,8 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
       if (failure.ok() && theta) {
         // The implicit function theorem at the final equilibrium (static_solver_derivatives.hpp).
         auto td = Clock::now();
-        integrator::StaticTheta st{theta->layout.parameters, theta->layout.actuation};
+        integrator::StaticTheta st{theta->layout.parameters, theta->layout.actuation, {}};
+        for (const auto& id : theta->layout.rigid_parameters) st.rigid_parameters.emplace_back(id.body, id.index);
         // A ComputationError of the derivative (the contact derivative's iterations,
         // contact_step_derivatives.cpp) is reported as the equilibrium's, with its load step.
         std::string derivative_error;

@@ -15,7 +15,7 @@ namespace {
 // A scene of rigid bodies only (no soft node) steps without the soft stage
 // (integrator/bdf2.cpp time_step_rigid_only) and is differentiated without it
 // (implicit_euler_derivatives.cpp: an empty soft system, the rigid rows alone; docs/method.md
-// "Scenes of rigid bodies only"); its static case is refused below with static's.
+// "Scenes of rigid bodies only"); its static case is refused below.
 void demand_differentiable(const std::string& option, const Model& model) {
   // Rigidified parts (issue 21 item 4 for item 2; integrator/rigidify_derivatives.hpp):
   // implicit Euler and BDF2 (rigidify_bdf2_derivatives.hpp) with one Newton iteration,
@@ -46,11 +46,22 @@ void demand_differentiable(const std::string& option, const Model& model) {
   // contact, the contacts' G with the converged tangent in the extended G). (A scene of
   // rigid bodies only has no Newton: its step is linear in the contact impulse.)
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
-    // Static with rigid bodies (integrator/static_rigid.hpp) solves; its implicit-function
-    // derivative does not include the rigid equations yet.
-    if (!model.rigid.empty())
-      throw InputError(option + ": derivatives of a static scene with rigid bodies are not supported yet (issue 21; rigid "
-                                "body '" + model.rigid.front().name + "')");
+    // Static with rigid bodies (integrator/static_solver_derivatives.hpp, the rigid
+    // equations in the implicit function theorem): hinged and fixed bodies; free and
+    // slider bodies, joints with limits and scenes of rigid bodies only are not
+    // differentiated yet.
+    if (model.fem.num_nodes == 0)
+      throw InputError(option + ": derivatives of a static scene of rigid bodies only are not supported yet (issue 21; "
+                                "rigid body '" + (model.rigid.empty() ? std::string("?") : model.rigid.front().name) +
+                                "', no soft body)");
+    for (const auto& b : model.rigid)
+      if (b.joint.kind == rigid::Joint::Kind::free || b.joint.kind == rigid::Joint::Kind::slider)
+        throw InputError(option + ": derivatives of a static scene with a free or slider rigid body are not supported "
+                                  "yet (issue 21; rigid body '" + b.name + "'): hinged and fixed bodies are");
+    for (const auto& b : model.rigid)
+      if (b.joint.limits && (b.joint.kind == rigid::Joint::Kind::hinge || b.joint.kind == rigid::Joint::Kind::slider))
+        throw InputError(option + ": derivatives of a static scene with a joint limit are not supported yet (issue 21; "
+                                  "rigid body '" + b.name + "')");
     for (const auto& b : model.fem.bodies)
       if (b.psd_projection)
         throw InputError(option + ": a static scene with psd_projection (body '" + b.name +

@@ -129,7 +129,7 @@ MatX check(const Model& model, const std::vector<ParameterId>& parameters, const
   const Solution base = solve(model, data);
   std::cout << "[ " << what << " ] " << base.contacts << " contacts: " << mode_counts(base.modes) << "\n";
   MatX J;
-  EXPECT_TRUE(integrator::static_sensitivities(model, data, base.x, {parameters, false}, J));
+  EXPECT_TRUE(integrator::static_sensitivities(model, data, base.x, {parameters, false, {}}, J));
   MatX J_fd(J.rows(), J.cols());
   for (std::size_t j = 0; j < parameters.size(); ++j) {
     const double e = kStep * scale_of(model, parameters[j]);
@@ -195,10 +195,10 @@ TEST(StaticContactDerivatives, ReverseModeIsTheTranspose) {
     Data data(model);
     const Solution base = solve(model, data);
     MatX J;
-    ASSERT_TRUE(integrator::static_sensitivities(model, data, base.x, {params, false}, J));
+    ASSERT_TRUE(integrator::static_sensitivities(model, data, base.x, {params, false, {}}, J));
     const VecX bar_x = test::random_vector(J.rows(), 1.0, 7);
     VecX bar_theta;
-    ASSERT_TRUE(integrator::static_vjp(model, data, base.x, {params, false}, bar_x, bar_theta));
+    ASSERT_TRUE(integrator::static_vjp(model, data, base.x, {params, false, {}}, bar_x, bar_theta));
     const VecX expected = J.transpose() * bar_x;
     for (Eigen::Index j = 0; j < expected.size(); ++j)
       EXPECT_NEAR(bar_theta[j], expected[j], 1e-10 * expected.cwiseAbs().maxCoeff()) << "parameter " << j;
@@ -251,8 +251,8 @@ TEST(StaticContactDerivatives, MixedSetBeyond64OnTheOperator) {
   ASSERT_GT(sliding, 0);
   ASSERT_LT(sliding, active);
   MatX J_op, J_dense;
-  ASSERT_TRUE(integrator::static_sensitivities(model, data, base.x, {params, false}, J_op));
-  ASSERT_TRUE(integrator::static_sensitivities(dense, data, base.x, {params, false}, J_dense));
+  ASSERT_TRUE(integrator::static_sensitivities(model, data, base.x, {params, false, {}}, J_op));
+  ASSERT_TRUE(integrator::static_sensitivities(dense, data, base.x, {params, false, {}}, J_dense));
   for (Eigen::Index j = 0; j < J_op.cols(); ++j) {
     ASSERT_GT(J_dense.col(j).norm(), 0) << "column " << j;
     const double d = (J_op.col(j) - J_dense.col(j)).norm() / J_dense.col(j).norm();
@@ -269,7 +269,7 @@ TEST(StaticContactDerivatives, MixedSetBeyond64OnTheOperator) {
   ASSERT_GT(sticking.contacts, 64);
   for (auto m : sticking.modes) ASSERT_NE(m, contact::Mode::sliding);
   MatX J;
-  EXPECT_THROW(integrator::static_sensitivities(capped, capped_data, sticking.x, {params, false}, J),
+  EXPECT_THROW(integrator::static_sensitivities(capped, capped_data, sticking.x, {params, false, {}}, J),
                ComputationError);
 }
 

@@ -105,6 +105,48 @@ inline BodySpec damped_slab_spec() {
   return spec;
 }
 
+// The static rigid tests' cube on a soft slab (validation_rigid_static.cpp, the static
+// derivatives' test): the slab 0.12 x 0.12 x 0.01 m (8 x 8 x 2 boxes, damped_slab_spec),
+// a rigid 40 mm cube (500 kg/m^3) resting on it at zero gap at (0.06, 0.06, 0.03), contact
+// margin 1e-3, the pair rule body-cube mu 0.5, gravity (0, 0, -9.81), step h.
+inline Model slab_and_cube(double h) {
+  const BodySpec spec = damped_slab_spec();
+  const mesh::TetMesh m = box_mesh(8, 8, 2, 0.12, 0.12, 0.01);
+  Model model = make_model(m, spec, Vec3(0, 0, -9.81), h);
+  rigid::RigidState s;
+  s.position = Vec3(0.06, 0.06, 0.01 + 0.02);  // resting on the slab at zero gap
+  add_rigid_body(model, "cube", box_shape(Vec3(0.02, 0.02, 0.02)), 500, s);
+  enable_rigid_contact(model, {}, {{"body", "cube", 0.5}}, 1e-3, contact::NcpOptions{});
+  return model;
+}
+
+// A bar (0.2 x 0.04 x 0.02 m, 800 kg/m^3) hinged about y through its left end's
+// mid-height (anchor (0, 0, 0.01)), its right end on a soft pad (0.03 x 0.024 x 0.02 m
+// under x in [0.165, 0.195], y in [-0.012, 0.012]; E = 20 kPa, nu 0.3, 1000 kg/m^3,
+// damped, bottom fixed), frictionless, margin 1e-3, gravity (0, 0, -9.81), step h
+// (validation_rigid_static.cpp explains the pad's placement).
+inline Model bar_on_pad(double h) {
+  BodySpec spec;
+  spec.young = 2e4;
+  spec.poisson = 0.3;
+  spec.density = 1000;
+  spec.rayleigh_mass = 30;
+  spec.rayleigh_stiffness = 0.01;
+  spec.fixed = [](const Vec3& p) { return p.z() < -0.02 + 1e-9; };
+  mesh::TetMesh m = box_mesh(4, 4, 2, 0.03, 0.024, 0.02);
+  for (Eigen::Index i = 0; i < m.X.cols(); ++i) m.X.col(i) += Vec3(0.165, -0.012, -0.02);
+  Model model = make_model(m, spec, Vec3(0, 0, -9.81), h);
+  rigid::RigidState bar;
+  bar.position = Vec3(0.1, 0, 0.01);
+  add_rigid_body(model, "bar", box_shape(Vec3(0.1, 0.02, 0.01)), 800, bar, 0.01, rigid::Joint::Kind::hinge);
+  model.rigid[0].joint.anchor = Vec3(0, 0, 0.01);
+  model.rigid[0].joint.axis = Vec3::UnitY();
+  rigid::initialize(model.rigid[0], bar);
+  model.initial.rigid[0] = model.rigid[0].reference;
+  enable_rigid_contact(model, {}, {{"body", "bar", 0.0}}, 1e-3, contact::NcpOptions{});
+  return model;
+}
+
 // The two limited joints of the limits-in-contact tests, appended to `model`: a bar (0.2 x
 // 0.04 x 0.02 m, 800 kg/m^3) hinged about y at its left end (anchor (0, 0, 0.01)), limits
 // [-0.1, upper], and a block (0.04 m, 500 kg/m^3) on a vertical slider at (1, 0, 0.02),

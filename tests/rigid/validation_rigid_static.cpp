@@ -81,16 +81,7 @@ Model static_of(Model model) {
 
 // The soft slab of validation_rigid_contact.cpp CubeRestsOnASoftSlab: 0.12 x 0.12 x
 // 0.01 m, E = 50 kPa, bottom fixed, damped (the damping only matters to the dynamic run).
-Model slab_and_cube(double h) {
-  const test::BodySpec spec = test::rigid_scenes::damped_slab_spec();
-  const mesh::TetMesh m = test::box_mesh(8, 8, 2, 0.12, 0.12, 0.01);
-  Model model = test::make_model(m, spec, Vec3(0, 0, -g0), h);
-  rigid::RigidState s;
-  s.position = Vec3(0.06, 0.06, 0.01 + 0.02);  // resting on the slab at zero gap
-  test::add_rigid_body(model, "cube", test::box_shape(Vec3(0.02, 0.02, 0.02)), 500, s);
-  test::enable_rigid_contact(model, {}, {{"body", "cube", 0.5}}, 1e-3, contact::NcpOptions{});
-  return model;
-}
+Model slab_and_cube(double h) { return test::rigid_scenes::slab_and_cube(h); }
 
 TEST(RigidStatic, CubeRestsOnASoftSlab) {
   const Model model = static_of(slab_and_cube(2e-3));
@@ -144,27 +135,7 @@ TEST(RigidStatic, CubeRestsOnASoftSlab) {
 // nodes touch the bar's flat bottom face, no bar edge cuts into the pad, and no pad node
 // lies on the diagonal of the face's two triangles, where its contact would switch
 // between them; E = 20 kPa, bottom fixed).
-Model bar_on_pad(double h) {
-  test::BodySpec spec;
-  spec.young = 2e4;
-  spec.poisson = 0.3;
-  spec.density = 1000;
-  spec.rayleigh_mass = 30;
-  spec.rayleigh_stiffness = 0.01;
-  spec.fixed = [](const Vec3& p) { return p.z() < -0.02 + 1e-9; };
-  mesh::TetMesh m = test::box_mesh(4, 4, 2, 0.03, 0.024, 0.02);
-  for (Eigen::Index i = 0; i < m.X.cols(); ++i) m.X.col(i) += Vec3(0.165, -0.012, -0.02);
-  Model model = test::make_model(m, spec, Vec3(0, 0, -g0), h);
-  rigid::RigidState bar;
-  bar.position = Vec3(0.1, 0, 0.01);
-  test::add_rigid_body(model, "bar", test::box_shape(Vec3(0.1, 0.02, 0.01)), 800, bar, 0.01, rigid::Joint::Kind::hinge);
-  model.rigid[0].joint.anchor = Vec3(0, 0, 0.01);
-  model.rigid[0].joint.axis = Vec3::UnitY();
-  rigid::initialize(model.rigid[0], bar);
-  model.initial.rigid[0] = model.rigid[0].reference;
-  test::enable_rigid_contact(model, {}, {{"body", "bar", 0.0}}, 1e-3, contact::NcpOptions{});
-  return model;
-}
+Model bar_on_pad(double h) { return test::rigid_scenes::bar_on_pad(h); }
 
 TEST(RigidStatic, HingedBarRestsOnASoftPad) {
   const Model model = static_of(bar_on_pad(2e-3));

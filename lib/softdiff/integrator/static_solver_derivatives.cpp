@@ -2,6 +2,8 @@
 #include <softdiff/integrator/static_solver_derivatives.hpp>
 
 #include <softdiff/contact/contact_step_derivatives.hpp>
+#include <softdiff/contact/rigid_contact.hpp>
+#include <softdiff/rigid/rigid_body.hpp>
 #include <softdiff/core/assert.hpp>
 #include <softdiff/fem/assembly.hpp>
 #include <softdiff/fem/fem_derivatives.hpp>
@@ -36,6 +38,12 @@ constexpr double kRefinementTolerance = 1e-13;
 // Accepted up to this much of the solution, a failure above.
 constexpr double kRefinementFloor = 1e-6;
 constexpr int kMaxRefinements = 200;
+// The rigid bodies' proximal block (they have no stiffness): tau_r diag(m I, I_w) with
+// tau_r m = kRigidProximal max K_ii over the soft free dofs. Its effect on the answer is
+// removed by the refinement, which contracts by ~ tau_r m / (the supports' stiffness on
+// the body's motion, many K_ii): a few iterations; its round-off ~ eps / kRigidProximal
+// (the rigid part of G is ~ 1 / tau_r and cancels in dlambda): ~ 2e-10 relative.
+constexpr double kRigidProximal = 1e-6;
 
 // The linearized equilibrium at x* with the last NCP's contacts and modes held fixed
 // (static_solver_derivatives.hpp, docs/method.md "Derivatives", "Static equilibrium"):
@@ -53,6 +61,21 @@ class EquilibriumSystem {
     for (const auto& b : model_.fem.bodies)
       SOFTDIFF_DEMAND(!b.psd_projection, "static derivatives: psd_projection (body '" + b.name +
                                              "') is not differentiated in this version");
+    SOFTDIFF_DEMAND(model_.rigidify.empty(), "static derivatives with rigidified parts are not supported yet (issue 21; " +
+                                                 (model_.rigidify.empty() ? std::string() : model_.rigidify.parts.front().name) + ")");
+    SOFTDIFF_DEMAND(model_.rigid.empty() || model_.fem.num_nodes > 0,
+                    "static derivatives of a scene of rigid bodies only are not supported yet (issue 21)");
+    // Free and slider bodies: the refinement diverges on the cube resting on a soft slab
+    // (its bottom edges on the slab's faces: edge-edge contacts; not understood yet), so
+    // only hinges (validated against differences) and fixed bodies are differentiated.
+    for (const auto& b : model_.rigid)
+      SOFTDIFF_DEMAND(b.joint.kind == rigid::Joint::Kind::hinge || b.joint.kind == rigid::Joint::Kind::fixed,
+                      "static derivatives of a free or slider rigid body are not supported yet (issue 21; rigid body '" +
+                          b.name + "')");
+    for (const auto& b : model_.rigid)
+      SOFTDIFF_DEMAND(!(b.joint.limits && (b.joint.kind == rigid::Joint::Kind::hinge ||
+                                           b.joint.kind == rigid::Joint::Kind::slider)),
+                      "static derivatives with joint limits are not supported yet (issue 21; rigid body '" + b.name + "')");
     for (const auto& a : model_.actuation.actuators) {
       const auto* servo = std::get_if<actuation::Servo>(&a.kind);
       SOFTDIFF_DEMAND(std::holds_alternative<actuation::Cable>(a.kind) || (servo && !servo->is_rotation()),
@@ -72,6 +95,7 @@ class EquilibriumSystem {
     if (!fem::evaluate(fem, *x_, {false, true, true}, data_.fem)) return false;
     const auto& cd = data_.contact;
     contact_ = model_.contact.enabled && cd.contacts.size() > 0;
+    if (!model_.rigid.empty()) prepare_rigid(equilibrium);
     // Bodies held by contact alone: no fixed dof (the static solver's rule).
     held_.clear();
     if (model_.contact.enabled)
@@ -87,7 +111,7 @@ class EquilibriumSystem {
     // First the augmented tangent (exact, no refinement for tau), then, where it does not
     // factorize or does not apply, the proximal one.
     bool factorized = false;
-    if (contact_ && augmentable()) {
+    if (contact_ && rigid_bodies_ == 0 && augmentable()) {
       double diag_max = 0;
       for (int d = 0; d < static_cast<int>(fem.pattern.diagonal.size()); ++d)
         if (!fem.fixed[d]) diag_max = std::max(diag_max, std::abs(data_.fem.K_values[fem.pattern.diagonal[d]]));
@@ -102,49 +126,74 @@ class EquilibriumSystem {
       factorized = factorize(model_, data_, 1).ok();
       if (!factorized && (held_.empty() || c >= kProximalMax)) return false;
     }
+    if (!model_.rigid.empty()) return prepare_rigid_contact();
     if (contact_ && !stage_.prepare(model_, cd, *x_, *data_.solver, 1.0, false, &modes_, &sigma_, &data_.A)) return false;
     return true;
   }
 
+  // The rigid unknowns' size (6R; 0 without rigid bodies).
+  Eigen::Index rigid_size() const { return 6 * static_cast<Eigen::Index>(model_.rigid.size()); }
+
   // z = dx* for q (projected inside) and dmu (nc; empty: zero).
-  bool solve(const VecX& q, const VecX& dmu, VecX& z) {
+  // With rigid bodies, q_r and z_r are their parts (6R; q_r empty: zero).
+  bool solve(const VecX& q, const VecX& dmu, VecX& z, const VecX& q_r = VecX(), VecX* z_r = nullptr) {
     z_.setZero();
     m_.setZero();
+    zr_.setZero(rigid_size());
+    mr_.setZero(rigid_size());
     double previous = std::numeric_limits<double>::infinity();
     for (int it = 0;; ++it) {
       r_ = q + m_;
+      rr_ = mr_;
+      if (q_r.size()) rr_ += q_r;
       if (!apply_phi(r_, dmu, z_next_)) return false;
-      const double change = (z_next_ - z_).cwiseAbs().maxCoeff(), size = z_next_.cwiseAbs().maxCoeff();
+      double change = (z_next_ - z_).cwiseAbs().maxCoeff(), size = z_next_.cwiseAbs().maxCoeff();
+      if (rigid_size()) {
+        change = std::max(change, (zr_next_ - zr_).cwiseAbs().maxCoeff());
+        size = std::max(size, zr_next_.cwiseAbs().maxCoeff());
+        zr_.swap(zr_next_);
+      }
       z_.swap(z_next_);
       if (!apply_m(z_, m_)) return false;
-      if (m_.isZero(0)) break;
+      if (m_.isZero(0) && mr_.isZero(0)) break;
       const int verdict = converged(it, change, size, previous);
       if (verdict > 0) break;
       if (verdict < 0) return false;
     }
     z = z_;
-    return z.allFinite();
+    if (z_r) *z_r = zr_;
+    return z.allFinite() && zr_.allFinite();
   }
 
   // The transpose: u = (I - Phi^T M^T)^{-1} Phi^T bar_z (the cotangent of q) and
   // bar_mu = Psi^T (bar_z + M^T u).
-  bool solve_transposed(const VecX& bar_z, VecX& u, VecX& bar_mu) {
+  bool solve_transposed(const VecX& bar_z, VecX& u, VecX& bar_mu, const VecX& bar_zr = VecX(), VecX* u_r = nullptr) {
     z_.setZero();
     m_.setZero();
+    zr_.setZero(rigid_size());
+    mr_.setZero(rigid_size());
     double previous = std::numeric_limits<double>::infinity();
     for (int it = 0;; ++it) {
       r_ = bar_z + m_;
+      rr_ = mr_;
+      if (bar_zr.size()) rr_ += bar_zr;
       if (!apply_phi_transposed(r_, z_next_, bar_mu)) return false;
-      const double change = (z_next_ - z_).cwiseAbs().maxCoeff(), size = z_next_.cwiseAbs().maxCoeff();
+      double change = (z_next_ - z_).cwiseAbs().maxCoeff(), size = z_next_.cwiseAbs().maxCoeff();
+      if (rigid_size()) {
+        change = std::max(change, (zr_next_ - zr_).cwiseAbs().maxCoeff());
+        size = std::max(size, zr_next_.cwiseAbs().maxCoeff());
+        zr_.swap(zr_next_);
+      }
       z_.swap(z_next_);
       if (!apply_m_transposed(z_, m_)) return false;
-      if (m_.isZero(0)) break;
+      if (m_.isZero(0) && mr_.isZero(0)) break;
       const int verdict = converged(it, change, size, previous);
       if (verdict > 0) break;
       if (verdict < 0) return false;
     }
     u = z_;
-    return u.allFinite() && bar_mu.allFinite();
+    if (u_r) *u_r = zr_;
+    return u.allFinite() && zr_.allFinite() && bar_mu.allFinite();
   }
 
   bool contact() const { return contact_; }
@@ -242,16 +291,128 @@ class EquilibriumSystem {
     project(model_, tmp_);
     if (!data_.solver->solve(tmp_, out)) return false;
     project(model_, out);
+    apply_w(rr_, zr_next_);  // the rigid part (rr_: its right-hand side)
     if (!contact_) return true;
     const auto& cd = data_.contact;
     b_.noalias() = cd.Ht.transpose() * out;
+    if (rigid_size()) b_.noalias() += Ht_r_.transpose() * zr_next_;
     stage_.ncp().jvp(b_, dmu, dlambda_);
     tmp_.noalias() = cd.Ht * dlambda_;
     project(model_, tmp_);
     if (!data_.solver->solve(tmp_, y_)) return false;
     project(model_, y_);
     out += y_;
+    if (rigid_size()) {
+      yr_.noalias() = Ht_r_ * dlambda_;
+      apply_w(yr_, wr_);
+      zr_next_ += wr_;
+    }
     return true;
+  }
+
+  // out = W_r v per rigid body (W_r = (tau_r A_r)^{-1}, T T^T / a on a joint, 0 fixed).
+  void apply_w(const VecX& v, VecX& out) const {
+    out.setZero(rigid_size());
+    for (std::size_t r = 0; r < model_.rigid.size(); ++r)
+      out.segment<6>(6 * static_cast<Eigen::Index>(r)) = W_[r] * v.segment<6>(6 * static_cast<Eigen::Index>(r));
+  }
+
+  // The rigid record at the equilibrium: the extended positions (pseudo-nodes at the
+  // final poses), their lever arms rho_k, H_r^T at the final poses, W_r, A_r (tau_r's
+  // block), each body's total force (weight + contacts: a hinge basis' term), and the
+  // forces F_k on the pseudo-nodes (the lever arms' rotation term Q_r).
+  void prepare_rigid(const State& equilibrium) {
+    const auto& fem = model_.fem;
+    const int n = fem.num_nodes;
+    const auto R = static_cast<Eigen::Index>(model_.rigid.size());
+    const auto& cd = data_.contact;
+    rigid_bodies_ = static_cast<int>(R);
+    poses_ = equilibrium.rigid;
+    const Eigen::Index pseudo = static_cast<Eigen::Index>(model_.contact.rigid_node_body.size());
+    ext_x_.setZero(3 * (n + pseudo));
+    ext_x_.head(3L * n) = equilibrium.x;
+    rho_.setZero(3 * pseudo);
+    for (Eigen::Index k = 0; k < pseudo; ++k) {
+      const int r = model_.contact.rigid_node_body[static_cast<std::size_t>(k)];
+      const auto& body = model_.rigid[static_cast<std::size_t>(r)];
+      const auto& s = poses_[static_cast<std::size_t>(r)];
+      const int j = static_cast<int>(n + k) - model_.contact.rigid_node_begin[static_cast<std::size_t>(r)];
+      rho_.segment<3>(3 * k) = s.orientation * body.surface.vertices.col(j);
+      ext_x_.segment<3>(3 * (n + k)) = s.position + rho_.segment<3>(3 * k);
+    }
+    if (contact_) contact::rigid_jacobian_transpose(model_, cd.contacts, poses_, Ht_r_);
+    else Ht_r_.setZero(6 * R, 0);
+    // tau_r from the soft tangent's diagonal.
+    double diag_max = 0;
+    for (int d = 0; d < static_cast<int>(fem.pattern.diagonal.size()); ++d)
+      if (!fem.fixed[d]) diag_max = std::max(diag_max, std::abs(data_.fem.K_values[fem.pattern.diagonal[d]]));
+    W_.assign(static_cast<std::size_t>(R), rigid::Mat6::Zero());
+    A_.assign(static_cast<std::size_t>(R), rigid::Mat6::Zero());
+    force_.assign(static_cast<std::size_t>(R), rigid::Vec6::Zero());
+    Q_.assign(static_cast<std::size_t>(R), Mat3::Zero());
+    for (Eigen::Index r = 0; r < R; ++r) {
+      const auto& body = model_.rigid[static_cast<std::size_t>(r)];
+      const auto& s = poses_[static_cast<std::size_t>(r)];
+      if (body.joint.kind == rigid::Joint::Kind::fixed) continue;
+      const double tau = kRigidProximal * std::max(diag_max, 1e-300) / body.mass;
+      rigid::Mat6 A = rigid::Mat6::Zero();
+      A.topLeftCorner<3, 3>() = tau * body.mass * Mat3::Identity();
+      A.bottomRightCorner<3, 3>() = tau * rigid::world_inertia(body, s.orientation);
+      A_[static_cast<std::size_t>(r)] = A;
+      if (body.joint.kind == rigid::Joint::Kind::free) {
+        W_[static_cast<std::size_t>(r)] = A.inverse();
+      } else {
+        const rigid::Vec6 T = rigid::joint_motion_basis(body, s).col(0);
+        W_[static_cast<std::size_t>(r)] = T * T.transpose() / T.dot(A * T);
+      }
+      force_[static_cast<std::size_t>(r)].head<3>() = body.mass * model_.step.gravity;
+      if (contact_) force_[static_cast<std::size_t>(r)] += Ht_r_.middleRows<6>(6 * r) * cd.lambda.head(Ht_r_.cols());
+    }
+    if (contact_) {
+      for (int i = 0; i < cd.contacts.size(); ++i) {
+        const auto& c = cd.contacts.contacts[static_cast<std::size_t>(i)];
+        const Vec3 f = c.frame * cd.lambda.segment<3>(3 * i);
+        for (int a = 0; a < c.count; ++a) {
+          const int node = c.nodes[static_cast<std::size_t>(a)];
+          const double w = c.weights[static_cast<std::size_t>(a)];
+          if (node < n || w == 0) continue;
+          const Eigen::Index k = node - n;
+          const int r = model_.contact.rigid_node_body[static_cast<std::size_t>(k)];
+          if (model_.rigid[static_cast<std::size_t>(r)].joint.kind == rigid::Joint::Kind::fixed) continue;
+          // d(rho x F) = (dtheta x rho) x F = [F]x [rho]x dtheta.
+          Q_[static_cast<std::size_t>(r)] += w * skew(f) * skew(Vec3(rho_.segment<3>(3 * k)));
+        }
+      }
+    }
+  }
+
+  static Mat3 skew(const Vec3& v) {
+    Mat3 m;
+    m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
+    return m;
+  }
+
+  // The NCP derivative on the dense G of all contacts: H_s K_tau^{-1} H_s^T + sum_r H_r
+  // W_r H_r^T (the extended system of ContactStageDerivative::prepare, which then keeps
+  // the contacts' geometry derivatives at the extended positions).
+  bool prepare_rigid_contact() {
+    if (!contact_) return true;
+    const auto& cd = data_.contact;
+    const Eigen::Index m = cd.Ht.cols();
+    if (cd.Ht.nonZeros() > 0) {
+      if (!data_.solver->inverse_congruence(cd.Ht, G_ext_)) return false;
+    } else {
+      G_ext_.setZero(m, m);
+    }
+    for (std::size_t r = 0; r < model_.rigid.size(); ++r) {
+      const auto B = Ht_r_.middleRows<6>(6 * static_cast<Eigen::Index>(r));
+      if (B.squaredNorm() == 0) continue;
+      G_ext_.noalias() += B.transpose() * (W_[r] * B);
+    }
+    lambda_ext_ = cd.lambda.head(m);
+    mu_ext_ = cd.mu;
+    contact::ContactStageDerivative::NcpSystem system{&G_ext_, &mu_ext_, &lambda_ext_, &sigma_, &modes_};
+    return stage_.prepare(model_, cd, ext_x_, *data_.solver, 1.0, false, &modes_, &sigma_, &data_.A, &system);
   }
 
   bool apply_phi_transposed(const VecX& v, VecX& out, VecX& bar_mu) {
@@ -259,15 +420,22 @@ class EquilibriumSystem {
     project(model_, tmp_);
     if (!data_.solver->solve(tmp_, out)) return false;
     project(model_, out);
+    apply_w(rr_, zr_next_);
     if (!contact_) return true;
     const auto& cd = data_.contact;
     bar_lambda_.noalias() = cd.Ht.transpose() * out;
+    if (rigid_size()) bar_lambda_.noalias() += Ht_r_.transpose() * zr_next_;
     stage_.ncp().vjp(bar_lambda_, bar_b_, bar_mu);
     tmp_.noalias() = cd.Ht * bar_b_;
     project(model_, tmp_);
     if (!data_.solver->solve(tmp_, y_)) return false;
     project(model_, y_);
     out += y_;
+    if (rigid_size()) {
+      yr_.noalias() = Ht_r_ * bar_b_;
+      apply_w(yr_, wr_);
+      zr_next_ += wr_;
+    }
     return true;
   }
 
@@ -275,14 +443,111 @@ class EquilibriumSystem {
   bool apply_m(const VecX& z, VecX& m) {
     m.setZero();
     for (const auto& h : held_) m.segment(h.begin, h.size) = h.tau * z.segment(h.begin, h.size);
+    if (rigid_size()) {
+      apply_m_rigid(z, m);
+      project(model_, m);
+      return m.allFinite() && mr_.allFinite();
+    }
     if (contact_) stage_.add_force_jvp(data_.contact, 1.0, z, m);
     project(model_, m);
     return m.allFinite();
   }
 
+  // The rigid share of M (z_r = zr_ into mr_; the soft nodes' geometry share into m):
+  // tau_r A_r z_r, the contact forces' change with the extended positions (soft nodes and
+  // pseudo-nodes dX_k = dp + dtheta x rho_k) as wrenches on the bodies, the lever arms'
+  // rotation Q_r dtheta, and on a hinge the basis' change (n x dp).f on its axis.
+  void apply_m_rigid(const VecX& z, VecX& m) {
+    const int n = model_.fem.num_nodes;
+    mr_.setZero(rigid_size());
+    for (std::size_t r = 0; r < model_.rigid.size(); ++r) {
+      const auto o = 6 * static_cast<Eigen::Index>(r);
+      mr_.segment<6>(o) = A_[r] * zr_.segment<6>(o);
+      const auto& body = model_.rigid[r];
+      if (body.joint.kind == rigid::Joint::Kind::hinge) {
+        const Vec3 axis = body.joint.axis;
+        const double t = axis.cross(Vec3(zr_.segment<3>(o))).dot(force_[r].head<3>());
+        mr_.segment<3>(o + 3) += axis * (t / axis.squaredNorm());
+      }
+    }
+    if (!contact_) return;
+    const Eigen::Index pseudo = static_cast<Eigen::Index>(model_.contact.rigid_node_body.size());
+    ext_dx_.resize(ext_x_.size());
+    ext_dx_.head(3L * n) = z;
+    for (Eigen::Index k = 0; k < pseudo; ++k) {
+      const auto o = 6 * static_cast<Eigen::Index>(model_.contact.rigid_node_body[static_cast<std::size_t>(k)]);
+      ext_dx_.segment<3>(3 * (n + k)) =
+          zr_.segment<3>(o) + Vec3(zr_.segment<3>(o + 3)).cross(Vec3(rho_.segment<3>(3 * k)));
+    }
+    ext_m_.setZero(ext_x_.size());
+    stage_.add_force_jvp(data_.contact, 1.0, ext_dx_, ext_m_);
+    m += ext_m_.head(3L * n);
+    for (Eigen::Index k = 0; k < pseudo; ++k) {
+      const int r = model_.contact.rigid_node_body[static_cast<std::size_t>(k)];
+      if (model_.rigid[static_cast<std::size_t>(r)].joint.kind == rigid::Joint::Kind::fixed) continue;
+      const auto o = 6 * static_cast<Eigen::Index>(r);
+      const Vec3 f = ext_m_.segment<3>(3 * (n + k));
+      mr_.segment<3>(o) += f;
+      mr_.segment<3>(o + 3) += Vec3(rho_.segment<3>(3 * k)).cross(f);
+    }
+    for (std::size_t r = 0; r < model_.rigid.size(); ++r) {
+      const auto o = 6 * static_cast<Eigen::Index>(r);
+      mr_.segment<3>(o + 3) += Q_[r] * zr_.segment<3>(o + 3);
+    }
+  }
+
+  // Its transpose (zr_ the cotangent's rigid part).
+  void apply_m_rigid_transposed(const VecX& z, VecX& m) {
+    const int n = model_.fem.num_nodes;
+    mr_.setZero(rigid_size());
+    for (std::size_t r = 0; r < model_.rigid.size(); ++r) {
+      const auto o = 6 * static_cast<Eigen::Index>(r);
+      mr_.segment<6>(o) = A_[r].transpose() * zr_.segment<6>(o);
+      const auto& body = model_.rigid[r];
+      if (body.joint.kind == rigid::Joint::Kind::hinge) {
+        const Vec3 axis = body.joint.axis;
+        const double s = axis.dot(Vec3(zr_.segment<3>(o + 3))) / axis.squaredNorm();
+        // (n x dp).f = dp.(f x n)
+        mr_.segment<3>(o) += s * Vec3(force_[r].head<3>()).cross(axis);
+      }
+      mr_.segment<3>(o + 3) += Q_[r].transpose() * zr_.segment<3>(o + 3);
+    }
+    if (!contact_) return;
+    const Eigen::Index pseudo = static_cast<Eigen::Index>(model_.contact.rigid_node_body.size());
+    ext_dx_.resize(ext_x_.size());  // the cotangent of the force change on the extended nodes
+    ext_dx_.head(3L * n) = z;
+    for (Eigen::Index k = 0; k < pseudo; ++k) {
+      const int r = model_.contact.rigid_node_body[static_cast<std::size_t>(k)];
+      const auto o = 6 * static_cast<Eigen::Index>(r);
+      if (model_.rigid[static_cast<std::size_t>(r)].joint.kind == rigid::Joint::Kind::fixed) {
+        ext_dx_.segment<3>(3 * (n + k)).setZero();
+        continue;
+      }
+      // (f, rho x f) . (a, b) = f . (a + b x rho)
+      ext_dx_.segment<3>(3 * (n + k)) =
+          zr_.segment<3>(o) + Vec3(zr_.segment<3>(o + 3)).cross(Vec3(rho_.segment<3>(3 * k)));
+    }
+    ext_m_.setZero(ext_x_.size());
+    ext_u_.setZero(ext_x_.size());
+    zero_b_.setZero(data_.contact.lambda.size());
+    stage_.add_geometry_vjp(data_.contact, ext_u_, 1.0, ext_dx_, zero_b_, ext_m_);
+    m += ext_m_.head(3L * n);
+    for (Eigen::Index k = 0; k < pseudo; ++k) {
+      const auto o = 6 * static_cast<Eigen::Index>(model_.contact.rigid_node_body[static_cast<std::size_t>(k)]);
+      const Vec3 v = ext_m_.segment<3>(3 * (n + k));
+      mr_.segment<3>(o) += v;
+      mr_.segment<3>(o + 3) += Vec3(rho_.segment<3>(3 * k)).cross(v);  // (dtheta x rho).v = dtheta.(rho x v)
+    }
+  }
+
   bool apply_m_transposed(const VecX& z, VecX& m) {
     m.setZero();
     for (const auto& h : held_) m.segment(h.begin, h.size) = h.tau * z.segment(h.begin, h.size);
+    if (rigid_size()) {
+      apply_m_rigid_transposed(z, m);
+      project(model_, m);
+      return m.allFinite() && mr_.allFinite();
+    }
     if (contact_) {
       zero_b_.setZero(data_.contact.lambda.size());
       tmp_.setZero();
@@ -302,6 +567,14 @@ class EquilibriumSystem {
   VecX sigma_;
   double last_change_ = 0;
   VecX r_, y_, z_, z_next_, m_, tmp_, b_, dlambda_, bar_lambda_, bar_b_, zero_b_;
+  // Rigid bodies (6R vectors; prepare_rigid).
+  int rigid_bodies_ = 0;
+  std::vector<rigid::RigidState> poses_;
+  VecX ext_x_, rho_, ext_dx_, ext_m_, ext_u_, zr_, zr_next_, mr_, rr_, yr_, wr_, lambda_ext_, mu_ext_;
+  MatX Ht_r_, G_ext_;
+  std::vector<rigid::Mat6> W_, A_;
+  std::vector<rigid::Vec6> force_;
+  std::vector<Mat3> Q_;
 };
 
 // q = Pi dR/dtheta_c for column c (parameters, then actuators); false on failure. A
@@ -341,6 +614,17 @@ bool parameter_column(const Model& model, Data& data, const VecX& x, const Stati
   }
   project(model, q);
   return true;
+}
+
+// q_r (6R) of rigid parameter column c: the mass's weight g on its body (the final load
+// step's factor 1), zero for the inertia (the equilibrium does not depend on it).
+void rigid_parameter_column(const Model& model, const StaticTheta& theta, Eigen::Index c, VecX& q_r) {
+  q_r.setZero(6 * static_cast<Eigen::Index>(model.rigid.size()));
+  const auto [body, k] = theta.rigid_parameters[static_cast<std::size_t>(c)];
+  SOFTDIFF_DEMAND(body >= 0 && body < static_cast<int>(model.rigid.size()), "static derivatives: rigid parameter of body " +
+                                                                                 std::to_string(body) + " out of range");
+  if (k == 0 && model.rigid[static_cast<std::size_t>(body)].joint.kind != rigid::Joint::Kind::fixed)
+    q_r.segment<3>(6 * static_cast<Eigen::Index>(body)) = model.step.gravity;
 }
 
 // dmu of a unit friction column c (its pair rule's contacts).
@@ -387,19 +671,28 @@ bool static_sensitivities(const Model& model, Data& data, const State& equilibri
   system.demand_supported();
   const Eigen::Index n = 3L * model.fem.num_nodes, np = static_cast<Eigen::Index>(theta.parameters.size());
   const Eigen::Index na = theta.actuation ? static_cast<Eigen::Index>(model.actuation.actuators.size()) : 0;
+  const Eigen::Index nrp = static_cast<Eigen::Index>(theta.rigid_parameters.size()), nr = system.rigid_size();
   if (!system.prepare(equilibrium)) return false;
-  dx_dtheta = MatX::Zero(n, np + na);
-  VecX q(n), z(n), dmu;
-  for (Eigen::Index c = 0; c < np + na; ++c) {
+  dx_dtheta = MatX::Zero(n + nr, np + na + nrp);
+  VecX q(n), z(n), dmu, q_r(nr), z_r(nr);
+  for (Eigen::Index c = 0; c < np + na + nrp; ++c) {
     bool friction = false;
-    if (!parameter_column(model, data, equilibrium.x, theta, c, q, friction)) return false;
+    q_r.setZero();
+    if (c < np + na) {
+      if (!parameter_column(model, data, equilibrium.x, theta, c, q, friction)) return false;
+    } else {
+      q.setZero();
+      rigid_parameter_column(model, theta, c - np - na, q_r);
+      if (q_r.isZero(0)) continue;  // inertia: no effect on the equilibrium
+    }
     dmu.resize(0);
     if (friction) {
       if (!system.contact()) continue;  // no contact at the equilibrium: no effect
       friction_direction(model, data, theta, c, dmu);
     }
-    if (!system.solve(q, dmu, z)) return false;
-    dx_dtheta.col(c) = z;
+    if (!system.solve(q, dmu, z, q_r, &z_r)) return false;
+    dx_dtheta.col(c).head(n) = z;
+    if (nr) dx_dtheta.col(c).tail(nr) = z_r;
   }
   return dx_dtheta.allFinite();
 }
@@ -410,15 +703,21 @@ bool static_vjp(const Model& model, Data& data, const State& equilibrium, const 
   system.demand_supported();
   const Eigen::Index n = 3L * model.fem.num_nodes, np = static_cast<Eigen::Index>(theta.parameters.size());
   const Eigen::Index na = theta.actuation ? static_cast<Eigen::Index>(model.actuation.actuators.size()) : 0;
-  SOFTDIFF_DEMAND(bar_x.size() == n, "static_vjp: bar_x must have size 3n = " + std::to_string(n));
+  const Eigen::Index nrp = static_cast<Eigen::Index>(theta.rigid_parameters.size()), nr = system.rigid_size();
+  SOFTDIFF_DEMAND(bar_x.size() == n + nr, "static_vjp: bar_x must have size 3n (+ 6R) = " + std::to_string(n + nr));
   if (!system.prepare(equilibrium)) return false;
-  VecX u(n), bar_mu, q(n);
-  if (!system.solve_transposed(bar_x, u, bar_mu)) return false;
-  bar_theta = VecX::Zero(np + na);
+  VecX u(n), bar_mu, q(n), u_r(nr), q_r(nr);
+  const VecX bar_s = bar_x.head(n), bar_r = bar_x.tail(nr);
+  if (!system.solve_transposed(bar_s, u, bar_mu, bar_r, &u_r)) return false;
+  bar_theta = VecX::Zero(np + na + nrp);
   for (Eigen::Index c = 0; c < np + na; ++c) {
     bool friction = false;
     if (!parameter_column(model, data, equilibrium.x, theta, c, q, friction)) return false;
     if (!friction) bar_theta[c] = u.dot(q);
+  }
+  for (Eigen::Index c = 0; c < nrp; ++c) {
+    rigid_parameter_column(model, theta, c, q_r);
+    bar_theta[np + na + c] = u_r.dot(q_r);
   }
   if (system.contact() && bar_mu.size()) {
     VecX bar_p = VecX::Zero(np);

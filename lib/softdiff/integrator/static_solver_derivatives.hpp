@@ -36,6 +36,7 @@
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
 
+#include <utility>
 #include <vector>
 
 namespace softdiff::integrator {
@@ -43,9 +44,25 @@ namespace softdiff::integrator {
 struct StaticTheta {
   std::vector<ParameterId> parameters;
   bool actuation = false;  // one column per actuator
+  // Rigid bodies' parameters (body, k), after the actuators: k = 0 the mass (the weight
+  // m g on the body), k = 1..6 the inertia (no effect on the equilibrium: zero columns).
+  std::vector<std::pair<int, int>> rigid_parameters;
 };
 
-// dx*/dtheta (3n x (parameters + actuators)) at the equilibrium `equilibrium` of
+// With rigid bodies (docs/method.md "Static equilibrium with rigid bodies", derivatives;
+// 2026-12-03, issue 21): the unknowns are the soft dx and each rigid body's pose tangent
+// (dp, dtheta) (world axes, exp(dtheta) q; T dc on a joint), the equations the soft
+// ones above and T^T (w_r + H_r^T lambda) = 0 per body, linearized with the contact
+// forces' geometry terms (on the pseudo-nodes too), the lever arms' rotation
+// (sum_k [F_k]x [rho_k]x dtheta) and a hinge basis' change ((n x dp).f on the axis).
+// The rigid equations have no stiffness: they take the proximal block tau_r diag(m I,
+// I_w) (tau_r m = 1e-6 max K_ii) and the refinement removes it as it removes a held
+// body's tau. G is then formed dense over all contacts (H_s K^{-1} H_s^T + sum_r H_r W_r
+// H_r^T). Rows 3n + 6R (the soft dofs, then (dp, dtheta) per body: the check-grad rows).
+// Not covered (SOFTDIFF_DEMAND, issue 21): joint limits, rigidified parts, scenes of
+// rigid bodies only.
+//
+// dx*/dtheta (3n (+ 6R) x (parameters + actuators + rigid parameters)) at the equilibrium `equilibrium` of
 // solve_static (its last load step; data holds that solve's record, data.contact its
 // last NCP). Uses data's workspace (evaluates and factorizes at x*). Returns false if an
 // element is inverted at x*, J (+ tau E) is not positive definite, or the refinement

@@ -186,7 +186,8 @@ void run(const Model& m, Data& data, const std::vector<ParameterId>& parameters,
     });
     if (!st.ok()) failed(st);
     MatX dx;
-    integrator::StaticTheta theta{parameters, false};
+    integrator::StaticTheta theta{parameters, false, {}};
+    for (const auto& id : rigid_parameters) theta.rigid_parameters.emplace_back(id.body, id.index);
     if (!integrator::static_sensitivities(m, data, eq, theta, dx))
       throw ComputationError("calibration: the derivative of the equilibrium failed with " +
                              describe_values(m, parameters, rigid_parameters, values));
