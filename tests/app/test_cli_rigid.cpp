@@ -485,7 +485,8 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
                    "[[ball, floor, 0.3]]}\n",
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null --jacobian mass",
-       "--jacobian: derivatives of a static scene with rigid bodies are not supported yet (issue 21; rigid body 'ball')"},
+       "--jacobian: derivatives of a static scene of rigid bodies only are not supported yet (issue 21; rigid body "
+       "'ball', no soft body)"},
       // static runs (Cli.RigidStackRestsStatically); a free body still needs contact.
       {"rigid_only_static", kBallOnly,
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
