@@ -80,6 +80,7 @@ void begin_static_rigid(const Model& model, Data& data, const std::vector<rigid:
     rd.u_free.segment<6>(o) = T * (T.dot(w) / a);
   }
   rd.u = rd.u_free;
+  data.contact.serial = contact::next_record_serial();  // a new record (ContactData::serial)
 }
 
 StepStatus end_static_rigid(const Model& model, Data& data, std::vector<rigid::RigidState>& poses, long load_step,
@@ -156,6 +157,9 @@ void static_limits_without_contact(const Model& model, Data& data) {
     rd.u.segment<6>(o) = T * dc;
     slot += 2;
   }
+  // The record's corrected velocities and limit rows changed: a new serial, as the contact
+  // stage gives it (ContactData::serial; a derivative keyed by it sees a new record).
+  data.contact.serial = contact::next_record_serial();
 }
 
 int static_rigid_unsupported(const Model& model, const Data& data) {
