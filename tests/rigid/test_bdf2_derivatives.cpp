@@ -5,8 +5,11 @@
 // exp(-phi/3) q_n and angular momentum: the rotation terms), a slow spin (the Taylor
 // branches), a hinge pendulum, a slider, a fixed body, and the implicit Euler branches:
 // a restart after a limit and a BDF2 end that reaches a limit (the history's columns zero).
+#include <softdiff/data.hpp>
+#include <softdiff/integrator/bdf2.hpp>
 #include <softdiff/rigid/rigid_bdf2.hpp>
 #include <softdiff/rigid/rigid_bdf2_derivatives.hpp>
+#include <support/rigid_contact.hpp>
 
 #include <rigid/rigid_scenes.hpp>
 
@@ -70,7 +73,7 @@ void check(const Case& c, bool want_bdf2) {
   RigidState hat;
   const RigidState out = bdf2_of(c, c.body, c.in, c.previous, &info, &hat);
   Bdf2StepJacobian J;
-  bdf2_step_jacobian(c.body, c.in, &c.previous, c.restart, hat, out, info, c.h, c.g, J);
+  bdf2_step_jacobian(c.body, c.in, &c.previous, hat, out, info, c.h, c.g, J);
   ASSERT_EQ(J.bdf2, want_bdf2);
   ASSERT_TRUE(J.state.allFinite() && J.previous.allFinite() && J.params.allFinite());
   if (!want_bdf2) {
@@ -119,7 +122,7 @@ TEST(RigidBdf2StepDerivatives, FreeSpinningBodyWithHistory) {
   RigidState hat;
   const RigidState out = bdf2_of(c, c.body, c.in, c.previous, &info, &hat);
   Bdf2StepJacobian J;
-  bdf2_step_jacobian(c.body, c.in, &c.previous, false, hat, out, info, c.h, c.g, J);
+  bdf2_step_jacobian(c.body, c.in, &c.previous, hat, out, info, c.h, c.g, J);
   EXPECT_GT((J.previous.block<3, 3>(3, 3).norm()), 0.1);
   EXPECT_GT((J.previous.block<3, 3>(9, 9).norm()), 0.1);
 }
@@ -170,7 +173,7 @@ TEST(RigidBdf2StepDerivatives, Fixed) {
   RigidState hat;
   const RigidState out = bdf2_of(c, c.body, c.in, c.previous, &info, &hat);
   Bdf2StepJacobian J;
-  bdf2_step_jacobian(c.body, c.in, &c.previous, false, hat, out, info, c.h, c.g, J);
+  bdf2_step_jacobian(c.body, c.in, &c.previous, hat, out, info, c.h, c.g, J);
   EXPECT_EQ(J.params.norm(), 0.0);
   EXPECT_EQ(J.previous.norm(), 0.0);
 }
@@ -211,6 +214,84 @@ TEST(RigidBdf2StepDerivatives, HingeRestingOnItsLimit) {
   run(c, k + 3);  // resting on it: each step restarts
   ASSERT_TRUE(c.restart);
   check(c, false);
+}
+
+// The branch decided again from (s_n, s_{n-1}, restart) by redoing the BDF2 step from s^:
+// what the derivatives did before the step recorded its branch (rigid::bdf2_branch_taken,
+// removed 2026-12-03, rbranch), kept here as the independent reference of the record.
+bool branch_by_redoing(const RigidBody& body, const RigidState& in, const RigidState* previous, bool restart, double h,
+                       const Vec3& gravity) {
+  if (!previous || restart) return false;
+  if (!body.joint.limits) return true;
+  RigidState hat_state, out;
+  bdf2_extrapolate(body, in, *previous, hat_state);
+  const Vec3 zero = Vec3::Zero();
+  return !step(body, hat_state, 2.0 * h / 3.0, gravity, zero, zero, out, true).at_limit;
+}
+
+// The step records the branch each body's BDF2 step took (rigid::StepInfo::bdf2, in
+// data.rigid), which the derivatives read: it must be the branch the step took, here
+// compared with branch_by_redoing above (the removed bdf2_branch_taken, verbatim). Three bodies through integrator::time_step under BDF2
+// (h = 1 ms, 150 steps), in a scene of rigid bodies only and beside a soft anchor (the
+// rigid step after the soft one): a bob on a 0.2 m horizontal arm hinged about y, falling
+// onto its limit 0.05 rad (about 45 steps), a block on a vertical slider falling onto its
+// limit 0.02 m below (about 64 steps), a free box falling (BDF2 after its first step).
+// Each limited body must take all three branches: BDF2, the landing (a BDF2 end reaching
+// the limit, redone as implicit Euler), and the restarts while it rests on its limit.
+TEST(RigidBdf2StepDerivatives, TheStepRecordsTheBranchItTook) {
+  const double h = 1e-3;
+  for (const bool rigid_only : {true, false}) {
+    Model model = rigid_only ? test::rigid_scenes::rigid_only_model(h) : test::rigid_scenes::anchored(h);
+    model.step.integrator = IntegratorKind::bdf2;
+    RigidState s;
+    s.position = Vec3(0.2, 0, 0);
+    test::add_rigid_body(model, "bob", test::box_shape(Vec3(0.02, 0.02, 0.02)), 1000, s, 1, Joint::Kind::hinge);
+    s.position = Vec3(1, 0, 0);
+    test::add_rigid_body(model, "block", test::box_shape(Vec3(0.02, 0.03, 0.01)), 500, s, 1, Joint::Kind::slider);
+    s.position = Vec3(2, 0, 0);
+    s.angular_velocity = Vec3(1, 2, 5);
+    test::add_rigid_body(model, "box", test::box_shape(Vec3(0.02, 0.03, 0.04)), 800, s, 1, Joint::Kind::free);
+    RigidBody& bob = model.rigid[0];
+    bob.joint.anchor = Vec3::Zero();
+    bob.joint.axis = Vec3::UnitY();  // gravity turns the arm towards +angle
+    bob.joint.limits = std::make_pair(-0.05, 0.05);
+    RigidBody& block = model.rigid[1];
+    block.joint.anchor = Vec3(1, 0, 0);
+    block.joint.axis = Vec3::UnitZ();
+    block.joint.limits = std::make_pair(-0.02, 0.02);
+    for (int r = 0; r < 2; ++r) {
+      initialize(model.rigid[static_cast<std::size_t>(r)], model.initial.rigid[static_cast<std::size_t>(r)]);
+      model.initial.rigid[static_cast<std::size_t>(r)] = model.rigid[static_cast<std::size_t>(r)].reference;
+    }
+    Data data(model);
+    State a = model.initial, b, previous;
+    int bdf2[3] = {0, 0, 0}, landing[3] = {0, 0, 0}, restarted[3] = {0, 0, 0};
+    for (long n = 1; n <= 150; ++n) {
+      std::vector<bool> restart(model.rigid.size(), false);
+      for (std::size_t r = 0; r < data.rigid.size(); ++r) restart[r] = data.rigid[r].at_limit;
+      const StepStatus st = integrator::time_step(model, data, a, n > 1 ? &previous : nullptr, b, n);
+      ASSERT_TRUE(st.ok()) << describe(model, st);
+      ASSERT_EQ(data.rigid.size(), model.rigid.size());
+      for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+        const bool taken = branch_by_redoing(model.rigid[r], a.rigid[r], n > 1 ? &previous.rigid[r] : nullptr,
+                                             restart[r], h, model.step.gravity);
+        ASSERT_EQ(data.rigid[r].bdf2, taken) << model.rigid[r].name << ", step " << n;
+        bdf2[r] += taken ? 1 : 0;
+        landing[r] += n > 1 && !restart[r] && !taken ? 1 : 0;
+        restarted[r] += restart[r] ? 1 : 0;
+      }
+      previous = a;
+      std::swap(a, b);
+    }
+    for (int r = 0; r < 2; ++r) {
+      EXPECT_GT(bdf2[r], 30) << model.rigid[static_cast<std::size_t>(r)].name;
+      EXPECT_EQ(landing[r], 1) << model.rigid[static_cast<std::size_t>(r)].name;
+      EXPECT_GT(restarted[r], 50) << model.rigid[static_cast<std::size_t>(r)].name;
+      EXPECT_TRUE(a.rigid[static_cast<std::size_t>(r)].angular_velocity.norm() + a.rigid[static_cast<std::size_t>(r)].velocity.norm() < 1e-9);
+    }
+    EXPECT_EQ(bdf2[2], 149);  // the free box: BDF2 after its first step
+    EXPECT_EQ(landing[2] + restarted[2], 0);
+  }
 }
 
 }  // namespace rigid_bdf2_derivatives_test

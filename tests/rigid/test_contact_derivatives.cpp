@@ -310,6 +310,39 @@ TEST(RigidContactStepDerivatives, HingedBarAndSliderOnSupports) {
   check_step(model, in, 1e-6, 1e-5);
 }
 
+// The hinge's W_r with the gravity torque's tangent (rigid_contact.cpp begin_rigid_contact,
+// rbranch: a = I_a - h^2 Q'(delta_u)) and its derivative (rigid_contact_derivatives.cpp:
+// through the start position, the mass and the free step's rate). A hinged body alone on
+// one active row does not show W (the row fixes its one dof's velocity), so the bar here
+// shares its contacts with a soft pad (rigid_scenes.hpp bar_on_pad's pad and bar, the bar
+// and its anchor moved by (3, 3, 0) mm so that no bar vertex lies on a pad triangle's edge:
+// there a difference of 1e-6 changes the contact set), the impulse splitting between the
+// pad and the bar by their W; and gravity is tilted, (-9.81, 0, -4) m/s^2, so that the
+// level bar's torque has a tangent: Q' = -m g.r_perp = 0.98 m N m/rad, h^2 Q' / I_a =
+// 1.8e-3 at h = 5 ms (with vertical gravity Q' = 0 for a level bar). Two states (5 and 20
+// steps after the release), eps 1e-6 as for the wedge. Measured: the JVP against the
+// differences 6.2e-8 and 5.6e-8 of the largest entry (1039); without the tangent's
+// derivative (the three terms of d(a) in rigid_contact_derivatives.cpp removed) 1.4e-6 and
+// 1.2e-6: tol 3e-7 tells them apart (the wedge's 1e-5 would not).
+TEST(RigidContactStepDerivatives, HingedBarOnASoftPadWithTheGravityTorquesTangent) {
+  Model model = test::rigid_scenes::bar_on_pad(5e-3);
+  const Vec3 shift(0.003, 0.003, 0);
+  auto& bar = model.rigid[0];
+  rigid::RigidState s = model.initial.rigid[0];
+  s.position += shift;
+  bar.joint.anchor += shift;
+  rigid::initialize(bar, s);
+  model.initial.rigid[0] = bar.reference;
+  model.step.gravity = Vec3(-9.81, 0, -4);
+  model.contact.ncp = tight();
+  model.contact.ncp.backend = contact::NcpBackend::dense;
+  for (long w : {5L, 20L}) {
+    SCOPED_TRACE(w);
+    const State in = warm_up(model, w);
+    check_step(model, in, 1e-6, 3e-7);
+  }
+}
+
 // Each scene on the sparse backend and on the operator: the JVP against central
 // differences and the dot-product test (check_step, the dense scenes' eps and tol), and
 // the JVP equal to the dense backend's from the same state. That last tolerance: both

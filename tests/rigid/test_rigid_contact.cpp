@@ -169,7 +169,7 @@ TEST(RigidContact, DelassusBlockMatchesExplicitProduct) {
 // H u_free is the contact velocity of the pseudo-nodes turning about the hinge:
 // C^T (d/dt of anchor + exp(t cdot n)(x_k - anchor)), by central differences (e = 1e-5:
 // truncation e^2 cdot^2 |r| ~ 1e-10, tolerance 1e-8 m/s); and G = h (H T)(H T)^T / a with
-// a = T^T diag(m I, I_w) T written out.
+// a = T^T diag(m I, I_w) T - h^2 Q' written out.
 TEST(RigidContact, HingeBodyMovesAboutItsAxis) {
   rigid::RigidState s = tumbling_state();
   s.velocity.setZero();
@@ -213,7 +213,12 @@ TEST(RigidContact, HingeBodyMovesAboutItsAxis) {
   }
   const Mat3 R = free[0].orientation.toRotationMatrix();
   const Vec3 n = body.joint.axis, r = in[0].position - body.joint.anchor;
-  const double a = body.mass * n.cross(r).squaredNorm() + n.dot(R * body.inertia * R.transpose() * n);
+  // The joint's inertia less h^2 Q'(delta): the tangent of the free step's implicit gravity
+  // torque Q(c) = n.(r(c) x m g) at its end, delta = h cdot, r(c) the arm turned by c about
+  // n: Q'(delta) = n.((n x r(delta)) x m g) (rigid_contact.cpp begin_rigid_contact, rbranch).
+  const Vec3 r_end = Eigen::AngleAxisd(h * cdot, n) * r;
+  const double Q_prime = n.dot(n.cross(r_end).cross(body.mass * model.step.gravity));
+  const double a = body.mass * n.cross(r).squaredNorm() + n.dot(R * body.inertia * R.transpose() * n) - h * h * Q_prime;
   const MatX G_explicit = h * HT * HT.transpose() / a;
   EXPECT_LT((G - G_explicit).norm(), 1e-12 * G_explicit.norm());
 }

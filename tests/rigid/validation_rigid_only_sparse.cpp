@@ -9,6 +9,7 @@
 
 #include <gtest/gtest.h>
 
+#include <iomanip>
 #include <iostream>
 
 using namespace softdiff;
@@ -91,20 +92,25 @@ TEST(RigidOnlySparse, StackedBoxesMatchTheClosedFormsAndTheDenseBackend) {
 }
 
 // The limit's reaction of a hinge resting on its limit, in closed form (issue 21, ronly;
-// docs/method.md "Scenes of rigid bodies only", "The hinge's limit reaction"). The free
-// step (rigid::step, limits off) is implicit in the gravity torque Q(c) = m g l cos(c):
-// from rest at the limit c_lim it goes on to c_lim + d, d the root of I_a d / h^2 = Q(c_lim
-// + d). The limit's row then stops that rate d / h with the joint's inertia I_a (W_r =
-// T T^T / I_a, rigid_contact.cpp begin_rigid_contact): lambda = I_a (d / h) / h =
-// Q(c_lim + d), the torque at the free step's end pose, not at the limit: m g l cos(c_lim)
-// (1 - tan(c_lim) d) to first order, d ~ h^2 Q / I_a. (The exact implicit step at rest on
-// the limit would give Q(c_lim): the row's W omits the torque's tangent -h^2 Q'(c), an
-// O(h^2) linearization of the implicit step in the contact solve.)
-double limit_reaction_closed_form(const rigid::RigidBody& bar, double c_lim, double l, double h) {
+// rbranch; docs/method.md "Scenes of rigid bodies only", "The hinge's limit reaction").
+// The free step (rigid::step, limits off) is implicit in the gravity torque
+// Q(c) = m g l cos(c): from rest at the limit c_lim it goes on to c_lim + d, d the root of
+// I_a d / h^2 = Q(c_lim + d). The limit's row then stops that rate d / h with the joint's
+// effective inertia I_a - h^2 Q'(c_lim + d) (W_r = T T^T / (I_a - h^2 Q'), the tangent of
+// the implicit step at the free end, rigid_contact.cpp begin_rigid_contact):
+// lambda = (I_a - h^2 Q') d / h^2 = Q(c_lim + d) - Q'(c_lim + d) d = Q(c_lim) - Q'' d^2 / 2
+// + O(d^3): m g l cos(c_lim) (1 + d^2 / 2) to second order (Q'' = -Q), d ~ h^2 Q / I_a.
+// (With W_r = T T^T / I_a, before 2026-12-03 rbranch: Q(c_lim + d), an O(h^2) offset.)
+// The free step's overshoot d past the limit.
+double overshoot(const rigid::RigidBody& bar, double c_lim, double l, double h) {
   const double I_a = bar.inertia(1, 1) + bar.mass * l * l;  // about y through the anchor (y is a principal axis)
   double d = 0;
   for (int it = 0; it < 50; ++it) d = h * h * bar.mass * g0 * l * std::cos(c_lim + d) / I_a;  // a contraction (1e-5)
-  return bar.mass * g0 * l * std::cos(c_lim + d);
+  return d;
+}
+double limit_reaction_closed_form(const rigid::RigidBody& bar, double c_lim, double l, double h) {
+  const double d = overshoot(bar, c_lim, l, h);
+  return bar.mass * g0 * l * (std::cos(c_lim + d) + std::sin(c_lim + d) * d);
 }
 
 // With a limited hinge beside the stack: the bar falls onto its upper limit (a row of the
@@ -124,8 +130,7 @@ TEST(RigidOnlySparse, LimitedHingeRestsOnItsLimit) {
             << " N m (m g l cos: " << torque << "; dense " << dd.contact.rigid.limit_lambda[1] << ")\n";
   EXPECT_NEAR(angle, 0.05, 1e-9);
   // The operator against the dense backend: the same limit reaction to 1e-8. Both are
-  // 1.5e-5 relative below m g l cos(0.05) (0.125409 vs 0.125411 N m): the closed form's
-  // torque at the free step's end pose.
+  // the closed form above, O(d^2) from m g l cos(0.05) (before rbranch 1.5e-5 relative below it).
   EXPECT_NEAR(ds.contact.rigid.limit_lambda[1], dd.contact.rigid.limit_lambda[1], 1e-8 * torque);
   const double closed = limit_reaction_closed_form(bar, 0.05, 0.1, sparse.step.dt);
   EXPECT_NEAR(ds.contact.rigid.limit_lambda[1], closed, 1e-9 * torque);
@@ -134,12 +139,13 @@ TEST(RigidOnlySparse, LimitedHingeRestsOnItsLimit) {
   EXPECT_EQ(ds.factorizations, 0);
 }
 
-// The reaction's offset below m g l cos(c_lim) at h = 2 ms and 1 ms (dense backend): the
-// closed form to 1e-9 relative at each, and the offset O(h^2): to first order -tan(c_lim) d
-// with d = h^2 Q / I_a, 1.47e-5 and 3.67e-6 relative here, their ratio 4; both to 1e-2
-// relative (the next order, cos(c + d) = cos c (1 - tan(c) d - d^2 / 2), adds d / (2 tan c)
-// = 2.9e-3 of the offset at 2 ms, 7e-4 at 1 ms).
-TEST(RigidOnlySparse, LimitReactionOffsetIsTheFreeStepsTorqueAndShrinksAsHSquared) {
+// The reaction's offset from m g l cos(c_lim) at h = 2 ms and 1 ms (dense backend): the
+// closed form to 1e-9 relative at each, and the offset O(h^4): d^2 / 2 with d the free
+// step's overshoot (about 4.3e-8 and 2.7e-9 relative here), their ratio 16; both to 1e-2
+// relative (the next order, -Q''' d^3 / 3 = -tan(c_lim) d^3 / 3 relative, adds
+// -2 tan(c_lim) d / 3 = 1e-5 of the offset at 2 ms). Before W_r took the gravity
+// torque's tangent (rbranch) the offset was -tan(c_lim) d: -1.47e-5 and -3.67e-6.
+TEST(RigidOnlySparse, LimitReactionOffsetIsSecondOrderInTheOvershoot) {
   double offset[2];
   for (int k = 0; k < 2; ++k) {
     const double h = k == 0 ? 2e-3 : 1e-3;
@@ -150,16 +156,15 @@ TEST(RigidOnlySparse, LimitReactionOffsetIsTheFreeStepsTorqueAndShrinksAsHSquare
     ASSERT_NEAR(rigid::joint_coordinate(bar, end.rigid[2]), 0.05, 1e-9);
     ASSERT_EQ(data.contact.rigid.limit_lambda.size(), 2);
     const double lambda = data.contact.rigid.limit_lambda[1], torque = bar.mass * g0 * 0.1 * std::cos(0.05);
-    const double closed = limit_reaction_closed_form(bar, 0.05, 0.1, h);
-    const double I_a = bar.inertia(1, 1) + bar.mass * 0.01;
+    const double closed = limit_reaction_closed_form(bar, 0.05, 0.1, h), d = overshoot(bar, 0.05, 0.1, h);
     offset[k] = (lambda - torque) / torque;
-    std::cout << "[rigid only] hinge on its limit, h " << h << ": reaction " << lambda << " N m, m g l cos " << torque
-              << ", closed form " << closed << "; offset " << offset[k] << " relative (first order -tan(c) h^2 Q / I_a = "
-              << -std::tan(0.05) * h * h * torque / I_a << ")\n";
+    std::cout << "[rigid only] hinge on its limit, h " << h << ": reaction " << std::setprecision(12) << lambda
+              << " N m, m g l cos " << torque << ", closed form " << closed << std::setprecision(6) << "; offset "
+              << offset[k] << " relative (d^2 / 2 = " << d * d / 2 << ", d = " << d << " rad)\n";
     EXPECT_NEAR(lambda, closed, 1e-9 * torque);
-    EXPECT_NEAR(offset[k], -std::tan(0.05) * h * h * torque / I_a, 1e-2 * std::abs(offset[k]));
+    EXPECT_NEAR(offset[k], d * d / 2, 1e-2 * std::abs(offset[k]));
   }
-  EXPECT_NEAR(offset[0] / offset[1], 4.0, 4e-2);
+  EXPECT_NEAR(offset[0] / offset[1], 16.0, 16e-2);
 }
 
 }  // namespace rigid_only_sparse_validation

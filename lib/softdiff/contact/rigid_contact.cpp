@@ -4,6 +4,7 @@
 #include <softdiff/contact/contact_step.hpp>
 
 #include <softdiff/core/assert.hpp>
+#include <softdiff/core/error.hpp>
 #include <softdiff/rigid/rotation.hpp>
 
 #include <Eigen/Cholesky>
@@ -94,20 +95,37 @@ void begin_rigid_contact(const Model& model, Data& data, const std::vector<rigid
     A.topLeftCorner<3, 3>() = body.mass * Mat3::Identity();
     A.bottomRightCorner<3, 3>() = rigid::world_inertia(body, free[r].orientation);
     const rigid::Vec6 T = rigid::joint_motion_basis(body, in[r]).col(0);
-    const double a = T.dot(A * T);
-    rd.W[r] = T * T.transpose() / a;
-    rd.L[r].col(0) = T / std::sqrt(a);
-    rd.rank[r] = 1;
+    double a = T.dot(A * T);
     const Vec3 n = body.joint.axis;
+    const bool hinge = body.joint.kind == rigid::Joint::Kind::hinge;
     // A limited joint: the free rate without its limits (they are rows of the NCP), which
     // the free step recorded (rigid::StepInfo::free_rate; integrator::step_rigid_bodies
     // fills data.rigid): no second step.
-    double rate = body.joint.kind == rigid::Joint::Kind::hinge ? n.dot(free[r].angular_velocity) : n.dot(free[r].velocity);
-    if (body.joint.limits) {
-      SOFTDIFF_DEMAND(data.rigid.size() == model.rigid.size(), "begin_rigid_contact: a limited joint needs the free step's info "
-                                              "(data.rigid, integrator::step_rigid_bodies)");
-      rate = data.rigid[r].free_rate;
+    double rate = hinge ? n.dot(free[r].angular_velocity) : n.dot(free[r].velocity);
+    if (body.joint.limits || hinge)
+      SOFTDIFF_DEMAND(data.rigid.size() == model.rigid.size(), "begin_rigid_contact: a hinge or limited joint needs the "
+                                              "free step's info (data.rigid, integrator::step_rigid_bodies)");
+    if (body.joint.limits) rate = data.rigid[r].free_rate;
+    // A hinge: the free step is implicit in the gravity torque Q(c) (rigid::step's joint
+    // equation, rigid/joint_equation.hpp), so an impulse P changes the end rate by
+    // T.P / (I_a - h^2 Q'(c_u)), the tangent of that equation at the free (unlimited) end
+    // c_u = c_n + h rate: the consistent linearization of the implicit step (2026-12-03,
+    // rbranch; docs/method.md "Scenes of rigid bodies only", *The hinge's limit reaction*).
+    // h: the free step's own (2h/3 on its BDF2 branch, data.rigid's record). A slider's
+    // load does not depend on its travel (Q' = 0).
+    if (hinge) {
+      const double h = data.rigid[r].bdf2 ? 2.0 * model.step.dt / 3.0 : model.step.dt;
+      const Vec3 arm = in[r].position - body.joint.anchor, r_perp = arm - n.dot(arm) * n;
+      const Vec3 F = body.mass * model.step.gravity;
+      const double c1 = F.dot(n.cross(r_perp)), c2 = F.dot(r_perp), delta = h * rate;
+      a += h * h * (c1 * std::sin(delta) + c2 * std::cos(delta));  // - h^2 Q'(delta)
+      if (!(a > 0))
+        throw ComputationError("rigid body '" + body.name + "': the hinge's effective inertia I_a - h^2 Q' = " +
+                               std::to_string(a) + " kg m^2 is not positive (the step is too long for the gravity torque)");
     }
+    rd.W[r] = T * T.transpose() / a;
+    rd.L[r].col(0) = T / std::sqrt(a);
+    rd.rank[r] = 1;
     rd.u_free.segment<6>(6 * r) = rate * T;
   }
   rd.u = rd.u_free;

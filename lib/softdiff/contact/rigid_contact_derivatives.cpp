@@ -7,6 +7,8 @@
 
 #include <Eigen/LU>
 
+#include <cmath>
+
 namespace softdiff::contact {
 
 namespace {
@@ -129,13 +131,25 @@ void RigidContactDerivative::prepare(const Model& model, const Data& data, const
         B.K0 = T * (nax.transpose() * Ju.middleRows<3>(W));
         B.K0.block<3, 3>(0, P) += rate * rigid::hat(nax);
         const Mat3 Iw = Rf * body.inertia * Rf.transpose();
-        const double a = m * nr.squaredNorm() + nax.dot(Iw * nax), s = T.dot(Pr);
+        // a_s - h_f^2 Q'(delta_u) (begin_rigid_contact: the implicit gravity torque's
+        // tangent at the free end delta_u = h_f rate, h_f the free step's own h), with
+        // -Q'(delta) = c1 sin(delta) + c2 cos(delta), c1 = F.(n x r_perp), c2 = F.r_perp,
+        // F = m g: dc1 = (F x n).dp, dc2 = F_perp.dp, both proportional to m;
+        // d delta = h_f n.d omega_u (the unlimited free step's Jacobian Ju).
+        const double hf = data.rigid[r].bdf2 ? 2.0 * model.step.dt / 3.0 : model.step.dt;
+        const Vec3 r_perp = r_arm - nax.dot(r_arm) * nax, F = m * model.step.gravity, F_perp = F - nax.dot(F) * nax;
+        const double c1 = F.dot(nax.cross(r_perp)), c2 = F.dot(r_perp), delta = hf * rate;
+        const double sd = std::sin(delta), cd_ = std::cos(delta);
+        const double a = m * nr.squaredNorm() + nax.dot(Iw * nax) + hf * hf * (c1 * sd + c2 * cd_), s = T.dot(Pr);
         B.K0.block<3, 3>(0, P) += rigid::hat(nax) * (s / a);
         B.K0.block<6, 3>(0, P) += T * Pv.cross(nax).transpose() / a;
         Row19 da = Row19::Zero();
         da.segment<3>(P) += 2 * m * nr.transpose() * rigid::hat(nax);
         da += 2 * (Iw * nax).cross(nax).transpose() * B.Jf.middleRows<3>(TH);
         da(MASS) += nr.squaredNorm();
+        da.segment<3>(P) += hf * hf * (sd * F.cross(nax) + cd_ * F_perp).transpose();
+        da(MASS) += hf * hf * (c1 * sd + c2 * cd_) / m;
+        da += hf * hf * (c1 * cd_ - c2 * sd) * hf * nax.transpose() * Ju.middleRows<3>(W);
         for (int k = 0; k < 6; ++k) da(INERTIA + k) += nax.dot(Rf * rigid::inertia_unit(k) * Rf.transpose() * nax);
         B.K0 -= T * da * (s / (a * a));
         break;

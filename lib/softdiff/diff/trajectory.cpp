@@ -85,7 +85,6 @@ ForwardSensitivity::ForwardSensitivity(const Model& model, ThetaLayout theta)
   const Eigen::Index n = num_rows(model), k = theta_.size(model);
   rigid_jacobian_.resize(model.rigid.size());
   previous_rigid_.resize(model.rigid.size());
-  restart_.assign(model.rigid.size(), 0);
   for (const auto& p : theta_.rigid_parameters)
     SOFTDIFF_DEMAND(p.body >= 0 && p.body < static_cast<int>(model.rigid.size()) && p.index >= 0 &&
                         p.index < rigid::kRigidParameters,
@@ -128,7 +127,8 @@ bool ForwardSensitivity::advance(const Model& model, const Data& data, const Sta
     auto& J = rigid_jacobian_[r];
     const rigid::RigidState* prev = multistep ? &previous_rigid_[r] : nullptr;
     if (!coupled) {
-      rigid::bdf2_step_jacobian(model.rigid[r], in.rigid[r], rigid_bdf2 ? prev : nullptr, restart_[r] != 0,
+      // The branch is the step's record (data.rigid[r].bdf2, rigid_bdf2.cpp): read, not decided again.
+      rigid::bdf2_step_jacobian(model.rigid[r], in.rigid[r], rigid_bdf2 ? prev : nullptr,
                                 data.hat.rigid.size() == model.rigid.size() ? data.hat.rigid[r] : in.rigid[r],
                                 out.rigid[r], data.rigid[r], model.step.dt, model.step.gravity, J);
     } else if (prev) {
@@ -232,10 +232,7 @@ bool ForwardSensitivity::advance(const Model& model, const Data& data, const Sta
       next_dv_.col(c).segment<6>(row) = d_out.tail<6>();
     }
   }
-  for (std::size_t r = 0; r < model.rigid.size(); ++r) {
-    previous_rigid_[r] = in.rigid[r];
-    restart_[r] = data.rigid.size() == model.rigid.size() && data.rigid[r].at_limit ? 1 : 0;
-  }
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) previous_rigid_[r] = in.rigid[r];
   if (!model.rigidify.empty()) {  // BDF2 with rigidified parts: the next step's x_{n-1}
     previous_state_.x = in.x;
     previous_state_.v = in.v;
@@ -324,7 +321,6 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
   const bool coupled = model.contact.with_rigid();
   VecX bar_rigid = VecX::Zero(12 * nr), bar_rigid_p = VecX::Zero(7 * nr);
   rigid::Bdf2StepJacobian rigid_J;
-  std::vector<char> restart(static_cast<std::size_t>(nr), 0);  // each body's BDF2 restart flag of the step
   // BDF2: the rigid cotangent of frame s-1 that step s+1 sent back through its history.
   VecX pending_rigid = VecX::Zero(12 * nr), bar_rigid_previous = VecX::Zero(12 * nr);
   const bool rigid_bdf2 = model.step.integrator == IntegratorKind::bdf2;
@@ -362,7 +358,6 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
       for (std::size_t r = 0; r < static_cast<std::size_t>(nr); ++r)
         data.rigid[r].at_limit = step > 1 && restarts && tape.rigid_at_limit[static_cast<std::size_t>(step - 2) * static_cast<std::size_t>(nr) + r];
     }
-    for (std::size_t r = 0; r < static_cast<std::size_t>(nr); ++r) restart[r] = data.rigid.size() > r && data.rigid[r].at_limit;
     const StepStatus st =
         integrator::time_step(model, data, in, previous, out, step, &tape.lambda_a[static_cast<std::size_t>(step - 1)]);
     if (!st.ok()) return st;
@@ -405,11 +400,12 @@ StepStatus adjoint(const Model& model, Data& data, const Tape& tape, const Theta
       }
     }
     // The rigid bodies without contact: bar_in = J_state^T bar_out, bar_params += J_params^T
-    // bar_out (BDF2: bar_previous = J_previous^T bar_out too).
+    // bar_out (BDF2: bar_previous = J_previous^T bar_out too). The branch is the recomputed
+    // step's record (data.rigid[i].bdf2), as in the forward mode.
     for (Eigen::Index r = 0; !coupled && r < nr; ++r) {
       const auto i = static_cast<std::size_t>(r);
       rigid::bdf2_step_jacobian(model.rigid[i], in.rigid[i], multistep && rigid_bdf2 ? &previous->rigid[i] : nullptr,
-                                restart[i] != 0, rigid_bdf2 ? data.hat.rigid[i] : in.rigid[i], out.rigid[i],
+                                rigid_bdf2 ? data.hat.rigid[i] : in.rigid[i], out.rigid[i],
                                 data.rigid[i], model.step.dt, model.step.gravity, rigid_J);
       const rigid::Vec12 bar_out_r = bar_rigid.segment<12>(12 * r);
       bar_rigid.segment<12>(12 * r) = rigid_J.state.transpose() * bar_out_r;

@@ -94,9 +94,8 @@ class ForwardSensitivity {
   // the step from the extrapolated state chained with the extrapolation).
   std::vector<rigid::Bdf2StepJacobian> rigid_jacobian_;
   // BDF2 with rigid bodies: the input states of the last advance() (the next step's
-  // previous states) and each body's at_limit after it (the next step's restart flag).
+  // previous states). The branch each body took is the step's record (data.rigid's bdf2).
   std::vector<rigid::RigidState> previous_rigid_;
-  std::vector<char> restart_;
   MatX previous_dx_, previous_dv_;  // BDF2: the sensitivities of the previous state
   State previous_state_;            // BDF2 with rigidified parts: the input state of the last advance()
   MatX next_dx_, next_dv_;          // workspace

@@ -33,11 +33,10 @@ StepStatus step_rigid_bodies(const Model& model, Data& data, const State& in, St
     // holds the last step's info (the first step, previous == nullptr, is Euler anyway).
     const bool restart = data.rigid[r].at_limit;
     const bool multistep = bdf2 && previous;
-    double h_used = 0;
     data.rigid[r] = rigid::bdf2_step(model.rigid[r], in.rigid[r], multistep ? &previous->rigid[r] : nullptr,
                                      model.step.dt, model.step.gravity, zero, zero, data.hat.rigid[r], out.rigid[r],
-                                     true, restart, &h_used);
-    if (fell_back && multistep && h_used == model.step.dt) *fell_back = true;
+                                     true, restart);
+    if (fell_back && multistep && !data.rigid[r].bdf2) *fell_back = true;  // the branch the step recorded
     if (!rigid::finite(out.rigid[r])) {
       status.code = StepStatus::Code::non_finite;
       status.step = step_index;

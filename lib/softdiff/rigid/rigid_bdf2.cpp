@@ -57,9 +57,10 @@ StepInfo bdf2_step(const RigidBody& body, const RigidState& in, const RigidState
   if (previous && !restart) {
     bdf2_extrapolate(body, in, *previous, hat);
     const double h2 = 2.0 * h / 3.0;
-    const StepInfo info = step(body, hat, h2, gravity, force, torque, out, enforce_limits);
+    StepInfo info = step(body, hat, h2, gravity, force, torque, out, enforce_limits);
     if (!info.at_limit) {
       if (h_used) *h_used = h2;
+      info.bdf2 = true;  // the step's record of its branch (StepInfo::bdf2)
       return info;
     }
   }

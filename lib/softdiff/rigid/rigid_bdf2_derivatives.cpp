@@ -5,6 +5,7 @@
 
 #include <Eigen/LU>
 
+#include <stdexcept>
 #include <tuple>
 
 namespace softdiff::rigid {
@@ -105,21 +106,12 @@ void extrapolation_jacobian(const RigidBody& body, const RigidState& in, const R
   }
 }
 
-bool bdf2_branch_taken(const RigidBody& body, const RigidState& in, const RigidState* previous, bool restart, double h,
-                       const Vec3& gravity) {
-  if (!previous || restart) return false;
-  if (!body.joint.limits) return true;
-  // The BDF2 end reaching a limit makes the step implicit Euler (rigid_bdf2.cpp): redo it.
-  RigidState hat_state, out;
-  bdf2_extrapolate(body, in, *previous, hat_state);
-  const Vec3 zero = Vec3::Zero();
-  return !step(body, hat_state, 2.0 * h / 3.0, gravity, zero, zero, out, true).at_limit;
-}
-
-void bdf2_step_jacobian(const RigidBody& body, const RigidState& in, const RigidState* previous, bool restart,
+void bdf2_step_jacobian(const RigidBody& body, const RigidState& in, const RigidState* previous,
                         const RigidState& hat_state, const RigidState& out, const StepInfo& info, double h,
                         const Vec3& gravity, Bdf2StepJacobian& J) {
-  J.bdf2 = bdf2_branch_taken(body, in, previous, restart, h, gravity);
+  J.bdf2 = info.bdf2;  // the branch the step recorded (rigid_bdf2.cpp)
+  if (J.bdf2 && !previous)
+    throw std::invalid_argument("rigid body '" + body.name + "': a BDF2 step's Jacobian needs the previous state");
   J.h_used = J.bdf2 ? 2.0 * h / 3.0 : h;
   step_jacobian(body, J.bdf2 ? hat_state : in, out, info, J.h_used, gravity, Vec3::Zero(), J.step);
   if (!J.bdf2) {

@@ -19,9 +19,9 @@
 //     s_n moved by e along the joint (p^ = a + R_e (p_n - a), q^ = exp(e n) q_n) with the
 //     rate (1 + c) n.omega_n - c n.omega_{n-1} (n.v for a slider).
 //   fixed: s^ = s_n.
-// Which branch the step took is decided again from (in, previous, restart): the BDF2
-// branch unless previous is null or restart, or the BDF2 end reached a limit (the step
-// from s^ is recomputed, one small step per body).
+// Which branch the step took is the step's record, StepInfo::bdf2 (set by bdf2_step: the
+// BDF2 branch unless previous is null or restart, or the BDF2 end reached a limit): it
+// is read, never decided again (2026-12-03, rbranch).
 #include <softdiff/rigid/rigid_derivatives.hpp>
 
 namespace softdiff::rigid {
@@ -37,7 +37,8 @@ void extrapolation_jacobian(const RigidBody& body, const RigidState& in, const R
 // The Jacobian of one rigid BDF2 step (bdf2_step) that went from in (and previous) to out
 // with `info`, hat the extrapolated start state it left. state: d out / d in; previous:
 // d out / d previous (zero on the implicit Euler branch); params: d out / d params.
-// bdf2 is set to the branch taken, h_used to its step length.
+// bdf2 is set to the branch the step recorded (info.bdf2), h_used to its step length.
+// previous may be null on the implicit Euler branch only (std::invalid_argument otherwise).
 struct Bdf2StepJacobian {
   bool bdf2 = false;
   double h_used = 0;
@@ -46,10 +47,7 @@ struct Bdf2StepJacobian {
   Mat12 state = Mat12::Zero(), previous = Mat12::Zero();
   Mat12x7 params = Mat12x7::Zero();
 };
-// True when the step bdf2_step(body, in, previous, h, ..., restart) took the BDF2 branch.
-bool bdf2_branch_taken(const RigidBody& body, const RigidState& in, const RigidState* previous, bool restart, double h,
-                       const Vec3& gravity);
-void bdf2_step_jacobian(const RigidBody& body, const RigidState& in, const RigidState* previous, bool restart,
+void bdf2_step_jacobian(const RigidBody& body, const RigidState& in, const RigidState* previous,
                         const RigidState& hat, const RigidState& out, const StepInfo& info, double h,
                         const Vec3& gravity, Bdf2StepJacobian& J);
 

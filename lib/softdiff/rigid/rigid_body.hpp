@@ -88,6 +88,11 @@ double wrap_angle(double angle, double centre);
 
 struct StepInfo {
   bool at_limit = false;             // a joint limit was active at the end of the step
+  // The branch the step took (rigid::bdf2_step, rigid_bdf2.hpp): true for BDF2 (rigid::step
+  // of 2h/3 from the extrapolated state), false for implicit Euler of size h (rigid::step
+  // itself; bdf2_step's first step, restart, or BDF2 end reaching a limit). The step's
+  // derivatives read it (rigid_bdf2_derivatives.hpp): the branch is never decided again.
+  bool bdf2 = false;
   // Hinge, slider: the joint rate the step would end with without its limits (the
   // unconstrained root / h, before the clamp; the end rate when no limit acted). The
   // contact stage's free rate of a limited joint, whose limits are rows of the NCP
