@@ -591,23 +591,12 @@ void CollisionDetector::Impl::soft_soft(const PairRule& rule, const VecX& x, Con
     const Vec3 m = edge_normal(B, cand.eb) - edge_normal(A, cand.ea);
     const Vec3 d = r.point_p - r.point_q;
     const double dist = std::sqrt(r.dist2);
-    // Two crossing (non-parallel) edges, closest at interior points: the normal is their
-    // unit cross product (what d / dist is in exact arithmetic, d being perpendicular to
-    // both), oriented as d / dist; not d / dist itself, whose components across the edges
-    // are round-off over dist (1e-5 rad at dist 1e-12 m: an edge resting on a face
-    // below). The criterion and the normal are contact_derivatives.cpp's. As the
-    // vertex-triangle face normal above (docs/method.md "Scenes of rigid bodies only").
-    const Vec3 cr = (pa1 - pa0).cross(pb1 - pb0);
-    const bool crossing = cr.squaredNorm() > 1e-14 * (pa1 - pa0).squaredNorm() * (pb1 - pb0).squaredNorm();
     Vec3 n;
-    if (crossing) {
-      const Vec3 N = cr.normalized();
-      n = dist > tiny ? Vec3((d.dot(m) < 0 ? -1.0 : 1.0) * (d.dot(N) < 0 ? -1.0 : 1.0) * N)
-                      : Vec3((N.dot(m) < 0 ? -1.0 : 1.0) * N);
-    } else if (dist > tiny) {
+    if (dist > tiny) {
       n = (d.dot(m) < 0 ? -1.0 : 1.0) * d / dist;
     } else {
-      n = unit_or(m, Vec3(0, 0, 1));
+      const Vec3 cr = (pa1 - pa0).cross(pb1 - pb0);
+      n = cr.norm() > 0 ? Vec3((cr.dot(m) < 0 ? -1.0 : 1.0) * cr.normalized()) : unit_or(m, Vec3(0, 0, 1));
     }
     // Facing surfaces only (as for vertex-triangle): A's edge normal towards B, B's
     // towards A.
