@@ -235,36 +235,6 @@ TEST(Detection, TwoBoxesFacing) {
   }
 }
 
-// Two boxes facing at a gap of 2e-12 m (above the 1e-12 m below which the normal was
-// already the face's), turned to a generic orientation so that no coordinate is exact:
-// every vertex-triangle normal is the face's (+-R z here) to round-off. Before 2026-12-03
-// (rstack) it was d / |d|, whose components along the face are the closest point's
-// round-off over the gap (~1e-17 / 2e-12 = 5e-6; this test against the former
-// detection.cpp: 4.4e-6 to 8.9e-6 off): the noise that made the rigid stack's
-// differences diverge (docs/method.md "Scenes of rigid bodies only", *Resting rigid-rigid
-// contacts*). Edge-edge normals stay d / |d| (the cross product stalled a redundant
-// soft-rigid manifold's NCP: validation_rigid CubeRestsOnASoftSlab): not checked here.
-TEST(Detection, VertexTriangleNormalAtATinyGapIsTheFaces) {
-  const double margin = 1e-3, gap = 2e-12;
-  Scene s = two_boxes(gap);
-  const Mat3 R = Eigen::AngleAxisd(0.7, Vec3(0.3, -0.5, 0.8).normalized()).toRotationMatrix();
-  s.X = R * s.X;
-  CollisionDetector det(model_of(s, {}, {{0, 1, 0.2}}, margin));
-  ContactSet cs;
-  det.detect(s.x(), cs);
-  const Vec3 up = R * Vec3::UnitZ();
-  int vt = 0;
-  for (const auto& c : cs.contacts) {
-    check_contact(c);
-    EXPECT_NEAR(c.gap, gap, 1e-13);
-    if (c.kind != ContactKind::vertex_triangle) continue;
-    ++vt;
-    const Vec3 n = c.frame.col(2);
-    EXPECT_LT(std::min((n - up).norm(), (n + up).norm()), 1e-13) << "features " << c.feature_a << ", " << c.feature_b;
-  }
-  EXPECT_EQ(vt, 18);
-}
-
 TEST(Detection, RelativeVelocityAndGapRate) {
   const double margin = 1e-3;
   for (const double gap : {4e-4, -2e-4}) {

@@ -169,8 +169,8 @@ class RigidOnlyDerivatives : public ::testing::TestWithParam<Case> {};
 // converge as eps shrank (45, 576 at eps 1e-7, 3e-8, two steps): a perturbed run's wedge
 // contacts have gaps of ~1e-12 m after the first step, and the vertex-triangle normal was
 // d / |d|, tilted by round-off / gap (1e-5 rad), which times the wedge's 0.5 m/s sliding
-// put ~1e-6 m/s into the normal rows; the normal is now the face's (collision/
-// detection.cpp; docs/method.md "Scenes of rigid bodies only"). These columns now give
+// put ~1e-6 m/s into the normal rows; the normal is now the face's (contact_step.cpp
+// rigid_face_normals; docs/method.md "Scenes of rigid bodies only"). These columns now give
 // 1.78, 0.714 (prism) and 2.43, 2.56 (wedge) at every eps from 1e-6 to 3e-8. Their x0
 // step is the default 1e-7: at 1e-6 the wedge's height column has the eps^2 truncation
 // above (1.2e-3 against 1.41, two steps).

@@ -519,17 +519,7 @@ void CollisionDetector::Impl::soft_soft(const PairRule& rule, const VecX& x, Con
     const Vec3 d = p - r.point;
     const double dist = std::sqrt(r.dist2);
     const double sign = d.dot(pseudo) < 0 ? -1.0 : 1.0;
-    // Against a triangle's interior (Feature::face) the normal is the face's own (unit,
-    // outward: what sign * d / dist is in exact arithmetic, the closest point being the
-    // vertex's projection), not d / dist: d's components along the face are round-off
-    // (~1e-17 m at positions of 0.1 m), so d / dist would tilt by ~1e-17 / dist, 1e-5 rad
-    // at a gap of 1e-12 m. A resting rigid-rigid contact (gaps of 1e-12 m after the
-    // position step) then had a normal noisy in its tangential components, which, times
-    // a sliding velocity, fed noise of ~1e-6 m/s into the normal rows: the two-box
-    // stack's finite differences over two steps grew as 1/eps (docs/method.md "Scenes of
-    // rigid bodies only"). The face normal is what contact_derivatives.cpp differentiates.
-    const bool face = r.feature == Feature::face && pseudo.squaredNorm() > 0;
-    const Vec3 n = face ? pseudo : dist > tiny ? Vec3(sign * d / dist) : unit_or(pseudo, Vec3(0, 0, 1));
+    const Vec3 n = dist > tiny ? Vec3(sign * d / dist) : unit_or(pseudo, Vec3(0, 0, 1));
     // The surfaces must face each other along n: the vertex's own (angle-weighted)
     // normal must point towards the triangle. A vertex on an edge of its surface that
     // lies in the plane of a side face of the other body (coplanar sides, common with

@@ -96,6 +96,32 @@ void drop_planar_rigid_edges(const Model& model, std::vector<collision::Contact>
              list.end());
 }
 
+// A vertex of one rigid body against the interior of a triangle of another (Feature::
+// face) takes that face's normal, computed from its three pseudo-nodes, and the gap
+// along it: detection's n = d / |d| (d = vertex - closest point) has components along
+// the face that are round-off over the gap (~1e-17 m / gap: 1e-5 rad at 1e-12 m, the
+// gaps of a resting contact after a step). Times a sliding velocity that tilt put ~1e-6
+// m/s into the normal rows, and the two-body stack's differences over two steps grew as
+// 1/eps (docs/method.md "Scenes of rigid bodies only", *Resting rigid-rigid contacts*).
+// The face normal is d / |d| in exact arithmetic and what contact_derivatives.cpp
+// differentiates. Rigid-rigid pairs only: soft ones keep detection's normal as measured
+// (the same change in detection.cpp for every pair made a rigid cube resting on a soft
+// slab, validation_rigid CubeRestsOnASoftSlab, miss its NCP tolerance on many steps).
+void rigid_face_normals(const Model& model, const VecX& x, std::vector<collision::Contact>& list) {
+  const int n = model.fem.num_nodes;
+  for (auto& c : list) {
+    if (c.kind != collision::ContactKind::vertex_triangle || c.kind_b != collision::Feature::face || c.nodes[0] < n ||
+        c.nodes[1] < n)
+      continue;
+    const Vec3 p = x.segment<3>(3 * c.nodes[0]), a = x.segment<3>(3 * c.nodes[1]);
+    const Vec3 cr = (x.segment<3>(3 * c.nodes[2]) - a).cross(x.segment<3>(3 * c.nodes[3]) - a);
+    if (!(cr.squaredNorm() > 0)) continue;
+    const Vec3 N = (cr.dot(c.frame.col(2)) < 0 ? -1.0 : 1.0) * cr.normalized();
+    c.frame = collision::frame_from_normal(N);
+    c.gap = N.dot(p - c.point_b);
+  }
+}
+
 }  // namespace
 
 void contact_jacobian_transpose(const Model& model, const collision::ContactSet& contacts, SparseMatrix& Ht) {
@@ -181,6 +207,7 @@ void detect_contacts(const Model& model, Data& data, const VecX& x, const VecX& 
     drop_inert_contacts(model, h, margin, cd.rigid.v_previous, free_motion_widens ? cd.rigid.v_free : cd.rigid.v_previous,
                         cd.contacts.contacts);
     drop_planar_rigid_edges(model, cd.contacts.contacts);
+    rigid_face_normals(model, cd.rigid.x, cd.contacts.contacts);
     // A rigid body's resting manifold on an obstacle face: its extreme points only (exact;
     // rigid_contact.hpp reduce_rigid_manifolds).
     if (model.contact.reduce_rigid_manifolds) reduce_rigid_manifolds(model, data, cd.contacts.contacts);
