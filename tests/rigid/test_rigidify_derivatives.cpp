@@ -893,6 +893,38 @@ TEST(RigidifyDerivatives, NewtonServoAttachedPartMatchesCentralDifferences) {
   check_dot_product(model, in, false);
 }
 
+// control's actuation Jacobian under Newton: actuation_jvps (the reduced solve on A_f per
+// column) against jvp() per column and central differences (as ActuationJvpsMatch...).
+TEST(RigidifyDerivatives, NewtonActuationJvpsMatchJvpAndCentralDifferences) {
+  const Model model = load("newton_actuation_jvps", kServoTip, "", kNewton);
+  const auto na = static_cast<Eigen::Index>(model.actuation.actuators.size());
+  const Eigen::Index n = 3L * model.fem.num_nodes;
+  const State in = advance(model, 5);
+  Data data(model);
+  State out;
+  ASSERT_TRUE(integrator::implicit_euler_step(model, data, in, out, 1).ok());
+  const VecX lambda0 = data.lambda_a;
+  integrator::StepDerivatives D(model, {});
+  const MatX directions = MatX::Identity(na, na);
+  MatX dx;
+  ASSERT_TRUE(D.actuation_jvps(model, data, in, out, directions, dx));
+  ASSERT_EQ(dx.rows(), n);
+  const double eps = 1e-5 * lambda0.cwiseAbs().maxCoeff();
+  for (Eigen::Index j = 0; j < na; ++j) {
+    StepTangent t;
+    t.lambda_a = directions.col(j);
+    StateTangent r;
+    ASSERT_TRUE(D.jvp(model, data, in, out, t, r));
+    ASSERT_GT(r.x.norm(), 0);
+    EXPECT_LE((dx.col(j) - r.x).norm(), 1e-12 * r.x.norm()) << "column " << j;
+    VecX lp = lambda0, lm = lambda0;
+    lp[j] += eps;
+    lm[j] -= eps;
+    const VecX fd = (step_output(model, in, &lp) - step_output(model, in, &lm)).head(n) / (2 * eps);
+    expect_close(dx.col(j), fd, 1e-6, "newton actuation_jvps column " + std::to_string(j));
+  }
+}
+
 TEST(RigidifyDerivatives, NewtonTrajectoryMatchesWholeRunDifferences) {
   check_trajectory(load("newton_trajectory", kTwoParts, "", kNewton));
 }
