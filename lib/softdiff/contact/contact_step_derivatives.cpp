@@ -106,9 +106,11 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
                                                      std::to_string(3L * n_rows));
     const Eigen::Index k_bodies = with_rigid ? Kt->rows() : 0;
     const Eigen::Index k_more = Kt_more ? Kt_more->rows() : 0;
+    // (the sparse backend's record, or with Newton the converged tangent's rows on either
+    // backend: rigidify_derivatives.hpp newton_contact_rows)
     if (Kt_more)
-      SOFTDIFF_DEMAND(cd.G.rows() == 0 && Kt_more->cols() == 3 * static_cast<Eigen::Index>(nc),
-                      "contact derivative: a rigidified part's rows K_p are the sparse backend's (3 nc columns)");
+      SOFTDIFF_DEMAND(Kt_more->cols() == 3 * static_cast<Eigen::Index>(nc),
+                      "contact derivative: a rigidified part's rows K_p need 3 nc columns");
     if (k_bodies + k_more > 0) {
       Kt_active_.setZero(k_bodies + k_more, 3 * na);
       for (int b = 0; b < na; ++b) {

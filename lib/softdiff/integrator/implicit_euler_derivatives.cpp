@@ -55,10 +55,15 @@ void demand_parts_supported(const Model& model, const Data& data) {
   const std::string part = model.rigidify.parts.front().name;
   // BDF2: the stage from the extrapolated state (the record's hat) is this step; the
   // extrapolation's derivative is multistep_jvp / multistep_vjp's (rigidify_bdf2_derivatives.hpp).
-  SOFTDIFF_DEMAND((model.step.integrator == IntegratorKind::implicit_euler || model.step.integrator == IntegratorKind::bdf2) &&
-                      model.step.newton_iterations == 1,
+  // Newton (newton_iterations > 1): the implicit function theorem on the converged
+  // reduced equations, A_f's own Schur complement (RigidifiedStepDerivative::prepare_newton),
+  // with contact the reduced Delassus rows at A_f (prepare_contact); not with rigid bodies
+  // in contact (not tested: issue 21).
+  SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler || model.step.integrator == IntegratorKind::bdf2,
+                  "step derivatives with rigidified parts (" + part + "): implicit_euler or bdf2 only (issue 21)");
+  SOFTDIFF_DEMAND(model.step.newton_iterations == 1 || !model.contact.with_rigid() || data.contact.contacts.empty(),
                   "step derivatives with rigidified parts (" + part +
-                      "): implicit_euler or bdf2 with newton_iterations 1 only (issue 21)");
+                      "), newton_iterations > 1 and rigid bodies in contact: not supported yet (issue 21)");
   // In contact: the dense record's G (it holds the parts' rank-6m term, and with rigid
   // bodies in contact their blocks too: rpint; the extended pseudo-node vectors take the
   // soft rows' cotangents and tangents from the parts' reduced solves), or on the sparse
@@ -74,6 +79,20 @@ void demand_parts_supported(const Model& model, const Data& data) {
 // The step size of the record: data.h (dt for implicit Euler, 2 dt / 3 for BDF2), or
 // dt before any step.
 double step_size(const Model& model, const Data& data) { return data.h > 0 ? data.h : model.step.dt; }
+
+// Newton with parts (v~ = v_i + P z: the step's v_i enters R directly and through v~):
+// out = (A_f - M) w = h alpha M w + h beta K~(x_i) w + h^2 K(x_f) w per body.
+void newton_damped_product(const Model& model, const Data& data, double h, const VecX& w, VecX& out, VecX& work) {
+  const auto& fem = model.fem;
+  fem::symmetric_multiply(fem, fem.mass_values, w, out);
+  fem::symmetric_multiply(fem, data.K_i_values, w, work);
+  for (const auto& b : fem.bodies) {
+    const int begin = 3 * b.node_begin, len = 3 * b.num_nodes;
+    out.segment(begin, len) = h * b.rayleigh_mass * out.segment(begin, len) + h * b.rayleigh_stiffness * work.segment(begin, len);
+  }
+  fem::symmetric_multiply(fem, data.fem.K_values, w, work);
+  out += h * h * work;
+}
 
 void demand_size(const VecX& v, Eigen::Index n, const char* name) {
   SOFTDIFF_DEMAND(v.size() == 0 || v.size() == n, std::string(name) + ": expected size " + std::to_string(n) +
@@ -97,7 +116,7 @@ StepDerivatives::StepDerivatives(const Model& model, std::vector<ParameterId> pa
                                                     std::to_string(p.body) + " does not exist");
   }
   const Eigen::Index n = 3L * model.fem.num_nodes;
-  for (VecX* v : {&r_, &y_, &q_, &w_, &delta_, &tmp_, &tmp2_, &zero_, &q_extra_, &work_}) *v = VecX::Zero(n);
+  for (VecX* v : {&r_, &y_, &q_, &w_, &delta_, &tmp_, &tmp2_, &zero_, &q_extra_, &work_, &newton_work_}) *v = VecX::Zero(n);
   zero_bodies_ = VecX::Zero(nb);
 }
 
@@ -231,6 +250,15 @@ bool StepDerivatives::prepare_contact(const Model& model, const Data& data, cons
       extended.G = nullptr;
       extended.Kt = &rigid_.extended_Kt();
     }
+  } else if (!model.rigidify.empty() && is_newton(model)) {
+    // Newton with parts (rnewtp): the reduced Delassus rows at the converged tangent A_f
+    // (H_f^T and K_f = L_{S_f}^{-1} W_f on A_f's Schur complement, prepare_newton), on
+    // either backend: the record's G or rows are the last iteration's, one iterate earlier.
+    const auto& cd = data.contact;
+    parts_.newton_contact_rows(model, data, cd.Ht);
+    extended = {nullptr, &cd.mu, &cd.lambda, &cd.sigma, &cd.modes};
+    extended.Ht = &parts_.newton_Ht_soft();
+    extended.Kt_more = &parts_.newton_K();
   } else if (!model.rigidify.empty() && data.contact.G.rows() == 0) {
     const auto& cd = data.contact;
     extended = {nullptr, &cd.mu, &cd.lambda, &cd.sigma, &cd.modes};
@@ -280,6 +308,7 @@ LinearSolver* StepDerivatives::system(const Model& model, const Data& data, cons
   }
   assemble_system_matrix(model, h, data.K_i_values, data.fem.K_values, newton_A_);
   if (!newton_solver_->factorize(newton_A_).ok) return nullptr;
+  ++newton_serial_;
   newton_v_ = out.v;
   newton_h_ = h;
   return newton_solver_.get();
@@ -349,6 +378,8 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
   delta_ = out.v - in.v;
   LinearSolver* solver = system(model, data, out);
   if (!solver) return false;
+  // Newton with parts: the reduced solves on A_f (its Schur complement, once per step).
+  if (parts && newton && !parts_.prepare_newton(model, data, *solver, newton_serial_)) return false;
 
   r_.setZero();
   if (d.x.size()) {
@@ -369,7 +400,14 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
     if (d.lambda_a.size()) model.actuation.add_forces(in.x, d.lambda_a, h, r_);
   }
   if (d.v.size()) {
-    if (newton) {
+    if (newton && parts) {
+      // v~ = Pi v_i + P z (Newton's iterates are projected: v_i's fixed dofs do not enter
+      // R): -dR/dv_i dv_i = M dv_i - A_f Pi dv_i, and dv~ = Pi dv_i + the solve's terms below.
+      tmp2_ = dv;
+      project(model, tmp2_);
+      newton_damped_product(model, data, h, tmp2_, tmp_, newton_work_);
+      r_ -= tmp_;
+    } else if (newton) {
       fem::symmetric_multiply(fem, fem.mass_values, dv, tmp_);  // -dR/dv_i dv_i = M dv_i
       r_ += tmp_;
     } else {
@@ -406,7 +444,7 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
   project(model, r_);
   if (!(parts ? parts_.solve(model, data, r_, true, y_) : solver->solve(r_, y_))) return false;
   // Linearized: y = dDelta, dv_f = dv_i + dDelta; Newton: y = dv_f.
-  d_out.v = newton ? y_ : VecX(dv + y_);
+  d_out.v = newton && !parts ? y_ : VecX(dv + y_);
   if (parts) parts_.add_dPz(d_out.v);
   project(model, d_out.v);
   if (contact) {
@@ -468,6 +506,7 @@ bool StepDerivatives::actuation_jvps(const Model& model, const Data& data, const
   }
   LinearSolver* solver = system(model, data, parts ? parts_.solve_state() : out);
   if (!solver) return false;
+  if (parts && is_newton(model) && !parts_.prepare_newton(model, data, *solver, newton_serial_)) return false;
   const Eigen::Index k = dlambda.cols();
   if (parts) {
     dx_out.resize(n, k);
@@ -524,6 +563,7 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
   delta_ = out.v - in.v;
   LinearSolver* solver = system(model, data, out);
   if (!solver) return false;
+  if (parts && newton && !parts_.prepare_newton(model, data, *solver, newton_serial_)) return false;
 
   // v~ = Pi (bar_v_f + h bar_x_f), y = A^{-1} v~.
   tmp_ = bar_out.v.size() ? bar_out.v : zero_;
@@ -566,6 +606,11 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
 
   if (n == 0) {
     bar_in.v.resize(0);  // a scene of rigid bodies only: no soft term below
+  } else if (newton && parts) {
+    bar_in.v = *v_direct;  // dv~ = Pi dv_i + ..., minus (A_f - M) Pi dv_i through the solve
+    newton_damped_product(model, data, h, y_, tmp2_, newton_work_);
+    project(model, tmp2_);
+    bar_in.v -= tmp2_;
   } else if (newton) {
     fem::symmetric_multiply(fem, fem.mass_values, y_, bar_in.v);
   } else {

@@ -196,6 +196,8 @@ class StepDerivatives {
   MatX newton_G_;                    // Newton with joint limits in contact: the contacts' G with A_f
   VecX newton_v_;                    // the v_f newton_A_ was factorized for
   double newton_h_ = 0;              // and its step size
+  long newton_serial_ = 0;           // counts newton_solver_'s factorizations (parts_.prepare_newton's cache key)
+  VecX newton_work_;                 // (3n) Newton with parts: (A_f - M) w's scratch
   // Rigidified parts (model.rigidify; rigidify_derivatives.hpp): the reduced solve's and
   // the placement's derivative terms, prepared per jvp / vjp from the step's record.
   RigidifiedStepDerivative parts_;

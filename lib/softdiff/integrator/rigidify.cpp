@@ -1,5 +1,6 @@
 // Rigidified parts of soft bodies: see rigidify.hpp and docs/method.md "Rigidified parts".
 #include <softdiff/integrator/rigidify.hpp>
+#include <softdiff/integrator/rigidify_derivatives.hpp>
 #include <softdiff/integrator/rigidify_pcg.hpp>
 #include <softdiff/integrator/static_rigid.hpp>
 #include <softdiff/rigid/rotation.hpp>
@@ -140,6 +141,10 @@ StepStatus schur_complement(const Model& model, Data& data, long step_index) {
   return status;
 }
 }  // namespace
+
+void rigidified_coupling(const Model& model, const Data& data, double h, const VecX* K_damping, MatX& C, MatX& D) {
+  coupling(model, data, data.rigidify, h, K_damping, C, D);
+}
 
 StepStatus prepare_rigidified(const Model& model, Data& data, const VecX& x, double h, long step_index,
                               const VecX* K_damping) {

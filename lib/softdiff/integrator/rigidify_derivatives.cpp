@@ -1,7 +1,9 @@
 // Derivatives of the implicit Euler step with rigidified parts: see rigidify_derivatives.hpp.
 #include <softdiff/integrator/rigidify_derivatives.hpp>
 
+#include <softdiff/core/assert.hpp>
 #include <softdiff/fem/assembly.hpp>
+#include <softdiff/integrator/linear_solver.hpp>
 #include <softdiff/integrator/rigidify.hpp>
 #include <softdiff/integrator/rigidify_pcg.hpp>
 #include <softdiff/rigid/rotation.hpp>
@@ -35,8 +37,10 @@ void RigidifiedStepDerivative::prepare(const Model& model, const Data& data, con
   const RigidifyModel& rm = model.rigidify;
   const Eigen::Index n = 3L * fem.num_nodes, m6 = 6L * rm.size();
   h_ = h;
+  newton_ = model.step.newton_iterations > 1 && fem.num_nodes > 0;
+  newton_solver_ = nullptr;  // prepare_newton's (a Newton step's solves need it)
   parts_.resize(rm.parts.size());
-  for (VecX* v : {&r_res_, &da_, &dpz_, &w_, &Mw_, &Kw_, &Aw_, &bar_a_, &b_soft_, &y_})
+  for (VecX* v : {&r_res_, &da_, &dpz_, &w_, &Mw_, &Kw_, &Aw_, &bar_a_, &b_soft_, &y_, &Kiw_})
     if (v->size() != n) v->setZero(n);
   if (g_extra_.size() != m6) {
     g_extra_.setZero(m6);
@@ -76,10 +80,15 @@ void RigidifiedStepDerivative::prepare(const Model& model, const Data& data, con
       solve_.v.segment<3>(3 * i) = in.v.segment<3>(3 * i) + q.u_z.head<3>() + q.u_z.tail<3>().cross(a);
     }
   }
+  // Newton: the elastic force's positions are the straight-line iterate x_i + h v~ (not the
+  // placed pose): the parameter columns (poisson's df/dnu) evaluate there.
+  if (newton_) solve_.x = in.x + h * solve_.v;
   // r_res = h (P + f_int + f_act) - h alpha M v~ - (h beta + h^2) K~ v~ - M Delta + h H^T lambda,
-  // the parts' rows (zero resultant and moment on each part).
+  // the parts' rows (zero resultant and moment on each part). Newton: -R(v~) = h (P +
+  // f_int(x_i + h v~) + f_act) - h alpha M v~ - h beta K~(x_i) v~ - M Delta + h H^T lambda
+  // (data.fem holds the converged iterate's f_int, data.K_i_values K~(x_i)).
   fem::symmetric_multiply(fem, fem.mass_values, solve_.v, Mw_);
-  fem::symmetric_multiply(fem, data.fem.K_values, solve_.v, Kw_);
+  fem::symmetric_multiply(fem, newton_ ? data.K_i_values : data.fem.K_values, solve_.v, Kw_);
   w_ = solve_.v - in.v;
   fem::symmetric_multiply(fem, fem.mass_values, w_, Aw_);
   const bool contact = model.contact.enabled && !data.contact.contacts.empty();
@@ -87,7 +96,7 @@ void RigidifiedStepDerivative::prepare(const Model& model, const Data& data, con
   r_res_.setZero();
   for (const auto& part : rm.parts) {
     const auto& b = fem.bodies[static_cast<std::size_t>(part.body)];
-    const double ha = h * b.rayleigh_mass, k = h * b.rayleigh_stiffness + h * h;
+    const double ha = h * b.rayleigh_mass, k = h * b.rayleigh_stiffness + (newton_ ? 0.0 : h * h);
     for (int i : part.nodes)
       for (int c = 3 * i; c < 3 * i + 3; ++c) {
         double r = h * (fem.gravity_force[c] + data.fem.f_int[c]) - ha * Mw_[c] - k * Kw_[c] - Aw_[c];
@@ -98,10 +107,63 @@ void RigidifiedStepDerivative::prepare(const Model& model, const Data& data, con
   }
 }
 
+bool RigidifiedStepDerivative::prepare_newton(const Model& model, const Data& data, LinearSolver& solver, long serial) {
+  newton_solver_ = &solver;
+  if (serial == newton_serial_) return true;
+  newton_serial_ = -1;
+  const Eigen::Index n = 3L * model.fem.num_nodes, m6 = 6L * model.rigidify.size();
+  if (C_.rows() != n || C_.cols() != m6) {
+    C_.resize(n, m6);
+    Y_.resize(n, m6);
+    S_.resize(m6, m6);
+    S_factor_ = Eigen::LLT<MatX>(m6);
+  }
+  // C = A_f,fr T and S = T^T A_f,rr T - C^T A_f,ff^{-1} C at the step's arms (x_i): the
+  // step's prepare_rigidified on A_f instead of the last iteration's A_k.
+  rigidified_coupling(model, data, h_, &data.K_i_values, C_, S_);
+  if (!solver.solve(C_, Y_)) return false;
+  S_.noalias() -= C_.transpose() * Y_;
+  for (Eigen::Index j = 0; j < m6; ++j)
+    for (Eigen::Index i = 0; i < j; ++i) S_(i, j) = S_(j, i) = 0.5 * (S_(i, j) + S_(j, i));
+  S_factor_.compute(S_);
+  if (S_factor_.info() != Eigen::Success) return false;
+  newton_serial_ = serial;
+  return true;
+}
+
+void RigidifiedStepDerivative::newton_contact_rows(const Model& model, const Data& data, const SparseMatrix& Ht) {
+  const RigidifyModel& rm = model.rigidify;
+  const RigidifyData& w = data.rigidify;  // the arms (x_i, centres)
+  const Eigen::Index ncols = Ht.cols(), m6 = 6L * rm.size();
+  Ht_soft_ = Ht;
+  Ht_soft_.prune([&](Eigen::Index row, Eigen::Index, double) { return rm.dof_part[static_cast<std::size_t>(row)] < 0; });
+  K_.resize(m6, ncols);
+  K_.noalias() = -(Y_.transpose() * Ht_soft_);
+  for (Eigen::Index col = 0; col < ncols; ++col)
+    for (SparseMatrix::InnerIterator it(Ht, col); it; ++it) {
+      const int dof = static_cast<int>(it.row()), p = rm.dof_part[static_cast<std::size_t>(dof)];
+      if (p < 0) continue;
+      const Vec3 r = w.x.segment<3>(3 * (dof / 3)) - w.centre[static_cast<std::size_t>(p)];
+      K_.block<6, 1>(6 * p, col).noalias() += it.value() * rigid_row(r, dof % 3).transpose();
+    }
+  S_factor_.matrixL().solveInPlace(K_);  // W_f^T S_f^{-1} W_f = K_f^T K_f
+}
+
 void RigidifiedStepDerivative::system_product(const Model& model, const Data& data, const VecX& w, VecX& out) {
   const auto& fem = model.fem;
   fem::symmetric_multiply(fem, fem.mass_values, w, Mw_);
   fem::symmetric_multiply(fem, data.fem.K_values, w, Kw_);
+  if (newton_) {
+    // A_f = (1 + h alpha) M + h beta K~(x_i) + h^2 K(x_f)
+    fem::symmetric_multiply(fem, data.K_i_values, w, Kiw_);
+    for (const auto& b : fem.bodies) {
+      const int begin = 3 * b.node_begin, len = 3 * b.num_nodes;
+      out.segment(begin, len) = (1 + h_ * b.rayleigh_mass) * Mw_.segment(begin, len) +
+                                h_ * b.rayleigh_stiffness * Kiw_.segment(begin, len) +
+                                h_ * h_ * Kw_.segment(begin, len);
+    }
+    return;
+  }
   for (const auto& b : fem.bodies) {
     const int begin = 3 * b.node_begin, len = 3 * b.num_nodes;
     out.segment(begin, len) = (1 + h_ * b.rayleigh_mass) * Mw_.segment(begin, len) +
@@ -174,7 +236,18 @@ bool RigidifiedStepDerivative::solve(const Model& model, const Data& data, const
         g_.segment<3>(6 * p + 3) += a.cross(bi);
       }
   };
-  if (w.reduced_pcg) {
+  if (newton_) {
+    // Newton: A_f's Schur complement (prepare_newton) on the caller's factorization of A_f.
+    SOFTDIFF_DEMAND(newton_solver_ != nullptr && newton_serial_ >= 0,
+                    "rigidified parts' Newton derivative: prepare_newton() did not run for this step");
+    if (!newton_solver_->solve(b_soft_, y_)) return false;
+    g_.noalias() = -C_.transpose() * y_;
+    add_part_loads();
+    if (with_extra) g_ += g_extra_;
+    u_ = S_factor_.solve(g_);
+    v = y_;
+    v.noalias() -= Y_ * u_;
+  } else if (w.reduced_pcg) {
     // Factor reuse: the step kept a factor, and C, Y, S are the factorization's (the
     // preconditioner): PCG on the step's P^T A P from zero, to the step's PCG tolerance.
     // Not converged: the derivative fails (false), as a failed solve does.

@@ -4,7 +4,8 @@
 // (implicit_euler_derivatives.hpp) when model.rigidify is not empty: implicit Euler (or
 // BDF2's stage, from the record's hat state) with one Newton iteration, with or without
 // contact (dense backend: the record's G, formed by rigidified_congruence, is the
-// mode-fixed system's), rigid bodies in contact included.
+// mode-fixed system's), rigid bodies in contact included; with Newton (below) with or
+// without contact, not with rigid bodies in contact.
 //
 // The step with parts (rigidify.hpp): P^T A P z = P^T (b + h H^T lambda), Delta = P z,
 // v~ = v_i + Delta (the solve's velocity), then the exact placement of every part from
@@ -26,6 +27,15 @@
 // v~ and u_f are not stored by the step: they are recovered from the step's output
 // (the part's rigid field at the placed pose gives v_p and omega', and I' omega' = I
 // omega = L), and u_z = u_f - fit(v_i) (v~ = v_i + T u_z on the part).
+//
+// Newton (newton_iterations > 1; docs/method.md "Rigidified parts", *Derivatives*,
+// *Newton with parts*): the step solves F(z) = P^T R(v_i + P z) = 0 with P at x_i, R the
+// nonlinear residual (the elastic force at the straight-line iterate x_i + h v~). The
+// implicit function theorem at the converged z has the same terms as above with A the
+// converged tangent A_f = (1 + h alpha) M + h beta K~(x_i) + h^2 K(x_i + h v~) and r_res
+// = -R(v~) (h f_int(x_f), h beta K~(x_i) v~): prepare_newton() forms A_f's own Schur
+// complement (C, Y, S on the caller's factorization of A_f; the record's is one iterate
+// earlier), and the products, solves and r_res below are then A_f's.
 #include <softdiff/core/types.hpp>
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
@@ -35,6 +45,13 @@
 
 namespace softdiff::integrator {
 
+class LinearSolver;
+
+// The parts' coupling of A = (1 + h alpha) M + h beta K_damping + h^2 data.fem.K_values
+// (K_damping null: K_values) at the arms of data.rigidify (x, centre): C = A_fr T (3n x
+// 6m), D = T^T A_rr T (6m x 6m) (rigidify.cpp's, for the Newton derivative's Schur complement).
+void rigidified_coupling(const Model& model, const Data& data, double h, const VecX* K_damping, MatX& C, MatX& D);
+
 class RigidifiedStepDerivative {
  public:
   // From the record of the step in -> out (step size h): the parts' centres, fits,
@@ -43,6 +60,20 @@ class RigidifiedStepDerivative {
   // The step's output before the placement (v = v~; x, t, rigid those of out): the state
   // the derivative terms of the step without parts are evaluated at.
   const State& solve_state() const { return solve_; }
+  // Newton (model.step.newton_iterations > 1, after prepare()): the Schur complement on
+  // `solver`, a factorization of A_f (the parts' dofs identity rows, as the step's A),
+  // with K~(x_i) = data.K_i_values and K(x_f) = data.fem.K_values. `serial` names that
+  // factorization: the Schur complement is recomputed only when it changes (one 6m-column
+  // solve per step, not per tangent). False if a solve failed or S is not positive definite.
+  bool prepare_newton(const Model& model, const Data& data, LinearSolver& solver, long serial);
+  // Newton with contact (after prepare_newton): the rows of the reduced Delassus matrix at
+  // A_f, G_f = h (H_f A_f,ff^{-1} H_f^T + K_f^T K_f) with H_f^T = Ht without the parts'
+  // rows and K_f = L_{S_f}^{-1} W_f, W_f = T^T H_r^T - Y_f^T H_f^T (rigidify.cpp's
+  // rigidified_rows on A_f's Schur complement), for the mode-fixed system
+  // (ContactStageDerivative::prepare's NcpSystem Ht, Kt_more). No solve.
+  void newton_contact_rows(const Model& model, const Data& data, const SparseMatrix& Ht);
+  const SparseMatrix& newton_Ht_soft() const { return Ht_soft_; }
+  const MatX& newton_K() const { return K_; }
 
   // Forward: with the position tangent dx (empty: zero), r -= A dP z (rho above) and
   // the reduced right-hand side's dP^T r_res is kept for solve(..., true, ...).
@@ -84,6 +115,14 @@ class RigidifiedStepDerivative {
   void arms_to_positions(const Model& model, int p, const VecX& bar_a, const Vec3& bar_c, VecX& bar_x) const;
 
   double h_ = 0;
+  bool newton_ = false;              // the step is Newton's (A is A_f: prepare_newton)
+  LinearSolver* newton_solver_ = nullptr;
+  long newton_serial_ = -1;          // the factorization C_, Y_, S_ belong to
+  MatX C_, Y_, S_;                   // Newton: A_f's C (3n x 6m), Y = A_f,ff^{-1} C, S (6m x 6m)
+  Eigen::LLT<MatX> S_factor_;
+  SparseMatrix Ht_soft_;             // Newton with contact: H_f^T (3n x 3nc)
+  MatX K_;                           // and K_f = L_{S_f}^{-1} W_f (6m x 3nc)
+  VecX Kiw_;                         // (3n) Newton: K~(x_i) w
   std::vector<Part> parts_;
   State solve_;
   VecX x_;                 // (3n) the step's x_i
