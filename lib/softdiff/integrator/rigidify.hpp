@@ -38,9 +38,11 @@
 // equations P^T R(P u) = 0 with T at x_i (the iterates x_i + h P u; the end pose is
 // placed exactly as above). BDF2: the stage from the extrapolated state with the
 // parts' extrapolated state made rigid (rigidify_extrapolated_state). Static: the
-// reduced static Newton (static_solver.cpp). Derivatives: rigidify_derivatives.hpp
-// (implicit Euler, one Newton iteration, dense contact backend). Unsupported with parts
-// (refused, issue 21): factor reuse, the other derivatives.
+// reduced static Newton (static_solver.cpp). Factor reuse: the reduced PCG
+// (rigidify_pcg.hpp). Derivatives: rigidify_derivatives.hpp (implicit Euler and BDF2,
+// rigidify_bdf2_derivatives.hpp; Newton too; either contact backend). Refused with
+// parts (issue 21): static derivatives, and Newton or the sparse backend with rigid
+// bodies in contact.
 #include <softdiff/core/types.hpp>
 #include <softdiff/fem/fem_model.hpp>
 #include <softdiff/rigid/rotation.hpp>
