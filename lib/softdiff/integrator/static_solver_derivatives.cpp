@@ -54,6 +54,9 @@ constexpr double kRigidProximal = 1e-6;
 class EquilibriumSystem {
  public:
   EquilibriumSystem(const Model& model, Data& data) : model_(model), data_(data) {}
+  EquilibriumSystem(const EquilibriumSystem&) = delete;
+  EquilibriumSystem& operator=(const EquilibriumSystem&) = delete;
+  ~EquilibriumSystem() { restore_flat_contacts(); }
 
   void demand_supported() const {
     SOFTDIFF_DEMAND(model_.step.integrator == IntegratorKind::static_equilibrium,
@@ -69,7 +72,7 @@ class EquilibriumSystem {
     // (its bottom edges on the slab's faces: edge-edge contacts; not understood yet), so
     // only hinges (validated against differences) and fixed bodies are differentiated.
     for (const auto& b : model_.rigid)
-      SOFTDIFF_DEMAND(b.joint.kind == rigid::Joint::Kind::hinge || b.joint.kind == rigid::Joint::Kind::fixed,
+      SOFTDIFF_DEMAND(b.joint.kind != rigid::Joint::Kind::free,
                       "static derivatives of a free or slider rigid body are not supported yet (issue 21; rigid body '" +
                           b.name + "')");
     for (const auto& b : model_.rigid)
@@ -93,9 +96,11 @@ class EquilibriumSystem {
     for (VecX* v : {&r_, &y_, &z_, &z_next_, &m_, &tmp_}) v->setZero(n);
     if (!model_.actuation.empty()) model_.actuation.values(1.0, data_.lambda_a);
     if (!fem::evaluate(fem, *x_, {false, true, true}, data_.fem)) return false;
+    restore_flat_contacts();
     const auto& cd = data_.contact;
     contact_ = model_.contact.enabled && cd.contacts.size() > 0;
     if (!model_.rigid.empty()) prepare_rigid(equilibrium);
+    if (contact_) select_flat_contacts(model_.rigid.empty() ? *x_ : ext_x_);
     // Bodies held by contact alone: no fixed dof (the static solver's rule).
     held_.clear();
     if (model_.contact.enabled)
@@ -127,7 +132,8 @@ class EquilibriumSystem {
       if (!factorized && (held_.empty() || c >= kProximalMax)) return false;
     }
     if (!model_.rigid.empty()) return prepare_rigid_contact();
-    if (contact_ && !stage_.prepare(model_, cd, *x_, *data_.solver, 1.0, false, &modes_, &sigma_, &data_.A)) return false;
+    if (contact_ && !stage_.prepare(model_, contact_data(), *x_, *data_.solver, 1.0, false, &modes_, &sigma_, &data_.A))
+      return false;
     return true;
   }
 
@@ -197,6 +203,10 @@ class EquilibriumSystem {
   }
 
   bool contact() const { return contact_; }
+
+  // The contacts the derivative differentiates: the last NCP's (the flat ones' feature
+  // set to the face while this object lives: select_flat_contacts).
+  const ContactData& contact_data() const { return data_.contact; }
   // The largest relative change of the last refinement's last iteration (its accuracy).
   double last_change() const { return last_change_; }
 
@@ -224,11 +234,51 @@ class EquilibriumSystem {
     data_.factor_is_current = false;
   }
 
+  // A vertex-triangle contact whose closest point on the triangle is on an edge or a
+  // vertex has the normal n = (p - q) / |p - q| (collision/contact_derivatives.hpp), whose
+  // derivative is (I - n n^T) / |p - q|. At a static equilibrium the vertex rests on the
+  // other surface: |p - q| is the NCP's round-off (1e-15 m on the cube on the slab: a slab
+  // vertex under a vertex of the cube's bottom face), the geometry term lambda / |p - q|
+  // is ~1e13 times any stiffness and the refinement diverges (docs/method.md "Static
+  // equilibrium with rigid bodies", free and slider bodies). Where the feature is flat
+  // (the triangle's face normal within kFlatAngle of the contact's recorded normal: an
+  // edge or vertex between coplanar faces, where the surface's normal is the face's) and
+  // |p - q| < kFlatDistance times the contact margin, the contact is differentiated as
+  // the vertex against the face's plane (the same normal, force and gap; the normal's
+  // derivative the face's). A sharp feature touched at zero distance keeps its own
+  // (nondifferentiable there) derivative.
+  static constexpr double kFlatDistance = 1e-6;
+  static constexpr double kFlatAngle = 1e-6;  // 1 - |n . N|
+  void select_flat_contacts(const VecX& positions) {
+    const auto& cd = data_.contact;
+    const double limit = kFlatDistance * model_.contact.detection.margin;
+    for (int i = 0; i < cd.contacts.size(); ++i) {
+      const auto& c = cd.contacts.contacts[static_cast<std::size_t>(i)];
+      if (c.kind != collision::ContactKind::vertex_triangle || c.kind_b == collision::Feature::face || c.count != 4) continue;
+      Vec3 d = Vec3::Zero();  // p - q (weights (1, -barycentric))
+      for (int k = 0; k < c.count; ++k)
+        d += c.weights[static_cast<std::size_t>(k)] * positions.segment<3>(3L * c.nodes[static_cast<std::size_t>(k)]);
+      const Vec3 a = positions.segment<3>(3L * c.nodes[1]), e1 = positions.segment<3>(3L * c.nodes[2]) - a,
+                 e2 = positions.segment<3>(3L * c.nodes[3]) - a;
+      const Vec3 N = e1.cross(e2).normalized();
+      if (!(d.norm() < limit) || !(1 - std::abs(N.dot(c.frame.col(2))) < kFlatAngle)) continue;
+      flat_.emplace_back(i, c.kind_b);
+    }
+    // The record's feature of those contacts is the face while this object lives (the
+    // contact stage's derivative reads it from the record); restored by the destructor.
+    for (const auto& [i, kind] : flat_)
+      data_.contact.contacts.contacts[static_cast<std::size_t>(i)].kind_b = collision::Feature::face;
+  }
+  void restore_flat_contacts() {
+    for (const auto& [i, kind] : flat_) data_.contact.contacts.contacts[static_cast<std::size_t>(i)].kind_b = kind;
+    flat_.clear();
+  }
+
   // The augmented tangent applies when every active contact is a single node's (a
   // vertex against an obstacle): its rows' H_i^T H_i is that node's 3x3 block, in the
   // pattern.
   bool augmentable() const {
-    const auto& cd = data_.contact;
+    const auto& cd = contact_data();
     for (int i = 0; i < cd.contacts.size(); ++i)
       if (modes_[static_cast<std::size_t>(i)] != contact::Mode::breaking && cd.contacts.contacts[i].count != 1)
         return false;
@@ -241,7 +291,7 @@ class EquilibriumSystem {
   // H_E is positive definite where the contacts hold the bodies (an augmented
   // Lagrangian); rho from max |K_ii|, grown tenfold where it does not factorize.
   void augment(double rho) {
-    const auto& cd = data_.contact;
+    const auto& cd = contact_data();
     const SparseMatrix& A = data_.A;
     double* values = data_.A.valuePtr();
     auto value_index = [&](int row, int col) {
@@ -293,7 +343,7 @@ class EquilibriumSystem {
     project(model_, out);
     apply_w(rr_, zr_next_);  // the rigid part (rr_: its right-hand side)
     if (!contact_) return true;
-    const auto& cd = data_.contact;
+    const auto& cd = contact_data();
     b_.noalias() = cd.Ht.transpose() * out;
     if (rigid_size()) b_.noalias() += Ht_r_.transpose() * zr_next_;
     stage_.ncp().jvp(b_, dmu, dlambda_);
@@ -325,7 +375,7 @@ class EquilibriumSystem {
     const auto& fem = model_.fem;
     const int n = fem.num_nodes;
     const auto R = static_cast<Eigen::Index>(model_.rigid.size());
-    const auto& cd = data_.contact;
+    const auto& cd = contact_data();
     rigid_bodies_ = static_cast<int>(R);
     poses_ = equilibrium.rigid;
     const Eigen::Index pseudo = static_cast<Eigen::Index>(model_.contact.rigid_node_body.size());
@@ -397,7 +447,7 @@ class EquilibriumSystem {
   // the contacts' geometry derivatives at the extended positions).
   bool prepare_rigid_contact() {
     if (!contact_) return true;
-    const auto& cd = data_.contact;
+    const auto& cd = contact_data();
     const Eigen::Index m = cd.Ht.cols();
     if (cd.Ht.nonZeros() > 0) {
       if (!data_.solver->inverse_congruence(cd.Ht, G_ext_)) return false;
@@ -422,7 +472,7 @@ class EquilibriumSystem {
     project(model_, out);
     apply_w(rr_, zr_next_);
     if (!contact_) return true;
-    const auto& cd = data_.contact;
+    const auto& cd = contact_data();
     bar_lambda_.noalias() = cd.Ht.transpose() * out;
     if (rigid_size()) bar_lambda_.noalias() += Ht_r_.transpose() * zr_next_;
     stage_.ncp().vjp(bar_lambda_, bar_b_, bar_mu);
@@ -448,7 +498,7 @@ class EquilibriumSystem {
       project(model_, m);
       return m.allFinite() && mr_.allFinite();
     }
-    if (contact_) stage_.add_force_jvp(data_.contact, 1.0, z, m);
+    if (contact_) stage_.add_force_jvp(contact_data(), 1.0, z, m);
     project(model_, m);
     return m.allFinite();
   }
@@ -480,7 +530,7 @@ class EquilibriumSystem {
           zr_.segment<3>(o) + Vec3(zr_.segment<3>(o + 3)).cross(Vec3(rho_.segment<3>(3 * k)));
     }
     ext_m_.setZero(ext_x_.size());
-    stage_.add_force_jvp(data_.contact, 1.0, ext_dx_, ext_m_);
+    stage_.add_force_jvp(contact_data(), 1.0, ext_dx_, ext_m_);
     m += ext_m_.head(3L * n);
     for (Eigen::Index k = 0; k < pseudo; ++k) {
       const int r = model_.contact.rigid_node_body[static_cast<std::size_t>(k)];
@@ -529,8 +579,8 @@ class EquilibriumSystem {
     }
     ext_m_.setZero(ext_x_.size());
     ext_u_.setZero(ext_x_.size());
-    zero_b_.setZero(data_.contact.lambda.size());
-    stage_.add_geometry_vjp(data_.contact, ext_u_, 1.0, ext_dx_, zero_b_, ext_m_);
+    zero_b_.setZero(contact_data().lambda.size());
+    stage_.add_geometry_vjp(contact_data(), ext_u_, 1.0, ext_dx_, zero_b_, ext_m_);
     m += ext_m_.head(3L * n);
     for (Eigen::Index k = 0; k < pseudo; ++k) {
       const auto o = 6 * static_cast<Eigen::Index>(model_.contact.rigid_node_body[static_cast<std::size_t>(k)]);
@@ -549,9 +599,9 @@ class EquilibriumSystem {
       return m.allFinite() && mr_.allFinite();
     }
     if (contact_) {
-      zero_b_.setZero(data_.contact.lambda.size());
+      zero_b_.setZero(contact_data().lambda.size());
       tmp_.setZero();
-      stage_.add_geometry_vjp(data_.contact, tmp_, 1.0, z, zero_b_, m);
+      stage_.add_geometry_vjp(contact_data(), tmp_, 1.0, z, zero_b_, m);
     }
     project(model_, m);
     return m.allFinite();
@@ -561,6 +611,7 @@ class EquilibriumSystem {
   Data& data_;
   const VecX* x_ = nullptr;
   bool contact_ = false;
+  std::vector<std::pair<int, collision::Feature>> flat_;  // (contact, its own feature): select_flat_contacts
   std::vector<Held> held_;
   contact::ContactStageDerivative stage_;
   std::vector<contact::Mode> modes_;  // the modes held (equilibrium_modes)
