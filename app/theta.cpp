@@ -52,21 +52,14 @@ void demand_differentiable(const std::string& option, const Model& model) {
   // rigid bodies only has no Newton: its step is linear in the contact impulse.)
   if (model.step.integrator == IntegratorKind::static_equilibrium) {
     // Static with rigid bodies (integrator/static_solver_derivatives.hpp, the rigid
-    // equations in the implicit function theorem): hinged and fixed bodies; free and
-    // slider bodies, joints with limits and scenes of rigid bodies only are not
-    // differentiated yet.
-    if (model.fem.num_nodes == 0)
-      throw InputError(option + ": derivatives of a static scene of rigid bodies only are not supported yet (issue 21; "
-                                "rigid body '" + (model.rigid.empty() ? std::string("?") : model.rigid.front().name) +
-                                "', no soft body)");
+    // equations in the implicit function theorem): hinged, slider and fixed bodies, beside
+    // soft bodies or alone, joint limits (an active one holds its body), free bodies in a
+    // scene of rigid bodies only; free bodies beside soft bodies are not differentiated yet.
     for (const auto& b : model.rigid)
-      if (b.joint.kind == rigid::Joint::Kind::free || b.joint.kind == rigid::Joint::Kind::slider)
-        throw InputError(option + ": derivatives of a static scene with a free or slider rigid body are not supported "
-                                  "yet (issue 21; rigid body '" + b.name + "'): hinged and fixed bodies are");
-    for (const auto& b : model.rigid)
-      if (b.joint.limits && (b.joint.kind == rigid::Joint::Kind::hinge || b.joint.kind == rigid::Joint::Kind::slider))
-        throw InputError(option + ": derivatives of a static scene with a joint limit are not supported yet (issue 21; "
-                                  "rigid body '" + b.name + "')");
+      if (b.joint.kind == rigid::Joint::Kind::free && model.fem.num_nodes > 0)
+        throw InputError(option + ": derivatives of a static scene with a free rigid body beside soft bodies are not "
+                                  "supported yet (issue 21; rigid body '" + b.name +
+                                  "'): hinged, slider and fixed bodies are");
     for (const auto& b : model.fem.bodies)
       if (b.psd_projection)
         throw InputError(option + ": a static scene with psd_projection (body '" + b.name +

@@ -469,8 +469,8 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
                            "contact: {pairs: [[ball, floor, 0.3]]}\n"),
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null --jacobian young",
-       "--jacobian: derivatives of a static scene with a free or slider rigid body are not supported yet (issue 21; "
-       "rigid body 'ball')"},
+       "--jacobian: derivatives of a static scene with a free rigid body beside soft bodies are not supported yet "
+       "(issue 21; rigid body 'ball')"},
       // calibrate and control with rigid bodies run since issue 21's rcal and rctl
       // (test_cli_calibrate_rigid.cpp, test_cli_control.cpp PushesAFreeRigidBlock); what
       // their derivatives do not cover is refused there.
@@ -480,13 +480,8 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
       // parameter.
       {"rigid_only_calibrate_young", kBallOnly, "calibrate scene.yaml --param young --target target.h5 -o out.h5",
        "--param: 'young' needs soft bodies, and this scene has none (rigid bodies only: mass, inertia, x0, v0)"},
-      {"rigid_only_static_jacobian",
-       kBallOnly + "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: -0.01}]\ncontact: {pairs: "
-                   "[[ball, floor, 0.3]]}\n",
-       "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
-       "simulation.steps=null --jacobian mass",
-       "--jacobian: derivatives of a static scene of rigid bodies only are not supported yet (issue 21; rigid body "
-       "'ball', no soft body)"},
+      // A static scene of rigid bodies only is differentiated since rstfree
+      // (test_cli_rigid_static_derivatives.cpp RigidStackCheckGradStatically).
       // static runs (Cli.RigidStackRestsStatically); a free body still needs contact.
       {"rigid_only_static", kBallOnly,
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "

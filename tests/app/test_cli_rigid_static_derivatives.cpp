@@ -13,6 +13,7 @@
 #include <hdf5.h>
 
 #include <filesystem>
+#include <iostream>
 #include <string>
 
 using namespace softdiff::test;
@@ -26,7 +27,7 @@ const fs::path kWork = fs::path(SOFTDIFF_TEST_DATA_DIR) / "cli_rigid_static_deri
 // origin and the bar (0.2 x 0.04 x 0.02 m, 800 kg/m^3) hinged about y at its left end,
 // resting on the pad over x in [0, 0.03]: rigid_scenes::bar_on_pad shifted by
 // (-0.165, 0.012, 0.02).
-void write_scene(const fs::path& dir) {
+void write_scene(const fs::path& dir, const std::string& limits = "") {
   write_text(dir / "pad.msh", rigid_scenes::box_msh_text(4, 4, 2, 0.03, 0.024, 0.02));
   write_text(dir / "scene.yaml",
              "softdiff: 1\n"
@@ -41,7 +42,7 @@ void write_scene(const fs::path& dir) {
              "    shape: {type: box, half_extents: [0.1, 0.02, 0.01]}\n"
              "    density: 800\n"
              "    position: [-0.065, 0.012, 0.03]\n"
-             "    joint: {type: hinge, anchor: [-0.165, 0.012, 0.03], axis: [0, 1, 0]}\n"
+             "    joint: {type: hinge, anchor: [-0.165, 0.012, 0.03], axis: [0, 1, 0]" + limits + "}\n"
              "contact: {margin: 1.0e-3, pairs: [[pad, bar, 0.0]], tolerance: 1.0e-12, max_iterations: 5000}\n");
 }
 
@@ -73,6 +74,36 @@ TEST(CliRigidStaticDerivatives, JacobianHasTheRigidRows) {
   ASSERT_EQ(mass.size(), 3 * n + 6);
   EXPECT_GT(mass[3 * n + 4], 0);
   EXPECT_LT(young[3 * n + 4], 0);
+}
+
+// Joint limits (issue 21, rstfree): the bar with an upper limit at 2.5e-3 rad (half its
+// free rest angle) rests on it and on the pad; check-grad passes for the pad's young and
+// density (the pad's own weight under the held bar; the bar's rows and its mass column
+// are zero: tests/rigid/test_rigid_static_derivatives.cpp HingedBarOnItsLimit).
+TEST(CliRigidStaticDerivatives, CheckGradOnItsLimit) {
+  const fs::path dir = fresh_dir(kWork, "check_grad_limit");
+  write_scene(dir, ", limits: [-0.1, 0.0025]");
+  const auto r = run_cli("check-grad scene.yaml --quiet --wrt young,density", dir);
+  EXPECT_EQ(r.code, 0) << r.out << r.err;
+  for (const char* block : {"young", "density"}) EXPECT_NE(r.out.find(block), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
+}
+
+// A static scene of rigid bodies only (issue 21, rstfree): configs/rigid_stack.yaml solved
+// statically (Cli.RigidStackRestsStatically's settings); its poses are set by the rigid
+// contacts alone, so the mass and inertia blocks are zero, and the differences agree within
+// check-grad's round-off floor.
+TEST(CliRigidStaticDerivatives, RigidStackCheckGradStatically) {
+  const fs::path dir = fresh_dir(kWork, "rigid_stack");
+  const fs::path scene = fs::path(SOFTDIFF_SOURCE_DIR) / "configs/rigid_stack.yaml";
+  const auto r = run_cli("check-grad '" + scene.string() + "' --quiet --wrt mass,inertia --set simulation.integrator=static "
+                         "--set simulation.dt=null --set simulation.duration=null --set contact.margin=0.002 "
+                         "--set contact.tolerance=1e-13 --set contact.max_iterations=5000",
+                         dir);
+  EXPECT_EQ(r.code, 0) << r.out << r.err;
+  for (const char* block : {"mass", "inertia"}) EXPECT_NE(r.out.find(block), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
+  std::cout << r.out;
 }
 
 }  // namespace cli_rigid_static_derivatives_test

@@ -120,6 +120,29 @@ inline Model slab_and_cube(double h) {
   return model;
 }
 
+// The slab of slab_and_cube under the 40 mm cube tilted by 0.15 rad about (1, 0.7, 0) on a
+// vertical slider (its rotation held), frictionless, its lowest corner 0.2 mm above the
+// slab (within the margin): at rest it stands on that corner (the static derivatives'
+// slider test: a determinate contact, no face lying on a face).
+inline Model tilted_cube_on_slab_slider(double h) {
+  Model model = slab_and_cube(h);
+  auto& cube = model.rigid[0];
+  rigid::RigidState s = model.initial.rigid[0];
+  s.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(0.15, Vec3(1, 0.7, 0).normalized()));
+  double lowest = 0;
+  for (int c = 0; c < 8; ++c) {
+    const Vec3 corner(c & 1 ? 0.02 : -0.02, c & 2 ? 0.02 : -0.02, c & 4 ? 0.02 : -0.02);
+    lowest = std::min(lowest, (s.orientation * corner).z());
+  }
+  s.position = Vec3(0.06, 0.06, 0.01 - lowest + 2e-4);
+  cube.joint.kind = rigid::Joint::Kind::slider;
+  cube.joint.axis = Vec3::UnitZ();
+  rigid::initialize(cube, s);
+  model.initial.rigid[0] = cube.reference;
+  for (auto& r : model.contact.detection.pairs) r.mu = 0;
+  return model;
+}
+
 // A bar (0.2 x 0.04 x 0.02 m, 800 kg/m^3) hinged about y through its left end's
 // mid-height (anchor (0, 0, 0.01)), its right end on a soft pad (0.03 x 0.024 x 0.02 m
 // under x in [0.165, 0.195], y in [-0.012, 0.012]; E = 20 kPa, nu 0.3, 1000 kg/m^3,

@@ -45,6 +45,33 @@ constexpr int kMaxRefinements = 200;
 // (the rigid part of G is ~ 1 / tau_r and cancels in dlambda): ~ 2e-10 relative.
 constexpr double kRigidProximal = 1e-6;
 
+// The largest |entry| (0 for an empty vector: Eigen's maxCoeff needs one entry).
+template <typename V>
+double max_abs(const V& v) {
+  return v.size() > 0 ? v.cwiseAbs().maxCoeff() : 0.0;
+}
+
+// The soft system of a scene of rigid bodies only: 0 x 0 (implicit_euler_derivatives.cpp's
+// EmptySystem for the dynamic step): a right-hand side with rows is a programming error.
+class NoSoftSystem final : public LinearSolver {
+ public:
+  std::string name() const override { return "none (no soft dof)"; }
+  void analyze(const SparseMatrix&) override {}
+  FactorStatus factorize(const SparseMatrix&) override { return {}; }
+  bool solve(const VecX& b, VecX& x) override {
+    x.resize(0);
+    return b.size() == 0;
+  }
+  bool solve(const MatX& B, MatX& X) override {
+    X.resize(0, B.cols());
+    return B.rows() == 0;
+  }
+  bool inverse_congruence(const SparseMatrix& B, MatX& G) override {
+    G.setZero(B.cols(), B.cols());
+    return B.rows() == 0;
+  }
+};
+
 // The linearized equilibrium at x* with the last NCP's contacts and modes held fixed
 // (static_solver_derivatives.hpp, docs/method.md "Derivatives", "Static equilibrium"):
 //   (K - dH^T lambda) dx - H_c^T dlambda = q,   mode rows on dsigma = H_c dx (dmu),
@@ -54,6 +81,9 @@ constexpr double kRigidProximal = 1e-6;
 class EquilibriumSystem {
  public:
   EquilibriumSystem(const Model& model, Data& data) : model_(model), data_(data) {}
+  EquilibriumSystem(const EquilibriumSystem&) = delete;
+  EquilibriumSystem& operator=(const EquilibriumSystem&) = delete;
+  ~EquilibriumSystem() { restore_flat_contacts(); }
 
   void demand_supported() const {
     SOFTDIFF_DEMAND(model_.step.integrator == IntegratorKind::static_equilibrium,
@@ -63,19 +93,16 @@ class EquilibriumSystem {
                                              "') is not differentiated in this version");
     SOFTDIFF_DEMAND(model_.rigidify.empty(), "static derivatives with rigidified parts are not supported yet (issue 21; " +
                                                  (model_.rigidify.empty() ? std::string() : model_.rigidify.parts.front().name) + ")");
-    SOFTDIFF_DEMAND(model_.rigid.empty() || model_.fem.num_nodes > 0,
-                    "static derivatives of a scene of rigid bodies only are not supported yet (issue 21)");
-    // Free and slider bodies: the refinement diverges on the cube resting on a soft slab
-    // (its bottom edges on the slab's faces: edge-edge contacts; not understood yet), so
-    // only hinges (validated against differences) and fixed bodies are differentiated.
+    // Free bodies beside soft bodies: not validated (docs/method.md "Static equilibrium
+    // with rigid bodies", *Free and slider bodies*: no determinate frictionless scene
+    // holding all six dofs was built; with friction the static answer is path-dependent).
+    // Hinges, sliders (validated against differences) and fixed bodies are
+    // differentiated, and free bodies in a scene of rigid bodies only (their poses are set
+    // by the rigid contacts alone: RigidOnlyStack).
     for (const auto& b : model_.rigid)
-      SOFTDIFF_DEMAND(b.joint.kind == rigid::Joint::Kind::hinge || b.joint.kind == rigid::Joint::Kind::fixed,
-                      "static derivatives of a free or slider rigid body are not supported yet (issue 21; rigid body '" +
-                          b.name + "')");
-    for (const auto& b : model_.rigid)
-      SOFTDIFF_DEMAND(!(b.joint.limits && (b.joint.kind == rigid::Joint::Kind::hinge ||
-                                           b.joint.kind == rigid::Joint::Kind::slider)),
-                      "static derivatives with joint limits are not supported yet (issue 21; rigid body '" + b.name + "')");
+      SOFTDIFF_DEMAND(b.joint.kind != rigid::Joint::Kind::free || model_.fem.num_nodes == 0,
+                      "static derivatives of a free rigid body are not supported yet (issue 21; rigid body '" + b.name +
+                          "')");
     for (const auto& a : model_.actuation.actuators) {
       const auto* servo = std::get_if<actuation::Servo>(&a.kind);
       SOFTDIFF_DEMAND(std::holds_alternative<actuation::Cable>(a.kind) || (servo && !servo->is_rotation()),
@@ -92,10 +119,16 @@ class EquilibriumSystem {
     const Eigen::Index n = 3L * fem.num_nodes;
     for (VecX* v : {&r_, &y_, &z_, &z_next_, &m_, &tmp_}) v->setZero(n);
     if (!model_.actuation.empty()) model_.actuation.values(1.0, data_.lambda_a);
-    if (!fem::evaluate(fem, *x_, {false, true, true}, data_.fem)) return false;
+    // A scene of rigid bodies only (no soft dof): no soft system, every solve with it of size
+    // 0 (NoSoftSystem, as the dynamic rigid-only derivative's EmptySystem).
+    static NoSoftSystem no_soft;  // stateless
+    solver_ = n > 0 ? data_.solver.get() : &no_soft;
+    if (n > 0 && !fem::evaluate(fem, *x_, {false, true, true}, data_.fem)) return false;
+    restore_flat_contacts();
     const auto& cd = data_.contact;
     contact_ = model_.contact.enabled && cd.contacts.size() > 0;
     if (!model_.rigid.empty()) prepare_rigid(equilibrium);
+    if (contact_) select_flat_contacts(model_.rigid.empty() ? *x_ : ext_x_);
     // Bodies held by contact alone: no fixed dof (the static solver's rule).
     held_.clear();
     if (model_.contact.enabled)
@@ -121,13 +154,15 @@ class EquilibriumSystem {
         factorized = factorize(model_, data_, 1).ok();
       }
     }
+    if (n == 0) factorized = true;
     for (double c = held_.empty() ? 0.0 : kProximalMin; !factorized; c *= 10) {
       assemble(c);
       factorized = factorize(model_, data_, 1).ok();
       if (!factorized && (held_.empty() || c >= kProximalMax)) return false;
     }
     if (!model_.rigid.empty()) return prepare_rigid_contact();
-    if (contact_ && !stage_.prepare(model_, cd, *x_, *data_.solver, 1.0, false, &modes_, &sigma_, &data_.A)) return false;
+    if (contact_ && !stage_.prepare(model_, contact_data(), *x_, *solver_, 1.0, false, &modes_, &sigma_, &data_.A))
+      return false;
     return true;
   }
 
@@ -141,16 +176,18 @@ class EquilibriumSystem {
     m_.setZero();
     zr_.setZero(rigid_size());
     mr_.setZero(rigid_size());
+    free_scale_ = 0;
     double previous = std::numeric_limits<double>::infinity();
     for (int it = 0;; ++it) {
       r_ = q + m_;
       rr_ = mr_;
       if (q_r.size()) rr_ += q_r;
       if (!apply_phi(r_, dmu, z_next_)) return false;
-      double change = (z_next_ - z_).cwiseAbs().maxCoeff(), size = z_next_.cwiseAbs().maxCoeff();
+      // (max_abs: 0 for the empty soft part of a scene of rigid bodies only)
+      double change = max_abs(z_next_ - z_), size = max_abs(z_next_);
       if (rigid_size()) {
-        change = std::max(change, (zr_next_ - zr_).cwiseAbs().maxCoeff());
-        size = std::max(size, zr_next_.cwiseAbs().maxCoeff());
+        change = std::max(change, max_abs(zr_next_ - zr_));
+        size = std::max(size, max_abs(zr_next_));
         zr_.swap(zr_next_);
       }
       z_.swap(z_next_);
@@ -172,16 +209,18 @@ class EquilibriumSystem {
     m_.setZero();
     zr_.setZero(rigid_size());
     mr_.setZero(rigid_size());
+    free_scale_ = 0;
     double previous = std::numeric_limits<double>::infinity();
     for (int it = 0;; ++it) {
       r_ = bar_z + m_;
       rr_ = mr_;
       if (bar_zr.size()) rr_ += bar_zr;
       if (!apply_phi_transposed(r_, z_next_, bar_mu)) return false;
-      double change = (z_next_ - z_).cwiseAbs().maxCoeff(), size = z_next_.cwiseAbs().maxCoeff();
+      // (max_abs: 0 for the empty soft part of a scene of rigid bodies only)
+      double change = max_abs(z_next_ - z_), size = max_abs(z_next_);
       if (rigid_size()) {
-        change = std::max(change, (zr_next_ - zr_).cwiseAbs().maxCoeff());
-        size = std::max(size, zr_next_.cwiseAbs().maxCoeff());
+        change = std::max(change, max_abs(zr_next_ - zr_));
+        size = std::max(size, max_abs(zr_next_));
         zr_.swap(zr_next_);
       }
       z_.swap(z_next_);
@@ -197,6 +236,10 @@ class EquilibriumSystem {
   }
 
   bool contact() const { return contact_; }
+
+  // The contacts the derivative differentiates: the last NCP's (the flat ones' feature
+  // set to the face while this object lives: select_flat_contacts).
+  const ContactData& contact_data() const { return data_.contact; }
   // The largest relative change of the last refinement's last iteration (its accuracy).
   double last_change() const { return last_change_; }
 
@@ -224,11 +267,51 @@ class EquilibriumSystem {
     data_.factor_is_current = false;
   }
 
+  // A vertex-triangle contact whose closest point on the triangle is on an edge or a
+  // vertex has the normal n = (p - q) / |p - q| (collision/contact_derivatives.hpp), whose
+  // derivative is (I - n n^T) / |p - q|. At a static equilibrium the vertex rests on the
+  // other surface: |p - q| is the NCP's round-off (1e-15 m on the cube on the slab: a slab
+  // vertex under a vertex of the cube's bottom face), the geometry term lambda / |p - q|
+  // is ~1e13 times any stiffness and the refinement diverges (docs/method.md "Static
+  // equilibrium with rigid bodies", free and slider bodies). Where the feature is flat
+  // (the triangle's face normal within kFlatAngle of the contact's recorded normal: an
+  // edge or vertex between coplanar faces, where the surface's normal is the face's) and
+  // |p - q| < kFlatDistance times the contact margin, the contact is differentiated as
+  // the vertex against the face's plane (the same normal, force and gap; the normal's
+  // derivative the face's). A sharp feature touched at zero distance keeps its own
+  // (nondifferentiable there) derivative.
+  static constexpr double kFlatDistance = 1e-6;
+  static constexpr double kFlatAngle = 1e-6;  // 1 - |n . N|
+  void select_flat_contacts(const VecX& positions) {
+    const auto& cd = data_.contact;
+    const double limit = kFlatDistance * model_.contact.detection.margin;
+    for (int i = 0; i < cd.contacts.size(); ++i) {
+      const auto& c = cd.contacts.contacts[static_cast<std::size_t>(i)];
+      if (c.kind != collision::ContactKind::vertex_triangle || c.kind_b == collision::Feature::face || c.count != 4) continue;
+      Vec3 d = Vec3::Zero();  // p - q (weights (1, -barycentric))
+      for (int k = 0; k < c.count; ++k)
+        d += c.weights[static_cast<std::size_t>(k)] * positions.segment<3>(3L * c.nodes[static_cast<std::size_t>(k)]);
+      const Vec3 a = positions.segment<3>(3L * c.nodes[1]), e1 = positions.segment<3>(3L * c.nodes[2]) - a,
+                 e2 = positions.segment<3>(3L * c.nodes[3]) - a;
+      const Vec3 N = e1.cross(e2).normalized();
+      if (!(d.norm() < limit) || !(1 - std::abs(N.dot(c.frame.col(2))) < kFlatAngle)) continue;
+      flat_.emplace_back(i, c.kind_b);
+    }
+    // The record's feature of those contacts is the face while this object lives (the
+    // contact stage's derivative reads it from the record); restored by the destructor.
+    for (const auto& [i, kind] : flat_)
+      data_.contact.contacts.contacts[static_cast<std::size_t>(i)].kind_b = collision::Feature::face;
+  }
+  void restore_flat_contacts() {
+    for (const auto& [i, kind] : flat_) data_.contact.contacts.contacts[static_cast<std::size_t>(i)].kind_b = kind;
+    flat_.clear();
+  }
+
   // The augmented tangent applies when every active contact is a single node's (a
   // vertex against an obstacle): its rows' H_i^T H_i is that node's 3x3 block, in the
   // pattern.
   bool augmentable() const {
-    const auto& cd = data_.contact;
+    const auto& cd = contact_data();
     for (int i = 0; i < cd.contacts.size(); ++i)
       if (modes_[static_cast<std::size_t>(i)] != contact::Mode::breaking && cd.contacts.contacts[i].count != 1)
         return false;
@@ -241,7 +324,7 @@ class EquilibriumSystem {
   // H_E is positive definite where the contacts hold the bodies (an augmented
   // Lagrangian); rho from max |K_ii|, grown tenfold where it does not factorize.
   void augment(double rho) {
-    const auto& cd = data_.contact;
+    const auto& cd = contact_data();
     const SparseMatrix& A = data_.A;
     double* values = data_.A.valuePtr();
     auto value_index = [&](int row, int col) {
@@ -275,11 +358,18 @@ class EquilibriumSystem {
   // solution, or a change that no longer decreases, the round-off floor, within
   // kRefinementFloor); -1: it fails (no contraction above that floor, too many
   // iterations, not finite); 0: go on.
+  // Where the contacts hold everything the answer is zero and the refinement's changes
+  // are the round-off of the free response (the first solve's answer before the
+  // contacts' correction, free_scale_) cancelled by the contacts' (measured: 6e-15 of it on
+  // a scene of rigid bodies only on rigid supports, every column zero). A change that no
+  // longer decreases is accepted below kRoundOff of the free response too.
+  static constexpr double kRoundOff = 1e-12;
   int converged(int it, double change, double size, double& previous) {
     last_change_ = size > 0 ? change / size : 0.0;
     if (!std::isfinite(change)) return -1;
     if (change <= kRefinementTolerance * size) return 1;
-    if (change >= previous) return change <= kRefinementFloor * size ? 1 : -1;
+    if (change >= previous)
+      return change <= std::max(kRefinementFloor * size, kRoundOff * free_scale_) ? 1 : -1;
     previous = change;
     return it >= kMaxRefinements ? -1 : 0;
   }
@@ -289,17 +379,18 @@ class EquilibriumSystem {
   bool apply_phi(const VecX& r, const VecX& dmu, VecX& out) {
     tmp_ = r;
     project(model_, tmp_);
-    if (!data_.solver->solve(tmp_, out)) return false;
+    if (!solver_->solve(tmp_, out)) return false;
     project(model_, out);
     apply_w(rr_, zr_next_);  // the rigid part (rr_: its right-hand side)
+    free_scale_ = std::max({free_scale_, max_abs(out), max_abs(zr_next_)});
     if (!contact_) return true;
-    const auto& cd = data_.contact;
+    const auto& cd = contact_data();
     b_.noalias() = cd.Ht.transpose() * out;
     if (rigid_size()) b_.noalias() += Ht_r_.transpose() * zr_next_;
     stage_.ncp().jvp(b_, dmu, dlambda_);
     tmp_.noalias() = cd.Ht * dlambda_;
     project(model_, tmp_);
-    if (!data_.solver->solve(tmp_, y_)) return false;
+    if (!solver_->solve(tmp_, y_)) return false;
     project(model_, y_);
     out += y_;
     if (rigid_size()) {
@@ -325,7 +416,7 @@ class EquilibriumSystem {
     const auto& fem = model_.fem;
     const int n = fem.num_nodes;
     const auto R = static_cast<Eigen::Index>(model_.rigid.size());
-    const auto& cd = data_.contact;
+    const auto& cd = contact_data();
     rigid_bodies_ = static_cast<int>(R);
     poses_ = equilibrium.rigid;
     const Eigen::Index pseudo = static_cast<Eigen::Index>(model_.contact.rigid_node_body.size());
@@ -354,7 +445,12 @@ class EquilibriumSystem {
       const auto& body = model_.rigid[static_cast<std::size_t>(r)];
       const auto& s = poses_[static_cast<std::size_t>(r)];
       if (body.joint.kind == rigid::Joint::Kind::fixed) continue;
-      const double tau = kRigidProximal * std::max(diag_max, 1e-300) / body.mass;
+      // Without soft bodies (diag_max 0) W_r is the only compliance in G: the mode-fixed
+      // solve does not depend on its scale in the directions the contacts hold, and the
+      // refinement leaves the others as they are; tau_r = |g| / s (s the body's surface
+      // box diagonal: the static solver's proximal scale, without its 0.01) keeps G's
+      // entries ~ 1 / (m |g| / s).
+      const double tau = diag_max > 0 ? kRigidProximal * diag_max / body.mass : rigid_only_tau(body);
       rigid::Mat6 A = rigid::Mat6::Zero();
       A.topLeftCorner<3, 3>() = tau * body.mass * Mat3::Identity();
       A.bottomRightCorner<3, 3>() = tau * rigid::world_inertia(body, s.orientation);
@@ -368,6 +464,7 @@ class EquilibriumSystem {
       force_[static_cast<std::size_t>(r)].head<3>() = body.mass * model_.step.gravity;
       if (contact_) force_[static_cast<std::size_t>(r)] += Ht_r_.middleRows<6>(6 * r) * cd.lambda.head(Ht_r_.cols());
     }
+    hold_limited_bodies();
     if (contact_) {
       for (int i = 0; i < cd.contacts.size(); ++i) {
         const auto& c = cd.contacts.contacts[static_cast<std::size_t>(i)];
@@ -386,6 +483,39 @@ class EquilibriumSystem {
     }
   }
 
+  // Joint limits (docs/method.md "Static equilibrium with joint limits", derivatives): a
+  // limit row of the last solve with a positive reaction (above 10 times the NCP's
+  // tolerance of the largest force: the equilibrium_modes rule) is held active, a
+  // bilateral row j dz_r = 0 (j = s T / |T|^2), as the dynamic derivative holds it
+  // (rigid_contact_derivatives.cpp prepare_limits). On a hinge or slider T spans the
+  // body's only dof, so the row fixes it: dc = 0, z_r = 0, and the body enters the rest
+  // of the system as a fixed one (its contacts' rows have no rigid part). Its own equation
+  // only gives the limit's reaction, which is not an output. So W_r = 0 (and A_r = 0: no
+  // proximal term to remove). The limit's force s lambda T / |T|^2 has T^T of it
+  // constant (s lambda), so it adds no basis term to the joint's equation. An inactive
+  // limit row (no reaction) drops, as a breaking contact.
+  void hold_limited_bodies() {
+    const auto& rd = data_.contact.rigid;
+    limited_ = 0;
+    if (rd.limit_rows.empty() || rd.limit_lambda.size() != contact::num_limit_slots(model_)) return;
+    double scale = max_abs(rd.limit_lambda);
+    if (contact_) scale = std::max(scale, max_abs(data_.contact.lambda));
+    const double tol = 10 * model_.contact.ncp.tolerance * scale;
+    for (const auto& row : rd.limit_rows) {
+      if (!(rd.limit_lambda[row.slot] > tol)) continue;
+      W_[static_cast<std::size_t>(row.body)].setZero();
+      A_[static_cast<std::size_t>(row.body)].setZero();
+      ++limited_;
+    }
+  }
+
+  double rigid_only_tau(const rigid::RigidBody& body) const {
+    const auto& V = body.surface.vertices;
+    const double size = V.cols() > 0 ? (V.rowwise().maxCoeff() - V.rowwise().minCoeff()).norm() : 0.0;
+    const double g = model_.step.gravity.norm();
+    return size > 0 && g > 0 ? g / size : 1.0;
+  }
+
   static Mat3 skew(const Vec3& v) {
     Mat3 m;
     m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
@@ -397,10 +527,10 @@ class EquilibriumSystem {
   // the contacts' geometry derivatives at the extended positions).
   bool prepare_rigid_contact() {
     if (!contact_) return true;
-    const auto& cd = data_.contact;
+    const auto& cd = contact_data();
     const Eigen::Index m = cd.Ht.cols();
     if (cd.Ht.nonZeros() > 0) {
-      if (!data_.solver->inverse_congruence(cd.Ht, G_ext_)) return false;
+      if (!solver_->inverse_congruence(cd.Ht, G_ext_)) return false;
     } else {
       G_ext_.setZero(m, m);
     }
@@ -412,23 +542,24 @@ class EquilibriumSystem {
     lambda_ext_ = cd.lambda.head(m);
     mu_ext_ = cd.mu;
     contact::ContactStageDerivative::NcpSystem system{&G_ext_, &mu_ext_, &lambda_ext_, &sigma_, &modes_};
-    return stage_.prepare(model_, cd, ext_x_, *data_.solver, 1.0, false, &modes_, &sigma_, &data_.A, &system);
+    return stage_.prepare(model_, cd, ext_x_, *solver_, 1.0, false, &modes_, &sigma_, &data_.A, &system);
   }
 
   bool apply_phi_transposed(const VecX& v, VecX& out, VecX& bar_mu) {
     tmp_ = v;
     project(model_, tmp_);
-    if (!data_.solver->solve(tmp_, out)) return false;
+    if (!solver_->solve(tmp_, out)) return false;
     project(model_, out);
     apply_w(rr_, zr_next_);
+    free_scale_ = std::max({free_scale_, max_abs(out), max_abs(zr_next_)});
     if (!contact_) return true;
-    const auto& cd = data_.contact;
+    const auto& cd = contact_data();
     bar_lambda_.noalias() = cd.Ht.transpose() * out;
     if (rigid_size()) bar_lambda_.noalias() += Ht_r_.transpose() * zr_next_;
     stage_.ncp().vjp(bar_lambda_, bar_b_, bar_mu);
     tmp_.noalias() = cd.Ht * bar_b_;
     project(model_, tmp_);
-    if (!data_.solver->solve(tmp_, y_)) return false;
+    if (!solver_->solve(tmp_, y_)) return false;
     project(model_, y_);
     out += y_;
     if (rigid_size()) {
@@ -448,7 +579,7 @@ class EquilibriumSystem {
       project(model_, m);
       return m.allFinite() && mr_.allFinite();
     }
-    if (contact_) stage_.add_force_jvp(data_.contact, 1.0, z, m);
+    if (contact_) stage_.add_force_jvp(contact_data(), 1.0, z, m);
     project(model_, m);
     return m.allFinite();
   }
@@ -480,7 +611,7 @@ class EquilibriumSystem {
           zr_.segment<3>(o) + Vec3(zr_.segment<3>(o + 3)).cross(Vec3(rho_.segment<3>(3 * k)));
     }
     ext_m_.setZero(ext_x_.size());
-    stage_.add_force_jvp(data_.contact, 1.0, ext_dx_, ext_m_);
+    stage_.add_force_jvp(contact_data(), 1.0, ext_dx_, ext_m_);
     m += ext_m_.head(3L * n);
     for (Eigen::Index k = 0; k < pseudo; ++k) {
       const int r = model_.contact.rigid_node_body[static_cast<std::size_t>(k)];
@@ -529,8 +660,8 @@ class EquilibriumSystem {
     }
     ext_m_.setZero(ext_x_.size());
     ext_u_.setZero(ext_x_.size());
-    zero_b_.setZero(data_.contact.lambda.size());
-    stage_.add_geometry_vjp(data_.contact, ext_u_, 1.0, ext_dx_, zero_b_, ext_m_);
+    zero_b_.setZero(contact_data().lambda.size());
+    stage_.add_geometry_vjp(contact_data(), ext_u_, 1.0, ext_dx_, zero_b_, ext_m_);
     m += ext_m_.head(3L * n);
     for (Eigen::Index k = 0; k < pseudo; ++k) {
       const auto o = 6 * static_cast<Eigen::Index>(model_.contact.rigid_node_body[static_cast<std::size_t>(k)]);
@@ -549,9 +680,9 @@ class EquilibriumSystem {
       return m.allFinite() && mr_.allFinite();
     }
     if (contact_) {
-      zero_b_.setZero(data_.contact.lambda.size());
+      zero_b_.setZero(contact_data().lambda.size());
       tmp_.setZero();
-      stage_.add_geometry_vjp(data_.contact, tmp_, 1.0, z, zero_b_, m);
+      stage_.add_geometry_vjp(contact_data(), tmp_, 1.0, z, zero_b_, m);
     }
     project(model_, m);
     return m.allFinite();
@@ -560,7 +691,11 @@ class EquilibriumSystem {
   const Model& model_;
   Data& data_;
   const VecX* x_ = nullptr;
+  LinearSolver* solver_ = nullptr;  // data's, or NoSoftSystem without soft dofs
+  int limited_ = 0;                  // bodies held on an active limit (hold_limited_bodies)
+  double free_scale_ = 0;            // the refinement's free response (converged)
   bool contact_ = false;
+  std::vector<std::pair<int, collision::Feature>> flat_;  // (contact, its own feature): select_flat_contacts
   std::vector<Held> held_;
   contact::ContactStageDerivative stage_;
   std::vector<contact::Mode> modes_;  // the modes held (equilibrium_modes)

@@ -59,8 +59,10 @@ struct StaticTheta {
 // I_w) (tau_r m = 1e-6 max K_ii) and the refinement removes it as it removes a held
 // body's tau. G is then formed dense over all contacts (H_s K^{-1} H_s^T + sum_r H_r W_r
 // H_r^T). Rows 3n + 6R (the soft dofs, then (dp, dtheta) per body: the check-grad rows).
-// Not covered (SOFTDIFF_DEMAND, issue 21): joint limits, rigidified parts, scenes of
-// rigid bodies only.
+// Since rstfree (docs/method.md "Static derivatives: sliders, joint limits, rigid bodies
+// only"): sliders; an active joint limit holds its body (W_r = 0); scenes of rigid bodies
+// only (no soft system; free bodies there too). Not covered (SOFTDIFF_DEMAND, issue 21):
+// a free body beside soft bodies, rigidified parts.
 //
 // dx*/dtheta (3n (+ 6R) x (parameters + actuators + rigid parameters)) at the equilibrium `equilibrium` of
 // solve_static (its last load step; data holds that solve's record, data.contact its
