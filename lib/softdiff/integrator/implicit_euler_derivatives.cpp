@@ -5,6 +5,7 @@
 #include <softdiff/core/error.hpp>
 #include <softdiff/fem/assembly.hpp>
 #include <softdiff/fem/fem_derivatives.hpp>
+#include <softdiff/integrator/empty_system.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
 
 #include <string>
@@ -25,30 +26,6 @@ void demand_supported(const Model& model) {
 // A scene of rigid bodies only (fem.num_nodes == 0) has no soft stage: its step is linear
 // in the contact impulse whatever newton_iterations says (bdf2.cpp time_step_rigid_only).
 bool is_newton(const Model& model) { return model.step.newton_iterations > 1 && model.fem.num_nodes > 0; }
-
-// A scene of rigid bodies only (docs/method.md "Scenes of rigid bodies only"): no soft dof,
-// so no factorization; the soft system is 0 x 0 and every solve with it is empty. The
-// mode-fixed contact system then has only the rigid rows (the record's dense G = h sum_r
-// H_r W_r H_r^T, or on the sparse backend G_AA = 0 + h Kt_A^T Kt_A).
-class EmptySystem final : public LinearSolver {
- public:
-  std::string name() const override { return "none (no soft dof)"; }
-  void analyze(const SparseMatrix&) override {}
-  FactorStatus factorize(const SparseMatrix&) override { return {}; }
-  // Only empty systems (a right-hand side with rows is a programming error: false).
-  bool solve(const VecX& b, VecX& x) override {
-    x.resize(0);
-    return b.size() == 0;
-  }
-  bool solve(const MatX& B, MatX& X) override {
-    X.resize(0, B.cols());
-    return B.rows() == 0;
-  }
-  bool inverse_congruence(const SparseMatrix& B, MatX& G) override {
-    G.setZero(B.cols(), B.cols());  // B^T A^{-1} B with no row
-    return B.rows() == 0;
-  }
-};
 
 // Rigidified parts: what rigidify_derivatives.hpp covers (the rest is issue 21).
 void demand_parts_supported(const Model& model, const Data& data) {

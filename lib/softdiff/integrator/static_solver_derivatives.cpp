@@ -7,6 +7,7 @@
 #include <softdiff/core/assert.hpp>
 #include <softdiff/fem/assembly.hpp>
 #include <softdiff/fem/fem_derivatives.hpp>
+#include <softdiff/integrator/empty_system.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
 
 #include <algorithm>
@@ -50,27 +51,6 @@ template <typename V>
 double max_abs(const V& v) {
   return v.size() > 0 ? v.cwiseAbs().maxCoeff() : 0.0;
 }
-
-// The soft system of a scene of rigid bodies only: 0 x 0 (implicit_euler_derivatives.cpp's
-// EmptySystem for the dynamic step): a right-hand side with rows is a programming error.
-class NoSoftSystem final : public LinearSolver {
- public:
-  std::string name() const override { return "none (no soft dof)"; }
-  void analyze(const SparseMatrix&) override {}
-  FactorStatus factorize(const SparseMatrix&) override { return {}; }
-  bool solve(const VecX& b, VecX& x) override {
-    x.resize(0);
-    return b.size() == 0;
-  }
-  bool solve(const MatX& B, MatX& X) override {
-    X.resize(0, B.cols());
-    return B.rows() == 0;
-  }
-  bool inverse_congruence(const SparseMatrix& B, MatX& G) override {
-    G.setZero(B.cols(), B.cols());
-    return B.rows() == 0;
-  }
-};
 
 // The linearized equilibrium at x* with the last NCP's contacts and modes held fixed
 // (static_solver_derivatives.hpp, docs/method.md "Derivatives", "Static equilibrium"):
@@ -120,8 +100,8 @@ class EquilibriumSystem {
     for (VecX* v : {&r_, &y_, &z_, &z_next_, &m_, &tmp_}) v->setZero(n);
     if (!model_.actuation.empty()) model_.actuation.values(1.0, data_.lambda_a);
     // A scene of rigid bodies only (no soft dof): no soft system, every solve with it of size
-    // 0 (NoSoftSystem, as the dynamic rigid-only derivative's EmptySystem).
-    static NoSoftSystem no_soft;  // stateless
+    // 0 (empty_system.hpp, as the dynamic rigid-only derivative's).
+    static EmptySystem no_soft;  // stateless
     solver_ = n > 0 ? data_.solver.get() : &no_soft;
     if (n > 0 && !fem::evaluate(fem, *x_, {false, true, true}, data_.fem)) return false;
     restore_flat_contacts();
@@ -691,7 +671,7 @@ class EquilibriumSystem {
   const Model& model_;
   Data& data_;
   const VecX* x_ = nullptr;
-  LinearSolver* solver_ = nullptr;  // data's, or NoSoftSystem without soft dofs
+  LinearSolver* solver_ = nullptr;  // data's, or EmptySystem without soft dofs
   int limited_ = 0;                  // bodies held on an active limit (hold_limited_bodies)
   double free_scale_ = 0;            // the refinement's free response (converged)
   bool contact_ = false;
