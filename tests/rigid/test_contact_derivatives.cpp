@@ -8,6 +8,7 @@
 // contact: vertex-face pairs both ways), a hinged bar resting on a support and a block on
 // a slider. Then a trajectory (12 steps): forward sensitivities and the adjoint against
 // whole-run central differences.
+#include <softdiff/core/error.hpp>
 #include <softdiff/data.hpp>
 #include <softdiff/diff/trajectory.hpp>
 #include <softdiff/integrator/bdf2.hpp>
@@ -23,6 +24,7 @@
 #include <cmath>
 #include <iostream>
 #include <random>
+#include <string>
 
 using namespace softdiff;
 
@@ -340,6 +342,38 @@ TEST(RigidContactStepDerivatives, HingedBarOnASoftPadWithTheGravityTorquesTangen
     SCOPED_TRACE(w);
     const State in = warm_up(model, w);
     check_step(model, in, 1e-6, 3e-7);
+  }
+}
+
+// The hinge's effective inertia I_a - h^2 Q' (rigid_contact.cpp begin_rigid_contact) is not
+// positive when the step is too long for an overturning gravity torque: the bar of
+// bar_on_pad (0.2 m from its anchor, I_a = m (0.2^2 + 0.02^2) / 12 + m 0.1^2 = 0.0134 m)
+// with gravity exactly along the bar towards its anchor (-9.81 m/s^2 in x: an inverted
+// pendulum at its equilibrium, so the free step from rest stays there, delta = 0, and
+// -Q' = c2 = -m 9.81 x 0.1) needs h^2 x 0.981 > 0.0134, h > 0.117 s; at h = 0.2 s the
+// step stops with a ComputationError naming the body, never a negative W_r. At h = 0.05 s
+// the same scene steps. (With a gravity off the bar's line the free step swings the bar
+// past the flip, cos(delta) < 0, and the effective inertia stays positive.)
+TEST(RigidContactStep, AHingeWhoseEffectiveInertiaIsNotPositiveIsAComputationError) {
+  for (const double h : {0.05, 0.2}) {
+    SCOPED_TRACE(h);
+    Model model = test::rigid_scenes::bar_on_pad(h);
+    model.step.gravity = Vec3(-9.81, 0, 0);
+    Data data(model);
+    State out;
+    if (h < 0.1) {
+      EXPECT_NO_THROW(integrator::time_step(model, data, model.initial, nullptr, out, 1));
+      continue;
+    }
+    try {
+      integrator::time_step(model, data, model.initial, nullptr, out, 1);
+      ADD_FAILURE() << "no ComputationError: the free rate " << data.rigid[0].free_rate << " rad/s, "
+                    << data.contact.contacts.size() << " contacts";
+    } catch (const ComputationError& e) {
+      const std::string what = e.what();
+      EXPECT_NE(what.find("the hinge's effective inertia I_a - h^2 Q'"), std::string::npos) << what;
+      EXPECT_NE(what.find("rigid body '" + model.rigid[0].name + "'"), std::string::npos) << what;
+    }
   }
 }
 
