@@ -1,6 +1,7 @@
 // Derivatives of the contact stage: see contact_step_derivatives.hpp.
 #include <softdiff/contact/contact_step_derivatives.hpp>
 
+#include <softdiff/contact/rigid_contact.hpp>
 #include <softdiff/contact/sparse_delassus.hpp>
 #include <softdiff/core/assert.hpp>
 #include <softdiff/core/error.hpp>
@@ -238,19 +239,9 @@ const MatX& ContactStageDerivative::rigid_rows(const Model& model, const Contact
                                               std::to_string(cols));
     return rd.Kt;
   }
-  // The dense backend's: Kt = L_r^T H_r^T of each body with dofs (rank_r rows; a body
-  // without contact has zero rows, which add nothing), as rigid_delassus_rows forms it.
-  Eigen::Index rows = 0;
-  for (std::size_t r = 0; r < model.rigid.size(); ++r) rows += rd.rank[r];
-  Kt_record_.resize(rows, cols);  // once per step's preparation, not per contact
-  rows = 0;
-  for (std::size_t r = 0; r < model.rigid.size(); ++r) {
-    const int k = rd.rank[r];
-    if (k == 0) continue;
-    Kt_record_.middleRows(rows, k).noalias() =
-        rd.L[r].leftCols(k).transpose() * rd.Ht.middleRows<6>(6 * static_cast<Eigen::Index>(r));
-    rows += k;
-  }
+  // The dense backend's: Kt = L_r^T H_r^T of each body with dofs, as the sparse step
+  // forms it (once per step's preparation, not per contact).
+  rigid_body_rows(model, rd, Kt_record_);
   return Kt_record_;
 }
 

@@ -206,8 +206,7 @@ void add_rigid_delassus(const Model& model, Data& data, double h, MatX& G, VecX&
   }
 }
 
-void rigid_delassus_rows(const Model& model, Data& data, MatX& Kt, VecX& g) {
-  auto& rd = data.contact.rigid;
+void rigid_body_rows(const Model& model, const ContactData::Rigid& rd, MatX& Kt) {
   Eigen::Index rows = 0;
   for (std::size_t r = 0; r < model.rigid.size(); ++r) rows += rd.rank[r];
   Kt.resize(rows, rd.Ht.cols());
@@ -215,11 +214,20 @@ void rigid_delassus_rows(const Model& model, Data& data, MatX& Kt, VecX& g) {
   for (std::size_t r = 0; r < model.rigid.size(); ++r) {
     const int k = rd.rank[r];
     if (k == 0) continue;  // a fixed body
-    const auto B = rd.Ht.middleRows<6>(6 * static_cast<Eigen::Index>(r));
-    Kt.middleRows(rows, k).noalias() = rd.L[r].leftCols(k).transpose() * B;  // zero rows without contact: set_rigid drops them
+    // zero rows without contact: set_rigid drops them
+    Kt.middleRows(rows, k).noalias() = rd.L[r].leftCols(k).transpose() * rd.Ht.middleRows<6>(6 * static_cast<Eigen::Index>(r));
     rows += k;
-    g.noalias() += B.transpose() * rd.u_free.segment<6>(6 * static_cast<Eigen::Index>(r));
   }
+}
+
+void rigid_delassus_rows(const Model& model, Data& data, MatX& Kt, VecX& g) {
+  auto& rd = data.contact.rigid;
+  rigid_body_rows(model, rd, Kt);
+  const Eigen::Index rows = Kt.rows();
+  for (std::size_t r = 0; r < model.rigid.size(); ++r)
+    if (rd.rank[r] > 0)
+      g.noalias() += rd.Ht.middleRows<6>(6 * static_cast<Eigen::Index>(r)).transpose() *
+                     rd.u_free.segment<6>(6 * static_cast<Eigen::Index>(r));
   // The limit rows' tangential diagonals: one row per tangential column (header).
   const Eigen::Index L = static_cast<Eigen::Index>(rd.limit_rows.size());
   if (L == 0) return;

@@ -92,6 +92,12 @@ void add_rigid_delassus(const Model& model, Data& data, double h, MatX& G, VecX&
 // diagonals h / a (finish_limit_rows' on the dense backend).
 void rigid_delassus_rows(const Model& model, Data& data, MatX& Kt, VecX& g);
 
+// The bodies' rows alone: Kt = (L_r^T H_r^T) stacked over the bodies (rank_r rows each;
+// a body without dofs or contact has none), with the record's columns (rd.Ht's). What
+// rigid_delassus_rows starts from; the contact derivative forms it from a dense record
+// (ContactStageDerivative::rigid_rows).
+void rigid_body_rows(const Model& model, const ContactData::Rigid& rd, MatX& Kt);
+
 // u = u_free + h W H_r^T lambda (data.contact.rigid.u).
 void correct_rigid_velocities(const Model& model, Data& data, double h, const VecX& lambda);
 
