@@ -435,7 +435,7 @@ void RigidContactDerivative::prepare_limits(const Model& model, const Data& data
   }
   if (on_operator) {
     G_ext_.resize(0, 0);
-    extended_rigid_rows(model, data);
+    extended_rigid_rows(data);
   } else {
     Kt_ext_.resize(0, 0);
     // The solve's G on the extended rows: the record's G (contacts; Newton: G_contacts,
@@ -478,7 +478,7 @@ void RigidContactDerivative::prepare_limits(const Model& model, const Data& data
 // contacts' columns, sum of the bodies' ranks rows), each limit's normal column L_r^T j in
 // its body's rows, and two rows per limit holding its tangential diagonals |L_r^T j| (h
 // times their square: the normal diagonal h j W_r j, as finish_limit_rows).
-void RigidContactDerivative::extended_rigid_rows(const Model& model, const Data& data) {
+void RigidContactDerivative::extended_rigid_rows(const Data& data) {
   const auto& rd = data.contact.rigid;
   const Eigen::Index n0 = 3 * static_cast<Eigen::Index>(nc_), L = static_cast<Eigen::Index>(limits_.size());
   const Eigen::Index k0 = rd.Kt.rows();
@@ -495,7 +495,6 @@ void RigidContactDerivative::extended_rigid_rows(const Model& model, const Data&
     Kt_ext_(k0 + 2 * l, o) = d;
     Kt_ext_(k0 + 2 * l + 1, o + 1) = d;
   }
-  (void)model;
 }
 
 void RigidContactDerivative::limit_sigma_jvp(const VecX& z, const VecX& du0, VecX& b) const {

@@ -153,7 +153,7 @@ class RigidContactDerivative {
   VecX lambda_;                // (3 (nc + L)) the contacts' forces, then the limits'
   MatX G_ext_;                 // (3 (nc + L)) square: the solve's G (limit rows only)
   MatX Kt_ext_;                // sparse backend: the extended rigid rows (extended_rigid_rows)
-  void extended_rigid_rows(const Model& model, const Data& data);
+  void extended_rigid_rows(const Data& data);
   VecX mu_ext_, sigma_ext_;    //   its mu (nc + L), sigma (3 (nc + L))
   std::vector<Mode> modes_ext_;
   int nc_ = 0;
