@@ -401,8 +401,8 @@ TEST(CliRigidDerivatives, CheckGradReportsAWrongDerivative) {
 }
 
 // rigid_stack under `integrator: bdf2` (issue 21, rstk): the trajectory is not smooth
-// beyond step 9, so check-grad is run at smooth points (docs/method.md "BDF2 with rigid
-// bodies", *rigid_stack under BDF2*). BDF2's velocity history makes the middle box bounce
+// beyond step 9, so check-grad is run at smooth points (docs/method.md "Scenes of rigid
+// bodies only", *rigid_stack under BDF2*). BDF2's velocity history makes the middle box bounce
 // off the base (v_z -0.137 m/s at step 7, +0.057 at its landing, step 8, +0.108 at step 9:
 // v^ = 4/3 v_n - 1/3 v_{n-1} carries the pre-impact velocity upwards), the top box lands
 // on it at step 10, and from then on contacts switch within the finite differences'
