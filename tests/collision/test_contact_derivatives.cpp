@@ -94,6 +94,29 @@ TEST(ContactDerivatives, EdgeEdgeInterior) {
   check_derivative(k, x, nullptr, "edge-edge");
 }
 
+// A vertex resting 1e-12 m above a flat diagonal edge (detection records it against the
+// face's plane: Detection.FlatEdgeAtATinyGapIsTheFacesContactSharpEdgeIsNot): its normal,
+// frame, gap and weights are the face's, and so is their derivative (the face normal's,
+// not (I - n n^T) / |d| of the edge's d / |d|, ~1e12 here): against central differences
+// of contact_geometry (kStep, kTol as above: the face formulas are smooth across the
+// diagonal, so the 1e-7 m step may cross it).
+TEST(ContactDerivatives, FlatEdgeAtATinyGapIsDifferentiatedAsTheFace) {
+  Vec3 up;
+  const Scene s = corner_on_box_top(Vec3(0.1, 0.1, 0.2), 1e-12, up);
+  ContactSet cs;
+  CollisionDetector(model_of(s, {}, {{0, 1, 0}}, 1e-3)).detect(s.x(), cs);
+  ASSERT_GT(cs.size(), 0);
+  for (const auto& c : cs.contacts) {
+    ASSERT_EQ(c.kind_b, Feature::face);
+    ContactGeometry g;
+    ASSERT_TRUE(contact_geometry(c, s.x(), nullptr, g));
+    EXPECT_LT((g.frame - c.frame).norm(), 1e-12);
+    EXPECT_NEAR(g.gap, c.gap, 1e-14);
+    for (int w = 0; w < 4; ++w) EXPECT_NEAR(g.weights[w], c.weights[w], 1e-12);
+    check_derivative(c, s.x(), nullptr, "vertex on a flat edge");
+  }
+}
+
 Obstacle shape(ShapeKind kind) {
   Obstacle o;
   o.name = "o";

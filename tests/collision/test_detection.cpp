@@ -235,6 +235,78 @@ TEST(Detection, TwoBoxesFacing) {
   }
 }
 
+// Contact normals at tiny gaps (2026-12-04, rnrm; docs/method.md "Contact normals at tiny
+// gaps"). Two boxes facing at a gap of 2e-12 m (above detection's 1e-9 margin = 1e-12 m,
+// below which the normal was already the pseudo-normal), turned to a generic orientation
+// so that no coordinate is exact: d / |d| has components along the faces of ~eps |x| /
+// gap ~ 1e-17 / 2e-12 = 5e-6 (rstack's measure on the former detection.cpp: 4.4e-6 to
+// 8.9e-6 off for the vertex-triangle normals). Every normal, vertex-triangle (the face
+// normal) and edge-edge (the edges' unit cross product), is the faces' +-R z to 1e-13 (a
+// normalized cross product of 0.1 m vectors carries ~1e-16; 1e-13 is 1000 times that and
+// 50 times below the former error), and the gap is 2e-12 to 1e-13 (0.3 m positions turned:
+// ~1e-16 m round-off).
+TEST(Detection, NormalsAtATinyGapAreTheFacesAndTheEdgesCrossProduct) {
+  const double margin = 1e-3, gap = 2e-12;
+  Scene s = two_boxes(gap);
+  const Mat3 R = Eigen::AngleAxisd(0.7, Vec3(0.3, -0.5, 0.8).normalized()).toRotationMatrix();
+  s.X = R * s.X;
+  CollisionDetector det(model_of(s, {}, {{0, 1, 0.2}}, margin));
+  ContactSet cs;
+  det.detect(s.x(), cs);
+  const Vec3 up = R * Vec3::UnitZ();
+  int vt = 0, ee = 0;
+  for (const auto& c : cs.contacts) {
+    check_contact(c);
+    EXPECT_NEAR(c.gap, gap, 1e-13);
+    const Vec3 n = c.frame.col(2);
+    EXPECT_LT(std::min((n - up).norm(), (n + up).norm()), 1e-13)
+        << "kind " << static_cast<int>(c.kind) << ", features " << c.feature_a << ", " << c.feature_b;
+    if (c.kind == ContactKind::vertex_triangle) {
+      ++vt;
+      EXPECT_EQ(c.kind_b, Feature::face);
+    } else {
+      ++ee;
+    }
+  }
+  EXPECT_EQ(vt, 18);  // as TwoBoxesFacing: 9 + 9 vertices above the other box's face
+  EXPECT_GT(ee, 0);
+}
+
+// A vertex 1e-12 m above an edge or a vertex of a flat region (a diagonal of a box's top
+// face: its two triangles coplanar) is recorded against the face's plane: kind_b = face,
+// n = the face normal to 1e-13 (d / |d| would be ~1e-17 / 1e-12 = 1e-5 off or worse; the
+// cube on a soft slab had such contacts, a cube's corner on a slab triangle's diagonal, up
+// to 87 degrees off), gap 1e-12 to 1e-13. On a sharp edge (the top face's boundary, a
+// 90-degree dihedral) it keeps the edge feature: only a flat feature takes the face.
+TEST(Detection, FlatEdgeAtATinyGapIsTheFacesContactSharpEdgeIsNot) {
+  const double margin = 1e-3, gap = 1e-12;
+  Vec3 up;
+  {  // on the top face's diagonal: its midpoint is the face's centre
+    Scene s = corner_on_box_top(Vec3(0.1, 0.1, 0.2), gap, up);
+    ContactSet cs;
+    CollisionDetector(model_of(s, {}, {{0, 1, 0}}, margin)).detect(s.x(), cs);
+    ASSERT_GT(cs.size(), 0);
+    for (const auto& c : cs.contacts) {
+      check_contact(c);
+      ASSERT_EQ(c.kind, ContactKind::vertex_triangle);
+      EXPECT_EQ(c.kind_b, Feature::face);
+      EXPECT_LT((c.frame.col(2) - up).norm(), 1e-13);
+      EXPECT_NEAR(c.gap, gap, 1e-13);
+    }
+  }
+  {  // on the middle of the top face's edge y = 0, along the bisector of its two faces
+    const Vec3 target = Vec3(0.1, 0, 0.2) + Vec3(0, -1, 0) * (gap / std::sqrt(2.0)) - Vec3(0, 0, gap - gap / std::sqrt(2.0));
+    Scene s = corner_on_box_top(target, gap, up);
+    ContactSet cs;
+    CollisionDetector(model_of(s, {}, {{0, 1, 0}}, margin)).detect(s.x(), cs);
+    ASSERT_EQ(cs.size(), 1);
+    const auto& c = cs.contacts[0];
+    check_contact(c);
+    EXPECT_EQ(c.kind, ContactKind::vertex_triangle);
+    EXPECT_EQ(c.kind_b, Feature::edge);
+  }
+}
+
 TEST(Detection, RelativeVelocityAndGapRate) {
   const double margin = 1e-3;
   for (const double gap : {4e-4, -2e-4}) {

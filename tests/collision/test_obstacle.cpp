@@ -257,6 +257,34 @@ TEST(Obstacle, CylinderFeatures) {
   EXPECT_NEAR(cp.normal.norm(), 1, 1e-15);
 }
 
+// A point 3e-12 m outside a face of a mesh obstacle (a turned tetrahedron, no exact
+// coordinate; above the 1e-12 (diagonal + 1) below which the normal was already the face's):
+// the normal is the face's to 1e-13 (2026-12-04, rnrm; docs/method.md "Contact normals at
+// tiny gaps"). d / |d| would carry the closest point's round-off over the gap, ~1e-17 /
+// 3e-12 = 3e-6; a normalized cross product of 0.3 m edges ~1e-16. Distance: 3e-12 to 1e-13.
+TEST(Obstacle, MeshFaceNormalAtATinyGapIsTheFaces) {
+  Obstacle m = make(ShapeKind::mesh, "tet");
+  const Mat3 R = Eigen::AngleAxisd(0.7, Vec3(0.3, -0.5, 0.8).normalized()).toRotationMatrix();
+  m.mesh.vertices.resize(3, 4);
+  m.mesh.vertices << 0, 0.3, 0, 0, 0, 0, 0.3, 0, 0, 0, 0, 0.3;
+  m.mesh.vertices = (R * m.mesh.vertices).colwise() + Vec3(0.1, -0.2, 0.3);
+  m.mesh.triangles.resize(3, 4);
+  m.mesh.triangles << 0, 0, 0, 1, 2, 1, 3, 2, 1, 3, 2, 3;
+  prepare(m);
+  const double gap = 3e-12;
+  for (int t = 0; t < 4; ++t) {
+    const Vec3 a = m.mesh.vertices.col(m.mesh.triangles(0, t)), b = m.mesh.vertices.col(m.mesh.triangles(1, t)),
+               c = m.mesh.vertices.col(m.mesh.triangles(2, t));
+    const Vec3 n = (b - a).cross(c - a).normalized();
+    ClosestPoint cp;
+    ASSERT_TRUE(closest_point(m, (a + b + c) / 3 + gap * n, 1e300, cp));
+    EXPECT_EQ(cp.feature_kind, Feature::face);
+    EXPECT_EQ(cp.feature, t);
+    EXPECT_LT((cp.normal - n).norm(), 1e-13) << "face " << t;
+    EXPECT_NEAR(cp.distance, gap, 1e-13);
+  }
+}
+
 TEST(Obstacle, FastReject) {
   std::mt19937 rng(3);
   for (const auto& o : analytic_shapes(rng)) {

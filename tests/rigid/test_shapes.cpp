@@ -1,5 +1,6 @@
 // Rigid shapes (lib/softdiff/rigid/shapes.cpp): mass properties against closed forms,
 // meshes against primitives, tessellations closed and outward.
+#include <softdiff/collision/detection.hpp>
 #include <softdiff/rigid/rigid_body.hpp>
 
 #include <gtest/gtest.h>
@@ -201,6 +202,57 @@ TEST(RigidTessellation, CentreShiftsTheSurface) {
   const Vec3 c(0.01, 0.02, 0.03);
   const Surface a = tessellate(box(0.1, 0.2, 0.3), Vec3::Zero(), 1), b = tessellate(box(0.1, 0.2, 0.3), c, 1);
   EXPECT_LT(((a.vertices.colwise() - c) - b.vertices).norm(), 1e-15);
+}
+
+// The planar-edge flags of a rigid surface (collision::mark_planar_edges, computed once at
+// model build for the contact step's O(1) drop of edge-edge contacts on a face's
+// diagonal): checked against the shape's own geometry, at pseudo-node numbers starting
+// at 7 (the flags must read the body's local vertices). A box: exactly its six face
+// diagonals (endpoints differing in two of the three coordinate signs) among its 18 edges.
+// A cylinder: every edge but the two rims (endpoints at radius r on one cap) and the side's
+// vertical edges (endpoints at radius r and the same angle), whose two triangles meet at
+// 90 degrees and at 360 / n_theta degrees; the caps' fans and annuli and the side quads'
+// diagonals and rings are coplanar pairs.
+TEST(RigidTessellation, PlanarEdgeFlags) {
+  const int begin = 7;
+  {
+    const Surface s = tessellate(box(0.1, 0.2, 0.3), Vec3::Zero(), 1);
+    collision::BodySurface b = collision::make_surface("box", s.triangles, begin);
+    collision::mark_planar_edges(b, s.vertices, begin);
+    ASSERT_EQ(b.edges.cols(), 18);
+    ASSERT_EQ(b.planar_edge.size(), 18u);
+    int diagonals = 0;
+    for (Eigen::Index e = 0; e < b.edges.cols(); ++e) {
+      const Vec3 d = s.vertices.col(b.edges(0, e) - begin) - s.vertices.col(b.edges(1, e) - begin);
+      const int differ = (d.array().abs() > 1e-12).count();
+      EXPECT_EQ(b.planar_edge[static_cast<std::size_t>(e)] != 0, differ == 2) << "edge " << e;
+      diagonals += b.planar_edge[static_cast<std::size_t>(e)];
+    }
+    EXPECT_EQ(diagonals, 6);
+  }
+  for (double max_edge : {1.0, 0.02}) {  // 8 sectors, one side segment; 16 sectors, annuli
+    const double r = 0.05, L = 0.2;
+    const Surface s = tessellate(round(Shape::Kind::cylinder, r, L), Vec3::Zero(), max_edge);
+    collision::BodySurface b = collision::make_surface("cylinder", s.triangles, begin);
+    collision::mark_planar_edges(b, s.vertices, begin);
+    ASSERT_EQ(b.planar_edge.size(), static_cast<std::size_t>(b.edges.cols()));
+    int sharp = 0, rims = 0;
+    for (Eigen::Index e = 0; e < b.edges.cols(); ++e) {
+      const Vec3 p = s.vertices.col(b.edges(0, e) - begin), q = s.vertices.col(b.edges(1, e) - begin);
+      const bool on_side = std::abs(p.head<2>().norm() - r) < 1e-12 && std::abs(q.head<2>().norm() - r) < 1e-12;
+      const bool rim = on_side && std::abs(p.z() - q.z()) < 1e-12 && std::abs(std::abs(p.z()) - L / 2) < 1e-12;
+      const bool vertical = on_side && (p - q).head<2>().norm() < 1e-12;
+      EXPECT_EQ(b.planar_edge[static_cast<std::size_t>(e)] == 0, rim || vertical)
+          << "max_edge " << max_edge << ", edge " << e << ": " << p.transpose() << " - " << q.transpose();
+      sharp += b.planar_edge[static_cast<std::size_t>(e)] == 0;
+      rims += rim;
+    }
+    if (max_edge == 1.0) {  // n_theta = 8: rims 2 x 8, verticals 8, of 6 x 8 edges
+      EXPECT_EQ(b.edges.cols(), 48);
+      EXPECT_EQ(rims, 16);
+      EXPECT_EQ(sharp, 24);
+    }
+  }
 }
 
 }  // namespace rigid_shapes_test

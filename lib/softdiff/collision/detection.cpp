@@ -107,7 +107,59 @@ void prepare_surface(BodySurface& s) {
   }
 }
 
+void mark_planar_edges(BodySurface& s, const Mat3X& local_vertices, int node_begin) {
+  const int ne = static_cast<int>(s.edges.cols()), nt = static_cast<int>(s.triangles.cols());
+  // The (first two) triangles of each edge: edges are sorted (lo, hi) pairs.
+  std::vector<std::array<int, 2>> tris(static_cast<std::size_t>(ne), {-1, -1});
+  auto edge_index = [&](int a, int b) {
+    const int lo = std::min(a, b), hi = std::max(a, b);
+    int first = 0, count = ne;  // lower bound on (lo, hi)
+    while (count > 0) {
+      const int step = count / 2, mid = first + step;
+      if (s.edges(0, mid) < lo || (s.edges(0, mid) == lo && s.edges(1, mid) < hi)) {
+        first = mid + 1;
+        count -= step + 1;
+      } else {
+        count = step;
+      }
+    }
+    return first < ne && s.edges(0, first) == lo && s.edges(1, first) == hi ? first : -1;
+  };
+  for (int t = 0; t < nt; ++t)
+    for (int k = 0; k < 3; ++k) {
+      const int e = edge_index(s.triangles(k, t), s.triangles((k + 1) % 3, t));
+      SOFTDIFF_DEMAND(e >= 0, "mark_planar_edges: surface '" + s.name + "' is not prepared (prepare_surface)");
+      auto& et = tris[static_cast<std::size_t>(e)];
+      (et[0] < 0 ? et[0] : et[1]) = t;
+    }
+  auto normal = [&](int t) {
+    const auto P = [&](int k) { return Vec3(local_vertices.col(s.triangles(k, t) - node_begin)); };
+    return Vec3((P(1) - P(0)).cross(P(2) - P(0)).normalized());
+  };
+  s.planar_edge.assign(static_cast<std::size_t>(ne), 0);
+  for (int e = 0; e < ne; ++e) {
+    const auto& et = tris[static_cast<std::size_t>(e)];
+    if (et[0] < 0 || et[1] < 0) continue;
+    const Vec3 n0 = normal(et[0]), n1 = normal(et[1]);
+    s.planar_edge[static_cast<std::size_t>(e)] = n0.dot(n1) > 0 && n0.cross(n1).squaredNorm() < 1e-20;
+  }
+}
+
 namespace {
+
+// Contact normals at tiny gaps (soft_soft, docs/method.md): a vertex closer than
+// kFlatDistance times the triangle's longest edge to an edge or vertex of a flat region
+// (the feature's pseudo-normal within kFlatAngle, 1 - cos, of the face normal: 1e-6 is
+// 1.4e-3 rad, coplanar triangles to round-off pass, a 10-degree crease does not) takes
+// the face normal. 1e-6 of the element size is 1e-8 m for 1 cm elements: far above the
+// gaps of resting contacts (round-off, 1e-16-1e-12 m) and far below a gap whose
+// d / |d| matters (at 1e-8 m its round-off tilt is ~1e-9 rad).
+constexpr double kFlatDistance = 1e-6;
+constexpr double kFlatAngle = 1e-6;
+
+double triangle_scale(const Vec3& a, const Vec3& b, const Vec3& c) {
+  return std::sqrt(std::max({(b - a).squaredNorm(), (c - b).squaredNorm(), (a - c).squaredNorm()}));
+}
 
 // A broad-phase leaf: FCL's CollisionObject with its world box set directly (the
 // geometry is a shared dummy; FCL's manager reads only getAABB()).
@@ -519,7 +571,25 @@ void CollisionDetector::Impl::soft_soft(const PairRule& rule, const VecX& x, Con
     const Vec3 d = p - r.point;
     const double dist = std::sqrt(r.dist2);
     const double sign = d.dot(pseudo) < 0 ? -1.0 : 1.0;
-    const Vec3 n = dist > tiny ? Vec3(sign * d / dist) : unit_or(pseudo, Vec3(0, 0, 1));
+    // The normal (docs/method.md "Contact normals at tiny gaps"): d / |d| is noise when
+    // |d| is round-off (its components along the face are ~eps |x| / |d|: 1e-5 rad at a
+    // 1e-12 m gap). A closest point inside the face has d along the face normal N in
+    // exact arithmetic: n = N (what contact_derivatives.cpp differentiates). A closest
+    // point on an edge or vertex of a flat region of B (N within kFlatAngle of the
+    // feature's pseudo-normal) closer than kFlatDistance times the triangle's longest
+    // edge is recorded as the vertex against the face's plane: n = N, kind_b = face
+    // (weights: the closest point's barycentrics, on the edge), differentiated as such.
+    const Vec3& N = S.face_normal[t];
+    Feature feature = r.feature;
+    Vec3 n;
+    if (N.squaredNorm() > 0 &&
+        (r.feature == Feature::face ||
+         (1 - pseudo.dot(N) < kFlatAngle && dist < kFlatDistance * triangle_scale(P(T(0, t)), P(T(1, t)), P(T(2, t)))))) {
+      n = N;
+      feature = Feature::face;
+    } else {
+      n = dist > tiny ? Vec3(sign * d / dist) : unit_or(pseudo, Vec3(0, 0, 1));
+    }
     // The surfaces must face each other along n: the vertex's own (angle-weighted)
     // normal must point towards the triangle. A vertex on an edge of its surface that
     // lies in the plane of a side face of the other body (coplanar sides, common with
@@ -540,18 +610,20 @@ void CollisionDetector::Impl::soft_soft(const PairRule& rule, const VecX& x, Con
     c.mu = rule.mu;
     c.feature_a = v;
     c.feature_b = t;
-    c.kind_b = r.feature;
+    c.kind_b = feature;
   }
 
   // A point-point pair (v, w) can come from both vertices (v against a triangle of w,
   // and w against a triangle of v): keep the first in the output order.
   pp.clear();
   for (int i = first_contact; i < out.size(); ++i) {
+    // A point-point pair: a triangle weight of exactly -1 (its kind_b is vertex, or face
+    // when a flat vertex at a tiny gap took the face normal above).
     const Contact& c = out.contacts[i];
-    if (c.kind_b != Feature::vertex) continue;
     int w = -1;
     for (int k = 1; k < 4; ++k)
       if (c.weights[k] == -1) w = c.nodes[k];
+    if (w < 0) continue;
     pp.push_back({std::min(c.nodes[0], w), std::max(c.nodes[0], w), i});
   }
   if (!pp.empty()) {
@@ -581,12 +653,22 @@ void CollisionDetector::Impl::soft_soft(const PairRule& rule, const VecX& x, Con
     const Vec3 m = edge_normal(B, cand.eb) - edge_normal(A, cand.ea);
     const Vec3 d = r.point_p - r.point_q;
     const double dist = std::sqrt(r.dist2);
+    // The normal (docs/method.md "Contact normals at tiny gaps"): interior closest points
+    // of two non-parallel edges have d along their cross product N in exact arithmetic;
+    // n = +-N (what contact_derivatives.cpp differentiates, with the same parallel test),
+    // oriented as d along N_b - N_a, or N itself along it when |d| is round-off.
+    // Near-parallel edges keep d / |d| (N is then itself round-off).
+    const Vec3 ua = pa1 - pa0, ub = pb1 - pb0, cr = ua.cross(ub);
+    const double la = ua.squaredNorm(), lb = ub.squaredNorm(), lab = ua.dot(ub);
     Vec3 n;
-    if (dist > tiny) {
+    if (la * lb - lab * lab > 1e-14 * la * lb && cr.squaredNorm() > 0) {
+      const Vec3 N = cr.normalized();
+      const double o = dist > tiny ? (d.dot(m) < 0 ? -1.0 : 1.0) * (d.dot(N) < 0 ? -1.0 : 1.0) : (N.dot(m) < 0 ? -1.0 : 1.0);
+      n = o * N;
+    } else if (dist > tiny) {
       n = (d.dot(m) < 0 ? -1.0 : 1.0) * d / dist;
     } else {
-      const Vec3 cr = (pa1 - pa0).cross(pb1 - pb0);
-      n = cr.norm() > 0 ? Vec3((cr.dot(m) < 0 ? -1.0 : 1.0) * cr.normalized()) : unit_or(m, Vec3(0, 0, 1));
+      n = unit_or(m, Vec3(0, 0, 1));
     }
     // Facing surfaces only (as for vertex-triangle): A's edge normal towards B, B's
     // towards A.

@@ -11,6 +11,7 @@
 #include <softdiff/collision/obstacle.hpp>
 #include <softdiff/core/types.hpp>
 
+#include <cstdint>
 #include <memory>
 #include <string>
 #include <vector>
@@ -25,8 +26,17 @@ struct BodySurface {
   // (2, m). (The detector builds its own adjacency: edge-triangle, one-rings.)
   std::vector<int> vertices;
   Eigen::Matrix<int, 2, Eigen::Dynamic> edges;
+  // A rigid body's surface only (mark_planar_edges; empty for a soft body's): 1 where
+  // edge e is a diagonal inside a planar face (its two triangles coplanar to round-off),
+  // for the contact step's O(1) test of an edge-edge contact (contact_step.cpp).
+  std::vector<std::uint8_t> planar_edge;
 };
 void prepare_surface(BodySurface& surface);
+// Fills surface.planar_edge (one flag per surfaces.edges column) from the surface's
+// fixed vertex positions (a rigid body's local vertices; vertex k is node node_begin + k):
+// the two triangles of the edge have unit normals n0, n1 with n0 . n1 > 0 and
+// |n0 x n1|^2 < 1e-20.
+void mark_planar_edges(BodySurface& surface, const Mat3X& local_vertices, int node_begin);
 // The prepared surface of a body from its boundary triangles in local node indices
 // (the body's nodes start at node_begin in the global numbering).
 BodySurface make_surface(const std::string& name, const Triangles& local_triangles, int node_begin);

@@ -369,6 +369,10 @@ void mesh_closest(const Obstacle& o, const Vec3& p, ClosestPoint& out) {
   out.distance = side * dist;
   out.normal = dist > 0 ? Vec3(side * d / dist) : pseudo;
   if (dist > 0 && dist < 1e-12 * (acc.box.diagonal().norm() + 1)) out.normal = pseudo;  // direction lost in round-off
+  // A closest point inside a triangle: d is along its face normal in exact arithmetic,
+  // and d / |d| carries round-off ~eps |p| / |d| across it (docs/method.md "Contact
+  // normals at tiny gaps"): the face normal itself (normal_derivative: zero for a face).
+  if (best_r.feature == Feature::face) out.normal = pseudo;
   out.feature_kind = best_r.feature;
   out.feature = best_t;
 }

@@ -68,58 +68,23 @@ void drop_inert_contacts(const Model& model, double h, double margin, const VecX
 // contacts as measured. In place.
 void drop_planar_rigid_edges(const Model& model, std::vector<collision::Contact>& list) {
   const int n = model.fem.num_nodes;
-  auto planar = [&](int a, int b) {
-    if (a < n || b < n) return false;
-    const auto& owner = model.contact.rigid_node_body;
-    const int r = owner[static_cast<std::size_t>(a - n)];
-    if (owner[static_cast<std::size_t>(b - n)] != r) return false;
-    const auto& S = model.rigid[static_cast<std::size_t>(r)].surface;
-    const int begin = model.contact.rigid_node_begin[static_cast<std::size_t>(r)], la = a - begin, lb = b - begin;
-    Vec3 normal[2];
-    int found = 0;
-    for (Eigen::Index t = 0; t < S.triangles.cols() && found < 2; ++t) {
-      int hits = 0;
-      for (int k = 0; k < 3; ++k) hits += S.triangles(k, t) == la || S.triangles(k, t) == lb;
-      if (hits != 2) continue;
-      const Vec3 p0 = S.vertices.col(S.triangles(0, t)), p1 = S.vertices.col(S.triangles(1, t)),
-                 p2 = S.vertices.col(S.triangles(2, t));
-      normal[found++] = (p1 - p0).cross(p2 - p0).normalized();
-    }
-    return found == 2 && normal[0].dot(normal[1]) > 0 && normal[0].cross(normal[1]).squaredNorm() < 1e-20;
+  const auto& surfaces = model.contact.detection.surfaces;
+  // The flags are the rigid surfaces' (collision::mark_planar_edges at model build, from
+  // the body's local vertices): O(1) per contact. A contact's edge is feature_a / feature_b,
+  // a column of its side's surface edges.
+  auto planar = [&](int side, int edge) {
+    const auto& flags = surfaces[static_cast<std::size_t>(side)].planar_edge;
+    SOFTDIFF_DEMAND(static_cast<Eigen::Index>(flags.size()) == surfaces[static_cast<std::size_t>(side)].edges.cols(),
+                    "drop_planar_rigid_edges: rigid surface '" + surfaces[static_cast<std::size_t>(side)].name +
+                        "' has no planar-edge flags (contact::add_rigid_surfaces)");
+    return flags[static_cast<std::size_t>(edge)] != 0;
   };
   list.erase(std::remove_if(list.begin(), list.end(),
                             [&](const collision::Contact& c) {
                               return c.kind == collision::ContactKind::edge_edge && c.nodes[0] >= n &&
-                                     c.nodes[2] >= n &&
-                                     (planar(c.nodes[0], c.nodes[1]) || planar(c.nodes[2], c.nodes[3]));
+                                     c.nodes[2] >= n && (planar(c.side_a, c.feature_a) || planar(c.side_b, c.feature_b));
                             }),
              list.end());
-}
-
-// A vertex of one rigid body against the interior of a triangle of another (Feature::
-// face) takes that face's normal, computed from its three pseudo-nodes, and the gap
-// along it: detection's n = d / |d| (d = vertex - closest point) has components along
-// the face that are round-off over the gap (~1e-17 m / gap: 1e-5 rad at 1e-12 m, the
-// gaps of a resting contact after a step). Times a sliding velocity that tilt put ~1e-6
-// m/s into the normal rows, and the two-body stack's differences over two steps grew as
-// 1/eps (docs/method.md "Scenes of rigid bodies only", *Resting rigid-rigid contacts*).
-// The face normal is d / |d| in exact arithmetic and what contact_derivatives.cpp
-// differentiates. Rigid-rigid pairs only: soft ones keep detection's normal as measured
-// (the same change in detection.cpp for every pair made a rigid cube resting on a soft
-// slab, validation_rigid CubeRestsOnASoftSlab, miss its NCP tolerance on many steps).
-void rigid_face_normals(const Model& model, const VecX& x, std::vector<collision::Contact>& list) {
-  const int n = model.fem.num_nodes;
-  for (auto& c : list) {
-    if (c.kind != collision::ContactKind::vertex_triangle || c.kind_b != collision::Feature::face || c.nodes[0] < n ||
-        c.nodes[1] < n)
-      continue;
-    const Vec3 p = x.segment<3>(3 * c.nodes[0]), a = x.segment<3>(3 * c.nodes[1]);
-    const Vec3 cr = (x.segment<3>(3 * c.nodes[2]) - a).cross(x.segment<3>(3 * c.nodes[3]) - a);
-    if (!(cr.squaredNorm() > 0)) continue;
-    const Vec3 N = (cr.dot(c.frame.col(2)) < 0 ? -1.0 : 1.0) * cr.normalized();
-    c.frame = collision::frame_from_normal(N);
-    c.gap = N.dot(p - c.point_b);
-  }
 }
 
 }  // namespace
@@ -207,7 +172,6 @@ void detect_contacts(const Model& model, Data& data, const VecX& x, const VecX& 
     drop_inert_contacts(model, h, margin, cd.rigid.v_previous, free_motion_widens ? cd.rigid.v_free : cd.rigid.v_previous,
                         cd.contacts.contacts);
     drop_planar_rigid_edges(model, cd.contacts.contacts);
-    rigid_face_normals(model, cd.rigid.x, cd.contacts.contacts);
     // A rigid body's resting manifold on an obstacle face: its extreme points only (exact;
     // rigid_contact.hpp reduce_rigid_manifolds).
     if (model.contact.reduce_rigid_manifolds) reduce_rigid_manifolds(model, data, cd.contacts.contacts);

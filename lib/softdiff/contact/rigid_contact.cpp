@@ -34,6 +34,7 @@ void add_rigid_surfaces(Model& model) {
     settings.rigid_node_begin.push_back(pseudo);
     for (Eigen::Index j = 0; j < rb.surface.vertices.cols(); ++j) settings.rigid_node_body.push_back(static_cast<int>(r));
     det.surfaces.push_back(collision::make_surface(rb.name, rb.surface.triangles, pseudo));
+    collision::mark_planar_edges(det.surfaces.back(), rb.surface.vertices, pseudo);
     det.names.push_back(rb.name);
     pseudo += static_cast<int>(rb.surface.vertices.cols());
   }

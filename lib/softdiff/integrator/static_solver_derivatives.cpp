@@ -63,7 +63,6 @@ class EquilibriumSystem {
   EquilibriumSystem(const Model& model, Data& data) : model_(model), data_(data) {}
   EquilibriumSystem(const EquilibriumSystem&) = delete;
   EquilibriumSystem& operator=(const EquilibriumSystem&) = delete;
-  ~EquilibriumSystem() { restore_flat_contacts(); }
 
   void demand_supported() const {
     SOFTDIFF_DEMAND(model_.step.integrator == IntegratorKind::static_equilibrium,
@@ -104,11 +103,9 @@ class EquilibriumSystem {
     static EmptySystem no_soft;  // stateless
     solver_ = n > 0 ? data_.solver.get() : &no_soft;
     if (n > 0 && !fem::evaluate(fem, *x_, {false, true, true}, data_.fem)) return false;
-    restore_flat_contacts();
     const auto& cd = data_.contact;
     contact_ = model_.contact.enabled && cd.contacts.size() > 0;
     if (!model_.rigid.empty()) prepare_rigid(equilibrium);
-    if (contact_) select_flat_contacts(model_.rigid.empty() ? *x_ : ext_x_);
     // Bodies held by contact alone: no fixed dof (the static solver's rule).
     held_.clear();
     if (model_.contact.enabled)
@@ -217,8 +214,9 @@ class EquilibriumSystem {
 
   bool contact() const { return contact_; }
 
-  // The contacts the derivative differentiates: the last NCP's (the flat ones' feature
-  // set to the face while this object lives: select_flat_contacts).
+  // The contacts the derivative differentiates: the last NCP's (a vertex resting on an
+  // edge or vertex of a flat region is recorded against the face's plane by detection:
+  // collision/detection.cpp, docs/method.md "Contact normals at tiny gaps").
   const ContactData& contact_data() const { return data_.contact; }
   // The largest relative change of the last refinement's last iteration (its accuracy).
   double last_change() const { return last_change_; }
@@ -245,46 +243,6 @@ class EquilibriumSystem {
       for (int d = h.begin; d < h.begin + h.size; ++d) A[fem.pattern.diagonal[d]] += h.tau;
     }
     data_.factor_is_current = false;
-  }
-
-  // A vertex-triangle contact whose closest point on the triangle is on an edge or a
-  // vertex has the normal n = (p - q) / |p - q| (collision/contact_derivatives.hpp), whose
-  // derivative is (I - n n^T) / |p - q|. At a static equilibrium the vertex rests on the
-  // other surface: |p - q| is the NCP's round-off (1e-15 m on the cube on the slab: a slab
-  // vertex under a vertex of the cube's bottom face), the geometry term lambda / |p - q|
-  // is ~1e13 times any stiffness and the refinement diverges (docs/method.md "Static
-  // equilibrium with rigid bodies", free and slider bodies). Where the feature is flat
-  // (the triangle's face normal within kFlatAngle of the contact's recorded normal: an
-  // edge or vertex between coplanar faces, where the surface's normal is the face's) and
-  // |p - q| < kFlatDistance times the contact margin, the contact is differentiated as
-  // the vertex against the face's plane (the same normal, force and gap; the normal's
-  // derivative the face's). A sharp feature touched at zero distance keeps its own
-  // (nondifferentiable there) derivative.
-  static constexpr double kFlatDistance = 1e-6;
-  static constexpr double kFlatAngle = 1e-6;  // 1 - |n . N|
-  void select_flat_contacts(const VecX& positions) {
-    const auto& cd = data_.contact;
-    const double limit = kFlatDistance * model_.contact.detection.margin;
-    for (int i = 0; i < cd.contacts.size(); ++i) {
-      const auto& c = cd.contacts.contacts[static_cast<std::size_t>(i)];
-      if (c.kind != collision::ContactKind::vertex_triangle || c.kind_b == collision::Feature::face || c.count != 4) continue;
-      Vec3 d = Vec3::Zero();  // p - q (weights (1, -barycentric))
-      for (int k = 0; k < c.count; ++k)
-        d += c.weights[static_cast<std::size_t>(k)] * positions.segment<3>(3L * c.nodes[static_cast<std::size_t>(k)]);
-      const Vec3 a = positions.segment<3>(3L * c.nodes[1]), e1 = positions.segment<3>(3L * c.nodes[2]) - a,
-                 e2 = positions.segment<3>(3L * c.nodes[3]) - a;
-      const Vec3 N = e1.cross(e2).normalized();
-      if (!(d.norm() < limit) || !(1 - std::abs(N.dot(c.frame.col(2))) < kFlatAngle)) continue;
-      flat_.emplace_back(i, c.kind_b);
-    }
-    // The record's feature of those contacts is the face while this object lives (the
-    // contact stage's derivative reads it from the record); restored by the destructor.
-    for (const auto& [i, kind] : flat_)
-      data_.contact.contacts.contacts[static_cast<std::size_t>(i)].kind_b = collision::Feature::face;
-  }
-  void restore_flat_contacts() {
-    for (const auto& [i, kind] : flat_) data_.contact.contacts.contacts[static_cast<std::size_t>(i)].kind_b = kind;
-    flat_.clear();
   }
 
   // The augmented tangent applies when every active contact is a single node's (a
@@ -675,7 +633,6 @@ class EquilibriumSystem {
   int limited_ = 0;                  // bodies held on an active limit (hold_limited_bodies)
   double free_scale_ = 0;            // the refinement's free response (converged)
   bool contact_ = false;
-  std::vector<std::pair<int, collision::Feature>> flat_;  // (contact, its own feature): select_flat_contacts
   std::vector<Held> held_;
   contact::ContactStageDerivative stage_;
   std::vector<contact::Mode> modes_;  // the modes held (equilibrium_modes)
