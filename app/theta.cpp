@@ -25,9 +25,34 @@ void demand_differentiable(const std::string& option, const Model& model) {
   // step derivative stops naming issue 21).
   if (!model.rigidify.empty()) {
     const std::string& part = model.rigidify.parts.front().name;
-    if (model.step.integrator != IntegratorKind::implicit_euler && model.step.integrator != IntegratorKind::bdf2)
-      throw InputError(option + ": derivatives with rigidified parts are supported for implicit_euler and bdf2 "
-                                "only (issue 21; " + part + ")");
+    // Static (2026-12-04, rstat; integrator/static_solver_derivatives.cpp, docs/method.md
+    // "Static equilibrium with rigidified parts", *Derivatives*): the reduced equilibrium,
+    // with or without contact, free and translation-servo parts; not beside rigid bodies,
+    // with a cable through a part, or on a body held by contact alone.
+    if (model.step.integrator == IntegratorKind::static_equilibrium) {
+      if (!model.rigid.empty())
+        throw InputError(option + ": static derivatives with rigidified parts and rigid bodies in one scene are not "
+                                  "supported yet (issue 21; " + part + ")");
+      for (const auto& a : model.actuation.actuators)
+        if (const auto* cable = std::get_if<actuation::Cable>(&a.kind))
+          for (int node : cable->nodes())
+            if (model.rigidify.dof_part[3 * static_cast<std::size_t>(node)] >= 0)
+              throw InputError(option + ": static derivatives with cable '" + a.name + "' acting on a rigidified part "
+                                        "are not supported yet (issue 21; " + part + "): the static solve leaves "
+                                        "the cable's stiffness out of the part's coupling");
+      if (model.contact.enabled)
+        for (const auto& p : model.rigidify.parts) {
+          const auto& b = model.fem.bodies[static_cast<std::size_t>(p.body)];
+          bool any_fixed = false;
+          for (int d = 3 * b.node_begin; d < 3 * (b.node_begin + b.num_nodes); ++d) any_fixed = any_fixed || model.fem.fixed[d];
+          if (!any_fixed)
+            throw InputError(option + ": static derivatives with a rigidified part on a body held by contact alone "
+                                      "(no fixed node) are not supported yet (issue 21; " + p.name + ")");
+        }
+    } else if (model.step.integrator != IntegratorKind::implicit_euler && model.step.integrator != IntegratorKind::bdf2) {
+      throw InputError(option + ": derivatives with rigidified parts are supported for implicit_euler, bdf2 and "
+                                "static only (issue 21; " + part + ")");
+    }
     // Newton (rnewtp): the implicit function theorem on the converged reduced equations,
     // with contact through the reduced Delassus rows at the converged tangent; not with
     // rigid bodies in contact (not tested).

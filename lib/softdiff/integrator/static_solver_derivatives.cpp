@@ -9,6 +9,7 @@
 #include <softdiff/fem/fem_derivatives.hpp>
 #include <softdiff/integrator/empty_system.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
+#include <softdiff/integrator/rigidify.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -70,18 +71,34 @@ class EquilibriumSystem {
     for (const auto& b : model_.fem.bodies)
       SOFTDIFF_DEMAND(!b.psd_projection, "static derivatives: psd_projection (body '" + b.name +
                                              "') is not differentiated in this version");
-    SOFTDIFF_DEMAND(model_.rigidify.empty(), "static derivatives with rigidified parts are not supported yet (issue 21; " +
-                                                 (model_.rigidify.empty() ? std::string() : model_.rigidify.parts.front().name) + ")");
-    // Free bodies beside soft bodies: not validated (docs/method.md "Static equilibrium
-    // with rigid bodies", *Free and slider bodies*: no determinate frictionless scene
-    // holding all six dofs was built; with friction the static answer is path-dependent).
-    // Hinges, sliders (validated against differences) and fixed bodies are
-    // differentiated, and free bodies in a scene of rigid bodies only (their poses are set
-    // by the rigid contacts alone: RigidOnlyStack).
-    for (const auto& b : model_.rigid)
-      SOFTDIFF_DEMAND(b.joint.kind != rigid::Joint::Kind::free || model_.fem.num_nodes == 0,
-                      "static derivatives of a free rigid body are not supported yet (issue 21; rigid body '" + b.name +
-                          "')");
+    if (!model_.rigidify.empty()) demand_parts_supported();
+    // Free bodies beside soft bodies: refused (docs/method.md "Static equilibrium with rigid
+    // bodies", *Free bodies beside soft bodies*, 2026-12-04, rstat). With friction the
+    // static answer is not a function of the parameters: each Newton iteration's NCP sticks
+    // relative to that iterate, so the tangential state is the stick accumulated along the
+    // solver's path (2% to 20% off the differences on the cube on the slab, rstd).
+    // Frictionless, the pose is determinate only where the contacts' normals hold all six
+    // dofs (a flat support leaves sliding and spinning free); the scene built for it, a cube
+    // leaning into a soft corner (slab and two walls, frictionless, lateral gravity), is not
+    // solved by the static solver (relative residual 0.11 after 200 Newton iterations), so
+    // no derivative could be validated. Hinges, sliders (validated against differences) and
+    // fixed bodies are differentiated, and free bodies in a scene of rigid bodies only
+    // (their poses are set by the rigid contacts alone: RigidOnlyStack).
+    const int nb = static_cast<int>(model_.fem.bodies.size());
+    for (std::size_t r = 0; r < model_.rigid.size(); ++r) {
+      const auto& b = model_.rigid[r];
+      if (b.joint.kind != rigid::Joint::Kind::free || model_.fem.num_nodes == 0) continue;
+      double mu = 0;
+      for (const auto& rule : model_.contact.detection.pairs)
+        if (rule.a == nb + static_cast<int>(r) || rule.b == nb + static_cast<int>(r)) mu = std::max(mu, rule.mu);
+      SOFTDIFF_DEMAND(false, "static derivatives of a free rigid body are not supported yet (issue 21; rigid body '" +
+                                 b.name + "'): " +
+                                 (mu > 0 ? "with friction (" + std::to_string(mu) +
+                                               ") its static tangential state is the stick accumulated along the "
+                                               "solver's path, not a function of the parameters"
+                                         : std::string("frictionless, its pose is determinate only where the contacts "
+                                                       "hold all six dofs, and no such scene was solved and validated")));
+    }
     for (const auto& a : model_.actuation.actuators) {
       const auto* servo = std::get_if<actuation::Servo>(&a.kind);
       SOFTDIFF_DEMAND(std::holds_alternative<actuation::Cable>(a.kind) || (servo && !servo->is_rotation()),
@@ -121,7 +138,9 @@ class EquilibriumSystem {
     // First the augmented tangent (exact, no refinement for tau), then, where it does not
     // factorize or does not apply, the proximal one.
     bool factorized = false;
-    if (contact_ && rigid_bodies_ == 0 && augmentable()) {
+    // (With parts not: the augmentation would touch their identity rows, and their
+    // coupling values are K's alone.)
+    if (contact_ && rigid_bodies_ == 0 && model_.rigidify.empty() && augmentable()) {
       double diag_max = 0;
       for (int d = 0; d < static_cast<int>(fem.pattern.diagonal.size()); ++d)
         if (!fem.fixed[d]) diag_max = std::max(diag_max, std::abs(data_.fem.K_values[fem.pattern.diagonal[d]]));
@@ -138,7 +157,14 @@ class EquilibriumSystem {
       if (!factorized && (held_.empty() || c >= kProximalMax)) return false;
     }
     if (!model_.rigid.empty()) return prepare_rigid_contact();
-    if (contact_ && !stage_.prepare(model_, contact_data(), *x_, *solver_, 1.0, false, &modes_, &sigma_, &data_.A))
+    if (!model_.rigidify.empty()) {
+      if (!prepare_parts()) return false;
+      solver_ = &reduced_;
+    }
+    // (With parts no A_upper: the operator path's preconditioner is built from the full A,
+    // not the reduced one; without it the mode-fixed system is solved through solver_.)
+    if (contact_ && !stage_.prepare(model_, contact_data(), *x_, *solver_, 1.0, false, &modes_, &sigma_,
+                                    model_.rigidify.empty() ? &data_.A : nullptr))
       return false;
     return true;
   }
@@ -222,6 +248,93 @@ class EquilibriumSystem {
   double last_change() const { return last_change_; }
 
  private:
+  // Rigidified parts (docs/method.md "Static equilibrium with rigidified parts",
+  // *Derivatives*): the reduced equilibrium P(x)^T R(x) = 0, x on the parts' rigid motions
+  // (x_i = c + dp + exp([dtheta]) a_i on part p, a_i = x_i - c). Its linearization at x*
+  // in the reduced unknowns (soft dx, (dp, dtheta) per part) is
+  //     (P^T K P - Q) du - P^T H_c^T dlambda - P^T dH^T lambda P du = P^T q,
+  // the static derivative's system above on the parts' motions, plus the arms' rotation
+  // in P^T: d(sum_i a_i x R_i) = sum_i (dtheta x a_i) x R_i = Q_p dtheta, Q_p =
+  // sum_i [R_i]x [a_i]x (R_i = f_int + P + f_act + H_c^T lambda on the part's nodes: not
+  // zero one by one, only their resultant and moment are). The centre's move adds
+  // -dc x sum_i R_i = 0 at the equilibrium. Q_p is symmetric up to the converged moment
+  // sum a_i x R_i (its antisymmetric part is [sum a_i x R_i]x / 2): its symmetric part is
+  // taken. The solves are rigidify.hpp's Schur complement on the one factorization of
+  // K (parts' dofs identity rows) with S - Q (ReducedSystem below).
+  void demand_parts_supported() const {
+    const auto& rm = model_.rigidify;
+    const std::string part = rm.parts.front().name;
+    SOFTDIFF_DEMAND(model_.rigid.empty(),
+                    "static derivatives with rigidified parts and rigid bodies in one scene are not supported yet "
+                    "(issue 21; " + part + ")");
+    for (const auto& a : model_.actuation.actuators)
+      if (const auto* cable = std::get_if<actuation::Cable>(&a.kind))
+        for (int node : cable->nodes())
+          SOFTDIFF_DEMAND(rm.dof_part[3 * static_cast<std::size_t>(node)] < 0,
+                          "static derivatives: cable '" + a.name + "' acts on rigidified part " +
+                              rm.parts[static_cast<std::size_t>(rm.dof_part[3 * static_cast<std::size_t>(node)])].name +
+                              ": the part's coupling leaves the cable's stiffness out (the static solve's modified "
+                              "Newton), so the reduced tangent is not the derivative's (issue 21)");
+    if (model_.contact.enabled)
+      for (const auto& part : rm.parts) {
+        const auto& b = model_.fem.bodies[static_cast<std::size_t>(part.body)];
+        bool any_fixed = false;
+        for (int d = 3 * b.node_begin; d < 3 * (b.node_begin + b.num_nodes); ++d) any_fixed = any_fixed || model_.fem.fixed[d];
+        SOFTDIFF_DEMAND(any_fixed, "static derivatives with a rigidified part on a body held by contact alone (no "
+                                   "fixed node: its proximal term would sit on the parts' identity rows) are not "
+                                   "supported yet (issue 21; " + part.name + ")");
+      }
+  }
+
+  // The parts' Schur complement at x* (prepare_rigidified, h = 1: K's coupling), less Q.
+  bool prepare_parts() {
+    const auto& rm = model_.rigidify;
+    auto& w = data_.rigidify;
+    if (!prepare_rigidified(model_, data_, *x_, 1.0, -1).ok() || w.reduced_pcg) return false;
+    // R = f_int + P + f_act + H_c^T lambda at x* (the final load factor 1).
+    force_parts_ = data_.fem.f_int + model_.fem.gravity_force;
+    if (!model_.actuation.empty()) model_.actuation.add_forces(*x_, data_.lambda_a, 1.0, force_parts_);
+    if (contact_) force_parts_.noalias() += contact_data().Ht * contact_data().lambda;
+    for (int p = 0; p < rm.size(); ++p) {
+      Mat3 Q = Mat3::Zero();
+      for (int i : rm.parts[static_cast<std::size_t>(p)].nodes) {
+        const Vec3 a = x_->segment<3>(3L * i) - w.centre[static_cast<std::size_t>(p)];
+        Q.noalias() += skew(Vec3(force_parts_.segment<3>(3L * i))) * skew(a);
+      }
+      w.S.block<3, 3>(6 * p + 3, 6 * p + 3) -= 0.5 * (Q + Q.transpose());
+    }
+    w.S_factor.compute(w.S);
+    return w.S_factor.info() == Eigen::Success;
+  }
+
+  // The reduced solves as a LinearSolver (the contact stage's derivative and the
+  // refinement call it): v = P (P^T K P - Q)^{-1} P^T b, G = H P (...)^{-1} P^T H^T.
+  class ReducedSystem final : public LinearSolver {
+   public:
+    ReducedSystem(const Model& model, Data& data) : model_(model), data_(data) {}
+    std::string name() const override { return "rigidified parts' reduced system"; }
+    void analyze(const SparseMatrix&) override {}
+    FactorStatus factorize(const SparseMatrix&) override { return {}; }
+    bool solve(const VecX& b, VecX& x) override { return solve_rigidified(model_, data_, b, x); }
+    bool solve(const MatX& B, MatX& X) override {
+      X.resize(B.rows(), B.cols());
+      for (Eigen::Index j = 0; j < B.cols(); ++j) {
+        col_b_ = B.col(j);
+        if (!solve_rigidified(model_, data_, col_b_, col_x_)) return false;
+        X.col(j) = col_x_;
+      }
+      return true;
+    }
+    bool inverse_congruence(const SparseMatrix& B, MatX& G) override {
+      return rigidified_congruence(model_, data_, B, G);
+    }
+
+   private:
+    const Model& model_;
+    Data& data_;
+    VecX col_b_, col_x_;
+  };
+
   struct Held {
     int begin, size;
     double tau;
@@ -628,6 +741,8 @@ class EquilibriumSystem {
 
   const Model& model_;
   Data& data_;
+  ReducedSystem reduced_{model_, data_};
+  VecX force_parts_;  // R at x* (prepare_parts)
   const VecX* x_ = nullptr;
   LinearSolver* solver_ = nullptr;  // data's, or EmptySystem without soft dofs
   int limited_ = 0;                  // bodies held on an active limit (hold_limited_bodies)
