@@ -564,7 +564,8 @@ TEST(Cli, CheckGradWithARigidifiedPartAndARigidCube) {
       std::cout << "[cli rigidify] part and cube, " << name << ":\n" << r.out;
       EXPECT_EQ(r.code, 0) << r.out << r.err;
       for (const char* block : {"young", "friction", "mass", "inertia", "x0", "v0"}) {
-        if (wrt.find(block) != std::string::npos) EXPECT_NE(r.out.find(block), std::string::npos) << r.out;
+        if (wrt.find(block) == std::string::npos) continue;
+        EXPECT_NE(r.out.find(block), std::string::npos) << r.out;
       }
       EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
     }
