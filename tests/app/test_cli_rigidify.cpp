@@ -320,18 +320,36 @@ TEST(Cli, CheckGradWithRigidifiedParts) {
       {"newton_bdf2_servo", beam(kTipServo + kServo),
        "--set simulation.integrator=bdf2 --set simulation.newton_iterations=8 --wrt young,x0,v0", {"young", "x0", "v0"}},
       // Newton with the tip landing on the plane: the reduced Delassus rows at the converged
-      // tangent (newton_contact_rows), dense and sparse: the smooth blocks. Not asserted here
-      // (measured, open): friction at the third step, 3.6e-5 at the default eps and 3.6e-4
-      // at 1e-5 with contact.tolerance 1e-12 (5e-8 and 9e-8 over one and two steps), and x0
-      // over three steps at --eps 3e-7, 8.3e-5 (2.9e-7 and 5.3e-6 over one and two): not
-      // falling with eps, as the stick/slip switches of "contact_state" above; the unit
-      // tests (RigidifyDerivatives.NewtonPartInContact*) check friction and x_i by differences
-      // with the modes of a resting part.
+      // tangent (newton_contact_rows), dense and sparse: the smooth blocks; then friction, x0
+      // and v0 (rpsn, 2026-12-04; the "open landing tip" of rnewtp) with Newton converged
+      // further (newton_tolerance 1e-11, 30 iterations; contact.tolerance 1e-12): their
+      // differences' error was the runs' noise, not the derivative. A run stops Newton at
+      // its tolerance (default 1e-10 relative; at the third step the residual has a floor
+      // ~1e-10, 1e-12 is not reached in 30 iterations, 1e-11 is), and the difference divides
+      // that noise by eps: at the third step friction's error is 8.1e-7 / 8.4e-6 / 8.6e-5
+      // at eps 1e-4 / 1e-5 / 1e-6 (proportional to 1 / eps; its column is small, ~1e-6), x0
+      // at the default newton_tolerance 8.3e-5 / 2.5e-5 / 1.1e-5 at eps 3e-7 / 1e-6 / 3e-6
+      // (1 / eps again) and 4.7e-6 at 3e-7 with newton_tolerance 1e-11; at 1e-5 x0 crosses
+      // the stick/slip switch of node 226 ("contact_state" above: 3.5e-2). Measured (the
+      // cases below; friction on the sparse backend by hand): friction 8.1e-7 (dense) /
+      // 8.2e-7 (sparse), x0 4.7e-6 / 4.8e-6, v0 2.3e-6 / 2.5e-6.
       {"newton_contact", beam("    rigidify: [{box: [0.15, -1, 0.004, 1, 1, 1], attach: free}]\n", plane),
        "--set simulation.newton_iterations=8 --wrt young,poisson,density,rayleigh_mass,rayleigh_stiffness",
        {"young", "rayleigh_stiffness"}},
       {"newton_contact_sparse", beam("    rigidify: [{box: [0.15, -1, 0.004, 1, 1, 1], attach: free}]\n", plane),
        "--set simulation.newton_iterations=8 --wrt young,poisson --set contact.backend=sparse", {"young", "poisson"}},
+      {"newton_contact_friction", beam("    rigidify: [{box: [0.15, -1, 0.004, 1, 1, 1], attach: free}]\n", plane),
+       "--set simulation.newton_iterations=30 --set simulation.newton_tolerance=1e-11 --set contact.tolerance=1e-12 "
+       "--wrt friction",
+       {"friction"}},
+      {"newton_contact_state", beam("    rigidify: [{box: [0.15, -1, 0.004, 1, 1, 1], attach: free}]\n", plane),
+       "--set simulation.newton_iterations=30 --set simulation.newton_tolerance=1e-11 --set contact.tolerance=1e-12 "
+       "--wrt x0,v0 --eps 3e-7",
+       {"x0", "v0"}},
+      {"newton_contact_state_sparse", beam("    rigidify: [{box: [0.15, -1, 0.004, 1, 1, 1], attach: free}]\n", plane),
+       "--set simulation.newton_iterations=30 --set simulation.newton_tolerance=1e-11 --set contact.tolerance=1e-12 "
+       "--wrt x0,v0 --eps 3e-7 --set contact.backend=sparse",
+       {"x0", "v0"}},
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);
