@@ -396,7 +396,8 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
   const Model model = io::build_model(scene, &report);
   for (const auto& w : report.warnings) warn(w);
   // Rigid bodies and rigidified parts: parse_theta's checks (issue 21; parts: implicit Euler
-  // with one Newton iteration, contact on the dense backend, no rigid bodies in contact).
+  // and BDF2, Newton too, either contact backend, rigid bodies in contact included, except
+  // a limited joint in contact on the sparse backend or under Newton).
   const Calibrated params = parse_params(o.param, model);
 
   // Initial values.

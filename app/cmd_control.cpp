@@ -134,7 +134,8 @@ int run_control(const ControlOptions& o, const std::string& command_line) {
   for (const auto& w : report.warnings) warn(w);
   // Rigid bodies (issue 21): their state is the step's input, not controlled; the step's
   // derivative goes through rigid contact. parse_theta below refuses what it does not
-  // cover (rigidified parts beyond implicit Euler with one Newton iteration).
+  // cover (rigidified parts: static, and a limited joint in contact on the sparse backend
+  // or under Newton).
   if (model.step.integrator == IntegratorKind::static_equilibrium)
     throw InputError("control: the scene's integrator must be implicit_euler or bdf2 (inverse dynamics is per time step)");
   if (model.actuation.actuators.empty()) throw InputError("control: the scene has no actuators to control");

@@ -18,11 +18,13 @@ namespace {
 // "Scenes of rigid bodies only"); its static case is refused below.
 void demand_differentiable(const std::string& option, const Model& model) {
   // Rigidified parts (issue 21 item 4 for item 2; integrator/rigidify_derivatives.hpp):
-  // implicit Euler and BDF2 (rigidify_bdf2_derivatives.hpp), Newton (newton_iterations > 1)
-  // too except with rigid bodies in contact (rnewtp), with or without contact on either backend (dense: the record's G; sparse: the
-  // operator's rows H_f^T and K_p, rpsp), with rigid bodies in contact on the dense
-  // backend (rpint; `auto` keeps a scene below dense_max_contacts on it, beyond that the
-  // step derivative stops naming issue 21).
+  // implicit Euler and BDF2 (rigidify_bdf2_derivatives.hpp), Newton (newton_iterations > 1,
+  // rnewtp), with or without contact on either backend (dense: the record's G; sparse: the
+  // operator's rows H_f^T and K_p, rpsp; Newton: those rows at the converged tangent), with
+  // rigid bodies in contact beside them on both backends and under Newton (rpint: dense;
+  // rpsn: sparse and Newton, the bodies' rows L_r^T H_r^T beside the parts'). Not with a
+  // limited joint in contact on the sparse backend or under Newton: the joint limits'
+  // extended system there does not carry the parts' rows (refused below).
   if (!model.rigidify.empty()) {
     const std::string& part = model.rigidify.parts.front().name;
     // Static (2026-12-04, rstat; integrator/static_solver_derivatives.cpp, docs/method.md
@@ -53,15 +55,13 @@ void demand_differentiable(const std::string& option, const Model& model) {
       throw InputError(option + ": derivatives with rigidified parts are supported for implicit_euler, bdf2 and "
                                 "static only (issue 21; " + part + ")");
     }
-    // Newton (rnewtp): the implicit function theorem on the converged reduced equations,
-    // with contact through the reduced Delassus rows at the converged tangent; not with
-    // rigid bodies in contact (not tested).
-    if (model.step.newton_iterations > 1 && model.contact.with_rigid())
-      throw InputError(option + ": derivatives with rigidified parts, newton_iterations > 1 and rigid bodies in "
-                                "contact are not supported yet (issue 21; " + part + "): use newton_iterations 1");
-    if (model.contact.with_rigid() && model.contact.ncp.backend == contact::NcpBackend::sparse)
-      throw InputError(option + ": derivatives with rigidified parts and rigid bodies in contact on contact.backend: "
-                                "sparse are not supported yet (issue 21; " + part + "): use dense or auto");
+    const bool sparse = model.contact.ncp.backend == contact::NcpBackend::sparse;
+    if (model.contact.with_rigid() && (sparse || model.step.newton_iterations > 1))
+      for (const auto& b : model.rigid)
+        if (b.joint.limits)
+          throw InputError(option + ": derivatives with rigidified parts and a limited joint (rigid body '" + b.name +
+                           "') in contact on contact.backend: sparse or with newton_iterations > 1 are not supported "
+                           "yet (issue 21; " + part + "): use the dense backend and newton_iterations 1");
   }
   // BDF2 with rigid bodies (rigid/rigid_bdf2_derivatives.hpp): differentiated as implicit
   // Euler is, with and without contact; with a limited joint in contact each step through

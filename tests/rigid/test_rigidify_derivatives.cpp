@@ -47,6 +47,7 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <iostream>
 #include <memory>
 #include <string>
@@ -733,11 +734,13 @@ TEST(RigidifyDerivatives, Bdf2PartInContactMatchesCentralDifferences) {
 // and free: the soft nodes the cube lands on couple to the part through A_red^{-1} (G's
 // rank-6m term, the reduced solves of the contact correction). Not under the cube: the
 // cube's face on a rigid face would be a redundant manifold (4 corners, rank 3).
-Model cube_on_slab_with_part() {
+// backend: the contact block's; simulation: the simulation block (Newton below).
+Model cube_on_slab_with_part(const std::string& backend = "dense",
+                             const std::string& simulation = "{dt: 0.002, steps: 10}") {
   return test::rigid_scenes::load_scene_text(
-      "rigidify_derivatives", "cube_slab",
+      "rigidify_derivatives", "cube_slab_" + std::to_string(std::hash<std::string>{}(backend + simulation)),
       "softdiff: 1\n"
-      "simulation: {dt: 0.002, steps: 10}\n"
+      "simulation: " + simulation + "\n"
       "bodies:\n"
       "  - name: slab\n"
       "    mesh: slab.msh\n"
@@ -752,7 +755,8 @@ Model cube_on_slab_with_part() {
       "    position: [0.0375, 0.0375, 0.0203]\n"
       "    orientation: [0.99875026039496628, 0, 0, 0.049979169270678331]\n"
       "    velocity: [0.05, 0, -0.3]\n"
-      "contact: {margin: 1.0e-3, tolerance: 1.0e-12, max_iterations: 5000, backend: dense, pairs: [[slab, cube, 0.5]]}\n",
+      "contact: {margin: 1.0e-3, tolerance: 1.0e-12, max_iterations: 5000, backend: " + backend +
+          ", pairs: [[slab, cube, 0.5]]}\n",
       {{"slab.msh", test::rigid_scenes::box_msh_text(4, 4, 1, 0.06, 0.06, 0.01)}});
 }
 
@@ -762,11 +766,11 @@ Model cube_on_slab_with_part() {
 // dot-product test of the VJP. eps 5e-9 and tolerance 1e-5 of the largest difference, as
 // CubeOnASoftSlab (test_contact_derivatives.cpp: this landing step's curvature makes the
 // eps^2 truncation 1e-6 relative at 5e-9; round-off 2e-8).
-TEST(RigidifyDerivatives, PartWithARigidCubeInContactMatchesCentralDifferences) {
-  const Model model = cube_on_slab_with_part();
-  ASSERT_EQ(model.rigidify.size(), 1);
-  ASSERT_EQ(model.rigidify.parts[0].nodes.size(), 10u);
-  ASSERT_TRUE(model.contact.with_rigid());
+// The JVP (x, v, rigid) is left in `jvp` for comparisons between backends and Newton.
+void check_part_with_cube(const Model& model, const std::string& label, VecX& jvp) {
+  EXPECT_EQ(model.rigidify.size(), 1);
+  EXPECT_EQ(model.rigidify.parts[0].nodes.size(), 10u);
+  EXPECT_TRUE(model.contact.with_rigid());
   const State in = model.initial;
   const Eigen::Index n = in.x.size(), R = static_cast<Eigen::Index>(model.rigid.size());
   auto step = [&](const Model& m, const State& s, std::unique_ptr<Data>& d) {
@@ -829,7 +833,9 @@ TEST(RigidifyDerivatives, PartWithARigidCubeInContactMatchesCentralDifferences) 
   const double scale = fd.cwiseAbs().maxCoeff(), err = (an - fd).cwiseAbs().maxCoeff();
   const VecX fd_r = fd.tail(12 * R), an_r = an.tail(12 * R);
   const double err_r = (an_r - fd_r).cwiseAbs().maxCoeff() / fd_r.cwiseAbs().maxCoeff();
-  std::cout << "[rigidify derivatives] part and rigid cube in contact: " << nc << " contacts, max |JVP - FD| "
+  jvp = an;
+  std::cout << "[rigidify derivatives] part and rigid cube in contact (" << label << "): " << nc
+            << " contacts, max |JVP - FD| "
             << err / scale << " of max |FD|, rigid rows " << err_r << "\n";
   EXPECT_LT(err, 1e-5 * scale);
   EXPECT_LT(err_r, 1e-5);
@@ -848,8 +854,14 @@ TEST(RigidifyDerivatives, PartWithARigidCubeInContactMatchesCentralDifferences) 
   const double rhs = cot.x.dot(t.x) + cot.v.dot(t.v) + cot.rigid.dot(t.rigid) + cot.rigid_p.dot(t.rigid_p);
   const double mag = std::abs(cot.x.dot(t.x)) + std::abs(cot.v.dot(t.v)) + std::abs(cot.rigid.dot(t.rigid)) +
                      std::abs(cot.rigid_p.dot(t.rigid_p));
-  std::cout << "[rigidify derivatives] part and rigid cube, dot product: " << std::abs(lhs - rhs) / mag << "\n";
+  std::cout << "[rigidify derivatives] part and rigid cube (" << label << "), dot product: "
+            << std::abs(lhs - rhs) / mag << "\n";
   EXPECT_LE(std::abs(lhs - rhs), 1e-9 * mag) << lhs << " against " << rhs;
+}
+
+TEST(RigidifyDerivatives, PartWithARigidCubeInContactMatchesCentralDifferences) {
+  VecX jvp;
+  check_part_with_cube(cube_on_slab_with_part(), "dense", jvp);
 }
 
 // --- Newton (newton_iterations > 1; branch rnewtp) ------------------------------------
@@ -966,27 +978,340 @@ TEST(RigidifyDerivatives, NewtonPartInContactMatchesCentralDifferences) { check_
 
 TEST(RigidifyDerivatives, NewtonPartInContactOnTheSparseBackend) { check_newton_part_in_contact(kSparse); }
 
-// Newton with a part and rigid bodies in contact stays refused (issue 21: not tested).
-TEST(RigidifyDerivatives, NewtonWithRigidBodiesInContactIsRefused) {
-  Model model = cube_on_slab_with_part();
-  model.step.newton_iterations = 4;
-  const State in = model.initial;
+// --- Rigid bodies in contact with a part on the sparse backend and under Newton (rpsn) ---
+// Both were refused (exit 2, issue 21). The sparse backend: the mode-fixed system is
+// h H_f,A A_ff^-1 H_f,A^T + h K_p,A^T K_p,A + h Kt_A^T Kt_A (the part's rows H_f^T, K_p =
+// data.rigidify.Ht_soft, SW, and the cube's L_r^T H_r^T, the record's Kt). Newton: the
+// part's rows at the converged tangent A_f (newton_contact_rows) beside the cube's (which
+// do not depend on A). The same differences and tolerances as the dense test above.
+const std::string kCubeSparseOperator = "sparse, derivative_dense_max_active: 0, derivative_mixed_dense_max_active: 0";
+// Newton on the cube-on-slab step: the slab (E = 5e4 Pa) is hit at 0.3 m/s, its
+// equations with the corotational force are nonlinear in the step. With the contact
+// solve in each iteration the relative residual stops at a round-off floor of 5e-13 to
+// 9e-13 (measured; 1e-13 is not reached in 20 iterations): newton_tolerance 2e-12, still
+// far below the differences' truncation (the iteration before the last is ~1e-7 off,
+// quadratic convergence).
+const std::string kCubeNewton = "{dt: 0.002, steps: 10, newton_iterations: 20, newton_tolerance: 2.0e-12}";
+
+// (x, v, the cube's pose and velocity) after `steps` steps.
+VecX cube_run(const Model& model, int steps) {
   Data data(model);
+  State a = model.initial, b;
+  for (int k = 1; k <= steps; ++k) {
+    const StepStatus st = integrator::time_step(model, data, a, nullptr, b, k);
+    EXPECT_TRUE(st.ok()) << describe(model, st);
+    std::swap(a, b);
+  }
+  const Eigen::Index n = a.x.size();
+  VecX r(2 * n + 13);
+  const auto& c = a.rigid[0];
+  r << a.x, a.v, c.position, c.orientation.coeffs(), c.velocity, c.angular_velocity;
+  return r;
+}
+
+// The forward step first: the sparse backend's trajectory is the dense one's (the slab,
+// the part, the cube's pose and velocity). Both solve the NCP to 1e-12 (relative) per
+// step; over 10 steps of the landing (the cube bounces off) the two runs differ by that
+// noise times the landing's conditioning (the differences of the trajectory tests below
+// show a state noise ~1e-10): measured 3.7e-10 of the largest entry, asserted 5e-9.
+TEST(RigidifyDerivatives, PartWithARigidCubeSparseTrajectoryIsTheDenseOne) {
+  const Model dense = cube_on_slab_with_part(), sparse = cube_on_slab_with_part("sparse");
+  const VecX a = cube_run(dense, 10), b = cube_run(sparse, 10);
+  const double err = (a - b).cwiseAbs().maxCoeff() / a.cwiseAbs().maxCoeff();
+  std::cout << "[rigidify derivatives] part and cube, 10 steps, sparse against dense: " << err << "\n";
+  EXPECT_LE(err, 5e-9);
+  Data data(sparse);
   State out;
-  ASSERT_TRUE(integrator::time_step(model, data, in, nullptr, out, 1).ok());
+  ASSERT_TRUE(integrator::time_step(sparse, data, sparse.initial, nullptr, out, 1).ok());
+  EXPECT_TRUE(data.contact.result.sparse);
+  EXPECT_EQ(data.contact.G.rows(), 0);
   ASSERT_GT(data.contact.contacts.size(), 0u);
+}
+
+// The step's JVP on the sparse backend (G_AA dense from the rows, and on the operator)
+// against differences, the VJP by the dot product, and the JVP against the dense
+// backend's along the same direction (the two steps' NCP noise over the conditioning:
+// measured 9e-13 and 1.5e-12, asserted 1e-7 relative to the largest entry).
+TEST(RigidifyDerivatives, PartWithARigidCubeInContactOnTheSparseBackend) {
+  VecX dense, sparse, op;
+  check_part_with_cube(cube_on_slab_with_part(), "dense", dense);
+  check_part_with_cube(cube_on_slab_with_part("sparse"), "sparse", sparse);
+  check_part_with_cube(cube_on_slab_with_part(kCubeSparseOperator), "sparse, operator", op);
+  ASSERT_EQ(sparse.size(), dense.size());
+  ASSERT_EQ(op.size(), dense.size());
+  const double scale = dense.cwiseAbs().maxCoeff();
+  const double e1 = (sparse - dense).cwiseAbs().maxCoeff() / scale, e2 = (op - dense).cwiseAbs().maxCoeff() / scale;
+  std::cout << "[rigidify derivatives] part and cube: sparse JVP against dense " << e1 << ", operator " << e2 << "\n";
+  EXPECT_LE(e1, 1e-7);
+  EXPECT_LE(e2, 1e-7);
+}
+
+// Newton (newton_iterations > 1) on both backends: the step takes more than one iteration
+// (asserted), the JVP against differences and the dot product, and the two backends'
+// JVPs against each other.
+TEST(RigidifyDerivatives, NewtonPartWithARigidCubeInContactMatchesCentralDifferences) {
+  const Model dense_model = cube_on_slab_with_part("dense", kCubeNewton);
+  const Model sparse_model = cube_on_slab_with_part("sparse", kCubeNewton);
+  EXPECT_GE(newton_iterations_of_step(dense_model, dense_model.initial), 2);
+  VecX dense, sparse;
+  check_part_with_cube(dense_model, "newton, dense", dense);
+  check_part_with_cube(sparse_model, "newton, sparse", sparse);
+  ASSERT_EQ(sparse.size(), dense.size());
+  const double e = (sparse - dense).cwiseAbs().maxCoeff() / dense.cwiseAbs().maxCoeff();
+  std::cout << "[rigidify derivatives] newton, part and cube: sparse JVP against dense " << e << "\n";
+  EXPECT_LE(e, 1e-7);
+  // Newton's derivative is not the linearized step's (the JVPs differ: the test above
+  // would not catch a Newton path falling back to the one-iteration derivative).
+  VecX linear;
+  check_part_with_cube(cube_on_slab_with_part(), "dense", linear);
+  EXPECT_GT((linear - dense).cwiseAbs().maxCoeff(), 1e-6 * dense.cwiseAbs().maxCoeff());
+}
+
+// Forward sensitivities over 2 steps of the landing (young; an x0 direction: the slab's
+// nodes, scaled by 1e-3 as in test_bdf2_contact_derivatives.cpp's cube, and the cube's
+// position; a v0 direction: the slab's nodes and the cube's velocity) against central
+// differences of the whole run, and the adjoint's gradient of l = w_x . x_T + w_v . v_T
+// (soft and cube rows) against them (exact algebra: 1e-9 relative). Dense and sparse,
+// Newton dense and Newton sparse. The outputs compared: the slab's x, v, the cube's
+// position and velocity (the rotation rows are the step tests').
+// Why 2 steps and these eps (measured, the same without the part): the landing damps
+// the perturbations strongly (the x0 column's largest entry is 470 after one step, 7.2
+// after two, 0.41 after four), so the differences' relative error grows with the steps
+// (after 4 steps ~1e-3 at every eps tried, 1e-8 to 1e-4, with the modes of all the runs
+// the same); each step is checked at eps 5e-9 by the step tests above. After 2 steps:
+// young eps 1e-3 of its value (truncation; the column is ~5e-8 per Pa) 1e-6 to 2e-6; x0
+// eps 1e-6: 7e-7; v0 eps 1e-5: 8e-6 to 1.3e-5, the floor of a noise ~1e-10 / eps
+// (9.5e-5 at eps 1e-6) against the truncation (3.7e-4 at 1e-4). tol 5e-5 relative to
+// each column's largest entry.
+void check_cube_trajectory(const Model& model, const std::string& label) {
+  const Eigen::Index n = 3L * model.fem.num_nodes;
+  const long steps = 2;
+  diff::ThetaLayout theta;
+  theta.parameters = {{Parameter::young, 0}};
+  theta.x0 = theta.v0 = true;
+  // The rows: 3n soft, then the cube's 6 (x0: position, rotation vector; v0: velocity,
+  // angular velocity). The directions move the slab and the cube's position / velocity
+  // (not its orientation: the differences below add to the position and velocity only).
+  theta.x0_basis = test::random_vector(n + 6, 1.0, 71);
+  theta.v0_basis = test::random_vector(n + 6, 1.0, 72);
+  theta.x0_basis.topRows(n) *= 1e-3;
+  theta.x0_basis.bottomRows(3).setZero();
+  theta.v0_basis.bottomRows(3).setZero();
+  for (Eigen::Index k = 0; k < n; ++k)
+    if (model.fem.fixed[static_cast<std::size_t>(k)]) theta.x0_basis(k, 0) = theta.v0_basis(k, 0) = 0;
+  Data data(model);
+  State final;
+  MatX dx, dv;
+  ASSERT_TRUE(diff::forward_sensitivities(model, data, model.initial, steps, theta, final, dx, dv).ok());
+  ASSERT_EQ(dx.cols(), 3);
+  ASSERT_GT(data.contact.contacts.size(), 0u);
+  auto run = [&](const Model& m, const State& s0) {
+    Data d(m);
+    State a = s0, b;
+    for (long k = 1; k <= steps; ++k) {
+      EXPECT_TRUE(integrator::time_step(m, d, a, nullptr, b, k).ok());
+      std::swap(a, b);
+    }
+    VecX r(2 * n + 6);
+    r << a.x, a.v, a.rigid[0].position, a.rigid[0].velocity;
+    return r;
+  };
+  // The outputs compared: soft x, v, the cube's position and velocity.
+  auto rows = [&](const VecX& x, const VecX& v) {
+    VecX r(2 * n + 6);
+    r << x.head(n), v.head(n), x.segment<3>(n), v.segment<3>(n);
+    return r;
+  };
+  for (int j = 0; j < 3; ++j) {
+    VecX fd;
+    if (j == 0) {
+      const double value = diff::get_parameter(model, theta.parameters[0]), eps = 1e-3 * value;
+      Model mp = model, mm = model;
+      diff::set_parameter(mp, theta.parameters[0], value + eps);
+      diff::set_parameter(mm, theta.parameters[0], value - eps);
+      fd = (run(mp, model.initial) - run(mm, model.initial)) / (2 * eps);
+    } else {
+      const bool x = j == 1;
+      const VecX dir = x ? VecX(theta.x0_basis.col(0)) : VecX(theta.v0_basis.col(0));
+      const double eps = x ? 1e-6 : 1e-5;
+      State p = model.initial, m = model.initial;
+      (x ? p.x : p.v) += eps * dir.head(n);
+      (x ? m.x : m.v) -= eps * dir.head(n);
+      (x ? p.rigid[0].position : p.rigid[0].velocity) += eps * dir.segment<3>(n);
+      (x ? m.rigid[0].position : m.rigid[0].velocity) -= eps * dir.segment<3>(n);
+      fd = (run(model, p) - run(model, m)) / (2 * eps);
+    }
+    const VecX an = rows(dx.col(j), dv.col(j));
+    const double err = (an - fd).cwiseAbs().maxCoeff(), mag = fd.cwiseAbs().maxCoeff();
+    std::cout << "[rigidify derivatives] " << label << ", trajectory column " << j << ": max |sensitivity - FD| "
+              << err / mag << " of max |FD| " << mag << "\n";
+    EXPECT_LT(err, 5e-5 * mag) << label << ", column " << j;
+  }
+  diff::Tape tape;
+  Data data2(model);
+  ASSERT_TRUE(diff::record(model, data2, model.initial, steps, tape).ok());
+  const VecX wx = test::random_vector(n + 6, 1.0, 73), wv = test::random_vector(n + 6, 1.0, 74);
+  diff::AdjointResult result;
+  ASSERT_TRUE(diff::adjoint(model, data2, tape, theta,
+                            [&](long k, const State&, VecX& bx, VecX& bv) {
+                              if (k != steps) return;
+                              bx += wx.head(n);
+                              bv += wv.head(n);
+                            },
+                            result,
+                            [&](long k, const State&, VecX& bar_rigid) {
+                              if (k != steps) return;
+                              bar_rigid.segment<6>(0) += wx.tail<6>();  // position, rotation vector
+                              bar_rigid.segment<6>(6) += wv.tail<6>();  // velocity, angular velocity
+                            })
+                  .ok());
+  EXPECT_EQ(result.recompute_mismatch, 0);
+  const VecX expected = dx.transpose() * wx + dv.transpose() * wv;
+  std::cout << "[rigidify derivatives] " << label
+            << ", part and cube, adjoint against forward: " << (result.theta - expected).norm() / expected.norm()
+            << "\n";
+  EXPECT_LE((result.theta - expected).norm(), 1e-9 * expected.norm()) << result.theta.transpose() << " against "
+                                                                       << expected.transpose();
+}
+
+TEST(RigidifyDerivatives, PartWithARigidCubeTrajectoryOnTheSparseBackend) {
+  check_cube_trajectory(cube_on_slab_with_part("sparse"), "sparse");
+  check_cube_trajectory(cube_on_slab_with_part(), "dense");
+}
+
+TEST(RigidifyDerivatives, NewtonPartWithARigidCubeTrajectory) {
+  check_cube_trajectory(cube_on_slab_with_part("dense", kCubeNewton), "newton, dense");
+  check_cube_trajectory(cube_on_slab_with_part("sparse", kCubeNewton), "newton, sparse");
+}
+
+// The landing cube of cube_on_slab_with_part on a vertical slider with limits [-0.5 mm,
+// 10 mm]: it reaches the lower limit while landing on the slab, so the step's NCP has the
+// contacts and the limit's row.
+Model cube_on_a_limited_slider(const std::string& backend, const std::string& simulation) {
+  return test::rigid_scenes::load_scene_text(
+      "rigidify_derivatives", "cube_slider_" + std::to_string(std::hash<std::string>{}(backend + simulation)),
+      "softdiff: 1\n"
+      "simulation: " + simulation + "\n"
+      "bodies:\n"
+      "  - name: slab\n"
+      "    mesh: slab.msh\n"
+      "    material: {law: corotational, young: 5.0e4, poisson: 0.4, density: 1000}\n"
+      "    damping: {rayleigh_mass: 20, rayleigh_stiffness: 0.01}\n"
+      "    fixed: [{box: [-1, -1, -1, 1, 1, 1.0e-9]}]\n"
+      "    rigidify: [{box: [-1, -1, 0.009, 0.016, 1, 1], attach: free}]\n"
+      "  - name: cube\n"
+      "    type: rigid\n"
+      "    shape: {type: box, half_extents: [0.01, 0.01, 0.01]}\n"
+      "    density: 500\n"
+      "    position: [0.0375, 0.0375, 0.0203]\n"
+      "    orientation: [0.99875026039496628, 0, 0, 0.049979169270678331]\n"
+      "    velocity: [0, 0, -0.3]\n"
+      "    joint: {type: slider, axis: [0, 0, 1], limits: [-0.0005, 0.01]}\n"
+      "contact: {margin: 1.0e-3, tolerance: 1.0e-12, max_iterations: 5000, backend: " + backend +
+          ", pairs: [[slab, cube, 0.5]]}\n",
+      {{"slab.msh", test::rigid_scenes::box_msh_text(4, 4, 1, 0.06, 0.06, 0.01)}});
+}
+
+// What rpint accepts with a limit row: the dense backend with one Newton iteration. The
+// slider's limit row in the NCP beside the 23 contacts; the step's JVP along a random soft
+// direction (x, v; the cube's tangent zero: a random 12-tangent would leave the slider)
+// against central differences at eps 5e-9 (as the cube tests: truncation ~1e-6 relative,
+// round-off 2e-8), tolerance 1e-5 of the largest difference, the modes the same on both
+// sides; the cube's height and vertical velocity rows included; the dot-product test of
+// the VJP (1e-9). Measured 7.6e-10 (3.3e-9 at eps 1e-8, 4.1e-9 at 1e-9).
+TEST(RigidifyDerivatives, LimitedJointInContactWithAPartOnTheDenseBackend) {
+  const Model model = cube_on_a_limited_slider("dense", "{dt: 0.002, steps: 10}");
+  const State in = model.initial;
+  const Eigen::Index n = in.x.size();
+  auto step = [&](const State& s, std::unique_ptr<Data>& d) {
+    d = std::make_unique<Data>(model);
+    State o;
+    const StepStatus st = integrator::time_step(model, *d, s, nullptr, o, 1);
+    EXPECT_TRUE(st.ok()) << describe(model, st);
+    return o;
+  };
+  std::unique_ptr<Data> data;
+  const State out = step(in, data);
+  ASSERT_EQ(data->contact.rigid.limit_rows.size(), 1u);
+  ASSERT_GT(data->contact.contacts.size(), 0u);
+  StepTangent t;
+  t.x = test::random_vector(n, 1.0, 91);
+  t.v = test::random_vector(n, 1.0, 92);
+  for (Eigen::Index k = 0; k < n; ++k)
+    if (model.fem.fixed[static_cast<std::size_t>(k)]) t.x[k] = t.v[k] = 0;
   integrator::StepDerivatives D(model, {});
-  StepTangent d;
-  d.v = test::random_vector(in.x.size(), 1.0, 5);
-  StateTangent o;
-  try {
-    D.jvp(model, data, in, out, d, o);
-    ADD_FAILURE() << "the derivative of a Newton step with a part and a rigid body in contact ran";
-  } catch (const std::exception& e) {
-    const std::string what = e.what();
-    EXPECT_NE(what.find("newton_iterations > 1 and rigid bodies in contact: not supported yet (issue 21)"),
-              std::string::npos)
-        << what;
+  StateTangent jv;
+  ASSERT_TRUE(D.jvp(model, *data, in, out, t, jv));
+  ASSERT_EQ(jv.rigid.size(), 12);
+  const double eps = 5e-9;
+  State p = in, m = in;
+  p.x += eps * t.x;
+  p.v += eps * t.v;
+  m.x -= eps * t.x;
+  m.v -= eps * t.v;
+  std::unique_ptr<Data> dp, dm;
+  const State sp = step(p, dp), sm = step(m, dm);
+  ASSERT_EQ(dp->contact.modes, data->contact.modes);
+  ASSERT_EQ(dm->contact.modes, data->contact.modes);
+  ASSERT_EQ(dp->contact.rigid.limit_rows.size(), 1u);
+  ASSERT_EQ(dm->contact.rigid.limit_rows.size(), 1u);
+  VecX fd(2 * n + 2), an(2 * n + 2);
+  fd << (sp.x - sm.x) / (2 * eps), (sp.v - sm.v) / (2 * eps),
+      (sp.rigid[0].position.z() - sm.rigid[0].position.z()) / (2 * eps),
+      (sp.rigid[0].velocity.z() - sm.rigid[0].velocity.z()) / (2 * eps);
+  an << jv.x, jv.v, jv.rigid[2], jv.rigid[8];  // the tangent: position, rotation, velocity, angular velocity
+  const double err = (an - fd).cwiseAbs().maxCoeff() / fd.cwiseAbs().maxCoeff();
+  std::cout << "[rigidify derivatives] part and a limited slider in contact (dense): max |JVP - FD| " << err
+            << " of max |FD|; the cube's z, v_z " << an.tail(2).transpose() << " against " << fd.tail(2).transpose()
+            << "\n";
+  EXPECT_LT(err, 1e-5);
+  EXPECT_GT(std::abs(fd[2 * n + 1]), 0.0);
+  StateTangent bar;
+  bar.x = test::random_vector(n, 1.0, 95);
+  bar.v = test::random_vector(n, 1.0, 96);
+  bar.rigid = test::random_vector(12, 1.0, 97);
+  StepCotangent cot;
+  ASSERT_TRUE(D.vjp(model, *data, in, out, bar, cot));
+  const double lhs = bar.x.dot(jv.x) + bar.v.dot(jv.v) + bar.rigid.dot(jv.rigid);
+  const double rhs = cot.x.dot(t.x) + cot.v.dot(t.v);
+  const double mag = std::abs(cot.x.dot(t.x)) + std::abs(cot.v.dot(t.v));
+  std::cout << "[rigidify derivatives] part and a limited slider, dot product: " << std::abs(lhs - rhs) / mag << "\n";
+  EXPECT_LE(std::abs(lhs - rhs), 1e-9 * mag) << lhs << " against " << rhs;
+}
+
+// Still refused (issue 21): a limited joint in contact with a part on the sparse backend
+// or under Newton (the joint limits' extended system there does not carry the parts'
+// rows). The cube on a vertical slider whose lower limit (-0.5 mm) it reaches while
+// landing on the slab: the step's NCP has the contacts and the limit's row.
+TEST(RigidifyDerivatives, LimitedJointInContactWithAPartIsRefusedOnTheSparseBackendAndUnderNewton) {
+  for (const std::string simulation : {std::string("{dt: 0.002, steps: 10}"), kCubeNewton}) {
+    for (const std::string backend : {"sparse", "dense"}) {
+      const bool newton = simulation.find("newton") != std::string::npos;
+      SCOPED_TRACE(backend + (newton ? ", newton" : ""));
+      if (!newton && backend == "dense") continue;  // differentiated (rpint)
+      const Model model = cube_on_a_limited_slider(backend, simulation);
+      Data data(model);
+      State out;
+      const State in = model.initial;
+      const StepStatus st = integrator::time_step(model, data, in, nullptr, out, 1);
+      ASSERT_TRUE(st.ok()) << describe(model, st);
+      ASSERT_GT(data.contact.contacts.size(), 0u);
+      ASSERT_FALSE(data.contact.rigid.limit_rows.empty());
+      integrator::StepDerivatives D(model, {});
+      StepTangent d;
+      d.v = test::random_vector(in.x.size(), 1.0, 5);
+      StateTangent o;
+      try {
+        D.jvp(model, data, in, out, d, o);
+        ADD_FAILURE() << "the derivative of a step with a part and a limited joint in contact ran";
+      } catch (const std::exception& e) {
+        const std::string what = e.what();
+        EXPECT_NE(what.find("a joint limit and contact in one NCP: the dense contact backend with newton_iterations 1 "
+                            "only (issue 21)"),
+                  std::string::npos)
+            << what;
+      }
+    }
   }
 }
 

@@ -34,23 +34,26 @@ void demand_parts_supported(const Model& model, const Data& data) {
   // extrapolation's derivative is multistep_jvp / multistep_vjp's (rigidify_bdf2_derivatives.hpp).
   // Newton (newton_iterations > 1): the implicit function theorem on the converged
   // reduced equations, A_f's own Schur complement (RigidifiedStepDerivative::prepare_newton),
-  // with contact the reduced Delassus rows at A_f (prepare_contact); not with rigid bodies
-  // in contact (not tested: issue 21).
+  // with contact the reduced Delassus rows at A_f (prepare_contact).
   SOFTDIFF_DEMAND(model.step.integrator == IntegratorKind::implicit_euler || model.step.integrator == IntegratorKind::bdf2,
                   "step derivatives with rigidified parts (" + part + "): implicit_euler or bdf2 only (issue 21)");
-  SOFTDIFF_DEMAND(model.step.newton_iterations == 1 || !model.contact.with_rigid() || data.contact.contacts.empty(),
-                  "step derivatives with rigidified parts (" + part +
-                      "), newton_iterations > 1 and rigid bodies in contact: not supported yet (issue 21)");
   // In contact: the dense record's G (it holds the parts' rank-6m term, and with rigid
   // bodies in contact their blocks too: rpint; the extended pseudo-node vectors take the
   // soft rows' cotangents and tangents from the parts' reduced solves), or on the sparse
-  // backend the operator's rows (H_f^T, K_p: data.rigidify.Ht_soft, SW; prepare_contact;
-  // rpsp), without rigid bodies in contact there. With Newton (refused above) the rigid
-  // rows would need the converged tangent's Schur complement.
+  // backend the operator's rows (H_f^T, K_p: data.rigidify.Ht_soft, SW; rpsp), or with
+  // Newton the rows at the converged tangent (H_f^T, K_f: newton_contact_rows; rnewtp),
+  // rigid bodies in contact beside them on the sparse backend and under Newton (their rows
+  // L_r^T H_r^T, contact::rigid_body_rows, do not depend on A: rpsn). Joint limits in the
+  // contact solve there are not: their extended system (prepare_limits) is the contacts'
+  // whole G with A_f, or on the operator the unreduced H^T, neither with the parts' rows.
   const auto nc = static_cast<Eigen::Index>(data.contact.contacts.size());
-  SOFTDIFF_DEMAND(!model.contact.enabled || nc == 0 || data.contact.G.rows() == 3 * nc || !model.contact.with_rigid(),
+  const bool dense_record = data.contact.G.rows() == 3 * nc;
+  SOFTDIFF_DEMAND(!model.contact.enabled || nc == 0 || !model.contact.with_rigid() ||
+                      data.contact.rigid.limit_rows.empty() ||
+                      (dense_record && model.step.newton_iterations == 1),
                   "step derivatives with rigidified parts (" + part +
-                      ") and rigid bodies in contact: the dense contact backend only (issue 21)");
+                      "), a joint limit and contact in one NCP: the dense contact backend with newton_iterations 1 "
+                      "only (issue 21)");
 }
 
 // The step size of the record: data.h (dt for implicit Euler, 2 dt / 3 for BDF2), or

@@ -4,8 +4,10 @@
 // (implicit_euler_derivatives.hpp) when model.rigidify is not empty: implicit Euler (or
 // BDF2's stage, from the record's hat state) with one Newton iteration, with or without
 // contact (dense backend: the record's G, formed by rigidified_congruence, is the
-// mode-fixed system's), rigid bodies in contact included; with Newton (below) with or
-// without contact, not with rigid bodies in contact.
+// mode-fixed system's; sparse backend: the operator's rows H_f^T and K_p), rigid bodies in
+// contact included (their rows L_r^T H_r^T beside the parts', on both backends); with
+// Newton (below) with or without contact, rigid bodies in contact included (rpsn), not
+// with a limited joint in contact (implicit_euler_derivatives.cpp demand_parts_supported).
 //
 // The step with parts (rigidify.hpp): P^T A P z = P^T (b + h H^T lambda), Delta = P z,
 // v~ = v_i + Delta (the solve's velocity), then the exact placement of every part from
