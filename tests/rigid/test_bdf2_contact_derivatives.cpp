@@ -150,6 +150,46 @@ TEST_P(RigidBdf2ContactTrajectoryDerivatives, SlidingWedge) {
   check_trajectory(model, 10, 3, {1e-8, 1e-6, 1e-6, 1e-6}, 1e-5);
 }
 
+// The wedge dropped 1 mm onto the plane (2026-12-04, rbimp; the impact restart,
+// integrator/bdf2.cpp rigid_impact): sliding at 0.5 m/s and spinning, it lands flat on
+// its three base corners during step 8 (h = 2 ms) at 0.137 m/s; the landing step and the
+// one after restart as implicit Euler contact steps (the branch is recorded in
+// data.history_weight and recomputed from the same states by the derivatives), then BDF2
+// resumes. 14 steps: step 1 implicit Euler (no previous), 2-7 BDF2 (falling), 8-9 the
+// restart, 10-14 BDF2 sliding. The branches are counted first (11 BDF2 steps), then the
+// forward sensitivities (x0, v0, mass, inertia) against central differences of whole runs
+// and the adjoint against them (1e-9), as the sliding wedge above; eps as there (the
+// drop moves no branch: the landing is 9 um above the plane at the end of step 7 and
+// closes at 0.137 m/s, far from the 5 mm/s threshold and from a step boundary under a
+// perturbation of 1e-6). tol 1e-5.
+TEST_P(RigidBdf2ContactTrajectoryDerivatives, WedgeDroppedOntoThePlane) {
+  Model model = anchored(2e-3);
+  test::rigid_scenes::add_sliding_wedge(model);
+  model.initial.rigid[0].position.z() += 1e-3;
+  test::enable_rigid_contact(model, {test::plane(Vec3::UnitZ(), 0, "floor")}, {{"wedge", "floor", 0.3}}, 1e-3, tight());
+  model.contact.ncp.backend = GetParam() ? contact::NcpBackend::sparse : contact::NcpBackend::dense;
+  model.step.integrator = IntegratorKind::bdf2;
+  const long T = 14;
+  {
+    Data data(model);
+    State a = model.initial, b, previous;
+    long bdf2_steps = 0, landing = 0;
+    for (long k = 1; k <= T; ++k) {
+      ASSERT_TRUE(integrator::time_step(model, data, a, k > 1 ? &previous : nullptr, b, k).ok());
+      bdf2_steps += data.history_weight != 0;
+      if (!landing && data.contact.lambda.size() && data.contact.lambda.maxCoeff() > 0) landing = k;
+      previous = a;
+      std::swap(a, b);
+    }
+    std::cout << "wedge dropped 1 mm, " << T << " steps: " << bdf2_steps << " BDF2, landing at step " << landing
+              << ", v_z " << a.rigid[0].velocity.z() << "\n";
+    EXPECT_EQ(landing, 8);
+    EXPECT_EQ(bdf2_steps, T - 3);
+    EXPECT_LT(std::abs(a.rigid[0].velocity.z()), 1e-9);
+  }
+  check_trajectory(model, T, 5, {1e-8, 1e-6, 1e-6, 1e-6}, 1e-5);
+}
+
 INSTANTIATE_TEST_SUITE_P(, RigidBdf2ContactTrajectoryDerivatives, ::testing::Values(false, true),
                          [](const ::testing::TestParamInfo<bool>& p) { return p.param ? "sparse" : "dense"; });
 

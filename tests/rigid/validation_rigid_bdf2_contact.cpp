@@ -7,7 +7,8 @@
 //    Euler first step and BDF2 are exact on linear velocities) and the travel is BDF2's
 //    closed form a_s t^2 / 2 + 3/4 h^2 a_s (1 - 3^-n) (as free fall, validation_rigid_bdf2);
 //    no penetration, no tipping, the normal force the weight's normal part, friction mu N;
-//  - a box resting flat on a plane: the reaction is the weight, on its four corners.
+//  - a box resting flat on a plane: the reaction is the weight, on its four corners;
+//  - a box dropped 1 mm onto a plane: it lands without bouncing (the impact restart).
 #include <softdiff/data.hpp>
 #include <softdiff/integrator/bdf2.hpp>
 #include <support/meshes.hpp>
@@ -115,6 +116,96 @@ TEST_P(RigidBdf2Contact, BoxRestsFlatOnItsFourCorners) {
   EXPECT_LT(e.angular_velocity.norm(), 1e-10);
   EXPECT_LT(e.velocity.norm(), 1e-10);
   EXPECT_NEAR(e.position.z(), 0.02, 1e-10);
+}
+
+// An impact (2026-12-04, rbimp; docs/method.md "BDF2", *Impacts: BDF2 restarts*): a box
+// (0.1 x 0.06 x 0.04 m, 700 kg/m^3) dropped from 1 mm onto a plane, h = 2 ms: it lands
+// at 0.137 m/s during step 8. The exact motion stops there (an inelastic contact: the
+// NCP has no restitution) and rests at z = 0.02 m with the weight on its corners.
+// Before the restart BDF2 bounced here (v_z +0.057 m/s the step after the landing, a
+// rise of 0.47 mm above the rest height with the rigid stack's middle box): the history
+// (x^, v^) carried the pre-impact velocity. Now the landing step and the one after are
+// implicit Euler steps and BDF2 resumes at the next one. Checked after the first step
+// whose contacts carry a force, for BDF2 and (unchanged) implicit Euler:
+//  - no bounce: v_z <= 1e-9 m/s and z <= 0.02 + 1e-9 m at every later step (the NCP's
+//    tolerance 1e-10 relative bounds the contact velocity's error to ~1e-10 of the
+//    velocity scale 0.14 m/s; 1e-9 is ten times that, far below the 57 mm/s and
+//    0.47 mm of the bounce), no sinking (z >= 0.02 - 1e-9), the normal force > 0 at
+//    every step;
+//  - at rest after 40 steps: the reaction the weight (1e-8 relative, as the resting box
+//    above), velocity below 1e-10;
+//  - BDF2: exactly two restarted steps (history_weight 0 after the first step), after
+//    which every step is BDF2 again (history_weight 1/3).
+struct Landing {
+  int landed = 0;          // the first step whose contacts carry a force
+  int restarted = 0;       // steps after the first with history_weight 0
+  int bdf2_after = 0;      // BDF2 steps after the restarted ones
+  double max_vz = -1e300;  // after the landing
+  double max_rise = -1e300, max_sink = -1e300;
+  double min_force = 1e300;
+  State end;
+};
+
+Landing drop_box(IntegratorKind integrator, contact::NcpBackend backend) {
+  const double h = 2e-3, z_rest = 0.02;
+  Model model = anchored(h);
+  model.step.integrator = integrator;
+  rigid::RigidState s;
+  s.position = Vec3(0.2, -0.1, z_rest + 1e-3);
+  test::add_rigid_body(model, "box", test::box_shape(Vec3(0.05, 0.03, 0.02)), 700, s);
+  test::enable_rigid_contact(model, {test::plane(Vec3::UnitZ(), 0)}, {{"box", "floor", 0.5}}, 1e-3, tight(backend));
+  Data data(model);
+  Landing r;
+  State previous, a = model.initial, b;
+  for (long n = 1; n <= 40; ++n) {
+    const StepStatus st = integrator::time_step(model, data, a, n == 1 ? nullptr : &previous, b, n);
+    EXPECT_TRUE(st.ok()) << describe(model, st);
+    if (!st.ok()) break;
+    EXPECT_TRUE(data.contact.result.converged) << "step " << n;
+    previous = a;
+    std::swap(a, b);
+    const double fz = force_on_rigid(data, 1, nullptr).z();
+    if (!r.landed && fz > 0) r.landed = static_cast<int>(n);
+    if (n > 1 && data.history_weight == 0) ++r.restarted;
+    if (n > 1 && data.history_weight != 0 && r.restarted) ++r.bdf2_after;
+    if (!r.landed) continue;
+    const auto& e = a.rigid[0];
+    r.max_vz = std::max(r.max_vz, e.velocity.z());
+    r.max_rise = std::max(r.max_rise, e.position.z() - z_rest);
+    r.max_sink = std::max(r.max_sink, z_rest - e.position.z());
+    r.min_force = std::min(r.min_force, fz);
+  }
+  r.end = a;
+  const double weight = model.rigid[0].mass * g0;
+  const Vec3 f = force_on_rigid(data, 1, nullptr);
+  std::cout << "[rigid bdf2 contact] box dropped 1 mm (" << (integrator == IntegratorKind::bdf2 ? "bdf2" : "implicit Euler")
+            << "): landed at step " << r.landed << ", restarted steps " << r.restarted << ", max v_z after " << r.max_vz
+            << " m/s, max rise " << r.max_rise << " m, max sink " << r.max_sink << " m, end reaction " << f.z()
+            << " N (weight " << weight << ")\n";
+  EXPECT_NEAR(f.z(), weight, 1e-8 * weight);
+  EXPECT_LT(f.head<2>().norm(), 1e-8 * weight);
+  EXPECT_LT(a.rigid[0].velocity.norm(), 1e-10);
+  EXPECT_LT(a.rigid[0].angular_velocity.norm(), 1e-10);
+  return r;
+}
+
+void expect_no_bounce(const Landing& r) {
+  ASSERT_GT(r.landed, 1);
+  EXPECT_LE(r.max_vz, 1e-9);
+  EXPECT_LE(r.max_rise, 1e-9);
+  EXPECT_LE(r.max_sink, 1e-9);
+  EXPECT_GT(r.min_force, 0);
+}
+
+TEST_P(RigidBdf2Contact, BoxDroppedOneMillimetreLandsWithoutBouncing) {
+  const Landing r = drop_box(IntegratorKind::bdf2, GetParam());
+  expect_no_bounce(r);
+  EXPECT_EQ(r.restarted, 2);
+  EXPECT_EQ(r.bdf2_after, 40 - 1 - 2 - (r.landed - 1 - 1));  // every step after the two restarts is BDF2
+}
+
+TEST_P(RigidBdf2Contact, BoxDroppedOneMillimetreLandsWithoutBouncingUnderImplicitEuler) {
+  expect_no_bounce(drop_box(IntegratorKind::implicit_euler, GetParam()));
 }
 
 INSTANTIATE_TEST_SUITE_P(Backends, RigidBdf2Contact,

@@ -122,13 +122,6 @@ StepStatus time_step_rigid_only(const Model& model, Data& data, const State& in,
 // decided again. After the step each limited body's data.rigid at_limit says whether it
 // ended at a limit: an active limit row (contacts detected), else the free step's clamp
 // (no contact: the free step is the result, rigid::step's exact limit).
-bool limited_joints(const Model& model) {
-  for (const auto& b : model.rigid)
-    if (b.joint.limits && (b.joint.kind == rigid::Joint::Kind::hinge || b.joint.kind == rigid::Joint::Kind::slider))
-      return true;
-  return false;
-}
-
 // Whether a limited body's limit row of the last contact solve is active (force > 0),
 // or, without contacts, the free step stopped at a limit; recorded in data.rigid[r].at_limit.
 bool mark_limits(const Model& model, Data& data) {
@@ -152,6 +145,74 @@ bool mark_limits(const Model& model, Data& data) {
   return any;
 }
 
+// The normal velocity n . sum_k w_k v_k of contact c at state s: soft nodes from s.v,
+// a rigid body's pseudo-node k from its body's twist, v_r + omega_r x (R_r X_k)
+// (positive: separating, as the contact's gap).
+double normal_velocity(const Model& model, const collision::Contact& c, const State& s) {
+  const int n = model.fem.num_nodes;
+  Vec3 u = Vec3::Zero();
+  for (int k = 0; k < c.count; ++k) {
+    const int node = c.nodes[static_cast<std::size_t>(k)];
+    const double w = c.weights[static_cast<std::size_t>(k)];
+    if (node < 0 || w == 0) continue;
+    if (node < n) {
+      if (s.v.size() >= 3 * static_cast<Eigen::Index>(node) + 3) u += w * s.v.segment<3>(3 * static_cast<Eigen::Index>(node));
+      continue;
+    }
+    const int r = model.contact.rigid_node_body[static_cast<std::size_t>(node - n)];
+    const auto& body = model.rigid[static_cast<std::size_t>(r)];
+    const auto& b = s.rigid[static_cast<std::size_t>(r)];
+    const int j = node - model.contact.rigid_node_begin[static_cast<std::size_t>(r)];
+    const Vec3 rho = b.orientation * body.surface.vertices.col(j);
+    u += w * (b.velocity + b.angular_velocity.cross(rho));
+  }
+  return c.frame.col(2).dot(u);
+}
+
+// The closing speed above which a contact counts as an impact: one that would cover a
+// hundredth of the detection margin in one step (margin 1 mm, dt 2 ms: 5 mm/s). A
+// resting or slowly pressed contact (round-off, creep) stays
+// below it; the spurious lift a closing speed V leaves under BDF2 is about 1.7 V dt
+// (measured: 0.47 mm at V = 0.137 m/s, dt = 2 ms), so an impact below the threshold lifts
+// the body by at most ~2% of the margin.
+double impact_closing_speed(const Model& model) { return 0.01 * model.contact.detection.margin / model.step.dt; }
+
+// The impact test (docs/method.md "BDF2", *Impacts: BDF2 restarts*, 2026-12-04 rbimp),
+// on the BDF2 attempt's contacts of a rigid body against an obstacle or another rigid
+// body (every node of theirs a pseudo-node; a soft-rigid contact is not tested: the
+// implicit Euler branch's derivatives through an active soft-rigid landing are not
+// verified, docs/method.md), with N(s) a contact's normal velocity at state s and V the
+// closing speed above:
+//  (a) the step closes the contact: it carries a normal force (lambda_N > 0) and
+//      N(s_n) < -V (it was closing at the step's start);
+//  (b) the step follows an impact at the contact: N(s_{n-1}) < -V and
+//      N(s_n) - N(s_{n-1}) > V (the last step stopped it: an impulse acted there). The
+//      history (x^, v^) still holds the pre-impact velocity, and the BDF2 attempt may
+//      leave the contact with no force at all (it separates: the bounce), so (a) alone
+//      misses this step.
+// Stateless: a function of s_n, s_{n-1} and the attempt, so the derivatives' recomputed
+// step (diff/trajectory.cpp, check-grad) takes the same branch from the same states.
+bool rigid_impact(const Model& model, const Data& data, const State& in, const State& previous, double closing_speed) {
+  const int n = model.fem.num_nodes;
+  const auto& list = data.contact.contacts.contacts;
+  const auto& lambda = data.contact.lambda;
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    const auto& c = list[i];
+    bool rigid = false, soft = false;
+    for (int k = 0; k < c.count; ++k) {
+      if (c.weights[static_cast<std::size_t>(k)] == 0) continue;
+      (c.nodes[static_cast<std::size_t>(k)] >= n ? rigid : soft) = true;
+    }
+    if (!rigid || soft) continue;
+    const double now = normal_velocity(model, c, in), before = normal_velocity(model, c, previous);
+    const Eigen::Index row = 3 * static_cast<Eigen::Index>(i) + 2;
+    const bool pressed = lambda.size() > row && lambda[row] > 0;
+    if ((pressed && now < -closing_speed) || (before < -closing_speed && now - before > closing_speed)) return true;
+  }
+  return false;
+}
+
+
 StepStatus time_step_rigid_contact_limits(const Model& model, Data& data, const State& in, const State* previous,
                                           State& out, long step_index, const VecX* lambda_a) {
   const bool rigid_only = model.fem.num_nodes == 0;
@@ -169,7 +230,8 @@ StepStatus time_step_rigid_contact_limits(const Model& model, Data& data, const 
     status = attempt(previous, &crossed);
     if (!usable(status)) return status;
     if (!crossed) {
-      if (!mark_limits(model, data)) return status;  // the BDF2 branch
+      if (!mark_limits(model, data) && !rigid_impact(model, data, in, *previous, impact_closing_speed(model)))
+        return status;  // the BDF2 branch
     }
   }
   // The implicit Euler branch: of size h from s_n (previous null: every part implicit Euler).
@@ -183,7 +245,7 @@ StepStatus time_step_rigid_contact_limits(const Model& model, Data& data, const 
 
 StepStatus time_step(const Model& model, Data& data, const State& in, const State* previous, State& out,
                      long step_index, const VecX* lambda_a) {
-  if (model.step.integrator == IntegratorKind::bdf2 && model.contact.with_rigid() && limited_joints(model))
+  if (model.step.integrator == IntegratorKind::bdf2 && model.contact.with_rigid())
     return time_step_rigid_contact_limits(model, data, in, previous, out, step_index, lambda_a);
   if (model.fem.num_nodes == 0) return time_step_rigid_only(model, data, in, previous, out, step_index);
   if (model.contact.with_rigid()) return time_step_rigid_contact(model, data, in, previous, out, step_index, lambda_a);
