@@ -477,6 +477,11 @@ TEST(Cli, JacobianWithARigidifiedPartInContactOnTheSparseBackend) {
   EXPECT_LE(std::sqrt(diff), 1e-6 * std::sqrt(norm));
 }
 
+// A rigid cube above the beam, in a contact pair with it (the scene has rigid bodies in contact).
+const std::string kCube = "  - name: cube\n    type: rigid\n    shape: {type: box, half_extents: [0.01, 0.01, 0.01]}\n"
+                          "    density: 500\n    position: [0.1, 0.01, 0.06]\n"
+                          "contact: {pairs: [[beam, cube, 0.3]]}\n";
+
 // A rigid cube above the beam on a hinge with limits, in a contact pair with the beam (a
 // joint limit can enter the contact solve).
 const std::string kHingedCube =
