@@ -351,19 +351,37 @@ TEST(RigidContactStepDerivatives, SphereOnTheBeam) {
   }
 }
 
-// OPEN (issue 21, 2026-12-04, rsph; docs/method.md "A rigid sphere on the soft beam"):
-// the same step with the margin of the report, 1e-3 m (391 contacts: 44 more, every one
-// breaking with zero force, the farthest 3.7 mm away, among them vertex-face and
-// edge-edge pairs of the sphere's ring at 3.66 mm over the beam's top face): the central
-// differences are unchanged to every digit printed (max |FD| 5586.75), the JVP is not
-// (max |JVP - FD| 464 along every input, 200 soft x, 265 the sphere's tangent; v0 and
-// the parameters still match). A zero-force breaking contact must not change the
-// derivative: a bug in the JVP not found in this session. Disabled so that the suite
-// stays green; enable it to reproduce (it fails).
-TEST(RigidContactStepDerivatives, DISABLED_SphereOnTheBeamWithTheReportedMargin) {
+// The margin of the report, 1e-3 m: build_model's default randomized smoothing of the
+// detection derivatives (contact.smoothing: 16 samples, sigma = margin / 10 = 1e-4 m) then
+// sees the sticking pole contact 0.28 mm from the diagonal of the beam's top-face
+// triangle it lies in (2.8 sigma): a sample crosses it, and the contact's geometry
+// derivative is the smoothed estimate (the mean of both triangles' weight derivatives),
+// by design not the derivative of this step (measured: max |JVP - FD| 464 of 5587 along
+// every input, 200 soft x, 265 the sphere's tangent; the central differences identical
+// to margin 7e-4's). With smoothing off (samples 0) the same step matches the central
+// differences as above (measured 5.1e-8 relative); with it on, the step reports smoothed
+// contacts (the JVP is not compared there: an estimate, docs/method.md "Randomized smoothing").
+TEST(RigidContactStepDerivatives, SphereOnTheBeamWithTheReportedMarginIsSmoothedNearTheDiagonal) {
   State in;
-  const Model model = sphere_beam_scene(in, "1.0e-3");
-  for (unsigned mask : {15u, 1u, 2u, 4u, 8u}) {
+  Model model = sphere_beam_scene(in, "1.0e-3");
+  ASSERT_EQ(model.contact.smoothing.samples, 16);
+  ASSERT_DOUBLE_EQ(model.contact.smoothing.sigma, 1e-4);
+  {
+    std::unique_ptr<Data> data;
+    const State out = step_from(model, in, data);
+    integrator::StepDerivatives D(model, {});
+    integrator::StepTangent t;
+    t.x = VecX::Zero(in.x.size());
+    t.v = VecX::Zero(in.v.size());
+    t.rigid = VecX::Zero(12);
+    t.rigid_p = VecX::Zero(7);
+    integrator::StateTangent jv;
+    ASSERT_TRUE(D.jvp(model, *data, in, out, t, jv));
+    // Measured 138 of 391: the pole's and breaking ones (zero force: no effect) near features.
+    EXPECT_GT(D.smoothed_contacts(), 0);
+  }
+  model.contact.smoothing.samples = 0;
+  for (unsigned mask : {15u, 1u, 4u}) {
     std::cout << "mask " << mask << "\n";
     check_step(model, in, 5e-9, 1e-5, 5, nullptr, mask);
   }
