@@ -223,6 +223,9 @@ TEST(Bdf2ContactValidation, DroppedCubeDoesNotBounceOrSink) {
 //     normal forces carry the weight to 1e-6 relative (the NCP tolerance 1e-10 and
 //     the residual velocity: |v| < 1e-6 asserted, as the beam above);
 //   - the restarted steps are few: 1 to 4 of 300 (BDF2 does not degenerate).
+// Measured (2026-12-04): landing at step 8, restarts at steps 8, 9, 10, max mean v_z
+// 6.7e-4 m/s, rise 1.2e-7 m; with the restart switched off (a temporary switch) the same
+// scene gave +0.030 m/s and 8.4e-5 m, failing the first two criteria.
 TEST(Bdf2ContactValidation, SoftSlabDroppedOneMillimetreLandsWithoutBouncing) {
   test::BodySpec spec;
   spec.young = 1e5;
