@@ -23,6 +23,7 @@
 
 #include <gtest/gtest.h>
 
+#include <iostream>
 #include <random>
 
 using namespace softdiff;
@@ -50,7 +51,7 @@ Model bar(double young, double density, double alpha, double cable_offset, long 
   return model;
 }
 
-Model cube(double young, long steps) {
+Model cube(double young, long steps, double lift = -1e-4) {
   test::BodySpec spec;
   spec.law = material::Law::neo_hookean;
   spec.young = young;
@@ -59,7 +60,7 @@ Model cube(double young, long steps) {
   spec.rayleigh_mass = 0.5;
   spec.rayleigh_stiffness = 1e-3;
   mesh::TetMesh m = test::box_mesh(2, 2, 2, 0.04, 0.04, 0.04);
-  m.X.row(2).array() -= 1e-4;  // pressed 0.1 mm into the plane
+  m.X.row(2).array() += lift;  // default: pressed 0.1 mm into the plane
   Model model = test::make_model(m, spec, Vec3(0, 0, -9.81), 2e-3, steps);
   model.step.integrator = IntegratorKind::bdf2;
   test::ContactSpec cs;
@@ -201,5 +202,66 @@ TEST(Bdf2TrajectoryDerivatives, ThroughStickingContact) {
     sm.x -= h * theta.x0_basis.col(c);
     expect_close(b.dx.col(1 + c), (final_x(model, sp, steps) - final_x(model, sm, steps)) / (2 * h),
                  "x0 direction " + std::to_string(c));
+  }
+}
+
+// Through a soft impact with the BDF2 restart (2026-12-04, rsoft; integrator/bdf2.cpp
+// impact, docs/method.md "BDF2", *Impacts: BDF2 restarts*): the cube above dropped 1 mm
+// at rest onto the plane (mu 1), 14 steps of 2 ms: it lands at ~0.14 m/s during step 8;
+// the landing steps are redone as implicit Euler steps of size h from s_n (their record
+// history_weight 0, read by the forward and adjoint modes), BDF2 before and after. The
+// run's branches are counted first (at least one restart, BDF2 steps after it). Then
+// d x_T / d (young, two x0 directions, one v0 direction) by forward sensitivities against
+// central differences of whole runs (each run decides its own branches: the closing
+// speed at the landing, ~0.14 m/s, is 28 times the 5 mm/s threshold, and a step of 1e-8
+// m or 1e-6 m/s moves no branch), and the adjoint against the forward mode; steps and
+// tolerances as the file's (1e-6 relative against differences, 1e-9 forward/adjoint).
+TEST(Bdf2TrajectoryDerivatives, ThroughASoftLandingWithTheRestart) {
+  const long steps = 14;
+  const double E = 5e4, lift = 1e-3;
+  const Model model = cube(E, steps, lift);
+  {
+    Data data(model);
+    State a = model.initial, b, previous;
+    long restarted = 0, bdf2_after = 0;
+    for (long k = 1; k <= steps; ++k) {
+      ASSERT_TRUE(integrator::time_step(model, data, a, k > 1 ? &previous : nullptr, b, k).ok());
+      if (k > 1 && data.history_weight == 0) ++restarted;
+      if (restarted && data.history_weight != 0) ++bdf2_after;
+      previous = a;
+      std::swap(a, b);
+    }
+    std::cout << "cube dropped 1 mm, " << steps << " steps: " << restarted << " restarted, " << bdf2_after
+              << " BDF2 steps after the first restart\n";
+    EXPECT_GE(restarted, 1);
+    EXPECT_GE(bdf2_after, 1);
+    EXPECT_GT(data.contact.contacts.size(), 0);
+  }
+  diff::ThetaLayout theta;
+  theta.parameters = {{Parameter::young, 0}};
+  theta.x0 = theta.v0 = true;
+  const Eigen::Index n = model.initial.x.size();
+  theta.x0_basis = MatX(n, 2);
+  for (int c = 0; c < 2; ++c) theta.x0_basis.col(c) = test::random_vector(n, 1.0, 40 + c);
+  theta.v0_basis = MatX(n, 1);
+  theta.v0_basis.col(0) = test::random_vector(n, 1.0, 50);
+  const Both b = both(model, steps, theta);
+  expect_forward_equals_adjoint(b);
+  const double e = 1e-5 * E;
+  const Model mp = cube(E + e, steps, lift), mm = cube(E - e, steps, lift);
+  const VecX fd_young = (final_x(mp, mp.initial, steps) - final_x(mm, mm.initial, steps)) / (2 * e);
+  std::cout << "young: relative error " << (b.dx.col(0) - fd_young).norm() / fd_young.norm() << "\n";
+  expect_close(b.dx.col(0), fd_young, "young");
+  for (int c = 0; c < 3; ++c) {
+    const bool is_x = c < 2;
+    const double h = is_x ? 1e-8 : 1e-6;
+    const VecX dir = is_x ? VecX(theta.x0_basis.col(c)) : VecX(theta.v0_basis.col(0));
+    State sp = model.initial, sm = model.initial;
+    (is_x ? sp.x : sp.v) += h * dir;
+    (is_x ? sm.x : sm.v) -= h * dir;
+    const VecX fd = (final_x(model, sp, steps) - final_x(model, sm, steps)) / (2 * h);
+    std::cout << (is_x ? "x0" : "v0") << " direction " << c << ": relative error "
+              << (b.dx.col(1 + c) - fd).norm() / fd.norm() << "\n";
+    expect_close(b.dx.col(1 + c), fd, std::string(is_x ? "x0 direction " : "v0 direction ") + std::to_string(c));
   }
 }

@@ -177,12 +177,22 @@ double normal_velocity(const Model& model, const collision::Contact& c, const St
 // the body by at most ~2% of the margin.
 double impact_closing_speed(const Model& model) { return 0.01 * model.contact.detection.margin / model.step.dt; }
 
-// The impact test (docs/method.md "BDF2", *Impacts: BDF2 restarts*, 2026-12-04 rbimp),
-// on the BDF2 attempt's contacts of a rigid body against an obstacle or another rigid
-// body (every node of theirs a pseudo-node; a soft-rigid contact is not tested: the
-// implicit Euler branch's derivatives through an active soft-rigid landing are not
-// verified, docs/method.md), with N(s) a contact's normal velocity at state s and V the
-// closing speed above:
+// Which contacts the impact test looks at (docs/method.md "BDF2", *Impacts: BDF2
+// restarts*): a rigid body's contacts against an obstacle or another rigid body (every
+// node a pseudo-node; 2026-12-04 rbimp), and a soft body's contacts against an obstacle
+// or another soft body (every node soft; 2026-12-04 rsoft). A soft-rigid contact (soft
+// and pseudo-nodes) is left out: with it in the rule, test_rigid
+// RigidBdf2ContactTrajectory.CubeOnASoftSlab (and its two Newton variants) fail, forward
+// sensitivities against central differences off by up to 7e-3 relative over 4 steps
+// (steps 2 and 3 restarted), although every perturbed run restarts the same steps and the
+// adjoint equals the forward mode: the implicit Euler branch's derivative through a
+// coupled soft-rigid step of a BDF2 model misses something, not found (issue 21, open).
+constexpr bool kSoftRigidImpacts = false;
+
+// The impact test (docs/method.md "BDF2", *Impacts: BDF2 restarts*, 2026-12-04 rbimp,
+// extended to soft contacts 2026-12-04 rsoft), on the BDF2 attempt's contacts, with N(s)
+// a contact's normal velocity at state s (soft nodes: H v from the nodal velocities;
+// pseudo-nodes: the body's twist) and V the closing speed above:
 //  (a) the step closes the contact: it carries a normal force (lambda_N > 0) and
 //      N(s_n) < -V (it was closing at the step's start);
 //  (b) the step follows an impact at the contact: N(s_{n-1}) < -V and
@@ -192,7 +202,7 @@ double impact_closing_speed(const Model& model) { return 0.01 * model.contact.de
 //      misses this step.
 // Stateless: a function of s_n, s_{n-1} and the attempt, so the derivatives' recomputed
 // step (diff/trajectory.cpp, check-grad) takes the same branch from the same states.
-bool rigid_impact(const Model& model, const Data& data, const State& in, const State& previous, double closing_speed) {
+bool impact(const Model& model, const Data& data, const State& in, const State& previous, double closing_speed) {
   const int n = model.fem.num_nodes;
   const auto& list = data.contact.contacts.contacts;
   const auto& lambda = data.contact.lambda;
@@ -200,10 +210,10 @@ bool rigid_impact(const Model& model, const Data& data, const State& in, const S
     const auto& c = list[i];
     bool rigid = false, soft = false;
     for (int k = 0; k < c.count; ++k) {
-      if (c.weights[static_cast<std::size_t>(k)] == 0) continue;
+      if (c.weights[static_cast<std::size_t>(k)] == 0 || c.nodes[static_cast<std::size_t>(k)] < 0) continue;
       (c.nodes[static_cast<std::size_t>(k)] >= n ? rigid : soft) = true;
     }
-    if (!rigid || soft) continue;
+    if (rigid && soft && !kSoftRigidImpacts) continue;
     const double now = normal_velocity(model, c, in), before = normal_velocity(model, c, previous);
     const Eigen::Index row = 3 * static_cast<Eigen::Index>(i) + 2;
     const bool pressed = lambda.size() > row && lambda[row] > 0;
@@ -211,7 +221,6 @@ bool rigid_impact(const Model& model, const Data& data, const State& in, const S
   }
   return false;
 }
-
 
 StepStatus time_step_rigid_contact_limits(const Model& model, Data& data, const State& in, const State* previous,
                                           State& out, long step_index, const VecX* lambda_a) {
@@ -230,7 +239,7 @@ StepStatus time_step_rigid_contact_limits(const Model& model, Data& data, const 
     status = attempt(previous, &crossed);
     if (!usable(status)) return status;
     if (!crossed) {
-      if (!mark_limits(model, data) && !rigid_impact(model, data, in, *previous, impact_closing_speed(model)))
+      if (!mark_limits(model, data) && !impact(model, data, in, *previous, impact_closing_speed(model)))
         return status;  // the BDF2 branch
     }
   }
@@ -249,13 +258,24 @@ StepStatus time_step(const Model& model, Data& data, const State& in, const Stat
     return time_step_rigid_contact_limits(model, data, in, previous, out, step_index, lambda_a);
   if (model.fem.num_nodes == 0) return time_step_rigid_only(model, data, in, previous, out, step_index);
   if (model.contact.with_rigid()) return time_step_rigid_contact(model, data, in, previous, out, step_index, lambda_a);
-  const StepStatus soft = model.step.integrator == IntegratorKind::bdf2
-                              ? bdf2_step(model, data, in, previous, out, step_index, lambda_a)
-                              : implicit_euler_step(model, data, in, out, step_index, lambda_a);
-  if (model.rigid.empty() || !(soft.ok() || soft.code == StepStatus::Code::not_converged)) return soft;
+  const bool bdf2 = model.step.integrator == IntegratorKind::bdf2 && previous;
+  StepStatus soft = bdf2 ? bdf2_step(model, data, in, previous, out, step_index, lambda_a)
+                         : implicit_euler_step(model, data, in, out, step_index, lambda_a);
+  auto usable = [](const StepStatus& st) { return st.ok() || st.code == StepStatus::Code::not_converged; };
+  if (!usable(soft)) return soft;
+  // A soft impact (docs/method.md "BDF2", *Impacts: BDF2 restarts*, 2026-12-04 rsoft):
+  // the BDF2 attempt is redone as the implicit Euler step of size h from s_n, whose
+  // record (history_weight 0, h, hat = s_n) the derivatives read; the rigid bodies (not
+  // in contact) take that step's branch too: implicit Euler, so the step has one record.
+  bool restarted = false;
+  if (bdf2 && model.contact.enabled && impact(model, data, in, *previous, impact_closing_speed(model))) {
+    soft = implicit_euler_step(model, data, in, out, step_index, lambda_a);
+    if (!usable(soft)) return soft;
+    restarted = true;
+  }
+  if (model.rigid.empty()) return soft;
   // The rigid bodies: independent of the soft ones while there is no contact.
-  const StepStatus rigid = step_rigid_bodies(model, data, in, out, step_index,
-                                            model.step.integrator == IntegratorKind::bdf2 ? previous : nullptr);
+  const StepStatus rigid = step_rigid_bodies(model, data, in, out, step_index, bdf2 && !restarted ? previous : nullptr);
   return rigid.ok() ? soft : rigid;
 }
 
