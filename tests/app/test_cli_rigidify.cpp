@@ -558,23 +558,7 @@ TEST(Cli, RigidifyRefusesWhatIsNotSupportedYet) {
 // young,mass over two steps runs on each and its columns agree with the dense backend's
 // (both NCPs solved to 1e-12; measured 3e-13; asserted 1e-6 relative).
 std::string cube_on_slab_with_part() {
-  return "softdiff: 1\n"
-         "simulation: {dt: 0.002, steps: 2}\n"
-         "bodies:\n"
-         "  - name: slab\n"
-         "    mesh: slab.msh\n"
-         "    material: {law: corotational, young: 5.0e4, poisson: 0.4, density: 1000}\n"
-         "    damping: {rayleigh_mass: 20, rayleigh_stiffness: 0.01}\n"
-         "    fixed: [{box: [-1, -1, -1, 1, 1, 1.0e-9]}]\n"
-         "    rigidify: [{box: [-1, -1, 0.009, 0.016, 1, 1], attach: free}]\n"
-         "  - name: cube\n"
-         "    type: rigid\n"
-         "    shape: {type: box, half_extents: [0.01, 0.01, 0.01]}\n"
-         "    density: 500\n"
-         "    position: [0.0375, 0.0375, 0.0203]\n"
-         "    orientation: [0.99875026039496628, 0, 0, 0.049979169270678331]\n"
-         "    velocity: [0.05, 0, -0.3]\n"
-         "contact: {margin: 1.0e-3, tolerance: 1.0e-12, max_iterations: 5000, pairs: [[slab, cube, 0.5]]}\n";
+  return rigid_scenes::cube_on_slab_with_part_yaml("{dt: 0.002, steps: 2}");
 }
 
 TEST(Cli, CheckGradWithARigidifiedPartAndARigidCube) {

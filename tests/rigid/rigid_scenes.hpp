@@ -19,6 +19,7 @@
 #include <iostream>
 #include <random>
 #include <filesystem>
+#include <sstream>
 #include <string>
 #include <unistd.h>
 #include <utility>
@@ -268,6 +269,36 @@ inline std::string clamped_beam_yaml(int steps, const std::string& damping = "")
          "\n"
          "    material: {young: 1.0e6, poisson: 0.45, density: 1070}\n" +
          damping + "    fixed: [{group: clamp}]\n";
+}
+
+// A soft slab (slab.msh: box_msh_text(4, 4, 1, 0.06, 0.06, 0.01), clamped at its base,
+// corotational E 5e4 Pa, damped) with its top layer rigidified (a free part), and a rigid
+// 2 cm cube landing on it turned 0.1 rad about z at v (vx, 0, -0.3) m/s, contact at
+// tolerance 1e-12. simulation: the simulation block; cube_extra: lines added to the
+// cube's entry (a joint); contact_extra: keys added to the contact block (", backend: ...").
+inline std::string cube_on_slab_with_part_yaml(const std::string& simulation, double vx = 0.05,
+                                               const std::string& cube_extra = "",
+                                               const std::string& contact_extra = "") {
+  std::ostringstream v;
+  v << vx;
+  return "softdiff: 1\n"
+         "simulation: " + simulation + "\n"
+         "bodies:\n"
+         "  - name: slab\n"
+         "    mesh: slab.msh\n"
+         "    material: {law: corotational, young: 5.0e4, poisson: 0.4, density: 1000}\n"
+         "    damping: {rayleigh_mass: 20, rayleigh_stiffness: 0.01}\n"
+         "    fixed: [{box: [-1, -1, -1, 1, 1, 1.0e-9]}]\n"
+         "    rigidify: [{box: [-1, -1, 0.009, 0.016, 1, 1], attach: free}]\n"
+         "  - name: cube\n"
+         "    type: rigid\n"
+         "    shape: {type: box, half_extents: [0.01, 0.01, 0.01]}\n"
+         "    density: 500\n"
+         "    position: [0.0375, 0.0375, 0.0203]\n"
+         "    orientation: [0.99875026039496628, 0, 0, 0.049979169270678331]\n"
+         "    velocity: [" + v.str() + ", 0, -0.3]\n" + cube_extra +
+         "contact: {margin: 1.0e-3, tolerance: 1.0e-12, max_iterations: 5000" + contact_extra +
+         ", pairs: [[slab, cube, 0.5]]}\n";
 }
 
 // A free box spinning about an axis off its principal axes (0.04 x 0.02 x 0.01 m, 1000

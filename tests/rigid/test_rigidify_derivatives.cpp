@@ -739,24 +739,7 @@ Model cube_on_slab_with_part(const std::string& backend = "dense",
                              const std::string& simulation = "{dt: 0.002, steps: 10}") {
   return test::rigid_scenes::load_scene_text(
       "rigidify_derivatives", "cube_slab_" + std::to_string(std::hash<std::string>{}(backend + simulation)),
-      "softdiff: 1\n"
-      "simulation: " + simulation + "\n"
-      "bodies:\n"
-      "  - name: slab\n"
-      "    mesh: slab.msh\n"
-      "    material: {law: corotational, young: 5.0e4, poisson: 0.4, density: 1000}\n"
-      "    damping: {rayleigh_mass: 20, rayleigh_stiffness: 0.01}\n"
-      "    fixed: [{box: [-1, -1, -1, 1, 1, 1.0e-9]}]\n"
-      "    rigidify: [{box: [-1, -1, 0.009, 0.016, 1, 1], attach: free}]\n"
-      "  - name: cube\n"
-      "    type: rigid\n"
-      "    shape: {type: box, half_extents: [0.01, 0.01, 0.01]}\n"
-      "    density: 500\n"
-      "    position: [0.0375, 0.0375, 0.0203]\n"
-      "    orientation: [0.99875026039496628, 0, 0, 0.049979169270678331]\n"
-      "    velocity: [0.05, 0, -0.3]\n"
-      "contact: {margin: 1.0e-3, tolerance: 1.0e-12, max_iterations: 5000, backend: " + backend +
-          ", pairs: [[slab, cube, 0.5]]}\n",
+      test::rigid_scenes::cube_on_slab_with_part_yaml(simulation, 0.05, "", ", backend: " + backend),
       {{"slab.msh", test::rigid_scenes::box_msh_text(4, 4, 1, 0.06, 0.06, 0.01)}});
 }
 
@@ -1190,25 +1173,8 @@ TEST(RigidifyDerivatives, NewtonPartWithARigidCubeTrajectory) {
 Model cube_on_a_limited_slider(const std::string& backend, const std::string& simulation) {
   return test::rigid_scenes::load_scene_text(
       "rigidify_derivatives", "cube_slider_" + std::to_string(std::hash<std::string>{}(backend + simulation)),
-      "softdiff: 1\n"
-      "simulation: " + simulation + "\n"
-      "bodies:\n"
-      "  - name: slab\n"
-      "    mesh: slab.msh\n"
-      "    material: {law: corotational, young: 5.0e4, poisson: 0.4, density: 1000}\n"
-      "    damping: {rayleigh_mass: 20, rayleigh_stiffness: 0.01}\n"
-      "    fixed: [{box: [-1, -1, -1, 1, 1, 1.0e-9]}]\n"
-      "    rigidify: [{box: [-1, -1, 0.009, 0.016, 1, 1], attach: free}]\n"
-      "  - name: cube\n"
-      "    type: rigid\n"
-      "    shape: {type: box, half_extents: [0.01, 0.01, 0.01]}\n"
-      "    density: 500\n"
-      "    position: [0.0375, 0.0375, 0.0203]\n"
-      "    orientation: [0.99875026039496628, 0, 0, 0.049979169270678331]\n"
-      "    velocity: [0, 0, -0.3]\n"
-      "    joint: {type: slider, axis: [0, 0, 1], limits: [-0.0005, 0.01]}\n"
-      "contact: {margin: 1.0e-3, tolerance: 1.0e-12, max_iterations: 5000, backend: " + backend +
-          ", pairs: [[slab, cube, 0.5]]}\n",
+      test::rigid_scenes::cube_on_slab_with_part_yaml(
+          simulation, 0, "    joint: {type: slider, axis: [0, 0, 1], limits: [-0.0005, 0.01]}\n", ", backend: " + backend),
       {{"slab.msh", test::rigid_scenes::box_msh_text(4, 4, 1, 0.06, 0.06, 0.01)}});
 }
 
