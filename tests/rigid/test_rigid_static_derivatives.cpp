@@ -98,7 +98,9 @@ Solution solve(const Model& model, Data& data, const State* reference) {
   Solution s;
   const StepStatus st = integrator::solve_static(model, data, model.initial, s.x);
   EXPECT_TRUE(st.ok()) << describe(model, st);
-  if (model.contact.enabled) EXPECT_TRUE(data.contact.result.converged);
+  if (model.contact.enabled) {
+    EXPECT_TRUE(data.contact.result.converged);
+  }
   VecX sigma;
   integrator::equilibrium_modes(model, data.contact, s.x.x, data.static_load_step_start, s.modes, sigma);
   s.contacts = data.contact.contacts.size();
@@ -129,7 +131,9 @@ void check(const Model& model, const std::vector<Column>& columns, const std::st
   SCOPED_TRACE(what);
   Data data(model);
   const Solution base = solve(model, data, nullptr);
-  if (in_contact) EXPECT_GT(base.contacts, 0) << "the scene was meant to be in contact";
+  if (in_contact) {
+    EXPECT_GT(base.contacts, 0) << "the scene was meant to be in contact";
+  }
   std::cout << "[ " << what << " ] " << base.contacts << " contacts: " << mode_counts(base.modes)
             << "; lowest z " << base.x.x.reshaped(3, base.x.x.size() / 3).row(2).minCoeff() << " m\n";
   MatX J;
@@ -209,7 +213,9 @@ TEST(RigidStaticDerivatives, FreeBodyBesideSoftBodiesIsRefused) {
     model.initial.rigid[0] = cube.reference;
     Data data(model);
     State out = model.initial;  // (frictionless: the refusal comes before the state is read)
-    if (mu > 0) ASSERT_TRUE(integrator::solve_static(model, data, model.initial, out).ok());
+    if (mu > 0) {
+      ASSERT_TRUE(integrator::solve_static(model, data, model.initial, out).ok());
+    }
     MatX J;
     try {
       integrator::static_sensitivities(model, data, out, theta_of({{true, {}, 0, 0, "mass"}}), J);

@@ -1250,7 +1250,7 @@ TEST(RigidifyDerivatives, LimitedJointInContactWithAPartOnTheDenseBackend) {
 // rows). The cube on a vertical slider whose lower limit (-0.5 mm) it reaches while
 // landing on the slab: the step's NCP has the contacts and the limit's row.
 TEST(RigidifyDerivatives, LimitedJointInContactWithAPartIsRefusedOnTheSparseBackendAndUnderNewton) {
-  for (const std::string simulation : {std::string("{dt: 0.002, steps: 10}"), kCubeNewton}) {
+  for (const std::string& simulation : {std::string("{dt: 0.002, steps: 10}"), kCubeNewton}) {
     for (const std::string backend : {"sparse", "dense"}) {
       const bool newton = simulation.find("newton") != std::string::npos;
       SCOPED_TRACE(backend + (newton ? ", newton" : ""));

@@ -52,7 +52,9 @@ State run(const Model& model, Data& data, long steps, bool sparse) {
     EXPECT_TRUE(st.ok()) << describe(model, st);
     if (!st.ok()) break;
     EXPECT_TRUE(data.contact.result.converged) << "step " << n;
-    if (data.contact.contacts.size() > 0) EXPECT_EQ(data.contact.result.sparse, sparse) << "step " << n;
+    if (data.contact.contacts.size() > 0) {
+      EXPECT_EQ(data.contact.result.sparse, sparse) << "step " << n;
+    }
     previous = a;
     std::swap(a, b);
   }
@@ -210,6 +212,6 @@ TEST_P(RigidBdf2Contact, BoxDroppedOneMillimetreLandsWithoutBouncingUnderImplici
 
 INSTANTIATE_TEST_SUITE_P(Backends, RigidBdf2Contact,
                          ::testing::Values(contact::NcpBackend::dense, contact::NcpBackend::sparse),
-                         [](const auto& info) { return info.param == contact::NcpBackend::dense ? "dense" : "sparse"; });
+                         [](const auto& param_info) { return param_info.param == contact::NcpBackend::dense ? "dense" : "sparse"; });
 
 }  // namespace rigid_bdf2_contact_validation

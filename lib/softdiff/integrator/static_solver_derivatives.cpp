@@ -276,13 +276,13 @@ class EquilibriumSystem {
                               ": the part's coupling leaves the cable's stiffness out (the static solve's modified "
                               "Newton), so the reduced tangent is not the derivative's (issue 21)");
     if (model_.contact.enabled)
-      for (const auto& part : rm.parts) {
-        const auto& b = model_.fem.bodies[static_cast<std::size_t>(part.body)];
+      for (const auto& held_part : rm.parts) {
+        const auto& b = model_.fem.bodies[static_cast<std::size_t>(held_part.body)];
         bool any_fixed = false;
         for (int d = 3 * b.node_begin; d < 3 * (b.node_begin + b.num_nodes); ++d) any_fixed = any_fixed || model_.fem.fixed[d];
         SOFTDIFF_DEMAND(any_fixed, "static derivatives with a rigidified part on a body held by contact alone (no "
                                    "fixed node: its proximal term would sit on the parts' identity rows) are not "
-                                   "supported yet (issue 21; " + part.name + ")");
+                                   "supported yet (issue 21; " + held_part.name + ")");
       }
   }
 
