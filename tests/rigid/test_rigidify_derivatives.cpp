@@ -50,6 +50,7 @@
 #include <functional>
 #include <iostream>
 #include <memory>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -1167,71 +1168,113 @@ TEST(RigidifyDerivatives, NewtonPartWithARigidCubeTrajectory) {
   check_cube_trajectory(cube_on_slab_with_part("sparse", kCubeNewton), "newton, sparse");
 }
 
-// The landing cube of cube_on_slab_with_part on a vertical slider with limits [-0.5 mm,
-// 10 mm]: it reaches the lower limit while landing on the slab, so the step's NCP has the
-// contacts and the limit's row.
+// The landing cube of cube_on_slab_with_part on a vertical slider with limits [-0.4 mm,
+// 10 mm] and a density of 1e5 kg/m^3 (0.8 kg: unphysically dense, so that its weight
+// presses the slab beyond the limit): it lands on the slab and reaches the lower limit in
+// the first step, and rests on both (the limit's force > 0 and 5 contacts active in every
+// step of the first ten: the limit's row active in contact, its coupling to the contacts
+// through the cube exercised). With the scene's 500 kg/m^3 and limits [-0.5 mm, 10 mm]
+// (this test's scene until rplim) the slab stops the cube at -0.31 mm: the limit's row
+// was in the NCP but never active, so that test did not exercise the limit.
+std::string cube_on_a_limited_slider_yaml(const std::string& backend, const std::string& simulation) {
+  std::string yaml = test::rigid_scenes::cube_on_slab_with_part_yaml(
+      simulation, 0, "    joint: {type: slider, axis: [0, 0, 1], limits: [-0.0004, 0.01]}\n", ", backend: " + backend);
+  const std::string density = "density: 500\n";
+  const auto at = yaml.find(density);
+  if (at == std::string::npos) throw std::logic_error("cube_on_slab_with_part_yaml has no 'density: 500'");
+  yaml.replace(at, density.size(), "density: 100000\n");
+  return yaml;
+}
 Model cube_on_a_limited_slider(const std::string& backend, const std::string& simulation) {
   return test::rigid_scenes::load_scene_text(
       "rigidify_derivatives", "cube_slider_" + std::to_string(std::hash<std::string>{}(backend + simulation)),
-      test::rigid_scenes::cube_on_slab_with_part_yaml(
-          simulation, 0, "    joint: {type: slider, axis: [0, 0, 1], limits: [-0.0005, 0.01]}\n", ", backend: " + backend),
+      cube_on_a_limited_slider_yaml(backend, simulation),
       {{"slab.msh", test::rigid_scenes::box_msh_text(4, 4, 1, 0.06, 0.06, 0.01)}});
 }
 
-// What rpint accepts with a limit row: the dense backend with one Newton iteration. The
-// slider's limit row in the NCP beside the 23 contacts; the step's JVP along a random soft
-// direction (x, v; the cube's tangent zero: a random 12-tangent would leave the slider)
-// against central differences at eps 5e-9 (as the cube tests: truncation ~1e-6 relative,
-// round-off 2e-8), tolerance 1e-5 of the largest difference, the modes the same on both
-// sides; the cube's height and vertical velocity rows included; the dot-product test of
-// the VJP (1e-9). Measured 7.6e-10 (3.3e-9 at eps 1e-8, 4.1e-9 at 1e-9).
-TEST(RigidifyDerivatives, LimitedJointInContactWithAPartOnTheDenseBackend) {
-  const Model model = cube_on_a_limited_slider("dense", "{dt: 0.002, steps: 10}");
+// Whether the step recorded in d had the slider's limit row active in contact: the limit's
+// row in the NCP with a force > 0 and contacts (all the cube's: the scene's one pair)
+// with a normal force > 0 (an inactive row drops out of the derivative and would leave
+// the limit's part of it, and its coupling to the contacts, untested).
+bool limit_active_in_contact(const Data& d) {
+  const auto& rd = d.contact.rigid;
+  int active = 0;
+  for (int i = 0; i < d.contact.contacts.size(); ++i) active += d.contact.lambda[3 * i + 2] > 0;
+  return active > 0 && rd.limit_rows.size() == 1 && rd.limit_lambda[rd.limit_rows[0].slot] > 0;
+}
+
+// The step of the cube on the limited slider with the part (branch rplim: a limited joint
+// in contact with parts on the sparse backend and under Newton; it was refused, exit 2
+// naming issue 21; the dense backend with one Newton iteration since rpint). The slider's
+// limit row is active (asserted, with the same modes and rows on both sides of the
+// differences) beside the contacts. The JVP along a random direction in the soft x, v, the
+// cube's height and vertical velocity (the slider's coordinate and rate: a random
+// 12-tangent would leave the joint) and its mass and inertia (their own scale), against
+// central differences of time_step at eps 5e-9 (as the cube tests above: truncation
+// ~1e-6 relative, round-off 2e-8), tolerance 1e-5 of the largest difference; the cube's
+// rows (tangent_between) 1e-5 of their own largest; then the dot-product test of the VJP
+// (1e-9). The JVP is left in `jvp` for comparisons between backends and Newton.
+void check_limited_slider(const Model& model, const std::string& label, VecX& jvp) {
   const State in = model.initial;
   const Eigen::Index n = in.x.size();
-  auto step = [&](const State& s, std::unique_ptr<Data>& d) {
-    d = std::make_unique<Data>(model);
+  auto step = [&](const Model& m, const State& s, std::unique_ptr<Data>& d) {
+    d = std::make_unique<Data>(m);
     State o;
-    const StepStatus st = integrator::time_step(model, *d, s, nullptr, o, 1);
-    EXPECT_TRUE(st.ok()) << describe(model, st);
+    const StepStatus st = integrator::time_step(m, *d, s, nullptr, o, 1);
+    EXPECT_TRUE(st.ok()) << describe(m, st);
     return o;
   };
   std::unique_ptr<Data> data;
-  const State out = step(in, data);
-  ASSERT_EQ(data->contact.rigid.limit_rows.size(), 1u);
-  ASSERT_GT(data->contact.contacts.size(), 0u);
+  const State out = step(model, in, data);
+  ASSERT_TRUE(limit_active_in_contact(*data)) << label;
   StepTangent t;
   t.x = test::random_vector(n, 1.0, 91);
   t.v = test::random_vector(n, 1.0, 92);
   for (Eigen::Index k = 0; k < n; ++k)
     if (model.fem.fixed[static_cast<std::size_t>(k)]) t.x[k] = t.v[k] = 0;
+  t.rigid = VecX::Zero(12);
+  t.rigid[2] = 0.7;   // the height (the slider's coordinate)
+  t.rigid[8] = -0.4;  // the vertical velocity
+  const auto& cube = model.rigid[0];
+  t.rigid_p = test::random_vector(7, 1.0, 94);
+  t.rigid_p[0] *= cube.mass;
+  for (int k = 1; k < 7; ++k) t.rigid_p[k] *= cube.inertia.trace() / 3;
   integrator::StepDerivatives D(model, {});
   StateTangent jv;
   ASSERT_TRUE(D.jvp(model, *data, in, out, t, jv));
   ASSERT_EQ(jv.rigid.size(), 12);
   const double eps = 5e-9;
-  State p = in, m = in;
-  p.x += eps * t.x;
-  p.v += eps * t.v;
-  m.x -= eps * t.x;
-  m.v -= eps * t.v;
+  auto moved = [&](double e, Model& m) {
+    m = model;
+    State s = in;
+    s.x += e * t.x;
+    s.v += e * t.v;
+    s.rigid[0] = rigid::retract(in.rigid[0], t.rigid.segment<12>(0), e);
+    for (int k = 0; k < 7; ++k) rigid::set_parameter(m.rigid[0], k, rigid::get_parameter(cube, k) + e * t.rigid_p[k]);
+    return s;
+  };
+  Model mp, mm;
   std::unique_ptr<Data> dp, dm;
-  const State sp = step(p, dp), sm = step(m, dm);
-  ASSERT_EQ(dp->contact.modes, data->contact.modes);
-  ASSERT_EQ(dm->contact.modes, data->contact.modes);
-  ASSERT_EQ(dp->contact.rigid.limit_rows.size(), 1u);
-  ASSERT_EQ(dm->contact.rigid.limit_rows.size(), 1u);
-  VecX fd(2 * n + 2), an(2 * n + 2);
+  const State sp = step(mp, moved(eps, mp), dp), sm = step(mm, moved(-eps, mm), dm);
+  for (const Data* d : {dp.get(), dm.get()}) {
+    ASSERT_EQ(d->contact.modes, data->contact.modes) << label;  // one smooth piece
+    ASSERT_TRUE(limit_active_in_contact(*d)) << label;
+  }
+  VecX fd(2 * n + 12), an(2 * n + 12);
   fd << (sp.x - sm.x) / (2 * eps), (sp.v - sm.v) / (2 * eps),
-      (sp.rigid[0].position.z() - sm.rigid[0].position.z()) / (2 * eps),
-      (sp.rigid[0].velocity.z() - sm.rigid[0].velocity.z()) / (2 * eps);
-  an << jv.x, jv.v, jv.rigid[2], jv.rigid[8];  // the tangent: position, rotation, velocity, angular velocity
-  const double err = (an - fd).cwiseAbs().maxCoeff() / fd.cwiseAbs().maxCoeff();
-  std::cout << "[rigidify derivatives] part and a limited slider in contact (dense): max |JVP - FD| " << err
-            << " of max |FD|; the cube's z, v_z " << an.tail(2).transpose() << " against " << fd.tail(2).transpose()
-            << "\n";
-  EXPECT_LT(err, 1e-5);
-  EXPECT_GT(std::abs(fd[2 * n + 1]), 0.0);
+      (rigid::tangent_between(out.rigid[0], sp.rigid[0]) - rigid::tangent_between(out.rigid[0], sm.rigid[0])) / (2 * eps);
+  an << jv.x, jv.v, jv.rigid;
+  const double scale = fd.cwiseAbs().maxCoeff(), err = (an - fd).cwiseAbs().maxCoeff();
+  const double err_r = (an.tail(12) - fd.tail(12)).cwiseAbs().maxCoeff() / fd.tail(12).cwiseAbs().maxCoeff();
+  jvp = an;
+  const auto& rd = data->contact.rigid;
+  std::cout << "[rigidify derivatives] part and a limited slider in contact (" << label << "): "
+            << data->contact.contacts.size() << " contacts, limit force " << rd.limit_lambda[rd.limit_rows[0].slot]
+            << ", max |JVP - FD| " << err / scale << " of max |FD|, the cube's rows " << err_r << "; its z, v_z "
+            << an[2 * n + 2] << ", " << an[2 * n + 8] << " against " << fd[2 * n + 2] << ", " << fd[2 * n + 8] << "\n";
+  EXPECT_LT(err, 1e-5 * scale);
+  EXPECT_LT(err_r, 1e-5);
+  EXPECT_GT(std::abs(fd[2 * n + 8]), 0.0);
   StateTangent bar;
   bar.x = test::random_vector(n, 1.0, 95);
   bar.v = test::random_vector(n, 1.0, 96);
@@ -1239,46 +1282,171 @@ TEST(RigidifyDerivatives, LimitedJointInContactWithAPartOnTheDenseBackend) {
   StepCotangent cot;
   ASSERT_TRUE(D.vjp(model, *data, in, out, bar, cot));
   const double lhs = bar.x.dot(jv.x) + bar.v.dot(jv.v) + bar.rigid.dot(jv.rigid);
-  const double rhs = cot.x.dot(t.x) + cot.v.dot(t.v);
-  const double mag = std::abs(cot.x.dot(t.x)) + std::abs(cot.v.dot(t.v));
-  std::cout << "[rigidify derivatives] part and a limited slider, dot product: " << std::abs(lhs - rhs) / mag << "\n";
+  const double rhs = cot.x.dot(t.x) + cot.v.dot(t.v) + cot.rigid.dot(t.rigid) + cot.rigid_p.dot(t.rigid_p);
+  const double mag = std::abs(cot.x.dot(t.x)) + std::abs(cot.v.dot(t.v)) + std::abs(cot.rigid.dot(t.rigid)) +
+                     std::abs(cot.rigid_p.dot(t.rigid_p));
+  std::cout << "[rigidify derivatives] part and a limited slider (" << label << "), dot product: "
+            << std::abs(lhs - rhs) / mag << "\n";
   EXPECT_LE(std::abs(lhs - rhs), 1e-9 * mag) << lhs << " against " << rhs;
 }
 
-// Still refused (issue 21): a limited joint in contact with a part on the sparse backend
-// or under Newton (the joint limits' extended system there does not carry the parts'
-// rows). The cube on a vertical slider whose lower limit (-0.5 mm) it reaches while
-// landing on the slab: the step's NCP has the contacts and the limit's row.
-TEST(RigidifyDerivatives, LimitedJointInContactWithAPartIsRefusedOnTheSparseBackendAndUnderNewton) {
-  for (const std::string& simulation : {std::string("{dt: 0.002, steps: 10}"), kCubeNewton}) {
-    for (const std::string backend : {"sparse", "dense"}) {
-      const bool newton = simulation.find("newton") != std::string::npos;
-      SCOPED_TRACE(backend + (newton ? ", newton" : ""));
-      if (!newton && backend == "dense") continue;  // differentiated (rpint)
-      const Model model = cube_on_a_limited_slider(backend, simulation);
-      Data data(model);
-      State out;
-      const State in = model.initial;
-      const StepStatus st = integrator::time_step(model, data, in, nullptr, out, 1);
-      ASSERT_TRUE(st.ok()) << describe(model, st);
-      ASSERT_GT(data.contact.contacts.size(), 0u);
-      ASSERT_FALSE(data.contact.rigid.limit_rows.empty());
-      integrator::StepDerivatives D(model, {});
-      StepTangent d;
-      d.v = test::random_vector(in.x.size(), 1.0, 5);
-      StateTangent o;
-      try {
-        D.jvp(model, data, in, out, d, o);
-        ADD_FAILURE() << "the derivative of a step with a part and a limited joint in contact ran";
-      } catch (const std::exception& e) {
-        const std::string what = e.what();
-        EXPECT_NE(what.find("a joint limit and contact in one NCP: the dense contact backend with newton_iterations 1 "
-                            "only (issue 21)"),
-                  std::string::npos)
-            << what;
-      }
+// The dense backend with one Newton iteration (rpint: the record's G in the extended G).
+TEST(RigidifyDerivatives, LimitedJointInContactWithAPartOnTheDenseBackend) {
+  VecX jvp;
+  check_limited_slider(cube_on_a_limited_slider("dense", "{dt: 0.002, steps: 10}"), "dense", jvp);
+}
+
+// The sparse backend (rplim): the extended rows (the cube's L_r^T H_r^T with the limit's
+// column, extended_rigid_rows) beside the part's operator rows H_f^T and K_p; G_AA dense
+// from them, and on the operator (the crossovers 0: PCG with the shifted preconditioner).
+// Against the dense backend's JVP along the same direction: the two steps solve the NCP to
+// 1e-12 each, their derivatives differ by that noise over the conditioning (as
+// PartWithARigidCubeInContactOnTheSparseBackend: asserted 1e-7 of the largest entry).
+TEST(RigidifyDerivatives, LimitedJointInContactWithAPartOnTheSparseBackend) {
+  VecX dense, sparse, op;
+  const std::string sim = "{dt: 0.002, steps: 10}";
+  check_limited_slider(cube_on_a_limited_slider("dense", sim), "dense", dense);
+  check_limited_slider(cube_on_a_limited_slider("sparse", sim), "sparse", sparse);
+  check_limited_slider(cube_on_a_limited_slider(kCubeSparseOperator, sim), "sparse, operator", op);
+  ASSERT_EQ(sparse.size(), dense.size());
+  ASSERT_EQ(op.size(), dense.size());
+  const double scale = dense.cwiseAbs().maxCoeff();
+  const double e1 = (sparse - dense).cwiseAbs().maxCoeff() / scale, e2 = (op - dense).cwiseAbs().maxCoeff() / scale;
+  std::cout << "[rigidify derivatives] part and a limited slider: sparse JVP against dense " << e1 << ", operator "
+            << e2 << "\n";
+  EXPECT_LE(e1, 1e-7);
+  EXPECT_LE(e2, 1e-7);
+}
+
+// Newton (rplim): the extended G on the contacts' reduced G at the converged tangent A_f
+// (full_G with the part's rows newton_contact_rows), on both backends; the step takes more
+// than one iteration (asserted), the two backends' JVPs agree (1e-7, as above), and
+// Newton's JVP is not the one-iteration step's (a Newton path falling back to the
+// linearized derivative would pass the differences of the linearized step only).
+TEST(RigidifyDerivatives, NewtonLimitedJointInContactWithAPart) {
+  const Model dense_model = cube_on_a_limited_slider("dense", kCubeNewton);
+  const Model sparse_model = cube_on_a_limited_slider("sparse", kCubeNewton);
+  EXPECT_GE(newton_iterations_of_step(dense_model, dense_model.initial), 2);
+  EXPECT_GE(newton_iterations_of_step(sparse_model, sparse_model.initial), 2);
+  VecX dense, sparse, linear;
+  check_limited_slider(dense_model, "newton, dense", dense);
+  check_limited_slider(sparse_model, "newton, sparse", sparse);
+  ASSERT_EQ(sparse.size(), dense.size());
+  const double e = (sparse - dense).cwiseAbs().maxCoeff() / dense.cwiseAbs().maxCoeff();
+  std::cout << "[rigidify derivatives] newton, part and a limited slider: sparse JVP against dense " << e << "\n";
+  EXPECT_LE(e, 1e-7);
+  check_limited_slider(cube_on_a_limited_slider("dense", "{dt: 0.002, steps: 10}"), "dense", linear);
+  EXPECT_GT((linear - dense).cwiseAbs().maxCoeff(), 1e-6 * dense.cwiseAbs().maxCoeff());
+}
+
+// Forward sensitivities over `steps` steps of the limited slider (young; an x0 direction:
+// the slab's nodes scaled by 1e-3 and the cube's height; a v0 direction: the slab's nodes
+// and the cube's vertical velocity) against central differences of the whole run, and
+// the adjoint's gradient of l = w_x . x_T + w_v . v_T (soft rows and the cube's) against
+// them (exact algebra: 1e-9 relative). The limit is active in contact in every step of
+// the run (asserted). eps and tolerance as check_cube_trajectory (the same landing: young
+// 1e-3 of its value, x0 1e-6, v0 1e-5; 5e-5 of each column's largest entry).
+void check_slider_trajectory(const Model& model, const std::string& label, long steps) {
+  const Eigen::Index n = 3L * model.fem.num_nodes;
+  {
+    Data d(model);
+    State a = model.initial, b;
+    for (long k = 1; k <= steps; ++k) {
+      ASSERT_TRUE(integrator::time_step(model, d, a, nullptr, b, k).ok());
+      ASSERT_TRUE(limit_active_in_contact(d)) << label << ", step " << k;
+      std::swap(a, b);
     }
   }
+  diff::ThetaLayout theta;
+  theta.parameters = {{Parameter::young, 0}};
+  theta.x0 = theta.v0 = true;
+  // Rows: 3n soft, then the cube's 6 (x0: position, rotation vector; v0: velocity, angular
+  // velocity); the cube moves along the slider only (z).
+  theta.x0_basis = test::random_vector(n + 6, 1.0, 71);
+  theta.v0_basis = test::random_vector(n + 6, 1.0, 72);
+  theta.x0_basis.topRows(n) *= 1e-3;
+  for (int k : {0, 1, 3, 4, 5}) theta.x0_basis(n + k, 0) = theta.v0_basis(n + k, 0) = 0;
+  for (Eigen::Index k = 0; k < n; ++k)
+    if (model.fem.fixed[static_cast<std::size_t>(k)]) theta.x0_basis(k, 0) = theta.v0_basis(k, 0) = 0;
+  Data data(model);
+  State final;
+  MatX dx, dv;
+  ASSERT_TRUE(diff::forward_sensitivities(model, data, model.initial, steps, theta, final, dx, dv).ok());
+  ASSERT_EQ(dx.cols(), 3);
+  auto run = [&](const Model& m, const State& s0) {
+    Data d(m);
+    State a = s0, b;
+    for (long k = 1; k <= steps; ++k) {
+      EXPECT_TRUE(integrator::time_step(m, d, a, nullptr, b, k).ok());
+      EXPECT_TRUE(limit_active_in_contact(d)) << label << ", perturbed run, step " << k;
+      std::swap(a, b);
+    }
+    VecX r(2 * n + 6);
+    r << a.x, a.v, a.rigid[0].position, a.rigid[0].velocity;
+    return r;
+  };
+  auto rows = [&](const VecX& x, const VecX& v) {
+    VecX r(2 * n + 6);
+    r << x.head(n), v.head(n), x.segment<3>(n), v.segment<3>(n);
+    return r;
+  };
+  for (int j = 0; j < 3; ++j) {
+    VecX fd;
+    if (j == 0) {
+      const double value = diff::get_parameter(model, theta.parameters[0]), eps = 1e-3 * value;
+      Model mp = model, mm = model;
+      diff::set_parameter(mp, theta.parameters[0], value + eps);
+      diff::set_parameter(mm, theta.parameters[0], value - eps);
+      fd = (run(mp, model.initial) - run(mm, model.initial)) / (2 * eps);
+    } else {
+      const bool x = j == 1;
+      const VecX dir = x ? VecX(theta.x0_basis.col(0)) : VecX(theta.v0_basis.col(0));
+      const double eps = x ? 1e-6 : 1e-5;
+      State p = model.initial, m = model.initial;
+      (x ? p.x : p.v) += eps * dir.head(n);
+      (x ? m.x : m.v) -= eps * dir.head(n);
+      (x ? p.rigid[0].position : p.rigid[0].velocity) += eps * dir.segment<3>(n);
+      (x ? m.rigid[0].position : m.rigid[0].velocity) -= eps * dir.segment<3>(n);
+      fd = (run(model, p) - run(model, m)) / (2 * eps);
+    }
+    const VecX an = rows(dx.col(j), dv.col(j));
+    const double err = (an - fd).cwiseAbs().maxCoeff(), mag = fd.cwiseAbs().maxCoeff();
+    std::cout << "[rigidify derivatives] limited slider, " << label << ", trajectory column " << j
+              << ": max |sensitivity - FD| " << err / mag << " of max |FD| " << mag << "\n";
+    EXPECT_LT(err, 5e-5 * mag) << label << ", column " << j;
+  }
+  diff::Tape tape;
+  Data data2(model);
+  ASSERT_TRUE(diff::record(model, data2, model.initial, steps, tape).ok());
+  const VecX wx = test::random_vector(n + 6, 1.0, 73), wv = test::random_vector(n + 6, 1.0, 74);
+  diff::AdjointResult result;
+  ASSERT_TRUE(diff::adjoint(model, data2, tape, theta,
+                            [&](long k, const State&, VecX& bx, VecX& bv) {
+                              if (k != steps) return;
+                              bx += wx.head(n);
+                              bv += wv.head(n);
+                            },
+                            result,
+                            [&](long k, const State&, VecX& bar_rigid) {
+                              if (k != steps) return;
+                              bar_rigid.segment<6>(0) += wx.tail<6>();
+                              bar_rigid.segment<6>(6) += wv.tail<6>();
+                            })
+                  .ok());
+  EXPECT_EQ(result.recompute_mismatch, 0);
+  const VecX expected = dx.transpose() * wx + dv.transpose() * wv;
+  std::cout << "[rigidify derivatives] limited slider, " << label
+            << ", adjoint against forward: " << (result.theta - expected).norm() / expected.norm() << "\n";
+  EXPECT_LE((result.theta - expected).norm(), 1e-9 * expected.norm()) << result.theta.transpose() << " against "
+                                                                       << expected.transpose();
+}
+
+TEST(RigidifyDerivatives, LimitedJointInContactWithAPartTrajectory) {
+  const std::string sim = "{dt: 0.002, steps: 10}";
+  check_slider_trajectory(cube_on_a_limited_slider("dense", sim), "dense", 2);
+  check_slider_trajectory(cube_on_a_limited_slider("sparse", sim), "sparse", 2);
+  check_slider_trajectory(cube_on_a_limited_slider("dense", kCubeNewton), "newton, dense", 2);
+  check_slider_trajectory(cube_on_a_limited_slider("sparse", kCubeNewton), "newton, sparse", 2);
 }
 
 }  // namespace rigidify_derivatives_test

@@ -78,6 +78,7 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
     const VecX& sys_sigma = extended ? *extended->sigma : sigma;
     const std::vector<Mode>& sys_modes = extended ? *extended->modes : modes;
     const int n_rows = static_cast<int>(sys_modes.size());  // nc, or nc + the limit rows
+    const SparseMatrix* Ht_rows = Ht;  // before the padding (the preconditioner's bind pads itself)
     if (3L * n_rows > Ht->cols()) {  // rows without a soft dof (limit rows): zero columns
       Ht_padded_ = *Ht;
       Ht_padded_.conservativeResize(Ht_padded_.rows(), 3L * n_rows);
@@ -185,7 +186,10 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
       OperatorModeSystem::Precondition M, reduce_apply;
       OperatorModeSystem::FactorizeReduced reduce;
       if (A_upper) {
-        shifted_.bind(solver, *A_upper, *Ht, h, model.solver);
+        // With rigid rows, bound to the system's unpadded Ht: set_rigid pads it to the
+        // widest of Kt (the limit rows' columns) and Kt_more (a part's K_p: the contacts'
+        // columns only), as the step's operator (contact_step.cpp) does.
+        shifted_.bind(solver, *A_upper, Kt_active_.rows() > 0 ? *Ht_rows : *Ht, h, model.solver);
         if (Kt_active_.rows() > 0) {  // + h Kt^T Kt (bind clears it)
           static const MatX none;
           shifted_.set_rigid(k_bodies > 0 ? *Kt : none, Kt_more);
@@ -246,13 +250,23 @@ const MatX& ContactStageDerivative::rigid_rows(const Model& model, const Contact
 }
 
 bool ContactStageDerivative::full_G(const Model& model, const ContactData& cd, integrator::LinearSolver& solver,
-                                    double h, MatX& G) {
-  if (!solver.inverse_congruence(cd.Ht, G)) return false;
-  G *= h;
+                                    double h, MatX& G, const SparseMatrix* Ht, const MatX* Kt_more) {
+  const SparseMatrix& H = Ht ? *Ht : cd.Ht;
+  if (Kt_more)
+    SOFTDIFF_DEMAND(Kt_more->cols() == H.cols(), "contact derivative: a rigidified part's rows K_f have " +
+                                                     std::to_string(Kt_more->cols()) + " columns, expected " +
+                                                     std::to_string(H.cols()));
+  if (H.nonZeros() > 0) {
+    if (!solver.inverse_congruence(H, G)) return false;
+    G *= h;
+  } else {
+    G.setZero(H.cols(), H.cols());  // no free soft dof in the contacts (all in parts): no solve
+  }
   if (model.contact.with_rigid()) {
     const MatX& Kt = rigid_rows(model, cd);
     if (Kt.rows() > 0) G.noalias() += h * (Kt.transpose() * Kt);
   }
+  if (Kt_more && Kt_more->rows() > 0) G.noalias() += h * (Kt_more->transpose() * *Kt_more);
   return true;
 }
 

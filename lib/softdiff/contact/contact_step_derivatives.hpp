@@ -77,7 +77,11 @@ class ContactStageDerivative {
   // bodies, h Kt^T Kt (rigid_rows): the dense G of the step with another A (Newton's
   // converged tangent A_f; the joint limits' extended G is built from it,
   // rigid_contact_derivatives.hpp). Returns false if the solve failed.
-  bool full_G(const Model& model, const ContactData& cd, integrator::LinearSolver& solver, double h, MatX& G);
+  // Rigidified parts (rplim): Ht the soft rows H_f^T (nullptr: cd.Ht) and Kt_more the
+  // parts' rows K_f (3 nc columns; nullptr: none), G = h H_f A^{-1} H_f^T + h Kt^T Kt +
+  // h K_f^T K_f, the reduced Delassus matrix (rigidify_derivatives.hpp newton_contact_rows).
+  bool full_G(const Model& model, const ContactData& cd, integrator::LinearSolver& solver, double h, MatX& G,
+              const SparseMatrix* Ht = nullptr, const MatX* Kt_more = nullptr);
   // The rigid bodies' rows Kt (k x 3 nc, h sum_r H_r W_r H_r^T = h Kt^T Kt): the sparse
   // record's, or formed from the dense record's H_r^T and L_r.
   const MatX& rigid_rows(const Model& model, const ContactData& cd);

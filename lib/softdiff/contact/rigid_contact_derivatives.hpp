@@ -109,7 +109,8 @@ class RigidContactDerivative {
   // On the sparse backend (the record has no G; rpsp) the extended system is the
   // operator's instead: extended_G() is empty and extended_Kt() (k + 2L x 3 (nc + L)) the
   // rigid rows with the limit columns (rigid_contact.cpp rigid_delassus_rows), the soft
-  // part h H_s A^-1 H_s^T with zero columns for the limit rows.
+  // part h H_s A^-1 H_s^T with zero columns for the limit rows (with rigidified parts the
+  // caller gives the operator's H_f^T and the parts' rows K_p beside it, rplim).
   bool extended_on_operator() const { return !limits_.empty() && G_ext_.rows() == 0; }
   const MatX& extended_Kt() const { return Kt_ext_; }
   const VecX& extended_mu() const { return mu_ext_; }

@@ -28,7 +28,7 @@ void demand_supported(const Model& model) {
 bool is_newton(const Model& model) { return model.step.newton_iterations > 1 && model.fem.num_nodes > 0; }
 
 // Rigidified parts: what rigidify_derivatives.hpp covers (the rest is issue 21).
-void demand_parts_supported(const Model& model, const Data& data) {
+void demand_parts_supported(const Model& model) {
   const std::string part = model.rigidify.parts.front().name;
   // BDF2: the stage from the extrapolated state (the record's hat) is this step; the
   // extrapolation's derivative is multistep_jvp / multistep_vjp's (rigidify_bdf2_derivatives.hpp).
@@ -43,17 +43,11 @@ void demand_parts_supported(const Model& model, const Data& data) {
   // backend the operator's rows (H_f^T, K_p: data.rigidify.Ht_soft, SW; rpsp), or with
   // Newton the rows at the converged tangent (H_f^T, K_f: newton_contact_rows; rnewtp),
   // rigid bodies in contact beside them on the sparse backend and under Newton (their rows
-  // L_r^T H_r^T, contact::rigid_body_rows, do not depend on A: rpsn). Joint limits in the
-  // contact solve there are not: their extended system (prepare_limits) is the contacts'
-  // whole G with A_f, or on the operator the unreduced H^T, neither with the parts' rows.
-  const auto nc = static_cast<Eigen::Index>(data.contact.contacts.size());
-  const bool dense_record = data.contact.G.rows() == 3 * nc;
-  SOFTDIFF_DEMAND(!model.contact.enabled || nc == 0 || !model.contact.with_rigid() ||
-                      data.contact.rigid.limit_rows.empty() ||
-                      (dense_record && model.step.newton_iterations == 1),
-                  "step derivatives with rigidified parts (" + part +
-                      "), a joint limit and contact in one NCP: the dense contact backend with newton_iterations 1 "
-                      "only (issue 21)");
+  // L_r^T H_r^T, contact::rigid_body_rows, do not depend on A: rpsn), joint limits in the
+  // contact solve too (rplim): on the dense backend with one Newton iteration the record's
+  // G in the extended G (prepare_limits); on the sparse one the extended rows with the
+  // parts' H_f^T and K_p (prepare_contact); under Newton the extended G on the contacts'
+  // reduced G at A_f (prepare_rigid, full_G with newton_contact_rows).
 }
 
 // The step size of the record: data.h (dt for implicit Euler, 2 dt / 3 for BDF2), or
@@ -229,6 +223,15 @@ bool StepDerivatives::prepare_contact(const Model& model, const Data& data, cons
     if (rigid_.extended_on_operator()) {
       extended.G = nullptr;
       extended.Kt = &rigid_.extended_Kt();
+      // Rigidified parts on the sparse backend (rplim): the operator's soft rows H_f^T and
+      // the parts' K_p (the step's rigidified_rows, formed before the limit columns were
+      // appended: 3 nc columns, zero on the limit rows, which have no soft dof) beside the
+      // bodies' and limits' extended rows. (Newton: the extended G, whose contacts' block
+      // prepare_rigid formed from the parts' rows at A_f.)
+      if (!model.rigidify.empty()) {
+        extended.Ht = &data.rigidify.Ht_soft;
+        extended.Kt_more = &data.rigidify.SW;
+      }
     }
   } else if (!model.rigidify.empty() && is_newton(model)) {
     // Newton with parts (rnewtp): the reduced Delassus rows at the converged tangent A_f
@@ -323,7 +326,14 @@ bool StepDerivatives::prepare_rigid(const Model& model, const Data& data, const 
                     "step derivatives: the Newton system is not factorized for this step's v_f");
     // (A solve with the factor just made failing is a computation failure, not "no rigid
     // bodies", which false means here.)
-    if (!contact_.full_G(model, data.contact, *newton_solver_, h, newton_G_))
+    // Rigidified parts (rplim): the contacts' G is the reduced one at A_f, h H_f A_f,ff^-1
+    // H_f^T + h K_f^T K_f (+ the bodies' rows), from the parts' rows at the converged
+    // tangent (newton_contact_rows, on the Schur complement prepare_newton formed before
+    // this call in jvp / vjp), as prepare_contact uses them without limits.
+    const bool parts = !model.rigidify.empty();
+    if (parts) parts_.newton_contact_rows(model, data, data.contact.Ht);
+    if (!contact_.full_G(model, data.contact, *newton_solver_, h, newton_G_,
+                         parts ? &parts_.newton_Ht_soft() : nullptr, parts ? &parts_.newton_K() : nullptr))
       throw ComputationError("step derivatives: the contacts' Delassus matrix with Newton's converged tangent "
                              "(joint limits in contact) failed: a solve with its factorization failed");
     G_contacts = &newton_G_;
@@ -348,7 +358,7 @@ bool StepDerivatives::jvp(const Model& model, const Data& data, const State& in,
   // Rigidified parts: the terms below at the solve's velocity v~ (before the placement).
   const bool parts = !model.rigidify.empty();
   if (parts) {
-    demand_parts_supported(model, data);
+    demand_parts_supported(model);
     parts_.prepare(model, data, in, step_out, h);
   }
   const State& out = parts ? parts_.solve_state() : step_out;
@@ -481,7 +491,7 @@ bool StepDerivatives::actuation_jvps(const Model& model, const Data& data, const
   if (parts) {
     // Rigidified parts: per column the reduced solve (one solve with the step's factor,
     // rigidify_derivatives.hpp; dx_i = 0, so no dP terms) and the placement's tangent.
-    demand_parts_supported(model, data);
+    demand_parts_supported(model);
     parts_.prepare(model, data, in, out, h);
   }
   LinearSolver* solver = system(model, data, parts ? parts_.solve_state() : out);
@@ -535,7 +545,7 @@ bool StepDerivatives::vjp(const Model& model, const Data& data, const State& in,
   set_step_size(model, h);
   const bool parts = !model.rigidify.empty();
   if (parts) {
-    demand_parts_supported(model, data);
+    demand_parts_supported(model);
     parts_.prepare(model, data, in, step_out, h);
   }
   const State& out = parts ? parts_.solve_state() : step_out;

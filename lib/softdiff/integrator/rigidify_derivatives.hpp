@@ -6,8 +6,9 @@
 // contact (dense backend: the record's G, formed by rigidified_congruence, is the
 // mode-fixed system's; sparse backend: the operator's rows H_f^T and K_p), rigid bodies in
 // contact included (their rows L_r^T H_r^T beside the parts', on both backends); with
-// Newton (below) with or without contact, rigid bodies in contact included (rpsn), not
-// with a limited joint in contact (implicit_euler_derivatives.cpp demand_parts_supported).
+// Newton (below) with or without contact, rigid bodies in contact included (rpsn), with a
+// limited joint in contact too (rplim: the joint limits' extended system on the parts'
+// rows, implicit_euler_derivatives.cpp prepare_contact and prepare_rigid).
 //
 // The step with parts (rigidify.hpp): P^T A P z = P^T (b + h H^T lambda), Delta = P z,
 // v~ = v_i + Delta (the solve's velocity), then the exact placement of every part from
