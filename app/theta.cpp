@@ -22,9 +22,9 @@ void demand_differentiable(const std::string& option, const Model& model) {
   // rnewtp), with or without contact on either backend (dense: the record's G; sparse: the
   // operator's rows H_f^T and K_p, rpsp; Newton: those rows at the converged tangent), with
   // rigid bodies in contact beside them on both backends and under Newton (rpint: dense;
-  // rpsn: sparse and Newton, the bodies' rows L_r^T H_r^T beside the parts'). Not with a
-  // limited joint in contact on the sparse backend or under Newton: the joint limits'
-  // extended system there does not carry the parts' rows (refused below).
+  // rpsn: sparse and Newton, the bodies' rows L_r^T H_r^T beside the parts'), a limited
+  // joint in contact included on both backends and under Newton (rplim: the joint limits'
+  // extended system carries the parts' rows, contact/rigid_contact_derivatives.hpp).
   if (!model.rigidify.empty()) {
     const std::string& part = model.rigidify.parts.front().name;
     // Static (2026-12-04, rstat; integrator/static_solver_derivatives.cpp, docs/method.md
@@ -55,13 +55,6 @@ void demand_differentiable(const std::string& option, const Model& model) {
       throw InputError(option + ": derivatives with rigidified parts are supported for implicit_euler, bdf2 and "
                                 "static only (issue 21; " + part + ")");
     }
-    const bool sparse = model.contact.ncp.backend == contact::NcpBackend::sparse;
-    if (model.contact.with_rigid() && (sparse || model.step.newton_iterations > 1))
-      for (const auto& b : model.rigid)
-        if (b.joint.limits)
-          throw InputError(option + ": derivatives with rigidified parts and a limited joint (rigid body '" + b.name +
-                           "') in contact on contact.backend: sparse or with newton_iterations > 1 are not supported "
-                           "yet (issue 21; " + part + "): use the dense backend and newton_iterations 1");
   }
   // BDF2 with rigid bodies (rigid/rigid_bdf2_derivatives.hpp): differentiated as implicit
   // Euler is, with and without contact; with a limited joint in contact each step through
