@@ -1449,4 +1449,17 @@ TEST(RigidifyDerivatives, LimitedJointInContactWithAPartTrajectory) {
   check_slider_trajectory(cube_on_a_limited_slider("sparse", kCubeNewton), "newton, sparse", 2);
 }
 
+// The same under BDF2 (its stage is the step derivative above; the first step implicit
+// Euler, then BDF2 steps from the extrapolated state, the parts' and the cube's), over 3
+// steps on the sparse backend and with Newton on the sparse backend; the limit active in
+// contact in every step (asserted). The same eps and tolerances.
+TEST(RigidifyDerivatives, Bdf2LimitedJointInContactWithAPartTrajectory) {
+  check_slider_trajectory(cube_on_a_limited_slider("dense", "{dt: 0.002, steps: 10, integrator: bdf2}"), "bdf2, dense", 3);
+  check_slider_trajectory(cube_on_a_limited_slider("sparse", "{dt: 0.002, steps: 10, integrator: bdf2}"), "bdf2, sparse", 3);
+  check_slider_trajectory(
+      cube_on_a_limited_slider("sparse", "{dt: 0.002, steps: 10, integrator: bdf2, newton_iterations: 20, "
+                                         "newton_tolerance: 2.0e-12}"),
+      "bdf2, newton, sparse", 3);
+}
+
 }  // namespace rigidify_derivatives_test
