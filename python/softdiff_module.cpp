@@ -43,6 +43,7 @@ namespace {
 PyObject* g_scene_error = nullptr;
 PyObject* g_step_error = nullptr;
 PyObject* g_convergence_warning = nullptr;
+PyObject* g_scene_warning = nullptr;
 
 // Raises `type(message)` with the given attributes set on the instance.
 [[noreturn]] void raise(PyObject* type, const std::string& message, const py::dict& attributes = py::dict()) {
@@ -90,7 +91,7 @@ class Simulator {
     } catch (const ComputationError& e) {
       raise(g_step_error, e.what());
     }
-    for (const auto& w : report.warnings) warn(w);
+    for (const auto& w : report.warnings) warn(w, g_scene_warning);
     if (model_->step.integrator == IntegratorKind::static_equilibrium)
       throw py::value_error(
           "static scenes (simulation.integrator: static) are not bound in Python yet (issue 23): run them with "
@@ -280,8 +281,8 @@ class Simulator {
     raise(g_step_error, failure, attributes);
   }
 
-  static void warn(const std::string& message) {
-    if (PyErr_WarnEx(g_convergence_warning, message.c_str(), 1) != 0) throw py::error_already_set();
+  static void warn(const std::string& message, PyObject* category = g_convergence_warning) {
+    if (PyErr_WarnEx(category, message.c_str(), 1) != 0) throw py::error_already_set();
   }
 
   int threads_;
@@ -314,6 +315,9 @@ PYBIND11_MODULE(_softdiff, m) {
   step_error.attr("__module__") = "softdiff";
   g_convergence_warning = PyErr_NewException("softdiff.ConvergenceWarning", PyExc_RuntimeWarning, nullptr);
   m.attr("ConvergenceWarning") = py::reinterpret_steal<py::object>(g_convergence_warning);
+  // The build's plausibility warnings (a body of implausible size or mass; strict: SceneError).
+  g_scene_warning = PyErr_NewException("softdiff.SceneWarning", PyExc_UserWarning, nullptr);
+  m.attr("SceneWarning") = py::reinterpret_steal<py::object>(g_scene_warning);
   py::register_exception_translator([](std::exception_ptr p) {
     try {
       if (p) std::rethrow_exception(p);

@@ -20,6 +20,7 @@ from ._softdiff import (  # noqa: F401
     ConvergenceWarning,
     Scene,
     SceneError,
+    SceneWarning,
     Simulator,
     StepError,
     __version__,
@@ -31,7 +32,7 @@ import math as _math
 import os as _os
 from collections.abc import Mapping as _Mapping
 
-__all__ = ["load_scene", "Scene", "Simulator", "SceneError", "StepError", "ConvergenceWarning", "thread_plan",
+__all__ = ["load_scene", "Scene", "Simulator", "SceneError", "StepError", "ConvergenceWarning", "SceneWarning", "thread_plan",
            "__version__"]
 
 

@@ -32,11 +32,13 @@ def beam(**overrides):
 
 def test_import_exposes_the_api():
     assert softdiff.__version__.count(".") == 2
-    for name in ("load_scene", "Simulator", "Scene", "SceneError", "StepError", "ConvergenceWarning", "thread_plan"):
+    for name in ("load_scene", "Simulator", "Scene", "SceneError", "StepError", "ConvergenceWarning", "SceneWarning",
+                 "thread_plan"):
         assert hasattr(softdiff, name), name
     assert issubclass(softdiff.SceneError, ValueError) and softdiff.SceneError.exit_code == 2
     assert issubclass(softdiff.StepError, RuntimeError) and softdiff.StepError.exit_code == 1
     assert issubclass(softdiff.ConvergenceWarning, RuntimeWarning)
+    assert issubclass(softdiff.SceneWarning, UserWarning)
     # Built for Debian's python3 (the tests run under it).
     assert sys.executable == "/usr/bin/python3" or os.path.realpath(sys.executable).startswith("/usr/bin/python3")
 
@@ -362,3 +364,14 @@ def test_install_puts_it_where_debian_python_finds_it(tmp_path):
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     assert r.stdout.splitlines() == [str(stage / site.lstrip("/") / "softdiff" / "__init__.py"), "(2, 1025, 3)"]
+
+
+def test_implausible_body_warns_or_is_a_scene_error_with_strict():
+    # The beam's mesh read as millimetres (mesh_scale 1000): a body of hundreds of metres
+    # and tonnes (io/plausibility.hpp), a warning, or with strict bad input (the CLI's --strict).
+    scene = beam(**{"bodies.beam.mesh_scale": 1000})
+    with pytest.warns(softdiff.SceneWarning, match=r"implausible for a soft robot"):
+        softdiff.Simulator(scene)
+    with pytest.raises(softdiff.SceneError, match=r"implausible for a soft robot.*--strict") as info:
+        softdiff.Simulator(scene, strict=True)
+    assert info.value.exit_code == 2
