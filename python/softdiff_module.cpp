@@ -17,7 +17,10 @@
 #include <softdiff/core/error.hpp>
 #include <softdiff/core/threads.hpp>
 #include <softdiff/data.hpp>
+#include <softdiff/diff/theta_selection.hpp>
+#include <softdiff/diff/trajectory.hpp>
 #include <softdiff/integrator/bdf2.hpp>
+#include <softdiff/integrator/implicit_euler_derivatives.hpp>
 #include <softdiff/io/build_model.hpp>
 #include <softdiff/io/scene.hpp>
 #include <softdiff/model.hpp>
@@ -30,6 +33,7 @@
 #include <cstring>
 #include <memory>
 #include <new>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -78,7 +82,8 @@ Scene load_scene(const std::string& path, const std::vector<std::string>& overri
 // step; docs/python.md "Copies and views").
 class Simulator {
  public:
-  Simulator(const Scene& scene, int threads, bool strict) : threads_(threads), strict_(strict) {
+  Simulator(const Scene& scene, int threads, bool strict, const std::optional<std::string>& jacobian)
+      : threads_(threads), strict_(strict) {
     if (threads < 0) throw py::value_error("threads must be >= 0 (0: all cores), got " + std::to_string(threads));
     io::BuildReport report;
     report.strict = strict;
@@ -96,6 +101,16 @@ class Simulator {
       throw py::value_error(
           "static scenes (simulation.integrator: static) are not bound in Python yet (issue 23): run them with "
           "`softdiff simulate`");
+    if (jacobian) {
+      // The theta groups of `simulate --jacobian` (diff/theta_selection.hpp), its checks
+      // and messages (with "jacobian" for the option's name).
+      try {
+        theta_ = diff::parse_theta("jacobian", *jacobian, *model_);
+      } catch (const InputError& e) {
+        raise(g_scene_error, e.what());
+      }
+      sensitivity_ = std::make_unique<diff::ForwardSensitivity>(*model_, theta_->layout);
+    }
     data_ = std::make_unique<Data>(*model_);
     state_ = model_->initial;
     next_ = model_->initial;
@@ -111,6 +126,100 @@ class Simulator {
   const std::vector<std::string>& bodies() const { return names_; }
   long newton_not_converged() const { return newton_not_converged_; }
   long contact_not_converged() const { return contact_not_converged_; }
+
+  // d x / d theta (or d v / d theta) at the current state, per theta group: (rows, k)
+  // copies of the forward sensitivities' columns (Fortran order: a column block of the
+  // column-major matrix, one memcpy).
+  py::dict jacobian(const std::string& of) const {
+    if (!sensitivity_) throw py::value_error("no theta: give Simulator(scene, jacobian=\"young, ...\") first");
+    if (of != "x" && of != "v") throw py::value_error("of: 'x' or 'v', got '" + of + "'");
+    const MatX& J = of == "x" ? sensitivity_->dx_dtheta() : sensitivity_->dv_dtheta();
+    py::dict out;
+    for (const auto& g : theta_->groups) {
+      py::array_t<double, py::array::f_style> a({static_cast<py::ssize_t>(J.rows()), static_cast<py::ssize_t>(g.size)});
+      std::memcpy(a.mutable_data(), J.col(g.offset).data(), sizeof(double) * static_cast<std::size_t>(J.rows() * g.size));
+      out[py::str(g.name)] = a;
+    }
+    return out;
+  }
+  py::dict theta_columns() const {
+    py::dict out;
+    if (theta_)
+      for (const auto& g : theta_->groups) out[py::str(g.name)] = g.columns;
+    return out;
+  }
+  // The last step's JVP (integrator::StepDerivatives::jvp): tangents of its input state
+  // (dx, dv: 3n each, soft nodes) and of theta's groups (dtheta: group -> its size; not
+  // x0, v0: those are dx, dv) -> (dx_out, dv_out). Implicit Euler scenes of soft bodies
+  // (the step's derivative with rigid bodies or BDF2 chains more: issue 23).
+  py::tuple step_jvp(const py::object& dx, const py::object& dv, const py::dict& dtheta) {
+    demand_step_derivative();
+    integrator::StepTangent d;
+    const Eigen::Index n3 = state_.x.size();
+    d.x = vector_or_zero(dx, n3, "dx");
+    d.v = vector_or_zero(dv, n3, "dv");
+    d.p = VecX::Zero(static_cast<Eigen::Index>(theta_->layout.parameters.size()));
+    d.lambda_a = VecX::Zero(static_cast<Eigen::Index>(model_->actuation.actuators.size()));
+    for (auto item : dtheta) {
+      const std::string name = py::str(item.first);
+      const diff::ThetaGroup& g = group(name);
+      const VecX value = vector_or_zero(py::reinterpret_borrow<py::object>(item.second), g.size, "dtheta['" + name + "']");
+      if (name == "actuation")
+        d.lambda_a = value;
+      else
+        d.p.segment(g.offset, g.size) = value;
+    }
+    integrator::StateTangent out;
+    bool ok = false;
+    {
+      py::gil_scoped_release release;
+      ok = step_derivatives_->jvp(*model_, *data_, previous_, state_, d, out);
+    }
+    if (!ok) raise(g_step_error, "the derivative of step " + std::to_string(k_) + " failed (a linear solve did not "
+                                 "succeed or gave non-finite values)");
+    return py::make_tuple(to_numpy(out.x, n3), to_numpy(out.v, n3));
+  }
+
+  // The last step's VJP: cotangents of its output state (bar_x, bar_v) -> dict "x", "v"
+  // (of its input state) and one entry per theta group but x0, v0.
+  py::dict step_vjp(const py::object& bar_x, const py::object& bar_v) {
+    demand_step_derivative();
+    const Eigen::Index n3 = state_.x.size();
+    integrator::StateTangent bar;
+    bar.x = vector_or_zero(bar_x, n3, "bar_x");
+    bar.v = vector_or_zero(bar_v, n3, "bar_v");
+    integrator::StepCotangent in;
+    bool ok = false;
+    {
+      py::gil_scoped_release release;
+      ok = step_derivatives_->vjp(*model_, *data_, previous_, state_, bar, in);
+    }
+    if (!ok) raise(g_step_error, "the derivative of step " + std::to_string(k_) + " failed (a linear solve did not "
+                                 "succeed or gave non-finite values)");
+    py::dict out;
+    out["x"] = to_numpy(in.x, n3);
+    out["v"] = to_numpy(in.v, n3);
+    for (const auto& g : theta_->groups) {
+      if (g.name == "x0" || g.name == "v0") continue;
+      if (g.name == "actuation")
+        out[py::str(g.name)] = to_numpy(in.lambda_a, g.size);
+      else
+        out[py::str(g.name)] = to_numpy(in.p.size() ? VecX(in.p.segment(g.offset, g.size)) : VecX(), g.size);
+    }
+    return out;
+  }
+
+  // The rows of a body in the Jacobians: soft bodies 3 node_begin .. 3 (node_begin + n),
+  // rigid body r 3 n_soft + 6 r .. + 6 (position, rotation vector / velocity, angular velocity).
+  py::slice rows(const std::string& name) const {
+    const int b = soft_index(name);
+    if (b >= 0) {
+      const auto& body = model_->fem.bodies[static_cast<std::size_t>(b)];
+      return py::slice(3L * body.node_begin, 3L * (body.node_begin + body.num_nodes), 1);
+    }
+    const long start = 3L * model_->fem.num_nodes + 6L * rigid_index(name);
+    return py::slice(start, start + 6, 1);
+  }
 
   // One step; raises StepError (the state is left at the last completed step).
   void step() {
@@ -203,6 +312,42 @@ class Simulator {
     for (const auto& n : names_) known += (known.empty() ? "" : ", ") + n;
     throw py::key_error("no body '" + name + "' in the scene (bodies: " + known + ")");
   }
+  void demand_step_derivative() {
+    if (!theta_) throw py::value_error("no theta: give Simulator(scene, jacobian=\"young, ...\") first");
+    if (!model_->rigid.empty())
+      throw py::value_error("step_jvp/step_vjp with rigid bodies are not bound yet (issue 23): use jacobian() (forward "
+                            "sensitivities through the steps)");
+    if (model_->step.integrator != IntegratorKind::implicit_euler)
+      throw py::value_error("step_jvp/step_vjp are bound for implicit_euler only (issue 23: BDF2's step depends on two "
+                            "states): use jacobian()");
+    if (!record_valid_) throw py::value_error("no step to differentiate: step() first (a failed step leaves none)");
+    if (!step_derivatives_) step_derivatives_ = std::make_unique<integrator::StepDerivatives>(*model_, theta_->layout.parameters);
+  }
+  const diff::ThetaGroup& group(const std::string& name) const {
+    for (const auto& g : theta_->groups)
+      if (g.name == name) {
+        if (name == "x0" || name == "v0")
+          throw py::key_error("dtheta['" + name + "']: the step's input state is dx, dv");
+        return g;
+      }
+    throw py::key_error("dtheta: '" + name + "' is not one of the simulator's theta groups");
+  }
+  static VecX vector_or_zero(const py::object& o, Eigen::Index n, const std::string& what) {
+    if (o.is_none()) return VecX::Zero(n);
+    const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(o);
+    if (!a) throw py::type_error(what + ": an array of numbers");
+    if (a.size() != n)
+      throw py::value_error(what + ": " + std::to_string(n) + " values expected, got " + std::to_string(a.size()));
+    return Eigen::Map<const VecX>(a.data(), n);
+  }
+  static py::array_t<double> to_numpy(const VecX& v, Eigen::Index n) {
+    py::array_t<double> a(static_cast<py::ssize_t>(n));
+    if (v.size() == n)
+      std::memcpy(a.mutable_data(), v.data(), sizeof(double) * static_cast<std::size_t>(n));
+    else
+      std::fill(a.mutable_data(), a.mutable_data() + n, 0.0);  // an empty cotangent: zero
+    return a;
+  }
   static py::array_t<double> copy_nodes(const double* src, int n) {
     py::array_t<double> a({static_cast<py::ssize_t>(n), py::ssize_t{3}});
     std::memcpy(a.mutable_data(), src, sizeof(double) * 3 * static_cast<std::size_t>(n));
@@ -228,6 +373,7 @@ class Simulator {
   std::string advance(std::string& warning) {
     if (thread_plan().threads != threads_ && !(threads_ == 0)) set_threads(threads_);
     const long k = k_ + 1;
+    record_valid_ = false;  // data is about to hold this step's record
     StepStatus s;
     try {
       s = integrator::time_step(*model_, *data_, state_, k > 1 ? &previous_ : nullptr, next_, k);
@@ -262,9 +408,30 @@ class Simulator {
         warning = describe(*model_, c) + " (strict=True makes it an error)";
       }
     }
-    std::swap(previous_, state_);  // BDF2's history
+    if (sensitivity_) {
+      // The forward sensitivities through the step, as cmd_simulate.cpp carries them; a
+      // failed derivative is the step's failure, with the CLI's message.
+      std::string derivative_error;
+      bool derivative_ok = false;
+      try {
+        derivative_ok = sensitivity_->advance(*model_, *data_, state_, next_);
+      } catch (const ComputationError& e) {
+        derivative_error = e.what();
+      }
+      if (!derivative_ok) {
+        StepStatus f;
+        f.code = StepStatus::Code::solver_failed;
+        f.step = k;
+        f.detail = derivative_error.empty()
+                       ? "the derivative of the step failed (a linear solve did not succeed or gave non-finite values)"
+                       : "the derivative of the step failed: " + derivative_error;
+        return describe(*model_, f);
+      }
+    }
+    std::swap(previous_, state_);  // BDF2's history (and the input state of step_jvp/step_vjp)
     std::swap(state_, next_);
     k_ = k;
+    record_valid_ = true;
     return "";
   }
 
@@ -289,6 +456,10 @@ class Simulator {
   bool strict_;
   std::unique_ptr<Model> model_;  // a fixed address: Data and the step refer to it
   std::unique_ptr<Data> data_;
+  std::optional<diff::ThetaSelection> theta_;
+  std::unique_ptr<diff::ForwardSensitivity> sensitivity_;
+  std::unique_ptr<integrator::StepDerivatives> step_derivatives_;  // step_jvp/step_vjp (made on first use)
+  bool record_valid_ = false;  // data holds the record of the step previous_ -> state_
   State state_, next_, previous_;
   long k_ = 0;  // steps done
   long newton_not_converged_ = 0, contact_not_converged_ = 0;
@@ -338,15 +509,40 @@ PYBIND11_MODULE(_softdiff, m) {
   m.def("_load_scene", &load_scene, py::arg("path"), py::arg("overrides"));
 
   py::class_<Simulator>(m, "Simulator")
-      .def(py::init<const Scene&, int, bool>(), py::arg("scene"), py::arg("threads") = 1, py::arg("strict") = false,
+      .def(py::init([](const Scene& scene, int threads, bool strict, const py::object& jacobian) {
+             // jacobian: None, "young, x0", or a list of names (joined as the CLI's list).
+             std::optional<std::string> list;
+             if (py::isinstance<py::str>(jacobian)) {
+               list = jacobian.cast<std::string>();
+             } else if (!jacobian.is_none()) {
+               list.emplace();
+               for (const auto& name : jacobian) {
+                 if (!py::isinstance<py::str>(name)) throw py::type_error("jacobian: names as strings, e.g. ['young', 'x0']");
+                 *list += (list->empty() ? "" : ",") + name.cast<std::string>();
+               }
+             }
+             return std::make_unique<Simulator>(scene, threads, strict, list);
+           }),
+           py::arg("scene"), py::arg("threads") = 1, py::arg("strict") = false, py::arg("jacobian") = py::none(),
            "Build the scene's model and workspace. threads: softdiff's OpenMP loops and OpenBLAS (0: all cores, "
-           "as the CLI's default); strict: as the CLI's --strict.")
+           "as the CLI's default); strict: as the CLI's --strict; jacobian: theta groups as the CLI's --jacobian "
+           "(comma-separated), carried by forward sensitivities through every step.")
       .def("step", &Simulator::step, "One time step (the GIL is released); raises StepError")
       .def("run", &Simulator::run, py::arg("steps"),
            "steps time steps: dict body -> numpy (steps + 1, n, 3) positions, frame 0 the current state "
            "(rigid bodies: (steps + 1, 7) position + quaternion w, x, y, z)")
       .def("x", &Simulator::x, py::arg("body"), "Positions now: soft (n, 3); rigid (7,) position + quaternion w, x, y, z")
       .def("v", &Simulator::v, py::arg("body"), "Velocities now: soft (n, 3); rigid (6,) velocity + angular velocity")
+      .def("jacobian", &Simulator::jacobian, py::arg("of") = "x",
+           "d x / d theta (of='v': d v / d theta) at the current state: dict theta group -> (rows, k) array")
+      .def_property_readonly("theta_columns", &Simulator::theta_columns, "dict theta group -> its column names")
+      .def("step_jvp", &Simulator::step_jvp, py::arg("dx") = py::none(), py::arg("dv") = py::none(),
+           py::arg("dtheta") = py::dict(),
+           "The last step's JVP: (dx_out, dv_out) for tangents dx, dv of its input state and dtheta "
+           "(theta group -> values); implicit Euler, soft bodies")
+      .def("step_vjp", &Simulator::step_vjp, py::arg("bar_x") = py::none(), py::arg("bar_v") = py::none(),
+           "The last step's VJP: dict x, v (input state) and theta groups, for cotangents of its output state")
+      .def("rows", &Simulator::rows, py::arg("body"), "The slice of a body's rows in jacobian()'s arrays")
       .def_property_readonly("time", &Simulator::time)
       .def_property_readonly("steps_done", &Simulator::steps_done)
       .def_property_readonly("dt", &Simulator::dt)

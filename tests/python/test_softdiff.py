@@ -375,3 +375,182 @@ def test_implausible_body_warns_or_is_a_scene_error_with_strict():
     with pytest.raises(softdiff.SceneError, match=r"implausible for a soft robot.*--strict") as info:
         softdiff.Simulator(scene, strict=True)
     assert info.value.exit_code == 2
+
+
+# --- derivatives: forward sensitivities over the --jacobian theta groups -------------------
+
+def test_jacobian_is_the_clis_bit_for_bit(tmp_path, cli):
+    steps = 10
+    groups = "young,poisson,density,rayleigh_mass"
+    r = cli(["simulate", BEAM, "-o", tmp_path / "j.h5", "--steps", steps, "--threads", 1, "--quiet",
+             "--jacobian", groups], tmp_path)
+    assert r.returncode == 0, r.stderr
+    sim = softdiff.Simulator(beam(**{"simulation.steps": steps}), jacobian=groups)
+    assert list(sim.theta_columns) == groups.split(",")
+    assert sim.theta_columns["young"] == ["young[beam]"]
+    sim.run(steps)
+    jx, jv = sim.jacobian(), sim.jacobian(of="v")
+    with h5py.File(tmp_path / "j.h5", "r") as f:
+        for g in groups.split(","):
+            J = f[f"/jacobians/{g}"]
+            assert J.attrs["theta"] in (g + "[beam]", (g + "[beam]").encode())
+            assert jx[g].shape == J.shape == (3 * 1025, 1) and jv[g].shape == J.shape
+            assert np.array_equal(jx[g], J[...]), g     # bit for bit
+            assert np.abs(jx[g]).max() > 0 and np.abs(jv[g]).max() > 0
+
+
+def test_rigid_jacobian_is_the_clis_bit_for_bit(tmp_path, cli):
+    steps = 10
+    r = cli(["simulate", STACK, "-o", tmp_path / "j.h5", "--steps", steps, "--threads", 1, "--quiet",
+             "--jacobian", "mass,inertia"], tmp_path)
+    assert r.returncode == 0, r.stderr
+    sim = softdiff.Simulator(softdiff.load_scene(STACK, overrides={"simulation.steps": steps}), jacobian=["mass", "inertia"])
+    sim.run(steps)
+    J = sim.jacobian()
+    assert J["mass"].shape == (18, 3) and J["inertia"].shape == (18, 18)   # 6 rows per rigid body
+    assert sim.rows("middle") == slice(6, 12, 1)
+    assert sim.theta_columns["mass"] == ["mass[base]", "mass[middle]", "mass[top]"]
+    with h5py.File(tmp_path / "j.h5", "r") as f:
+        for g in ("mass", "inertia"):
+            assert np.array_equal(J[g], f[f"/jacobians/{g}"][...]), g
+
+
+def _final_x(overrides, steps):
+    sim = softdiff.Simulator(beam(**overrides, **{"simulation.steps": steps}))
+    sim.run(steps)
+    return sim.x("beam").reshape(-1)
+
+
+@pytest.mark.parametrize("name, key, value, rel_step", [
+    ("young", "bodies.beam.material.young", 1.0e6, 1e-4),
+    ("poisson", "bodies.beam.material.poisson", 0.45, 1e-5),   # see below
+    ("density", "bodies.beam.material.density", 1070.0, 1e-4),
+])
+def test_jacobian_matches_central_differences(name, key, value, rel_step):
+    # d x_T / d theta over 5 steps against (x_T(theta + h) - x_T(theta - h)) / 2h.
+    # The truncation error is O(h^2) relative (the motion is smooth in each parameter:
+    # no contact, linearized steps), the round-off floor (the solves' and the positions'
+    # rounding over 2h) about 3e-8 of the derivative here. Measured (max error / max
+    # entry) at h = 1e-3, 1e-4, 1e-5 theta: young 2.0e-7, 3.2e-8, 3.8e-8; density 7.6e-7,
+    # 2.9e-9, 3.2e-7; poisson 5.5e-5, 5.6e-7, 8.0e-9 (its curvature grows as nu nears
+    # 0.5, the truncation as (h / (0.5 - nu))^2: h = 1e-5 nu for it, 1e-4 theta for the
+    # others). Tolerance 1e-6 of the largest entry: above the errors at those steps (by
+    # 30x and more), far below the O(1) error a wrong or missing term would give.
+    steps = 5
+    sim = softdiff.Simulator(beam(**{"simulation.steps": steps}), jacobian=name)
+    sim.run(steps)
+    J = sim.jacobian()[name][:, 0]
+    h = rel_step * value
+    fd = (_final_x({key: value + h}, steps) - _final_x({key: value - h}, steps)) / (2 * h)
+    scale = np.abs(J).max()
+    assert scale > 0
+    err = np.abs(fd - J).max() / scale
+    assert err < 1e-6, (name, err)
+
+
+def test_jacobian_errors():
+    with pytest.raises(softdiff.SceneError, match=r"^jacobian young,frobnicate: unknown name 'frobnicate'"):
+        softdiff.Simulator(beam(), jacobian="young,frobnicate")
+    with pytest.raises(softdiff.SceneError, match=r"^jacobian: 'actuation' needs actuators"):
+        softdiff.Simulator(beam(), jacobian=["actuation"])
+    with pytest.raises(softdiff.SceneError, match=r"^jacobian: expected a comma-separated list"):
+        softdiff.Simulator(beam(), jacobian=[])
+    with pytest.raises(TypeError, match="names as strings"):
+        softdiff.Simulator(beam(), jacobian=[1])
+    sim = softdiff.Simulator(beam())
+    assert sim.theta_columns == {}
+    with pytest.raises(ValueError, match="no theta"):
+        sim.jacobian()
+    sim = softdiff.Simulator(beam(), jacobian="young")
+    with pytest.raises(ValueError, match="of: 'x' or 'v'"):
+        sim.jacobian(of="a")
+    # At frame 0 the state does not depend on the parameters yet.
+    assert np.array_equal(sim.jacobian()["young"], np.zeros((3 * 1025, 1)))
+    assert sim.rows("beam") == slice(0, 3 * 1025, 1)
+
+
+# --- derivatives: the step's JVP and VJP ----------------------------------------------
+
+def test_step_jvp_matches_central_differences_of_one_step():
+    # Step 1 from the initial state (which does not depend on young): dx_1/dE by the JVP
+    # with dtheta young = 1 against (x_1(E + h) - x_1(E - h)) / 2h, h = 1e-4 E. One step
+    # moves the beam less than five, so the round-off floor is higher relative to the
+    # difference: measured 4.0e-7, 1.3e-7, 3.1e-7 of the largest entry at h = 1e-3,
+    # 1e-4, 1e-5 E. Tolerance 1e-6 (as test_jacobian_matches_central_differences).
+    E = 1.0e6
+    sim = softdiff.Simulator(beam(), jacobian="young,poisson")
+    sim.step()
+    dx, dv = sim.step_jvp(dtheta={"young": 1.0})
+    assert dx.shape == dv.shape == (3 * 1025,)
+    h = 1e-4 * E
+    fd = (_final_x({"bodies.beam.material.young": E + h}, 1) - _final_x({"bodies.beam.material.young": E - h}, 1)) / (2 * h)
+    assert np.abs(fd - dx).max() / np.abs(dx).max() < 1e-6
+    # Implicit Euler: dx_1 = dx_0 + h dv_1 with dx_0 = 0.
+    np.testing.assert_allclose(dx, 0.01 * dv, rtol=0, atol=1e-15 * np.abs(dx).max())
+    # It is the first column of the forward sensitivities (the same JVP, computed apart).
+    np.testing.assert_allclose(dx, sim.jacobian()["young"][:, 0], rtol=0, atol=1e-12 * np.abs(dx).max())
+
+
+def test_step_jvp_chains_into_the_forward_sensitivities():
+    # dx_k/dE = JVP of step k applied to (dx_{k-1}/dE, dv_{k-1}/dE, dE = 1): the step's
+    # JVP in its state directions, checked against the library's forward sensitivities
+    # (themselves checked by central differences above). Same solves in another order
+    # of operations: agreement to round-off, 1e-10 of the largest entry.
+    sim = softdiff.Simulator(beam(), jacobian="young")
+    sim.run(3)
+    jx, jv = sim.jacobian()["young"][:, 0].copy(), sim.jacobian(of="v")["young"][:, 0].copy()
+    sim.step()
+    dx, dv = sim.step_jvp(dx=jx, dv=jv, dtheta={"young": 1.0})
+    scale = np.abs(sim.jacobian()["young"]).max()
+    assert np.abs(dx - sim.jacobian()["young"][:, 0]).max() < 1e-10 * scale
+    assert np.abs(dv - sim.jacobian(of="v")["young"][:, 0]).max() < 1e-10 * np.abs(dv).max()
+
+
+def test_step_vjp_is_the_transpose_of_the_jvp():
+    # <bar, J d> = <J^T bar, d> for random d = (dx, dv, dtheta) and bar = (bar_x, bar_v),
+    # at step 4 (moving state). Both sides sum ~1e4 products of O(1) random numbers with
+    # entries of the step's Jacobian; round-off ~1e-12 relative of the largest term
+    # (measured 1.7e-13); tolerance 1e-9 relative.
+    rng = np.random.default_rng(7)
+    sim = softdiff.Simulator(beam(**{"bodies.beam.material.poisson": 0.3}), jacobian="young,poisson,density,rayleigh_mass")
+    sim.run(4)
+    n3 = 3 * 1025
+    dx, dv = rng.standard_normal(n3) * 1e-3, rng.standard_normal(n3) * 1e-2
+    dtheta = {"young": 1e3, "poisson": 1e-3, "density": 1.0, "rayleigh_mass": 1e-2}
+    bar_x, bar_v = rng.standard_normal(n3), rng.standard_normal(n3)
+    ox, ov = sim.step_jvp(dx=dx, dv=dv, dtheta=dtheta)
+    back = sim.step_vjp(bar_x=bar_x, bar_v=bar_v)
+    assert set(back) == {"x", "v", "young", "poisson", "density", "rayleigh_mass"}
+    lhs = bar_x @ ox + bar_v @ ov
+    terms = [back["x"] @ dx, back["v"] @ dv] + [back[g][0] * dtheta[g] for g in dtheta]
+    rhs = sum(terms)
+    assert abs(lhs - rhs) <= 1e-9 * max(abs(t) for t in terms), (lhs, rhs)
+
+
+def test_step_derivative_refusals():
+    sim = softdiff.Simulator(beam())
+    sim.step()
+    with pytest.raises(ValueError, match="no theta"):
+        sim.step_jvp()
+    sim = softdiff.Simulator(beam(), jacobian="young")
+    with pytest.raises(ValueError, match="no step to differentiate"):
+        sim.step_vjp()
+    sim.step()
+    with pytest.raises(ValueError, match="3075 values expected, got 3"):
+        sim.step_jvp(dx=[1.0, 2.0, 3.0])
+    with pytest.raises(KeyError, match="not one of the simulator's theta groups"):
+        sim.step_jvp(dtheta={"poisson": 1.0})
+    stack = softdiff.Simulator(softdiff.load_scene(STACK), jacobian="mass")
+    stack.step()
+    with pytest.raises(ValueError, match="rigid bodies are not bound yet \\(issue 23\\)"):
+        stack.step_jvp()
+    bdf2 = softdiff.Simulator(beam(**{"simulation.integrator": "bdf2"}), jacobian="young")
+    bdf2.step()
+    with pytest.raises(ValueError, match="implicit_euler only \\(issue 23"):
+        bdf2.step_vjp()
+    # After a failed step there is no record to differentiate.
+    bad = softdiff.Simulator(beam(**DIVERGING), jacobian="young")
+    with pytest.raises(softdiff.StepError):
+        bad.step()
+    with pytest.raises(ValueError, match="no step to differentiate"):
+        bad.step_jvp()
