@@ -209,6 +209,80 @@ class Simulator {
     return out;
   }
 
+  // The gradient of a loss of the state `steps` steps from now, l = bar_x . x_T +
+  // bar_v . v_T (+ bar_rigid . the rigid states' tangent), by the adjoint (diff::record,
+  // diff::adjoint): a run of its own from the current state on a workspace of its own
+  // (the simulator's state and record are unchanged), the reverse sweep recomputing it.
+  // theta: groups as jacobian= (default: the simulator's).
+  py::dict adjoint(long steps, const py::object& bar_x, const py::object& bar_v, const py::object& bar_rigid,
+                   const py::object& theta) {
+    if (steps < 0) throw py::value_error("steps must be >= 0, got " + std::to_string(steps));
+    diff::ThetaSelection selection;
+    if (!theta.is_none()) {
+      try {
+        selection = diff::parse_theta("theta", theta_list(theta), *model_);
+      } catch (const InputError& e) {
+        raise(g_scene_error, e.what());
+      }
+    } else if (theta_) {
+      selection = *theta_;
+    } else {
+      throw py::value_error("no theta: give adjoint(..., theta=\"young, ...\") or Simulator(scene, jacobian=...)");
+    }
+    const Eigen::Index n3 = state_.x.size(), nr = static_cast<Eigen::Index>(model_->rigid.size());
+    const VecX bx = vector_or_zero(bar_x, n3, "bar_x"), bv = vector_or_zero(bar_v, n3, "bar_v");
+    const VecX br = vector_or_zero(bar_rigid, 12 * nr, "bar_rigid");
+    diff::Tape tape;
+    diff::AdjointResult result;
+    std::string failure;
+    {
+      py::gil_scoped_release release;
+      if (threads_ != 0 && thread_plan().threads != threads_) set_threads(threads_);
+      if (!adjoint_data_) adjoint_data_ = std::make_unique<Data>(*model_);
+      try {
+        StepStatus s = diff::record(*model_, *adjoint_data_, state_, steps, tape);
+        if (s.ok()) {
+          const auto loss = [&](long k, const State&, VecX& gx, VecX& gv) {
+            if (k != steps) return;
+            gx += bx;
+            gv += bv;
+          };
+          const auto rigid_loss = [&](long k, const State&, VecX& gr) {
+            if (k == steps) gr += br;
+          };
+          s = diff::adjoint(*model_, *adjoint_data_, tape, selection.layout, loss, result,
+                            nr > 0 ? diff::RigidLossCotangent(rigid_loss) : diff::RigidLossCotangent());
+        }
+        if (!s.ok()) failure = describe(*model_, s);
+      } catch (const ComputationError& e) {
+        failure = e.what();
+      }
+    }
+    if (!failure.empty()) raise(g_step_error, failure, py::dict(py::arg("exit_code") = 1));
+    py::dict out;
+    for (const auto& g : selection.groups)
+      out[py::str(g.name)] = to_numpy(VecX(result.theta.segment(g.offset, g.size)), g.size);
+    // The cotangent of the current state (whether or not theta has x0, v0): soft x, v
+    // (3n each), rigid (12 per body: position, rotation vector, velocity, angular velocity).
+    out["x"] = to_numpy(result.x0, n3);
+    out["v"] = to_numpy(result.v0, n3);
+    out["rigid"] = to_numpy(result.rigid0, 12 * nr);
+    out["recompute_mismatch"] = result.recompute_mismatch;
+    out["x_T"] = to_numpy(tape.frames.back().x, n3);
+    out["v_T"] = to_numpy(tape.frames.back().v, n3);
+    return out;
+  }
+
+  static std::string theta_list(const py::object& theta) {
+    if (py::isinstance<py::str>(theta)) return theta.cast<std::string>();
+    std::string list;
+    for (const auto& name : theta) {
+      if (!py::isinstance<py::str>(name)) throw py::type_error("theta: names as strings, e.g. ['young', 'x0']");
+      list += (list.empty() ? "" : ",") + name.cast<std::string>();
+    }
+    return list;
+  }
+
   // The rows of a body in the Jacobians: soft bodies 3 node_begin .. 3 (node_begin + n),
   // rigid body r 3 n_soft + 6 r .. + 6 (position, rotation vector / velocity, angular velocity).
   py::slice rows(const std::string& name) const {
@@ -459,7 +533,8 @@ class Simulator {
   std::optional<diff::ThetaSelection> theta_;
   std::unique_ptr<diff::ForwardSensitivity> sensitivity_;
   std::unique_ptr<integrator::StepDerivatives> step_derivatives_;  // step_jvp/step_vjp (made on first use)
-  bool record_valid_ = false;  // data holds the record of the step previous_ -> state_
+  bool record_valid_ = false;
+  std::unique_ptr<Data> adjoint_data_;  // adjoint()'s workspace (made on first use)  // data holds the record of the step previous_ -> state_
   State state_, next_, previous_;
   long k_ = 0;  // steps done
   long newton_not_converged_ = 0, contact_not_converged_ = 0;
@@ -542,6 +617,10 @@ PYBIND11_MODULE(_softdiff, m) {
            "(theta group -> values); implicit Euler, soft bodies")
       .def("step_vjp", &Simulator::step_vjp, py::arg("bar_x") = py::none(), py::arg("bar_v") = py::none(),
            "The last step's VJP: dict x, v (input state) and theta groups, for cotangents of its output state")
+      .def("adjoint", &Simulator::adjoint, py::arg("steps"), py::arg("bar_x") = py::none(),
+           py::arg("bar_v") = py::none(), py::arg("bar_rigid") = py::none(), py::arg("theta") = py::none(),
+           "Gradient of l = bar_x . x_T + bar_v . v_T (T = steps from now) by the adjoint: dict theta group -> "
+           "dl/dtheta, x, v, rigid (of the current state), x_T, v_T; the simulator's state is unchanged")
       .def("rows", &Simulator::rows, py::arg("body"), "The slice of a body's rows in jacobian()'s arrays")
       .def_property_readonly("time", &Simulator::time)
       .def_property_readonly("steps_done", &Simulator::steps_done)
