@@ -22,6 +22,7 @@
 #include <softdiff/integrator/bdf2.hpp>
 #include <softdiff/integrator/implicit_euler_derivatives.hpp>
 #include <softdiff/io/build_model.hpp>
+#include <softdiff/io/hdf5_reader.hpp>
 #include <softdiff/io/scene.hpp>
 #include <softdiff/model.hpp>
 #include <softdiff/version.hpp>
@@ -31,6 +32,7 @@
 #include <pybind11/stl.h>
 
 #include <cstring>
+#include <filesystem>
 #include <memory>
 #include <new>
 #include <optional>
@@ -541,6 +543,54 @@ class Simulator {
   std::vector<std::string> names_;  // soft bodies, then rigid bodies (run()'s order)
 };
 
+// A softdiff HDF5 output (docs/output.md) read whole by the library's reader
+// (io::Hdf5Reader; no h5py needed): nested dicts of float64 arrays per group (the
+// XDMF views under /xdmf left out: they store no values), the root's status and
+// numeric attributes. python/softdiff/__init__.py wraps it into softdiff.Result.
+void read_group(const io::Hdf5Reader& reader, const std::string& path, py::dict& out) {
+  for (const std::string& name : reader.members(path)) {
+    const std::string child = (path == "/" ? "/" : path + "/") + name;
+    if (child == "/xdmf") continue;
+    std::vector<std::size_t> shape{static_cast<std::size_t>(-1)};  // untouched: not a numeric dataset
+    std::vector<double> values = reader.read(child, &shape);
+    if (shape.size() == 1 && shape[0] == static_cast<std::size_t>(-1)) {
+      py::dict group;
+      read_group(reader, child, group);
+      out[py::str(name)] = group;  // a group (or a text dataset: an empty dict)
+      continue;
+    }
+    std::vector<py::ssize_t> dims(shape.begin(), shape.end());
+    py::array_t<double> a(dims);
+    if (!values.empty()) std::memcpy(a.mutable_data(), values.data(), sizeof(double) * values.size());
+    out[py::str(name)] = a;
+  }
+}
+
+py::dict read_output(const std::string& path) {
+  if (!std::filesystem::is_regular_file(path)) {
+    PyErr_SetString(PyExc_FileNotFoundError, ("no such file: " + path).c_str());
+    throw py::error_already_set();
+  }
+  py::dict out;
+  std::optional<std::string> status;
+  {
+    py::gil_scoped_release release;
+    status = io::read_status(path);
+  }
+  io::Hdf5Reader reader(path);
+  if (!reader.ok() || !status)
+    throw py::value_error(path + ": not a softdiff HDF5 output (" +
+                          (reader.ok() ? std::string("no root attribute 'status'") : std::string("not an HDF5 file")) + ")");
+  py::dict data;
+  read_group(reader, "/", data);
+  py::dict attributes;
+  for (const auto& [name, value] : reader.numeric_attributes("/")) attributes[py::str(name)] = value;
+  out["status"] = *status;
+  out["data"] = data;
+  out["attributes"] = attributes;
+  return out;
+}
+
 }  // namespace
 }  // namespace softdiff::python
 
@@ -582,6 +632,7 @@ PYBIND11_MODULE(_softdiff, m) {
       .def("__repr__", [](const Scene& s) { return "<softdiff.Scene '" + s.desc.name + "' from " + s.path + ">"; });
 
   m.def("_load_scene", &load_scene, py::arg("path"), py::arg("overrides"));
+  m.def("_read_output", &read_output, py::arg("path"));
 
   py::class_<Simulator>(m, "Simulator")
       .def(py::init([](const Scene& scene, int threads, bool strict, const py::object& jacobian) {

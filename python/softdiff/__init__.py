@@ -26,13 +26,13 @@ from ._softdiff import (  # noqa: F401
     __version__,
     thread_plan,
 )
-from ._softdiff import _load_scene
+from ._softdiff import _load_scene, _read_output
 
 import math as _math
 import os as _os
 from collections.abc import Mapping as _Mapping
 
-__all__ = ["load_scene", "Scene", "Simulator", "SceneError", "StepError", "ConvergenceWarning", "SceneWarning", "thread_plan",
+__all__ = ["load_scene", "read_result", "Result", "Scene", "Simulator", "SceneError", "StepError", "ConvergenceWarning", "SceneWarning", "thread_plan",
            "__version__"]
 
 
@@ -84,3 +84,50 @@ def load_scene(path, overrides=None):
     else:
         sets = [str(s) for s in overrides]
     return _load_scene(_os.fspath(path), sets)
+
+
+class Result:
+    """A softdiff HDF5 output (docs/output.md), read whole (softdiff.read_result).
+
+    status: the file's status ("complete", "diverged: ...", ...); time: (T,) frame times;
+    bodies: body name -> {"x": (T, n, 3), "v", "rest", "tets", "surface", ... as in the
+    file; rigid bodies "position", "orientation", ...}; jacobians: theta group -> (rows, k);
+    data: every group of the file as nested dicts (but /xdmf); attributes: the root's
+    numeric attributes. Arrays are float64 but the index datasets (tets, surface,
+    /contact/offsets, /contact/pair, /contact/mode), which are int64.
+    """
+
+    _INDEX = {"tets", "surface", "offsets", "pair", "mode"}
+
+    def __init__(self, path, raw):
+        self.path = path
+        self.status = raw["status"]
+        self.attributes = dict(raw["attributes"])
+        self.data = self._convert(raw["data"])
+        self.time = self.data.get("time")
+        self.bodies = self.data.get("bodies", {})
+        self.jacobians = self.data.get("jacobians", {})
+
+    @classmethod
+    def _convert(cls, group):
+        out = {}
+        for name, value in group.items():
+            if isinstance(value, dict):
+                out[name] = cls._convert(value)
+            elif name in cls._INDEX:
+                out[name] = value.astype("int64")
+            else:
+                out[name] = value
+        return out
+
+    def __repr__(self):
+        frames = 0 if self.time is None else len(self.time)
+        return f"<softdiff.Result {self.path}: {self.status}, {frames} frames, bodies {sorted(self.bodies)}>"
+
+
+def read_result(path):
+    """Read a softdiff HDF5 output (docs/output.md) into a Result. Raises
+    FileNotFoundError for a missing file, ValueError for a file that is not a softdiff
+    output (not HDF5, or no root attribute `status`)."""
+    path = _os.fspath(path)
+    return Result(path, _read_output(path))

@@ -613,3 +613,54 @@ def test_adjoint_errors():
     with pytest.raises(softdiff.StepError, match="^step 1: inverted element") as info:
         bad.adjoint(3, theta="young")
     assert info.value.exit_code == 1
+
+
+# --- reading a softdiff HDF5 -------------------------------------------------------------
+
+def test_read_result_reads_the_clis_output(tmp_path, cli):
+    r = cli(["simulate", BEAM, "-o", tmp_path / "b.h5", "--steps", 3, "--threads", 1, "--quiet", "--jacobian", "young"],
+            tmp_path)
+    assert r.returncode == 0, r.stderr
+    res = softdiff.read_result(tmp_path / "b.h5")
+    assert res.status == "complete" and res.attributes["softdiff_format"] == 1
+    assert "xdmf" not in res.data and "4 frames" in repr(res)   # 3 steps: frames 0-3
+    with h5py.File(tmp_path / "b.h5", "r") as f:
+        np.testing.assert_array_equal(res.time, f["/time"][...])
+        for name in ("x", "v", "rest", "displacement"):
+            a = res.bodies["beam"][name]
+            assert a.dtype == np.float64 and np.array_equal(a, f[f"/bodies/beam/{name}"][...]), name
+        for name in ("tets", "surface"):
+            a = res.bodies["beam"][name]
+            assert a.dtype == np.int64 and np.array_equal(a, f[f"/bodies/beam/{name}"][...]), name
+        assert np.array_equal(res.jacobians["young"], f["/jacobians/young"][...])
+    # The Python run's trajectory is the file's.
+    sim = softdiff.Simulator(beam())
+    assert np.array_equal(sim.run(3)["beam"], res.bodies["beam"]["x"])
+
+
+def test_read_result_rigid_contact_and_diverged(tmp_path, cli):
+    r = cli(["simulate", STACK, "-o", tmp_path / "s.h5", "--steps", 5, "--threads", 1, "--quiet"], tmp_path)
+    assert r.returncode == 0, r.stderr
+    res = softdiff.read_result(tmp_path / "s.h5")
+    assert res.bodies["top"]["orientation"].shape == (2, 4)   # output.every 5: frames 0 and 5
+    assert res.data["contact"]["offsets"].dtype == np.int64
+    assert res.data["contact"]["force"].shape[1] == 3
+    args = ["simulate", BEAM, "-o", tmp_path / "d.h5", "--quiet"]
+    for key, value in DIVERGING.items():
+        args += ["--set", f"{key}={value}"]
+    assert cli(args, tmp_path).returncode == 1
+    res = softdiff.read_result(tmp_path / "d.h5")
+    assert res.status.startswith("diverged: step 1: inverted element")
+    assert res.bodies["beam"]["x"].shape == (1, 1025, 3)
+
+
+def test_read_result_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no such file"):
+        softdiff.read_result(tmp_path / "none.h5")
+    (tmp_path / "text.h5").write_text("not hdf5")
+    with pytest.raises(ValueError, match="not a softdiff HDF5 output \\(not an HDF5 file\\)"):
+        softdiff.read_result(tmp_path / "text.h5")
+    with h5py.File(tmp_path / "other.h5", "w") as f:
+        f["a"] = np.zeros(3)
+    with pytest.raises(ValueError, match="no root attribute 'status'"):
+        softdiff.read_result(tmp_path / "other.h5")
