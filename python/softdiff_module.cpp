@@ -91,7 +91,7 @@ class Simulator {
     report.strict = strict;
     try {
       py::gil_scoped_release release;
-      set_threads(threads_);
+      plan_threads_ = set_threads(threads_).threads;  // threads 0: what OpenMP's default resolved to
       model_ = std::make_unique<Model>(io::build_model(scene.desc, &report));
     } catch (const InputError& e) {
       raise(g_scene_error, e.what());
@@ -239,7 +239,7 @@ class Simulator {
     std::string failure;
     {
       py::gil_scoped_release release;
-      if (threads_ != 0 && thread_plan().threads != threads_) set_threads(threads_);
+      use_my_threads();
       if (!adjoint_data_) adjoint_data_ = std::make_unique<Data>(*model_);
       try {
         StepStatus s = diff::record(*model_, *adjoint_data_, state_, steps, tape);
@@ -388,6 +388,10 @@ class Simulator {
     for (const auto& n : names_) known += (known.empty() ? "" : ", ") + n;
     throw py::key_error("no body '" + name + "' in the scene (bodies: " + known + ")");
   }
+  // The thread plan is process-wide: another simulator may have set its own since.
+  void use_my_threads() const {
+    if (thread_plan().threads != plan_threads_) set_threads(threads_);
+  }
   void demand_step_derivative() {
     if (!theta_) throw py::value_error("no theta: give Simulator(scene, jacobian=\"young, ...\") first");
     if (!model_->rigid.empty())
@@ -447,7 +451,7 @@ class Simulator {
   // The step of cmd_simulate.cpp's loop, without the GIL: "" or the failure's message;
   // `warning`: a non-convergence warning to issue (non-strict).
   std::string advance(std::string& warning) {
-    if (thread_plan().threads != threads_ && !(threads_ == 0)) set_threads(threads_);
+    use_my_threads();
     const long k = k_ + 1;
     record_valid_ = false;  // data is about to hold this step's record
     StepStatus s;
@@ -529,6 +533,7 @@ class Simulator {
   }
 
   int threads_;
+  int plan_threads_ = 1;  // the OpenMP threads set_threads(threads_) gave
   bool strict_;
   std::unique_ptr<Model> model_;  // a fixed address: Data and the step refer to it
   std::unique_ptr<Data> data_;

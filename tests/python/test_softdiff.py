@@ -207,6 +207,14 @@ def test_threads():
     assert sim.threads == 0 and softdiff.thread_plan()["threads"] >= 1
     with pytest.raises(ValueError, match="threads must be >= 0"):
         softdiff.Simulator(beam(), threads=-1)
+    # The plan is process-wide: each simulator sets its own again before it steps.
+    one, two = softdiff.Simulator(beam(), threads=1), softdiff.Simulator(beam(), threads=2)
+    one.step()
+    assert softdiff.thread_plan()["threads"] == 1
+    two.step()
+    assert softdiff.thread_plan()["threads"] == 2
+    one.step()
+    assert softdiff.thread_plan()["threads"] == 1
 
 
 def test_static_scenes_are_refused_naming_the_issue():
