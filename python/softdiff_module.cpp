@@ -21,6 +21,8 @@
 #include <softdiff/diff/trajectory.hpp>
 #include <softdiff/integrator/bdf2.hpp>
 #include <softdiff/integrator/implicit_euler_derivatives.hpp>
+#include <softdiff/integrator/static_solver.hpp>
+#include <softdiff/integrator/static_solver_derivatives.hpp>
 #include <softdiff/io/build_model.hpp>
 #include <softdiff/io/hdf5_reader.hpp>
 #include <softdiff/io/scene.hpp>
@@ -99,10 +101,7 @@ class Simulator {
       raise(g_step_error, e.what());
     }
     for (const auto& w : report.warnings) warn(w, g_scene_warning);
-    if (model_->step.integrator == IntegratorKind::static_equilibrium)
-      throw py::value_error(
-          "static scenes (simulation.integrator: static) are not bound in Python yet (issue 23): run them with "
-          "`softdiff simulate`");
+    is_static_ = model_->step.integrator == IntegratorKind::static_equilibrium;
     if (jacobian) {
       // The theta groups of `simulate --jacobian` (diff/theta_selection.hpp), its checks
       // and messages (with "jacobian" for the option's name).
@@ -111,7 +110,7 @@ class Simulator {
       } catch (const InputError& e) {
         raise(g_scene_error, e.what());
       }
-      sensitivity_ = std::make_unique<diff::ForwardSensitivity>(*model_, theta_->layout);
+      if (!is_static_) sensitivity_ = std::make_unique<diff::ForwardSensitivity>(*model_, theta_->layout);
     }
     data_ = std::make_unique<Data>(*model_);
     state_ = model_->initial;
@@ -133,9 +132,11 @@ class Simulator {
   // copies of the forward sensitivities' columns (Fortran order: a column block of the
   // column-major matrix, one memcpy).
   py::dict jacobian(const std::string& of) const {
-    if (!sensitivity_) throw py::value_error("no theta: give Simulator(scene, jacobian=\"young, ...\") first");
+    if (!theta_) throw py::value_error("no theta: give Simulator(scene, jacobian=\"young, ...\") first");
     if (of != "x" && of != "v") throw py::value_error("of: 'x' or 'v', got '" + of + "'");
-    const MatX& J = of == "x" ? sensitivity_->dx_dtheta() : sensitivity_->dv_dtheta();
+    if (is_static_ && of == "v") throw py::value_error("of='v': a static equilibrium has no velocities");
+    if (is_static_ && !solved_) throw py::value_error("jacobian(): run() solves the static equilibrium first");
+    const MatX& J = is_static_ ? static_jacobian_ : of == "x" ? sensitivity_->dx_dtheta() : sensitivity_->dv_dtheta();
     py::dict out;
     for (const auto& g : theta_->groups) {
       py::array_t<double, py::array::f_style> a({static_cast<py::ssize_t>(J.rows()), static_cast<py::ssize_t>(g.size)});
@@ -218,6 +219,9 @@ class Simulator {
   // theta: groups as jacobian= (default: the simulator's).
   py::dict adjoint(long steps, const py::object& bar_x, const py::object& bar_v, const py::object& bar_rigid,
                    const py::object& theta) {
+    if (is_static_)
+      throw py::value_error("adjoint() of a static scene is not bound yet (issue 23): jacobian() after run() gives "
+                            "d x* / d theta");
     if (steps < 0) throw py::value_error("steps must be >= 0, got " + std::to_string(steps));
     diff::ThetaSelection selection;
     if (!theta.is_none()) {
@@ -299,6 +303,7 @@ class Simulator {
 
   // One step; raises StepError (the state is left at the last completed step).
   void step() {
+    if (is_static_) throw py::value_error(static_whole());
     std::string warning, failure;
     {
       py::gil_scoped_release release;
@@ -309,7 +314,10 @@ class Simulator {
 
   // `steps` steps: body name -> (steps + 1, n, 3) positions (rigid: (steps + 1, 7)),
   // frame 0 the state before the first step.
-  py::dict run(long steps) {
+  py::dict run(std::optional<long> steps_given) {
+    if (is_static_) return run_static(steps_given);
+    if (!steps_given) throw py::value_error("run(steps): the number of steps is needed (a static scene's is its load steps)");
+    const long steps = *steps_given;
     if (steps < 0) throw py::value_error("steps must be >= 0, got " + std::to_string(steps));
     std::vector<py::array_t<double>> arrays;
     std::vector<double*> buffers;
@@ -345,6 +353,84 @@ class Simulator {
       finish_step(warning, failure, nullptr);
       if (PyErr_CheckSignals() != 0) throw py::error_already_set();  // Ctrl-C between steps
     }
+    return out;
+  }
+
+  // A static scene (integrator: static): its equilibrium by the load steps, as
+  // cmd_simulate.cpp's static branch (integrator::solve_static, a frame per load step;
+  // with theta the implicit function theorem at the equilibrium).
+  py::dict run_static(std::optional<long> steps) {
+    const long L = model_->step.static_load_steps;
+    if (steps && *steps != L)
+      throw py::value_error("run(" + std::to_string(*steps) + "): a static scene is solved whole, in its " +
+                            std::to_string(L) + " load steps (static.load_steps): run() or run(" + std::to_string(L) + ")");
+    if (solved_) throw py::value_error("the static equilibrium is solved already (a new Simulator solves it again)");
+    std::vector<py::array_t<double>> arrays;
+    std::vector<double*> buffers;
+    py::dict out;
+    for (const auto& body : model_->fem.bodies) {
+      py::array_t<double> a({static_cast<py::ssize_t>(L + 1), static_cast<py::ssize_t>(body.num_nodes), py::ssize_t{3}});
+      buffers.push_back(a.mutable_data());
+      out[py::str(body.name)] = a;
+      arrays.push_back(std::move(a));
+    }
+    for (const auto& body : model_->rigid) {
+      py::array_t<double> a({static_cast<py::ssize_t>(L + 1), py::ssize_t{7}});
+      buffers.push_back(a.mutable_data());
+      out[py::str(body.name)] = a;
+      arrays.push_back(std::move(a));
+    }
+    write_frame(buffers, 0);
+    std::string failure;
+    long done = 0;
+    {
+      py::gil_scoped_release release;
+      use_my_threads();
+      record_valid_ = false;
+      try {
+        StepStatus s = integrator::solve_static(*model_, *data_, state_, next_, [&](long k, const State& st) {
+          write_frame_of(st, buffers, k);
+          done = k;
+        });
+        if (s.ok() && theta_) {
+          integrator::StaticTheta st{theta_->layout.parameters, theta_->layout.actuation, {}};
+          for (const auto& id : theta_->layout.rigid_parameters) st.rigid_parameters.emplace_back(id.body, id.index);
+          std::string derivative_error;
+          bool derivative_ok = false;
+          try {
+            derivative_ok = integrator::static_sensitivities(*model_, *data_, next_, st, static_jacobian_);
+          } catch (const ComputationError& e) {
+            derivative_error = e.what();
+          }
+          if (!derivative_ok) {
+            s.code = StepStatus::Code::solver_failed;
+            s.step = done;
+            s.detail = derivative_error.empty()
+                           ? "the derivative of the equilibrium failed (inverted element or tangent not positive definite)"
+                           : "the derivative of the equilibrium failed: " + derivative_error;
+          }
+        }
+        if (!s.ok()) failure = describe(*model_, s);
+      } catch (const ComputationError& e) {
+        failure = e.what();
+      } catch (const std::bad_alloc&) {
+        failure = "out of memory (an allocation failed)";
+      }
+    }
+    if (!failure.empty()) {
+      py::dict partial;
+      for (std::size_t j = 0; j < arrays.size(); ++j)
+        partial[py::str(names_[j])] = arrays[j][py::slice(0, static_cast<py::ssize_t>(done + 1), 1)];
+      py::dict attributes;
+      attributes["exit_code"] = 1;
+      attributes["steps_done"] = done;
+      attributes["time"] = state_.t;
+      attributes["trajectory"] = partial;
+      raise(g_step_error, failure, attributes);
+    }
+    state_ = next_;
+    k_ = L;
+    solved_ = true;
     return out;
   }
 
@@ -394,6 +480,8 @@ class Simulator {
   }
   void demand_step_derivative() {
     if (!theta_) throw py::value_error("no theta: give Simulator(scene, jacobian=\"young, ...\") first");
+    if (is_static_)
+      throw py::value_error("step_jvp/step_vjp: a static scene has no time step; jacobian() after run() gives d x* / d theta");
     if (!model_->rigid.empty())
       throw py::value_error("step_jvp/step_vjp with rigid bodies are not bound yet (issue 23): use jacobian() (forward "
                             "sensitivities through the steps)");
@@ -438,14 +526,19 @@ class Simulator {
     p[3] = rs.orientation.w(), p[4] = rs.orientation.x(), p[5] = rs.orientation.y(), p[6] = rs.orientation.z();
   }
   // Frame i of run()'s arrays (without the GIL: plain memory of arrays kept alive by run()).
-  void write_frame(const std::vector<double*>& buffers, long i) const {
+  void write_frame(const std::vector<double*>& buffers, long i) const { write_frame_of(state_, buffers, i); }
+  void write_frame_of(const State& st, const std::vector<double*>& buffers, long i) const {
     std::size_t j = 0;
     for (const auto& body : model_->fem.bodies) {
       const std::size_t count = 3 * static_cast<std::size_t>(body.num_nodes);
-      std::memcpy(buffers[j++] + static_cast<std::size_t>(i) * count, state_.x.data() + 3L * body.node_begin,
+      std::memcpy(buffers[j++] + static_cast<std::size_t>(i) * count, st.x.data() + 3L * body.node_begin,
                   sizeof(double) * count);
     }
-    for (const auto& rs : state_.rigid) pose(rs, buffers[j++] + 7 * i);
+    for (const auto& rs : st.rigid) pose(rs, buffers[j++] + 7 * i);
+  }
+  std::string static_whole() const {
+    return "a static scene (integrator: static) is solved whole: run() solves its equilibrium in its " +
+           std::to_string(model_->step.static_load_steps) + " load steps";
   }
 
   // The step of cmd_simulate.cpp's loop, without the GIL: "" or the failure's message;
@@ -541,6 +634,8 @@ class Simulator {
   std::unique_ptr<diff::ForwardSensitivity> sensitivity_;
   std::unique_ptr<integrator::StepDerivatives> step_derivatives_;  // step_jvp/step_vjp (made on first use)
   bool record_valid_ = false;
+  bool is_static_ = false, solved_ = false;  // static scenes: run() solves the equilibrium once
+  MatX static_jacobian_;                     // static: d x* / d theta
   std::unique_ptr<Data> adjoint_data_;  // adjoint()'s workspace (made on first use)  // data holds the record of the step previous_ -> state_
   State state_, next_, previous_;
   long k_ = 0;  // steps done
@@ -659,7 +754,7 @@ PYBIND11_MODULE(_softdiff, m) {
            "as the CLI's default); strict: as the CLI's --strict; jacobian: theta groups as the CLI's --jacobian "
            "(comma-separated), carried by forward sensitivities through every step.")
       .def("step", &Simulator::step, "One time step (the GIL is released); raises StepError")
-      .def("run", &Simulator::run, py::arg("steps"),
+      .def("run", &Simulator::run, py::arg("steps") = py::none(),
            "steps time steps: dict body -> numpy (steps + 1, n, 3) positions, frame 0 the current state "
            "(rigid bodies: (steps + 1, 7) position + quaternion w, x, y, z)")
       .def("x", &Simulator::x, py::arg("body"), "Positions now: soft (n, 3); rigid (7,) position + quaternion w, x, y, z")
