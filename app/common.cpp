@@ -226,19 +226,6 @@ SignalWatch::~SignalWatch() {
 
 bool SignalWatch::stop_requested() { return g_signal_count > 0; }
 
-std::vector<std::string> split_list(const std::string& s, char sep) {
-  std::vector<std::string> out;
-  std::stringstream in(s);
-  std::string item;
-  while (std::getline(in, item, sep)) {
-    item.erase(0, item.find_first_not_of(" \t\r"));
-    item.erase(item.find_last_not_of(" \t\r") + 1);
-    out.push_back(item);
-  }
-  if (!s.empty() && s.back() == sep) out.push_back("");
-  return out;
-}
-
 void add_run_options(CLI::App& app, std::string& output, const std::string& output_help, bool& force,
                      std::vector<std::string>& set, int& threads, bool& strict, bool& quiet,
                      const std::string& quiet_help, bool& json) {

@@ -8,6 +8,8 @@
 #include <string>
 #include <vector>
 
+#include <softdiff/core/text.hpp>
+
 namespace softdiff::app {
 
 // Exit codes (cli.md): 0 success, 1 computation failed, 2 bad usage or input.
@@ -96,8 +98,7 @@ class SignalWatch {
   Impl* impl_;
 };
 
-// "a, b,c" -> {"a", "b", "c"}: items trimmed of blanks; a trailing separator gives a
-// last empty item (so that "young," is reported as an empty name).
-std::vector<std::string> split_list(const std::string& s, char sep = ',');
+// "a, b,c" -> {"a", "b", "c"} (core/text.hpp: the library's, shared with the Python module).
+using softdiff::split_list;
 
 }  // namespace softdiff::app

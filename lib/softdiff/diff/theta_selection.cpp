@@ -1,13 +1,13 @@
-#include "theta.hpp"
-#include "common.hpp"
+#include <softdiff/diff/theta_selection.hpp>
 
 #include <softdiff/core/error.hpp>
+#include <softdiff/core/text.hpp>
 
 #include <algorithm>
 #include <sstream>
 #include <variant>
 
-namespace softdiff::app {
+namespace softdiff::diff {
 
 namespace {
 
@@ -208,4 +208,4 @@ ThetaSelection parse_theta(const std::string& option, const std::string& list, c
   return sel;
 }
 
-}  // namespace softdiff::app
+}  // namespace softdiff::diff
