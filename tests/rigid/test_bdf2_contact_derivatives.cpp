@@ -79,8 +79,8 @@ void rows_from(const Model& model, const State& base, const State& s, VecX& x_ro
 }
 
 // Columns: x0 (one direction), v0 (one), the body's mass, its inertia component `inertia`.
-// eps: the central difference's step per column (see each scene); tol relative to each
-// column's largest entry.
+// eps: the difference's step per column (see each scene; central, or five-point for the
+// columns whose bit is set in fourth_order); tol relative to each column's largest entry.
 void check_trajectory(const Model& model, long T, unsigned seed, const double (&eps)[4], double tol, int inertia = 3,
                       double soft_x0 = 1.0, unsigned fourth_order = 0) {
   ASSERT_EQ(model.step.integrator, IntegratorKind::bdf2);
