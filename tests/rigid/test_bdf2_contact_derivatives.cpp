@@ -24,6 +24,7 @@
 #include <cmath>
 #include <iostream>
 #include <random>
+#include <string>
 
 using namespace softdiff;
 
@@ -78,10 +79,10 @@ void rows_from(const Model& model, const State& base, const State& s, VecX& x_ro
 }
 
 // Columns: x0 (one direction), v0 (one), the body's mass, its inertia component `inertia`.
-// eps: the central difference's step per column (see each scene); tol relative to each
-// column's largest entry.
+// eps: the difference's step per column (see each scene; central, or five-point for the
+// columns whose bit is set in fourth_order); tol relative to each column's largest entry.
 void check_trajectory(const Model& model, long T, unsigned seed, const double (&eps)[4], double tol, int inertia = 3,
-                      double soft_x0 = 1.0) {
+                      double soft_x0 = 1.0, unsigned fourth_order = 0) {
   ASSERT_EQ(model.step.integrator, IntegratorKind::bdf2);
   const Eigen::Index n3 = 3L * model.fem.num_nodes, rows = n3 + 6;
   std::mt19937 rng(seed);
@@ -100,26 +101,35 @@ void check_trajectory(const Model& model, long T, unsigned seed, const double (&
   EXPECT_GT(data.contact.contacts.size(), 0);
   const VecX zero = VecX::Zero(rows);
   for (int c = 0; c < 4; ++c) {
-    double scale = 1;
-    State sp, sm;
-    if (c < 2) {
-      const VecX d0 = c == 0 ? VecX(theta.x0_basis.col(0)) : zero, e0 = c == 1 ? VecX(theta.v0_basis.col(0)) : zero;
-      sp = run_steps(model, moved_initial(model, model.initial, d0, e0, eps[c]), T);
-      sm = run_steps(model, moved_initial(model, model.initial, d0, e0, -eps[c]), T);
-    } else {
-      const int index = c == 2 ? 0 : inertia;
-      scale = c == 2 ? model.rigid[0].mass : model.rigid[0].inertia.trace() / 3;
-      Model mpl = model, mmi = model;
-      rigid::set_parameter(mpl.rigid[0], index, rigid::get_parameter(model.rigid[0], index) + eps[c] * scale);
-      rigid::set_parameter(mmi.rigid[0], index, rigid::get_parameter(model.rigid[0], index) - eps[c] * scale);
-      sp = run_steps(mpl, model.initial, T);
-      sm = run_steps(mmi, model.initial, T);
-    }
-    VecX xp, vp, xm, vm;
-    rows_from(model, final, sp, xp, vp);
-    rows_from(model, final, sm, xm, vm);
-    VecX fd(2 * rows), an(2 * rows);
-    fd << (xp - xm) / (2 * eps[c]), (vp - vm) / (2 * eps[c]);
+    const double scale = c < 2 ? 1.0 : c == 2 ? model.rigid[0].mass : model.rigid[0].inertia.trace() / 3;
+    // The final state's rows (x, then v; rigid rows in the tangent at `final`) of the run
+    // with column c's input moved by e (x0, v0: along the direction; a parameter: by e
+    // times its scale).
+    auto moved = [&](double e) {
+      State s;
+      if (c < 2) {
+        const VecX d0 = c == 0 ? VecX(theta.x0_basis.col(0)) : zero, e0 = c == 1 ? VecX(theta.v0_basis.col(0)) : zero;
+        s = run_steps(model, moved_initial(model, model.initial, d0, e0, e), T);
+      } else {
+        const int index = c == 2 ? 0 : inertia;
+        Model m = model;
+        rigid::set_parameter(m.rigid[0], index, rigid::get_parameter(model.rigid[0], index) + e * scale);
+        s = run_steps(m, model.initial, T);
+      }
+      VecX xr, vr, out(2 * rows);
+      rows_from(model, final, s, xr, vr);
+      out << xr, vr;
+      return out;
+    };
+    // The central difference (f(e) - f(-e)) / 2e (truncation e^2 f^(3) / 6), or for the
+    // columns in fourth_order (bit c) the five-point one
+    // (8 (f(e) - f(-e)) - (f(2e) - f(-2e))) / 12e (truncation e^4 f^(5) / 30; its
+    // difference noise 1.5 delta / e against the central one's delta / e, delta the final
+    // state's noise).
+    const double e = eps[c];
+    VecX fd = (moved(e) - moved(-e)) / (2 * e);
+    if (fourth_order & (1u << c)) fd = (8 * (2 * e) * fd - (moved(2 * e) - moved(-2 * e))) / (12 * e);
+    VecX an(2 * rows);
     an << dx.col(c) * scale, dv.col(c) * scale;
     const double err = (an - fd).cwiseAbs().maxCoeff(), mag = fd.cwiseAbs().maxCoeff();
     std::cout << "column " << c << ": max |sensitivity - FD| " << err << " of " << mag << "\n";
@@ -195,19 +205,35 @@ INSTANTIATE_TEST_SUITE_P(, RigidBdf2ContactTrajectoryDerivatives, ::testing::Val
 
 // A rigid cube (0.02 m, 500 kg/m^3) landing at 0.3 m/s on a soft slab (4 x 4 x 1 boxes of
 // tets, bottom fixed), as test_contact_derivatives.cpp's CubeOnASoftSlab: the slab's top
-// vertices against the cube's bottom faces and its corners against the slab's top faces.
-// 4 steps of 2 ms from 0.3 mm above the slab (in contact from the first to the last; over
-// 10 steps it bounces off). The soft part of the x0 direction is scaled by 1e-3 (a unit
-// soft direction deforms every element: its curvature needed eps = 5e-9 in one step);
-// eps 1e-7 for x0 and v0; 1e-4 for the mass, 1e-3 for the inertia: the 4 g cube's
-// inertia moves the final state by only ~3e-5 per unit of its scale, and the NCP's
-// tolerance makes a difference noise proportional to 1/eps (measured 4.4e-8 at
-// eps = 1e-6 and 8.4e-10 at 1e-4, against the column's 2.9e-5: noise, not the
-// derivative); at 1e-3 ~8e-11, the truncation eps^2 ~1e-6 relative. tol 1e-5.
+// vertices against the cube's bottom faces and its corners against the slab's top faces,
+// from 0.3 mm above the slab, sliding at 0.05 m/s (mu 0.5). With the restart of soft-rigid
+// impacts (2026-12-04, rsrb; integrator/bdf2.cpp impact) the cube lands and stays: step 1
+// implicit Euler (no previous state), steps 2 and 3 the restart (rule (b): step 1 stopped
+// the closing contacts), steps 4-10 BDF2 with the cube resting and partly sticking on the
+// slab (without the restart it bounced off within 10 steps, and the test ran 4 steps).
+// 10 steps: the restart and seven BDF2 steps from its record (the rigid body's BDF2
+// history after a restart). The soft part of the x0 direction is scaled by 1e-3 (a unit
+// soft direction deforms every element: its curvature needed eps = 5e-9 in one step).
+// The differences: five-point, (8 (f(e) - f(-e)) - (f(2e) - f(-2e))) / 12e, every column.
+// The final state's noise delta (the mode system's round-off, amplified in the cube's
+// angular velocity by its small inertia, 2.7e-7 kg m^2) is ~1e-13 (measured, the same
+// with the NCP tolerance at 1e-12, 1e-14 or 1e-15), and the inertia column is small (the
+// resting cube's state barely depends on its inertia: 1.4e-6 of the column per unit of
+// trace/3 at step 10, 1.6e-6 at step 4), so its difference needs a step of a few percent
+// and the central difference's truncation e^2 f^(3) / 6 (5e-10 at e = 0.1) would be too
+// large there. eps: 1e-6 for x0 (five-point error 5e-8 relative; at 1e-5 the difference
+// straddles a kink, a contact changing mode: 4e-4), 3e-6 for v0, 3e-3 for the mass, 5e-2
+// for the inertia (measured worst over the three variants and steps 4, 5, 6, 10: 3.5e-6
+// relative, the noise 1.5 delta / e; central differences at the former eps 1e-7, 1e-7,
+// 1e-4, 1e-3 gave 5e-7, 1e-7, 3e-7 and 9e-5). tol 1e-5 relative as before.
+// Why 10 steps and not 4: at step 4 the inertia column passes near zero (per unit inertia
+// the cube's angular velocity moves by 280 at step 3, 6 at step 4, 68 at step 5), so the
+// loss's inertia gradient in the adjoint check is a sum of terms 50 times larger than
+// itself and the two orders of the products differ by their round-off, 0.5-1.8e-9 of the
+// largest gradient (random in sign under 1e-13 moves of the initial state), against 1e-9;
+// at steps 5, 6, 10: 4e-11 at most.
 // newton: newton_iterations 20 at tolerance 1e-12 (rnewtd: BDF2's Newton stage with rigid
-// contact, its implicit-function derivative at the converged stage), the same eps and tol
-// (Newton's error ~1e-12 relative divided by eps 1e-7 is 1e-5 of the outputs at worst,
-// measured far below: Newton converges quadratically past the tolerance).
+// contact, its implicit-function derivative at the converged stage), the same eps and tol.
 void check_cube_on_a_soft_slab(bool newton, contact::NcpBackend backend) {
   test::BodySpec spec;
   spec.young = 5e4;
@@ -230,7 +256,24 @@ void check_cube_on_a_soft_slab(bool newton, contact::NcpBackend backend) {
     model.step.newton_iterations = 20;
     model.step.newton_tolerance = 1e-12;
   }
-  check_trajectory(model, 4, 7, {1e-7, 1e-7, 1e-4, 1e-3}, 1e-5, 3, 1e-3);
+  const long T = 10;
+  {  // the branches: steps 2 and 3 restarted, 4-10 BDF2, the cube on the slab at the end
+    Data data(model);
+    State a = model.initial, b, previous;
+    std::string branches;
+    for (long k = 1; k <= T; ++k) {
+      ASSERT_TRUE(integrator::time_step(model, data, a, k > 1 ? &previous : nullptr, b, k).ok());
+      branches += data.history_weight != 0 ? 'B' : 'E';
+      previous = a;
+      std::swap(a, b);
+    }
+    std::cout << "cube on the soft slab, " << T << " steps (E implicit Euler, B BDF2): " << branches << ", cube v_z "
+              << a.rigid[0].velocity.z() << " m/s, force on it " << test::rigid_scenes::contact_force_on(data, 1).z()
+              << " N\n";
+    EXPECT_EQ(branches, "EEEBBBBBBB");
+    EXPECT_GT(test::rigid_scenes::contact_force_on(data, 1).z(), 0);
+  }
+  check_trajectory(model, T, 7, {1e-6, 3e-6, 3e-3, 5e-2}, 1e-5, 3, 1e-3, 0b1111);
 }
 
 TEST(RigidBdf2ContactTrajectory, CubeOnASoftSlab) { check_cube_on_a_soft_slab(false, contact::NcpBackend::dense); }
