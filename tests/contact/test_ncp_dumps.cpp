@@ -80,9 +80,9 @@ TEST(NcpDumps, GripLateStepReachesTheTolerance) {
 // Step 81 of the grip (the same run as above; dumped 2026-12-04, branch rgrip): the
 // operator's stall fallback's 38 contacts (37 of them active, whose 111 x 111 block of G
 // has 75 singular values below 1e-10 of the largest: redundant soft-rigid contacts of the
-// fingers on the cylinder and the cylinder's rim on the pedestal). ADMM stalls after 200
+// fingers on the cylinder and the cylinder's rim on the pedestal). ADMM stalls after 100
 // iterations at 1.7e-7, and PGS from its (polished) iterate ends above it, at 5.2e-7
-// after 800 sweeps (PGS is not monotone in the NCP residual); neither the polish nor the
+// after 900 sweeps (PGS is not monotone in the NCP residual); neither the polish nor the
 // Newton stage reaches the tolerance. Before 2026-12-04 (rgrip) the solve returned PGS's
 // 5.2e-7. solve_core now keeps ADMM's iterate when it is at least twice lower: the
 // returned residual is at most that of ADMM alone run for the same iterations

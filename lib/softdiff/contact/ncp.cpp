@@ -1057,7 +1057,7 @@ NcpResult solve_core(Buffers& w, const Problem& p, const NcpOptions& options, Ve
   // monotone in the NCP residual and can end above where it started (measured on the
   // grip, configs/gripper_free.yaml: the operator's stall fallback problems of its 15
   // failing steps, dumped and solved alone, 8 of 15, e.g. step 81's 38 contacts, ADMM
-  // 1.7e-7, PGS after 800 sweeps 5.2e-7; test NcpDumps.GripStallKeepsTheBetterOfAdmmAndPgs,
+  // 1.7e-7, PGS after 900 sweeps 5.2e-7; test NcpDumps.GripStallKeepsTheBetterOfAdmmAndPgs,
   // docs/method.md "The NCP on the grip, measured"); the better of the two is kept (below).
   bool kept_admm = false;
   NcpResiduals admm_residuals;
