@@ -469,9 +469,11 @@ int run_check_grad(const CheckGradOptions& o) {
     std::printf("%s", table.str().c_str());
   // A failure that the smoothing can explain: say so (static: the count is unknown).
   if (!passed && smoothing && smoothed_contacts != 0)
-    warn("the analytic run used smoothed contact derivatives (" +
-         (is_static ? std::string("contact.smoothing on") : std::to_string(smoothed_contacts) + " smoothed contact(s)") +
-         "), which can fail near a contact feature boundary by design; to check the exact derivative, rerun with "
+    warn(std::string(is_static ? "the analytic run may have used smoothed contact derivatives (contact.smoothing on; "
+                                 "a static scene's derivative does not count them)"
+                               : "the analytic run used smoothed contact derivatives (" +
+                                     std::to_string(smoothed_contacts) + " smoothed contact(s))") +
+         ", which can fail near a contact feature boundary by design; to check the exact derivative, rerun with "
          "--set contact.smoothing.samples=0 (docs/cli.md \"check-grad\")");
   if (!passed) error("some blocks are above the tolerance " + sci(o.tolerance));
   return passed ? kExitOk : kExitFailed;
