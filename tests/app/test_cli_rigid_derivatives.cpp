@@ -400,6 +400,57 @@ TEST(CliRigidDerivatives, CheckGradReportsAWrongDerivative) {
   EXPECT_NE(bad.err.find("SOFTDIFF_CHECK_GRAD_FAULT: 'x0' is not THETA:FACTOR"), std::string::npos) << bad.err;
 }
 
+// check-grad says when the analytic run used smoothed contact derivatives (issue 21,
+// 2026-12-04, rgrip). The scene of the rsph report (test_contact_derivatives.cpp
+// sphere_beam_scene): a rigid sphere's pole 0.28 mm from the diagonal of the beam's
+// top-face triangle, margin 1e-3 m, so with the default smoothing (16 samples, sigma =
+// margin / 10) the pole's contact takes the smoothed estimate and x0 fails by design
+// (measured 9.1e-2, docs/method.md "A rigid sphere on the soft beam"): the JSON says
+// `smoothed_contact_derivatives: true` with the count, stderr points at
+// contact.smoothing.samples=0; with it the block passes (1.8e-8) and the field is false.
+// Without contact the field is false too.
+long json_long(const std::string& json, const std::string& key) {
+  const auto at = json.find("\"" + key + "\":");
+  if (at == std::string::npos) return -2;
+  return std::stol(json.substr(at + key.size() + 3));
+}
+
+TEST(CliRigidDerivatives, CheckGradSaysWhenContactDerivativesWereSmoothed) {
+  const fs::path dir = fresh_dir(kWork, "smoothed_contacts");
+  write_text(dir / "scene.yaml", rigid_scenes::clamped_beam_yaml(1) +
+                                     "  - name: ball\n    type: rigid\n    shape: {type: sphere, radius: 0.008}\n"
+                                     "    density: 1000\n    position: [0.1013, 0.0117, 0.0282]\n"
+                                     "    velocity: [0.05, 0.0, -0.1]\n"
+                                     "contact:\n  pairs: [[beam, ball, 0.4]]\n  margin: 1.0e-3\n"
+                                     "  tolerance: 1.0e-12\n  max_iterations: 5000\n  backend: dense\n");
+  const std::string args = "check-grad scene.yaml --wrt x0 --quiet";
+  const auto smoothed = run_cli(args + " --json", dir);
+  EXPECT_EQ(smoothed.code, 1) << smoothed.out << smoothed.err;
+  EXPECT_NE(smoothed.out.find("\"smoothed_contact_derivatives\":true"), std::string::npos) << smoothed.out;
+  EXPECT_EQ(json_long(smoothed.out, "samples"), 16) << smoothed.out;
+  EXPECT_GT(json_long(smoothed.out, "smoothed_contacts"), 0) << smoothed.out;
+  EXPECT_NE(smoothed.err.find("smoothed contact derivatives"), std::string::npos) << smoothed.err;
+  EXPECT_NE(smoothed.err.find("--set contact.smoothing.samples=0"), std::string::npos) << smoothed.err;
+  const auto text = run_cli(args, dir);
+  EXPECT_EQ(text.code, 1) << text.out << text.err;
+  EXPECT_NE(text.out.find("contact derivatives: randomized smoothing"), std::string::npos) << text.out;
+  EXPECT_NE(text.out.find("smoothed contact(s) over the analytic run's steps"), std::string::npos) << text.out;
+
+  const auto exact = run_cli(args + " --json --set contact.smoothing.samples=0", dir);
+  EXPECT_EQ(exact.code, 0) << exact.out << exact.err;
+  EXPECT_NE(exact.out.find("\"smoothed_contact_derivatives\":false"), std::string::npos) << exact.out;
+  EXPECT_EQ(json_long(exact.out, "smoothed_contacts"), 0) << exact.out;
+  EXPECT_EQ(exact.err.find("smoothed contact derivatives"), std::string::npos) << exact.err;
+  const auto exact_text = run_cli(args + " --set contact.smoothing.samples=0", dir);
+  EXPECT_NE(exact_text.out.find("contact derivatives: exact (contact.smoothing off)"), std::string::npos)
+      << exact_text.out;
+
+  write_text(dir / "no_contact.yaml", beam());
+  const auto none = run_cli("check-grad no_contact.yaml --wrt young --quiet --json", dir);
+  EXPECT_EQ(none.code, 0) << none.out << none.err;
+  EXPECT_NE(none.out.find("\"smoothed_contact_derivatives\":false"), std::string::npos) << none.out;
+}
+
 // rigid_stack under `integrator: bdf2` (issue 21, rstk; revised after rbimp). Before
 // rigid impacts restarted BDF2 (rbimp, docs/method.md "BDF2", *Impacts: BDF2 restarts*)
 // the middle box bounced off the base (v_z -0.137 m/s at step 7, +0.057, +0.108), the top
