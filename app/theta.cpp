@@ -29,19 +29,11 @@ void demand_differentiable(const std::string& option, const Model& model) {
     const std::string& part = model.rigidify.parts.front().name;
     // Static (2026-12-04, rstat; integrator/static_solver_derivatives.cpp, docs/method.md
     // "Static equilibrium with rigidified parts", *Derivatives*): the reduced equilibrium,
-    // with or without contact, free and translation-servo parts; not beside rigid bodies,
-    // with a cable through a part, or on a body held by contact alone.
+    // with or without contact, free and translation-servo parts, cables through a part
+    // (2026-12-04, rstp: their stiffness in the parts' coupling), beside rigid bodies
+    // (rstp: hinges, sliders, fixed bodies; a free body beside soft bodies is refused below
+    // as without parts); not on a body held by contact alone.
     if (model.step.integrator == IntegratorKind::static_equilibrium) {
-      if (!model.rigid.empty())
-        throw InputError(option + ": static derivatives with rigidified parts and rigid bodies in one scene are not "
-                                  "supported yet (issue 21; " + part + ")");
-      for (const auto& a : model.actuation.actuators)
-        if (const auto* cable = std::get_if<actuation::Cable>(&a.kind))
-          for (int node : cable->nodes())
-            if (model.rigidify.dof_part[3 * static_cast<std::size_t>(node)] >= 0)
-              throw InputError(option + ": static derivatives with cable '" + a.name + "' acting on a rigidified part "
-                                        "are not supported yet (issue 21; " + part + "): the static solve leaves "
-                                        "the cable's stiffness out of the part's coupling");
       if (model.contact.enabled)
         for (const auto& p : model.rigidify.parts) {
           const auto& b = model.fem.bodies[static_cast<std::size_t>(p.body)];

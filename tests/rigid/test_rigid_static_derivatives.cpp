@@ -10,7 +10,8 @@
 //  - the reverse mode (static_vjp) against the transpose of the forward columns;
 //  - free and slider bodies and a joint with limits stay refused (issue 21).
 //  - a bar with a rigidified tip, free or servo-attached, with and without contact
-//    (RigidStaticDerivatives.Rigidified*, 2026-12-04, rstat).
+//    (RigidStaticDerivatives.Rigidified*, 2026-12-04, rstat), with a cable through it
+//    (RigidifiedFreeTipWithACable, rstp).
 //
 // Steps and tolerances: the solves converge to a relative residual of 1e-12 with the NCP
 // at 1e-12 and polished (the modes' equations exact to round-off), so x*(theta) carries an
@@ -401,6 +402,61 @@ TEST(RigidStaticDerivatives, RigidifiedServoTipOnAPlane) {
          {false, {Parameter::density, 0}, 0, 0, "density"},
          {false, {}, 0, 0, "servo push", 0}},
         "bar with a servo-attached tip on a plane", true);
+}
+
+// A cable through the free tip (issue 21, 2026-12-04, branch rstp; docs/method.md "Static
+// equilibrium with rigidified parts", *Derivatives*): the cable runs along the bar's top
+// (y 0.02, z 0.015) from x 0.19, inside the part, through x 0.1 to its anchor near the clamp
+// (x 0.01): its first segment's stencil couples the part's nodes to the soft nodes around
+// x 0.1, so the cable's stiffness lambda d^2L/dx^2 has blocks on the part's dofs and
+// across it. The static solve's increments leave those blocks out of the part's coupling
+// (modified Newton: the converged answer does not depend on them); the derivative has
+// them (prepare_parts). Columns: young, density, the cable's force. Step and tolerance as
+// above (kStep 1e-5 of the value, kTolerance 1e-5; measured 2.2e-10 to 6.5e-8, the cable's
+// column the smallest: |J e| 1.1e-3 m against 0.15 m). Without the cable's blocks in the
+// coupling (rstat's reduced tangent, measured once) the columns are off by 2.5e-2 (young,
+// poisson, density) and 4.8e-2 (the cable): the tolerance catches it.
+TEST(RigidStaticDerivatives, RigidifiedFreeTipWithACable) {
+  const std::string cable =
+      "    actuators:\n"
+      "      - {name: pull, type: cable, points: [[0.19, 0.02, 0.015], [0.1, 0.02, 0.015], [0.01, 0.02, 0.015]], "
+      "force: 0.02}\n";
+  check(part_model("cable_tip", "free", cable),
+        {{false, {Parameter::young, 0}, 0, 0, "young"},
+         {false, {Parameter::poisson, 0}, 0, 0, "poisson"},
+         {false, {Parameter::density, 0}, 0, 0, "density"},
+         {false, {}, 0, 0, "cable pull", 0}},
+        "bar with a free rigidified tip and a cable through it");
+}
+
+// A rigidified part beside a rigid body (issue 21, 2026-12-04, branch rstp; docs/method.md
+// "Static equilibrium with rigidified parts", *Derivatives*): a slab (4 x 4 x 1 boxes,
+// 0.06 x 0.06 x 0.01 m, E 5e4 Pa, bottom fixed) with its top nodes at x <= 0.031 a free part, and the 2 cm cube
+// (500 kg/m^3) on a vertical slider tilted 0.15 rad about (1, 0.7, 0) (SliderCubeOnItsCorner's
+// cube, scaled), standing on its lowest corner at (0.036, 0.027) on a top face whose nodes
+// are the part's (x 0.03) and soft ones (x 0.045), frictionless (the loaded contact slides:
+// no path dependence). The rigid body's rows W_r beside the parts' reduced solves; rows:
+// the slab's nodes, the cube's pose (its z). Columns: young, poisson, density of the slab, the
+// cube's mass (its weight, through the part's rows too) and an inertia entry (no effect: a
+// zero column). Step and tolerance as above (kStep 1e-5, kTolerance 1e-5; measured 2.5e-8
+// to 2.1e-7, the rigid rows 1.1e-8 to 6.6e-8: the slab sags 1.2e-5 m, so the solves'
+// round-off is a larger share of it than on the bar). Building the contacts' G on the
+// full factor instead of the parts' reduced one (the rigid path as it was, the part's
+// dofs identity rows) makes the refinement fail: no derivative. The scene:
+// rigid_scenes.hpp's slab_part_and_slider_cube_yaml (shared with test_cli_rigidify.cpp).
+TEST(RigidStaticDerivatives, RigidifiedPartBesideASliderCube) {
+  const Model model = tight(test::rigid_scenes::load_scene_text(
+      "rigid_static_derivatives", "part_slider_cube", test::rigid_scenes::slab_part_and_slider_cube_yaml(),
+      {{"slab.msh", test::rigid_scenes::box_msh_text(4, 4, 1, 0.06, 0.06, 0.01)}}));
+  ASSERT_EQ(model.rigidify.size(), 1);
+  ASSERT_EQ(model.rigid.size(), 1u);
+  check(model,
+        {{false, {Parameter::young, 0}, 0, 0, "young"},
+         {false, {Parameter::poisson, 0}, 0, 0, "poisson"},
+         {false, {Parameter::density, 0}, 0, 0, "density"},
+         {true, {}, 0, 0, "mass[cube]"},
+         {true, {}, 0, 1, "inertia[cube].xx"}},
+        "slab with a part beside a slider cube", true);
 }
 
 }  // namespace rigid_static_derivatives

@@ -156,11 +156,14 @@ class EquilibriumSystem {
       factorized = factorize(model_, data_, 1).ok();
       if (!factorized && (held_.empty() || c >= kProximalMax)) return false;
     }
-    if (!model_.rigid.empty()) return prepare_rigid_contact();
+    // Parts: every soft solve below is the reduced one (beside rigid bodies too, since
+    // rstp: their rows W_r and the contacts' G are built on solver_, the parts' reduced
+    // system then).
     if (!model_.rigidify.empty()) {
       if (!prepare_parts()) return false;
       solver_ = &reduced_;
     }
+    if (!model_.rigid.empty()) return prepare_rigid_contact();
     // (With parts no A_upper: the operator path's preconditioner is built from the full A,
     // not the reduced one; without it the mode-fixed system is solved through solver_.)
     if (contact_ && !stage_.prepare(model_, contact_data(), *x_, *solver_, 1.0, false, &modes_, &sigma_,
@@ -263,18 +266,10 @@ class EquilibriumSystem {
   // K (parts' dofs identity rows) with S - Q (ReducedSystem below).
   void demand_parts_supported() const {
     const auto& rm = model_.rigidify;
-    const std::string part = rm.parts.front().name;
-    SOFTDIFF_DEMAND(model_.rigid.empty(),
-                    "static derivatives with rigidified parts and rigid bodies in one scene are not supported yet "
-                    "(issue 21; " + part + ")");
-    for (const auto& a : model_.actuation.actuators)
-      if (const auto* cable = std::get_if<actuation::Cable>(&a.kind))
-        for (int node : cable->nodes())
-          SOFTDIFF_DEMAND(rm.dof_part[3 * static_cast<std::size_t>(node)] < 0,
-                          "static derivatives: cable '" + a.name + "' acts on rigidified part " +
-                              rm.parts[static_cast<std::size_t>(rm.dof_part[3 * static_cast<std::size_t>(node)])].name +
-                              ": the part's coupling leaves the cable's stiffness out (the static solve's modified "
-                              "Newton), so the reduced tangent is not the derivative's (issue 21)");
+    // (Beside rigid bodies: differentiated since rstp, the bodies' rows W_r beside the
+    // parts' reduced system; a free body beside soft bodies stays refused, as without parts.)
+    // (A cable acting on a part's nodes: differentiated since rstp, its stiffness in the
+    // parts' coupling: prepare_parts.)
     if (model_.contact.enabled)
       for (const auto& held_part : rm.parts) {
         const auto& b = model_.fem.bodies[static_cast<std::size_t>(held_part.body)];
@@ -286,15 +281,31 @@ class EquilibriumSystem {
       }
   }
 
-  // The parts' Schur complement at x* (prepare_rigidified, h = 1: K's coupling), less Q.
+  // The parts' Schur complement at x* (prepare_rigidified, h = 1), less Q. Its coupling
+  // values are the derivative's tangent's: K plus the cables' stiffness lambda d^2L/dx^2
+  // (2026-12-04, branch rstp). prepare_rigidified reads a static model's coupling from
+  // data.fem.K_values alone (the static solve's modified Newton for a cable through a
+  // part: its increments leave the cable's blocks on the part's dofs out, its converged
+  // answer does not depend on them); for the derivative K_values holds K + the cables'
+  // stiffness while the coupling is read (the cable's cliques are in the pattern:
+  // ActuationModel::stiffness_cliques), and K again afterwards. The soft rows' factor
+  // (assemble) has the cables' stiffness already.
   bool prepare_parts() {
     const auto& rm = model_.rigidify;
     auto& w = data_.rigidify;
-    if (!prepare_rigidified(model_, data_, *x_, 1.0, -1).ok() || w.reduced_pcg) return false;
+    const bool cables = !model_.actuation.empty();
+    if (cables) {
+      saved_K_ = data_.fem.K_values;
+      model_.actuation.add_stiffness(*x_, data_.lambda_a, model_.fem.pattern, data_.fem.K_values.data());
+    }
+    const bool prepared = prepare_rigidified(model_, data_, *x_, 1.0, -1).ok();
+    if (cables) data_.fem.K_values.swap(saved_K_);
+    if (!prepared || w.reduced_pcg) return false;
     // R = f_int + P + f_act + H_c^T lambda at x* (the final load factor 1).
     force_parts_ = data_.fem.f_int + model_.fem.gravity_force;
     if (!model_.actuation.empty()) model_.actuation.add_forces(*x_, data_.lambda_a, 1.0, force_parts_);
-    if (contact_) force_parts_.noalias() += contact_data().Ht * contact_data().lambda;
+    // (lambda's head: the contacts' rows; with rigid bodies a joint limit's rows follow.)
+    if (contact_) force_parts_.noalias() += contact_data().Ht * contact_data().lambda.head(contact_data().Ht.cols());
     for (int p = 0; p < rm.size(); ++p) {
       Mat3 Q = Mat3::Zero();
       for (int i : rm.parts[static_cast<std::size_t>(p)].nodes) {
@@ -593,7 +604,8 @@ class EquilibriumSystem {
     lambda_ext_ = cd.lambda.head(m);
     mu_ext_ = cd.mu;
     contact::ContactStageDerivative::NcpSystem system{&G_ext_, &mu_ext_, &lambda_ext_, &sigma_, &modes_};
-    return stage_.prepare(model_, cd, ext_x_, *solver_, 1.0, false, &modes_, &sigma_, &data_.A, &system);
+    return stage_.prepare(model_, cd, ext_x_, *solver_, 1.0, false, &modes_, &sigma_,
+                          model_.rigidify.empty() ? &data_.A : nullptr, &system);
   }
 
   bool apply_phi_transposed(const VecX& v, VecX& out, VecX& bar_mu) {
@@ -743,6 +755,7 @@ class EquilibriumSystem {
   Data& data_;
   ReducedSystem reduced_{model_, data_};
   VecX force_parts_;  // R at x* (prepare_parts)
+  VecX saved_K_;      // K_values while prepare_parts reads K + the cables' stiffness
   const VecX* x_ = nullptr;
   LinearSolver* solver_ = nullptr;  // data's, or EmptySystem without soft dofs
   int limited_ = 0;                  // bodies held on an active limit (hold_limited_bodies)
