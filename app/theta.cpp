@@ -29,24 +29,11 @@ void demand_differentiable(const std::string& option, const Model& model) {
     const std::string& part = model.rigidify.parts.front().name;
     // Static (2026-12-04, rstat; integrator/static_solver_derivatives.cpp, docs/method.md
     // "Static equilibrium with rigidified parts", *Derivatives*): the reduced equilibrium,
-    // with or without contact, free and translation-servo parts, cables through a part
-    // (2026-12-04, rstp: their stiffness in the parts' coupling), beside rigid bodies
-    // (rstp: hinges, sliders, fixed bodies; a free body beside soft bodies is refused below
-    // as without parts); not on a body held by contact alone.
-    if (model.step.integrator == IntegratorKind::static_equilibrium) {
-      if (model.contact.enabled)
-        for (const auto& p : model.rigidify.parts) {
-          const auto& b = model.fem.bodies[static_cast<std::size_t>(p.body)];
-          bool any_fixed = false;
-          for (int d = 3 * b.node_begin; d < 3 * (b.node_begin + b.num_nodes); ++d) any_fixed = any_fixed || model.fem.fixed[d];
-          if (!any_fixed)
-            throw InputError(option + ": static derivatives with a rigidified part on a body held by contact alone "
-                                      "(no fixed node) are not supported yet (issue 21; " + p.name + ")");
-        }
-    } else if (model.step.integrator != IntegratorKind::implicit_euler && model.step.integrator != IntegratorKind::bdf2) {
-      throw InputError(option + ": derivatives with rigidified parts are supported for implicit_euler, bdf2 and "
-                                "static only (issue 21; " + part + ")");
-    }
+    // with or without contact, free and translation-servo parts; since rstp (2026-12-04)
+    // also with a cable through a part (its stiffness in the parts' coupling), beside rigid
+    // bodies (hinges, sliders, fixed bodies; a free body beside soft bodies is refused
+    // below as without parts) and on a body held by contact alone (its proximal term in
+    // the parts' coupling). Every integrator is differentiated with parts.
     const bool sparse = model.contact.ncp.backend == contact::NcpBackend::sparse;
     if (model.contact.with_rigid() && (sparse || model.step.newton_iterations > 1))
       for (const auto& b : model.rigid)

@@ -894,3 +894,22 @@ TEST(Cli, StaticCheckGradWithARigidifiedPartBesideASliderCube) {
   }
   EXPECT_GT(largest, 0.0);
 }
+
+// A part on a body held by contact alone, statically (rstp; refused with exit 2 before):
+// tests/rigid/test_rigid_static_derivatives.cpp's RigidifiedPartOnABodyHeldByContact scene
+// (the 0.1 m soft cube, no fixed node, its top nodes a free part, on the plane z = 0, mu 2:
+// every loaded contact sticks). check-grad at its defaults passes on young, poisson,
+// density; friction is a zero column (every contact sticks). The static solve itself
+// stopped with "not positive definite" at its second Newton iteration before rstp (the
+// proximal term was not in the parts' coupling).
+TEST(Cli, StaticCheckGradWithARigidifiedPartOnABodyHeldByContact) {
+  const fs::path dir = fresh_dir(kRigidifyWork, "static_part_held_cube");
+  write_text(dir / "cube.msh", softdiff::test::rigid_scenes::box_msh_text(3, 3, 3, 0.1, 0.1, 0.1));
+  write_text(dir / "scene.yaml", softdiff::test::rigid_scenes::held_cube_with_part_yaml("[0, 0, -9.81]", 2.0));
+  const auto g = run_cli("check-grad scene.yaml --quiet --wrt young,poisson,density,friction", dir);
+  std::cout << g.out;
+  EXPECT_EQ(g.code, 0) << g.out << g.err;
+  for (const char* block : {"young", "poisson", "density", "friction"})
+    EXPECT_NE(g.out.find(block), std::string::npos) << g.out;
+  EXPECT_EQ(g.out.find("ABOVE TOLERANCE"), std::string::npos) << g.out;
+}

@@ -326,6 +326,25 @@ inline std::string slab_part_and_slider_cube_yaml() {
          "contact: {margin: 1.0e-3, friction: 0.0, pairs: [[slab, cube, 0.0]]}\n";
 }
 
+// A 0.1 m soft cube (cube.msh: box_msh_text(3, 3, 3, 0.1, 0.1, 0.1), E 1e5 Pa, nu 0.3,
+// 1000 kg/m^3, no fixed node: held by contact alone) on the plane z = 0, its top nodes a
+// free part, statically under `gravity` (a YAML list) with friction mu (rstp: the static
+// derivatives of a part on a body held by contact alone; test_rigid_static_derivatives.cpp,
+// test_cli_rigidify.cpp).
+inline std::string held_cube_with_part_yaml(const std::string& gravity, double mu) {
+  std::ostringstream m;
+  m << mu;
+  return "softdiff: 1\n"
+         "simulation: {integrator: static, gravity: " + gravity + "}\n"
+         "bodies:\n"
+         "  - name: cube\n"
+         "    mesh: cube.msh\n"
+         "    material: {young: 1.0e5, poisson: 0.3, density: 1000}\n"
+         "    rigidify: [{box: [-1, -1, 0.099, 1, 1, 1], attach: free}]\n"
+         "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: 0}]\n"
+         "contact: {friction: " + m.str() + "}\n";
+}
+
 // A free box spinning about an axis off its principal axes (0.04 x 0.02 x 0.01 m, 1000
 // kg/m^3, at (0.3, 0.1, 0), turned 0.5 rad about x, v (0, 0.1, 0.5) m/s, omega (1, 2, 8)
 // rad/s) as a scene's rigid body entry: beside the clamped beam, in no contact.

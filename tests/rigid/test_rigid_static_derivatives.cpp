@@ -34,8 +34,11 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <iostream>
+#include <numbers>
 #include <string>
+#include <tuple>
 #include <vector>
 
 using namespace softdiff;
@@ -457,6 +460,37 @@ TEST(RigidStaticDerivatives, RigidifiedPartBesideASliderCube) {
          {true, {}, 0, 0, "mass[cube]"},
          {true, {}, 0, 1, "inertia[cube].xx"}},
         "slab with a part beside a slider cube", true);
+}
+
+// A part on a body held by contact alone (issue 21, 2026-12-04, branch rstp; docs/method.md
+// "Static equilibrium with rigidified parts", *Held by contact alone*): the 0.1 m soft cube
+// of test_static_contact_derivatives.cpp (3 x 3 x 3 boxes, E 1e5 Pa, nu 0.3, 1000 kg/m^3,
+// no fixed node) on the plane z = 0, its top nodes (z 0.1) a free part, under g (mu 2:
+// every loaded contact sticks) and under g tilted by 25 degrees about y (mu 1: the
+// tangential load, tan 25 = 0.47 of the normal one, is carried by friction inside the
+// cone). The proximal term tau E of the held body is in the parts' coupling (S) as in the
+// soft rows, in the static solve (which stopped with "not positive definite" without it)
+// and in the derivative, whose refinement removes it. Columns: young, poisson, density and
+// friction (a zero column where every contact sticks). Step and tolerance as above
+// (kStep 1e-5 of the value, 0.1 for poisson and friction; kTolerance 1e-5). The scene:
+// rigid_scenes.hpp's held_cube_with_part_yaml (shared with test_cli_rigidify.cpp).
+TEST(RigidStaticDerivatives, RigidifiedPartOnABodyHeldByContact) {
+  const double s25 = std::sin(25 * std::numbers::pi / 180) * 9.81, c25 = std::cos(25 * std::numbers::pi / 180) * 9.81;
+  const std::vector<std::tuple<std::string, std::string, double>> cases = {
+      {"upright", "[0, 0, -9.81]", 2.0},
+      {"tilted", "[" + std::to_string(s25) + ", 0, " + std::to_string(-c25) + "]", 1.0}};
+  for (const auto& [name, gravity, mu] : cases) {
+    const Model model = tight(test::rigid_scenes::load_scene_text(
+        "rigid_static_derivatives", "held_cube_" + name, test::rigid_scenes::held_cube_with_part_yaml(gravity, mu),
+        {{"cube.msh", test::rigid_scenes::box_msh_text(3, 3, 3, 0.1, 0.1, 0.1)}}));
+    ASSERT_EQ(model.rigidify.size(), 1);
+    check(model,
+          {{false, {Parameter::young, 0}, 0, 0, "young"},
+           {false, {Parameter::poisson, 0}, 0, 0, "poisson"},
+           {false, {Parameter::density, 0}, 0, 0, "density"},
+           {false, {Parameter::friction, 0}, 0, 0, "friction"}},
+          "cube with a top part held by contact, " + name, true);
+  }
 }
 
 }  // namespace rigid_static_derivatives

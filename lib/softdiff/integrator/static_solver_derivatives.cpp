@@ -71,7 +71,6 @@ class EquilibriumSystem {
     for (const auto& b : model_.fem.bodies)
       SOFTDIFF_DEMAND(!b.psd_projection, "static derivatives: psd_projection (body '" + b.name +
                                              "') is not differentiated in this version");
-    if (!model_.rigidify.empty()) demand_parts_supported();
     // Free bodies beside soft bodies: refused (docs/method.md "Static equilibrium with rigid
     // bodies", *Free bodies beside soft bodies*, 2026-12-04, rstat). With friction the
     // static answer is not a function of the parameters: each Newton iteration's NCP sticks
@@ -151,16 +150,22 @@ class EquilibriumSystem {
       }
     }
     if (n == 0) factorized = true;
+    // With parts the reduced matrix S - Q must factorize too: on a body held by contact
+    // alone (rstp) its proximal term is in S (prepare_parts), and c grows where either
+    // factorization fails (under stress S - Q is indefinite along the body's rigid
+    // rotations that the contacts hold, as K is).
+    bool parts_ready = false;
     for (double c = held_.empty() ? 0.0 : kProximalMin; !factorized; c *= 10) {
       assemble(c);
       factorized = factorize(model_, data_, 1).ok();
+      if (factorized && !model_.rigidify.empty()) factorized = parts_ready = prepare_parts();
       if (!factorized && (held_.empty() || c >= kProximalMax)) return false;
     }
     // Parts: every soft solve below is the reduced one (beside rigid bodies too, since
     // rstp: their rows W_r and the contacts' G are built on solver_, the parts' reduced
     // system then).
     if (!model_.rigidify.empty()) {
-      if (!prepare_parts()) return false;
+      if (!parts_ready && !prepare_parts()) return false;
       solver_ = &reduced_;
     }
     if (!model_.rigid.empty()) return prepare_rigid_contact();
@@ -264,42 +269,34 @@ class EquilibriumSystem {
   // sum a_i x R_i (its antisymmetric part is [sum a_i x R_i]x / 2): its symmetric part is
   // taken. The solves are rigidify.hpp's Schur complement on the one factorization of
   // K (parts' dofs identity rows) with S - Q (ReducedSystem below).
-  void demand_parts_supported() const {
-    const auto& rm = model_.rigidify;
-    // (Beside rigid bodies: differentiated since rstp, the bodies' rows W_r beside the
-    // parts' reduced system; a free body beside soft bodies stays refused, as without parts.)
-    // (A cable acting on a part's nodes: differentiated since rstp, its stiffness in the
-    // parts' coupling: prepare_parts.)
-    if (model_.contact.enabled)
-      for (const auto& held_part : rm.parts) {
-        const auto& b = model_.fem.bodies[static_cast<std::size_t>(held_part.body)];
-        bool any_fixed = false;
-        for (int d = 3 * b.node_begin; d < 3 * (b.node_begin + b.num_nodes); ++d) any_fixed = any_fixed || model_.fem.fixed[d];
-        SOFTDIFF_DEMAND(any_fixed, "static derivatives with a rigidified part on a body held by contact alone (no "
-                                   "fixed node: its proximal term would sit on the parts' identity rows) are not "
-                                   "supported yet (issue 21; " + held_part.name + ")");
-      }
-  }
-
-  // The parts' Schur complement at x* (prepare_rigidified, h = 1), less Q. Its coupling
-  // values are the derivative's tangent's: K plus the cables' stiffness lambda d^2L/dx^2
-  // (2026-12-04, branch rstp). prepare_rigidified reads a static model's coupling from
-  // data.fem.K_values alone (the static solve's modified Newton for a cable through a
-  // part: its increments leave the cable's blocks on the part's dofs out, its converged
-  // answer does not depend on them); for the derivative K_values holds K + the cables'
-  // stiffness while the coupling is read (the cable's cliques are in the pattern:
-  // ActuationModel::stiffness_cliques), and K again afterwards. The soft rows' factor
-  // (assemble) has the cables' stiffness already.
+  // Every scene with free or servo-attached parts is differentiated since rstp (rstat
+  // refused three): beside rigid bodies (the bodies' rows W_r beside the parts' reduced
+  // system: prepare; a free body beside soft bodies stays refused, as without parts), a
+  // cable acting on a part's nodes (its stiffness in the parts' coupling: prepare_parts),
+  // a part on a body held by contact alone (its proximal term in the coupling too).
+  //
+  // A part on a body held by contact alone (rstp): the proximal term tau E of the
+  // refinement (assemble, apply_m: tau on every dof of the body, the part's too) must be
+  // the reduced system's as well, P^T (K + tau E) P: the factor has it on the soft dofs
+  // (and on the part's identity rows, where it does nothing), the coupling gets it here,
+  // T^T tau I T in S. The refinement's fixed point then solves the reduced equilibrium
+  // without tau, as without parts (with tau on the soft dofs only, S would miss it: S is
+  // then indefinite on the held body's rigid motions under stress, and the refinement's
+  // M would not be the reduced system's term).
   bool prepare_parts() {
     const auto& rm = model_.rigidify;
     auto& w = data_.rigidify;
     const bool cables = !model_.actuation.empty();
-    if (cables) {
+    const bool modified = cables || !held_.empty();
+    if (modified) {
       saved_K_ = data_.fem.K_values;
-      model_.actuation.add_stiffness(*x_, data_.lambda_a, model_.fem.pattern, data_.fem.K_values.data());
+      double* K = data_.fem.K_values.data();
+      if (cables) model_.actuation.add_stiffness(*x_, data_.lambda_a, model_.fem.pattern, K);
+      for (const auto& h : held_)
+        for (int d = h.begin; d < h.begin + h.size; ++d) K[model_.fem.pattern.diagonal[d]] += h.tau;
     }
     const bool prepared = prepare_rigidified(model_, data_, *x_, 1.0, -1).ok();
-    if (cables) data_.fem.K_values.swap(saved_K_);
+    if (modified) data_.fem.K_values.swap(saved_K_);
     if (!prepared || w.reduced_pcg) return false;
     // R = f_int + P + f_act + H_c^T lambda at x* (the final load factor 1).
     force_parts_ = data_.fem.f_int + model_.fem.gravity_force;
