@@ -462,6 +462,38 @@ TEST(RigidStaticDerivatives, RigidifiedPartBesideASliderCube) {
         "slab with a part beside a slider cube", true);
 }
 
+// The same cube on its slider's lower limit (-2.08e-4 m, above the 2.09e-4 m it drops
+// to without it): the limit and the slab share its weight (the contact carries 0.026 N of
+// 0.039 N). The active limit holds the cube (its rows zero, W_r = 0: "Static derivatives:
+// sliders, joint limits, rigid bodies only", *Joint limits*) beside the parts' reduced
+// solves; the cube's mass only changes the limit's reaction (a zero column), the slab's
+// columns are its own weight's sag under the held cube. The limit must be active at
+// theta +/- e too (the modes are checked; the limit's reaction is asserted here).
+TEST(RigidStaticDerivatives, RigidifiedPartBesideASliderCubeOnItsLimit) {
+  std::string text = test::rigid_scenes::slab_part_and_slider_cube_yaml();
+  const std::string joint = "joint: {type: slider, axis: [0, 0, 1]}";
+  ASSERT_NE(text.find(joint), std::string::npos);
+  text.replace(text.find(joint), joint.size(), "joint: {type: slider, axis: [0, 0, 1], limits: [-2.08e-4, 0.05]}");
+  const Model model = tight(test::rigid_scenes::load_scene_text(
+      "rigid_static_derivatives", "part_slider_cube_limit", text,
+      {{"slab.msh", test::rigid_scenes::box_msh_text(4, 4, 1, 0.06, 0.06, 0.01)}}));
+  {
+    Data data(model);
+    State out;
+    ASSERT_TRUE(integrator::solve_static(model, data, model.initial, out).ok());
+    const auto& rd = data.contact.rigid;
+    ASSERT_EQ(rd.limit_rows.size(), 1u);
+    EXPECT_GT(rd.limit_lambda[rd.limit_rows[0].slot], 1e-3);  // the limit carries a share of the 0.039 N
+    EXPECT_GT(data.contact.lambda.maxCoeff(), 1e-3);           // and so does the slab
+  }
+  check(model,
+        {{false, {Parameter::young, 0}, 0, 0, "young"},
+         {false, {Parameter::poisson, 0}, 0, 0, "poisson"},
+         {false, {Parameter::density, 0}, 0, 0, "density"},
+         {true, {}, 0, 0, "mass[cube]"}},
+        "slab with a part beside a slider cube on its limit", true);
+}
+
 // A part on a body held by contact alone (issue 21, 2026-12-04, branch rstp; docs/method.md
 // "Static equilibrium with rigidified parts", *Held by contact alone*): the 0.1 m soft cube
 // of test_static_contact_derivatives.cpp (3 x 3 x 3 boxes, E 1e5 Pa, nu 0.3, 1000 kg/m^3,
