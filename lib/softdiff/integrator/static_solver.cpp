@@ -126,16 +126,18 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
   bool contact_solved = false;  // an NCP was solved in this load step
   if (with_contact) contact::clear_contact_record(cd);
   // Parts (rigidify.hpp prepare_rigidified, h = 1: its coupling values are K's, read from
-  // data.fem.K_values): with a diagonal shift or a body held by contact alone, K_values
-  // holds K + shift (free dofs) + tau_p (the held bodies' dofs) while the coupling is read,
-  // K again afterwards (k_saved: one buffer, sized once). The cables' stiffness stays out
-  // of the coupling (modified Newton for a cable through a part).
+  // data.fem.K_values): with cables, a diagonal shift or a body held by contact alone,
+  // K_values holds K + the cables' stiffness + shift (free dofs) + tau_p (the held bodies'
+  // dofs) while the coupling is read, K again afterwards (k_saved: one buffer, sized
+  // once). The coupling is then A's own (since rstp; before, the cables' blocks on a
+  // part's dofs were left out: modified Newton for a cable through a part).
   VecX k_saved;
   auto prepare_parts = [&](const VecX& x, long load_step, double diagonal_shift) {
-    const bool modified = diagonal_shift != 0 || !proximal_dofs.empty();
+    const bool modified = actuated || diagonal_shift != 0 || !proximal_dofs.empty();
     if (modified) {
       k_saved = data.fem.K_values;
       double* K = data.fem.K_values.data();
+      if (actuated) model.actuation.add_stiffness(x, data.lambda_a, fem.pattern, K);
       if (diagonal_shift != 0)
         for (int d = 0; d < static_cast<int>(fem.pattern.diagonal.size()); ++d)
           if (!fem.fixed[d]) K[fem.pattern.diagonal[d]] += diagonal_shift;

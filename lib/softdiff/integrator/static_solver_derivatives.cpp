@@ -275,6 +275,14 @@ class EquilibriumSystem {
   // cable acting on a part's nodes (its stiffness in the parts' coupling: prepare_parts),
   // a part on a body held by contact alone (its proximal term in the coupling too).
   //
+  // The parts' Schur complement at x* (prepare_rigidified, h = 1), less Q. Its coupling
+  // values are the derivative's tangent's (2026-12-04, branch rstp): prepare_rigidified
+  // reads a static model's coupling from data.fem.K_values alone, so while it reads them
+  // K_values holds K + the cables' stiffness lambda d^2L/dx^2 (the cables' cliques are in
+  // the pattern: ActuationModel::stiffness_cliques; the soft rows' factor, assemble, has
+  // it already) + the held bodies' proximal term, and K again afterwards. (rstat read K
+  // alone, as the static solve did then: modified Newton for a cable through a part,
+  // whose converged answer does not depend on it, but not the derivative's tangent.)
   // A part on a body held by contact alone (rstp): the proximal term tau E of the
   // refinement (assemble, apply_m: tau on every dof of the body, the part's too) must be
   // the reduced system's as well, P^T (K + tau E) P: the factor has it on the soft dofs
