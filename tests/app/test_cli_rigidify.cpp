@@ -497,20 +497,15 @@ TEST(Cli, RigidifyRefusesWhatIsNotSupportedYet) {
   };
   const std::vector<Case> cases = {
       // Static derivatives with parts run since rstat (StaticDerivativesWithAServoTipOnAPlane
-      // below), not beside rigid bodies.
-      {"static_jacobian_rigid", beam(kTip, kCube),
+      // below), beside rigid bodies since rstp (StaticCheckGradWithARigidifiedPartBesideASliderCube),
+      // but a free rigid body beside soft bodies is refused as without parts.
+      {"static_jacobian_free_rigid", beam(kTip, kCube),
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null --jacobian young",
-       "--jacobian: static derivatives with rigidified parts and rigid bodies in one scene are not supported yet "
-       "(issue 21; body 'beam' rigidify[0])"},
-      // A cable acting on a part's node, statically (rstat): the static solve leaves the cable's
-      // stiffness out of the part's coupling (modified Newton), so its tangent is not the derivative's.
-      {"static_jacobian_cable", beam(kTip + "    actuators:\n      - {name: pull, type: cable, points: [[0.05, 0.01, "
-                                            "0.01], [0.19, 0.01, 0.01]], force: 0.01}\n"),
-       "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
-       "simulation.steps=null --jacobian young",
-       "--jacobian: static derivatives with cable 'pull' acting on a rigidified part are not supported yet (issue 21; "
-       "body 'beam' rigidify[0])"},
+       "--jacobian: derivatives of a static scene with a free rigid body beside soft bodies are not supported yet "
+       "(issue 21; rigid body 'cube')"},
+      // (A cable acting on a part's node, statically, was refused here until rstp:
+      // StaticCheckGradWithACableThroughARigidifiedTip.)
       // Contact on the sparse backend (the operator's rows H_f^T and K_p, rpsp) and
       // factor_reuse: pcg (RigidifyWithFactorReuse below) run and are differentiated with parts.
       // Derivatives with parts (issue 21 item 4 for item 2): implicit Euler and BDF2, with
@@ -920,4 +915,83 @@ TEST(Cli, CalibrateStaticWithAServoTipOnAPlane) {
   std::cout << "[cli rigidify] static calibrate: young " << rigidify_json_number(r.out, "young") << "\n";
   EXPECT_NEAR(rigidify_json_number(r.out, "young") / 5e4, 1.0, 1e-6) << r.out;
   EXPECT_NE(r.out.find("\"converged\":true"), std::string::npos) << r.out;
+}
+
+// Static derivatives with a cable through a part and with a part beside a rigid body on the
+// command line (issue 21, 2026-12-04, branch rstp; both were refused with exit 2 before:
+// RigidifyRefusesWhatIsNotSupportedYet's static_jacobian_cable and static_jacobian_rigid).
+// The scenes of tests/rigid/test_rigid_static_derivatives.cpp's RigidifiedFreeTipWithACable
+// (the bar of StaticDerivativesWithAServoTipOnAPlane with a free tip and a 0.02 N cable
+// from inside the tip along its top to the clamp) and RigidifiedPartBesideASliderCube (a
+// slab whose top nodes at x <= 0.031 are a free part, a tilted cube on a vertical slider
+// standing on a corner on a face of the part and soft nodes, frictionless). check-grad
+// (the implicit function theorem against central differences of the static solve, its
+// defaults: eps 1e-4, tolerance 1e-5) passes on every block; measured 1.4e-10 to 8.1e-8
+// (cable) and 6.7e-9 to 3.9e-8 (slider cube; inertia: a zero column).
+TEST(Cli, StaticCheckGradWithACableThroughARigidifiedTip) {
+  const fs::path dir = fresh_dir(kRigidifyWork, "static_cable_tip");
+  write_text(dir / "bar.msh", softdiff::test::rigid_scenes::box_msh_text(8, 2, 2, 0.2, 0.04, 0.02));
+  write_text(dir / "scene.yaml",
+             "softdiff: 1\n"
+             "simulation: {integrator: static, gravity: [0, 0, -0.981], static: {tolerance: 1.0e-12, "
+             "max_iterations: 200}}\n"
+             "bodies:\n"
+             "  - name: bar\n"
+             "    mesh: bar.msh\n"
+             "    material: {law: corotational, young: 5.0e4, poisson: 0.4, density: 1000}\n"
+             "    fixed: [{box: [-1, -1, -1, 0.001, 1, 1]}]\n"
+             "    rigidify: [{box: [0.169, -1, -1, 1, 1, 1], attach: free}]\n"
+             "    actuators:\n"
+             "      - {name: pull, type: cable, points: [[0.19, 0.02, 0.015], [0.1, 0.02, 0.015], [0.01, 0.02, "
+             "0.015]], force: 0.02}\n");
+  const auto g = run_cli("check-grad scene.yaml --quiet --wrt young,poisson,density,actuation", dir);
+  std::cout << g.out;
+  EXPECT_EQ(g.code, 0) << g.out << g.err;
+  for (const char* block : {"young", "poisson", "density", "actuation"})
+    EXPECT_NE(g.out.find(block), std::string::npos) << g.out;
+  EXPECT_EQ(g.out.find("ABOVE TOLERANCE"), std::string::npos) << g.out;
+}
+
+TEST(Cli, StaticCheckGradWithARigidifiedPartBesideASliderCube) {
+  const fs::path dir = fresh_dir(kRigidifyWork, "static_part_slider_cube");
+  write_text(dir / "slab.msh", softdiff::test::rigid_scenes::box_msh_text(4, 4, 1, 0.06, 0.06, 0.01));
+  write_text(dir / "scene.yaml", softdiff::test::rigid_scenes::slab_part_and_slider_cube_yaml());
+  const auto g = run_cli("check-grad scene.yaml --quiet --wrt young,poisson,density,mass,inertia", dir);
+  std::cout << g.out;
+  EXPECT_EQ(g.code, 0) << g.out << g.err;
+  for (const char* block : {"young", "poisson", "density", "mass", "inertia"})
+    EXPECT_NE(g.out.find(block), std::string::npos) << g.out;
+  EXPECT_EQ(g.out.find("ABOVE TOLERANCE"), std::string::npos) << g.out;
+  // --jacobian writes the columns (the cube's weight presses the slab: a nonzero mass column).
+  const auto r = run_cli("simulate scene.yaml -o out.h5 --quiet --jacobian young,mass", dir);
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  const hid_t f = H5Fopen((dir / "out.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const std::vector<double> mass = h5_read(f, "/jacobians/mass");
+  H5Fclose(f);
+  double largest = 0;
+  for (double v : mass) {
+    EXPECT_TRUE(std::isfinite(v));
+    largest = std::max(largest, std::abs(v));
+  }
+  EXPECT_GT(largest, 0.0);
+}
+
+// A part on a body held by contact alone, statically (rstp; refused with exit 2 before):
+// tests/rigid/test_rigid_static_derivatives.cpp's RigidifiedPartOnABodyHeldByContact scene
+// (the 0.1 m soft cube, no fixed node, its top nodes a free part, on the plane z = 0, mu 2:
+// every loaded contact sticks). check-grad at its defaults passes on young, poisson,
+// density; friction is a zero column (every contact sticks). The static solve itself
+// stopped with "not positive definite" at its second Newton iteration before rstp (the
+// proximal term was not in the parts' coupling).
+TEST(Cli, StaticCheckGradWithARigidifiedPartOnABodyHeldByContact) {
+  const fs::path dir = fresh_dir(kRigidifyWork, "static_part_held_cube");
+  write_text(dir / "cube.msh", softdiff::test::rigid_scenes::box_msh_text(3, 3, 3, 0.1, 0.1, 0.1));
+  write_text(dir / "scene.yaml", softdiff::test::rigid_scenes::held_cube_with_part_yaml("[0, 0, -9.81]", 2.0));
+  const auto g = run_cli("check-grad scene.yaml --quiet --wrt young,poisson,density,friction", dir);
+  std::cout << g.out;
+  EXPECT_EQ(g.code, 0) << g.out << g.err;
+  for (const char* block : {"young", "poisson", "density", "friction"})
+    EXPECT_NE(g.out.find(block), std::string::npos) << g.out;
+  EXPECT_EQ(g.out.find("ABOVE TOLERANCE"), std::string::npos) << g.out;
 }

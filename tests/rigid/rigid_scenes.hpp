@@ -301,6 +301,50 @@ inline std::string cube_on_slab_with_part_yaml(const std::string& simulation, do
          ", pairs: [[slab, cube, 0.5]]}\n";
 }
 
+// A soft slab (slab.msh: box_msh_text(4, 4, 1, 0.06, 0.06, 0.01), E 5e4 Pa, bottom fixed)
+// with its top nodes at x <= 0.031 a free part, and a rigid 2 cm cube (500 kg/m^3) on a
+// vertical slider, tilted 0.15 rad about (1, 0.7, 0), its lowest corner 0.2 mm above the
+// slab's top face at (0.036, 0.027) (that face's nodes: the part's at x 0.03, soft ones at
+// x 0.045), frictionless, statically (the static derivatives of a part beside a rigid body,
+// rstp: test_rigid_static_derivatives.cpp, test_cli_rigidify.cpp).
+inline std::string slab_part_and_slider_cube_yaml() {
+  return "softdiff: 1\n"
+         "simulation: {integrator: static, gravity: [0, 0, -9.81]}\n"
+         "bodies:\n"
+         "  - name: slab\n"
+         "    mesh: slab.msh\n"
+         "    material: {law: corotational, young: 5.0e4, poisson: 0.4, density: 1000}\n"
+         "    fixed: [{box: [-1, -1, -1, 1, 1, 1.0e-9]}]\n"
+         "    rigidify: [{box: [-1, -1, 0.009, 0.031, 1, 1], attach: free}]\n"
+         "  - name: cube\n"
+         "    type: rigid\n"
+         "    shape: {type: box, half_extents: [0.01, 0.01, 0.01]}\n"
+         "    density: 500\n"
+         "    position: [0.02695, 0.03565, 0.0221689]\n"
+         "    orientation: [0.9971888181122073, 0.06138480799297822, 0.042969365595084755, 0.0]\n"
+         "    joint: {type: slider, axis: [0, 0, 1]}\n"
+         "contact: {margin: 1.0e-3, friction: 0.0, pairs: [[slab, cube, 0.0]]}\n";
+}
+
+// A 0.1 m soft cube (cube.msh: box_msh_text(3, 3, 3, 0.1, 0.1, 0.1), E 1e5 Pa, nu 0.3,
+// 1000 kg/m^3, no fixed node: held by contact alone) on the plane z = 0, its top nodes a
+// free part, statically under `gravity` (a YAML list) with friction mu (rstp: the static
+// derivatives of a part on a body held by contact alone; test_rigid_static_derivatives.cpp,
+// test_cli_rigidify.cpp).
+inline std::string held_cube_with_part_yaml(const std::string& gravity, double mu) {
+  std::ostringstream m;
+  m << mu;
+  return "softdiff: 1\n"
+         "simulation: {integrator: static, gravity: " + gravity + "}\n"
+         "bodies:\n"
+         "  - name: cube\n"
+         "    mesh: cube.msh\n"
+         "    material: {young: 1.0e5, poisson: 0.3, density: 1000}\n"
+         "    rigidify: [{box: [-1, -1, 0.099, 1, 1, 1], attach: free}]\n"
+         "obstacles: [{name: floor, type: plane, normal: [0, 0, 1], offset: 0}]\n"
+         "contact: {friction: " + m.str() + "}\n";
+}
+
 // A free box spinning about an axis off its principal axes (0.04 x 0.02 x 0.01 m, 1000
 // kg/m^3, at (0.3, 0.1, 0), turned 0.5 rad about x, v (0, 0.1, 0.5) m/s, omega (1, 2, 8)
 // rad/s) as a scene's rigid body entry: beside the clamped beam, in no contact.

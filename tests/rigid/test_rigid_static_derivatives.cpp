@@ -10,7 +10,8 @@
 //  - the reverse mode (static_vjp) against the transpose of the forward columns;
 //  - free and slider bodies and a joint with limits stay refused (issue 21).
 //  - a bar with a rigidified tip, free or servo-attached, with and without contact
-//    (RigidStaticDerivatives.Rigidified*, 2026-12-04, rstat).
+//    (RigidStaticDerivatives.Rigidified*, 2026-12-04, rstat), with a cable through it
+//    (RigidifiedFreeTipWithACable, rstp).
 //
 // Steps and tolerances: the solves converge to a relative residual of 1e-12 with the NCP
 // at 1e-12 and polished (the modes' equations exact to round-off), so x*(theta) carries an
@@ -33,8 +34,11 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <iostream>
+#include <numbers>
 #include <string>
+#include <tuple>
 #include <vector>
 
 using namespace softdiff;
@@ -401,6 +405,124 @@ TEST(RigidStaticDerivatives, RigidifiedServoTipOnAPlane) {
          {false, {Parameter::density, 0}, 0, 0, "density"},
          {false, {}, 0, 0, "servo push", 0}},
         "bar with a servo-attached tip on a plane", true);
+}
+
+// A cable through the free tip (issue 21, 2026-12-04, branch rstp; docs/method.md "Static
+// equilibrium with rigidified parts", *Derivatives*): the cable runs along the bar's top
+// (y 0.02, z 0.015) from x 0.19, inside the part, through x 0.1 to its anchor near the clamp
+// (x 0.01): its first segment's stencil couples the part's nodes to the soft nodes around
+// x 0.1, so the cable's stiffness lambda d^2L/dx^2 has blocks on the part's dofs and
+// across it. The static solve's increments leave those blocks out of the part's coupling
+// (modified Newton: the converged answer does not depend on them); the derivative has
+// them (prepare_parts). Columns: young, density, the cable's force. Step and tolerance as
+// above (kStep 1e-5 of the value, kTolerance 1e-5; measured 2.2e-10 to 6.5e-8, the cable's
+// column the smallest: |J e| 1.1e-3 m against 0.15 m). Without the cable's blocks in the
+// coupling (rstat's reduced tangent, measured once) the columns are off by 2.5e-2 (young,
+// poisson, density) and 4.8e-2 (the cable): the tolerance catches it.
+TEST(RigidStaticDerivatives, RigidifiedFreeTipWithACable) {
+  const std::string cable =
+      "    actuators:\n"
+      "      - {name: pull, type: cable, points: [[0.19, 0.02, 0.015], [0.1, 0.02, 0.015], [0.01, 0.02, 0.015]], "
+      "force: 0.02}\n";
+  check(part_model("cable_tip", "free", cable),
+        {{false, {Parameter::young, 0}, 0, 0, "young"},
+         {false, {Parameter::poisson, 0}, 0, 0, "poisson"},
+         {false, {Parameter::density, 0}, 0, 0, "density"},
+         {false, {}, 0, 0, "cable pull", 0}},
+        "bar with a free rigidified tip and a cable through it");
+}
+
+// A rigidified part beside a rigid body (issue 21, 2026-12-04, branch rstp; docs/method.md
+// "Static equilibrium with rigidified parts", *Derivatives*): a slab (4 x 4 x 1 boxes,
+// 0.06 x 0.06 x 0.01 m, E 5e4 Pa, bottom fixed) with its top nodes at x <= 0.031 a free part, and the 2 cm cube
+// (500 kg/m^3) on a vertical slider tilted 0.15 rad about (1, 0.7, 0) (SliderCubeOnItsCorner's
+// cube, scaled), standing on its lowest corner at (0.036, 0.027) on a top face whose nodes
+// are the part's (x 0.03) and soft ones (x 0.045), frictionless (the loaded contact slides:
+// no path dependence). The rigid body's rows W_r beside the parts' reduced solves; rows:
+// the slab's nodes, the cube's pose (its z). Columns: young, poisson, density of the slab, the
+// cube's mass (its weight, through the part's rows too) and an inertia entry (no effect: a
+// zero column). Step and tolerance as above (kStep 1e-5, kTolerance 1e-5; measured 2.5e-8
+// to 2.1e-7, the rigid rows 1.1e-8 to 6.6e-8: the slab sags 1.2e-5 m, so the solves'
+// round-off is a larger share of it than on the bar). Building the contacts' G on the
+// full factor instead of the parts' reduced one (the rigid path as it was, the part's
+// dofs identity rows) makes the refinement fail: no derivative. The scene:
+// rigid_scenes.hpp's slab_part_and_slider_cube_yaml (shared with test_cli_rigidify.cpp).
+TEST(RigidStaticDerivatives, RigidifiedPartBesideASliderCube) {
+  const Model model = tight(test::rigid_scenes::load_scene_text(
+      "rigid_static_derivatives", "part_slider_cube", test::rigid_scenes::slab_part_and_slider_cube_yaml(),
+      {{"slab.msh", test::rigid_scenes::box_msh_text(4, 4, 1, 0.06, 0.06, 0.01)}}));
+  ASSERT_EQ(model.rigidify.size(), 1);
+  ASSERT_EQ(model.rigid.size(), 1u);
+  check(model,
+        {{false, {Parameter::young, 0}, 0, 0, "young"},
+         {false, {Parameter::poisson, 0}, 0, 0, "poisson"},
+         {false, {Parameter::density, 0}, 0, 0, "density"},
+         {true, {}, 0, 0, "mass[cube]"},
+         {true, {}, 0, 1, "inertia[cube].xx"}},
+        "slab with a part beside a slider cube", true);
+}
+
+// The same cube on its slider's lower limit (-2.08e-4 m, above the 2.09e-4 m it drops
+// to without it): the limit and the slab share its weight (the contact carries 0.026 N of
+// 0.039 N). The active limit holds the cube (its rows zero, W_r = 0: "Static derivatives:
+// sliders, joint limits, rigid bodies only", *Joint limits*) beside the parts' reduced
+// solves; the cube's mass only changes the limit's reaction (a zero column), the slab's
+// columns are its own weight's sag under the held cube. The limit must be active at
+// theta +/- e too (the modes are checked; the limit's reaction is asserted here).
+TEST(RigidStaticDerivatives, RigidifiedPartBesideASliderCubeOnItsLimit) {
+  std::string text = test::rigid_scenes::slab_part_and_slider_cube_yaml();
+  const std::string joint = "joint: {type: slider, axis: [0, 0, 1]}";
+  ASSERT_NE(text.find(joint), std::string::npos);
+  text.replace(text.find(joint), joint.size(), "joint: {type: slider, axis: [0, 0, 1], limits: [-2.08e-4, 0.05]}");
+  const Model model = tight(test::rigid_scenes::load_scene_text(
+      "rigid_static_derivatives", "part_slider_cube_limit", text,
+      {{"slab.msh", test::rigid_scenes::box_msh_text(4, 4, 1, 0.06, 0.06, 0.01)}}));
+  {
+    Data data(model);
+    State out;
+    ASSERT_TRUE(integrator::solve_static(model, data, model.initial, out).ok());
+    const auto& rd = data.contact.rigid;
+    ASSERT_EQ(rd.limit_rows.size(), 1u);
+    EXPECT_GT(rd.limit_lambda[rd.limit_rows[0].slot], 1e-3);  // the limit carries a share of the 0.039 N
+    EXPECT_GT(data.contact.lambda.maxCoeff(), 1e-3);           // and so does the slab
+  }
+  check(model,
+        {{false, {Parameter::young, 0}, 0, 0, "young"},
+         {false, {Parameter::poisson, 0}, 0, 0, "poisson"},
+         {false, {Parameter::density, 0}, 0, 0, "density"},
+         {true, {}, 0, 0, "mass[cube]"}},
+        "slab with a part beside a slider cube on its limit", true);
+}
+
+// A part on a body held by contact alone (issue 21, 2026-12-04, branch rstp; docs/method.md
+// "Static equilibrium with rigidified parts", *Held by contact alone*): the 0.1 m soft cube
+// of test_static_contact_derivatives.cpp (3 x 3 x 3 boxes, E 1e5 Pa, nu 0.3, 1000 kg/m^3,
+// no fixed node) on the plane z = 0, its top nodes (z 0.1) a free part, under g (mu 2:
+// every loaded contact sticks) and under g tilted by 25 degrees about y (mu 1: the
+// tangential load, tan 25 = 0.47 of the normal one, is carried by friction inside the
+// cone). The proximal term tau E of the held body is in the parts' coupling (S) as in the
+// soft rows, in the static solve (which stopped with "not positive definite" without it)
+// and in the derivative, whose refinement removes it. Columns: young, poisson, density and
+// friction (a zero column where every contact sticks). Step and tolerance as above
+// (kStep 1e-5 of the value, 0.1 for poisson and friction; kTolerance 1e-5). The scene:
+// rigid_scenes.hpp's held_cube_with_part_yaml (shared with test_cli_rigidify.cpp).
+TEST(RigidStaticDerivatives, RigidifiedPartOnABodyHeldByContact) {
+  const double s25 = std::sin(25 * std::numbers::pi / 180) * 9.81, c25 = std::cos(25 * std::numbers::pi / 180) * 9.81;
+  const std::vector<std::tuple<std::string, std::string, double>> cases = {
+      {"upright", "[0, 0, -9.81]", 2.0},
+      {"tilted", "[" + std::to_string(s25) + ", 0, " + std::to_string(-c25) + "]", 1.0}};
+  for (const auto& [name, gravity, mu] : cases) {
+    const Model model = tight(test::rigid_scenes::load_scene_text(
+        "rigid_static_derivatives", "held_cube_" + name, test::rigid_scenes::held_cube_with_part_yaml(gravity, mu),
+        {{"cube.msh", test::rigid_scenes::box_msh_text(3, 3, 3, 0.1, 0.1, 0.1)}}));
+    ASSERT_EQ(model.rigidify.size(), 1);
+    check(model,
+          {{false, {Parameter::young, 0}, 0, 0, "young"},
+           {false, {Parameter::poisson, 0}, 0, 0, "poisson"},
+           {false, {Parameter::density, 0}, 0, 0, "density"},
+           {false, {Parameter::friction, 0}, 0, 0, "friction"}},
+          "cube with a top part held by contact, " + name, true);
+  }
 }
 
 }  // namespace rigid_static_derivatives

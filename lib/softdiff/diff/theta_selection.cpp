@@ -25,37 +25,13 @@ void demand_differentiable(const std::string& option, const Model& model) {
   // rpsn: sparse and Newton, the bodies' rows L_r^T H_r^T beside the parts'), a limited
   // joint in contact included on both backends and under Newton (rplim: the joint limits'
   // extended system carries the parts' rows, contact/rigid_contact_derivatives.hpp).
-  if (!model.rigidify.empty()) {
-    const std::string& part = model.rigidify.parts.front().name;
-    // Static (2026-12-04, rstat; integrator/static_solver_derivatives.cpp, docs/method.md
-    // "Static equilibrium with rigidified parts", *Derivatives*): the reduced equilibrium,
-    // with or without contact, free and translation-servo parts; not beside rigid bodies,
-    // with a cable through a part, or on a body held by contact alone.
-    if (model.step.integrator == IntegratorKind::static_equilibrium) {
-      if (!model.rigid.empty())
-        throw InputError(option + ": static derivatives with rigidified parts and rigid bodies in one scene are not "
-                                  "supported yet (issue 21; " + part + ")");
-      for (const auto& a : model.actuation.actuators)
-        if (const auto* cable = std::get_if<actuation::Cable>(&a.kind))
-          for (int node : cable->nodes())
-            if (model.rigidify.dof_part[3 * static_cast<std::size_t>(node)] >= 0)
-              throw InputError(option + ": static derivatives with cable '" + a.name + "' acting on a rigidified part "
-                                        "are not supported yet (issue 21; " + part + "): the static solve leaves "
-                                        "the cable's stiffness out of the part's coupling");
-      if (model.contact.enabled)
-        for (const auto& p : model.rigidify.parts) {
-          const auto& b = model.fem.bodies[static_cast<std::size_t>(p.body)];
-          bool any_fixed = false;
-          for (int d = 3 * b.node_begin; d < 3 * (b.node_begin + b.num_nodes); ++d) any_fixed = any_fixed || model.fem.fixed[d];
-          if (!any_fixed)
-            throw InputError(option + ": static derivatives with a rigidified part on a body held by contact alone "
-                                      "(no fixed node) are not supported yet (issue 21; " + p.name + ")");
-        }
-    } else if (model.step.integrator != IntegratorKind::implicit_euler && model.step.integrator != IntegratorKind::bdf2) {
-      throw InputError(option + ": derivatives with rigidified parts are supported for implicit_euler, bdf2 and "
-                                "static only (issue 21; " + part + ")");
-    }
-  }
+  // Static (2026-12-04, rstat; integrator/static_solver_derivatives.cpp, docs/method.md
+  // "Static equilibrium with rigidified parts", *Derivatives*): the reduced equilibrium,
+  // with or without contact, free and translation-servo parts; since rstp (2026-12-04)
+  // also with a cable through a part (its stiffness in the parts' coupling), beside rigid
+  // bodies (hinges, sliders, fixed bodies; a free body beside soft bodies is refused
+  // below as without parts) and on a body held by contact alone (its proximal term in
+  // the parts' coupling). Every integrator is differentiated with parts.
   // BDF2 with rigid bodies (rigid/rigid_bdf2_derivatives.hpp): differentiated as implicit
   // Euler is, with and without contact; with a limited joint in contact each step through
   // the branch it recorded (integrator/bdf2.cpp: BDF2, or the restart as the implicit Euler

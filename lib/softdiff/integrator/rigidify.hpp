@@ -41,10 +41,10 @@
 // reduced static Newton (static_solver.cpp). Factor reuse: the reduced PCG
 // (rigidify_pcg.hpp). Derivatives: rigidify_derivatives.hpp (implicit Euler and BDF2,
 // rigidify_bdf2_derivatives.hpp; Newton too; either contact backend, rigid bodies in
-// contact included) and static_solver_derivatives.cpp (static). Refused with parts
-// (issue 21, app/theta.cpp): a limited joint in contact on the sparse backend or under
-// Newton; static beside rigid bodies, with a cable on a part, or on a body held by
-// contact alone.
+// contact included) and static_solver_derivatives.cpp (static: beside rigid bodies,
+// with a cable on a part and on a body held by contact alone too since rstp). Refused
+// with parts (issue 21, app/theta.cpp): a limited joint in contact on the sparse backend
+// or under Newton.
 #include <softdiff/core/types.hpp>
 #include <softdiff/fem/fem_model.hpp>
 #include <softdiff/rigid/rotation.hpp>

@@ -125,6 +125,32 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
   VecX contact_force = VecX::Zero(with_contact ? 3L * fem.num_nodes : 0);  // H_c^T lambda of the last NCP
   bool contact_solved = false;  // an NCP was solved in this load step
   if (with_contact) contact::clear_contact_record(cd);
+  // Parts (rigidify.hpp prepare_rigidified, h = 1: its coupling values are K's, read from
+  // data.fem.K_values): with cables, a diagonal shift or a body held by contact alone,
+  // K_values holds K + the cables' stiffness + shift (free dofs) + tau_p (the held bodies'
+  // dofs) while the coupling is read, K again afterwards (k_saved: one buffer, sized
+  // once). The coupling is then A's own (since rstp; before, the cables' blocks on a
+  // part's dofs were left out: modified Newton for a cable through a part).
+  VecX k_saved;
+  auto prepare_parts = [&](const VecX& x, long load_step, double diagonal_shift) {
+    const bool modified = actuated || diagonal_shift != 0 || !proximal_dofs.empty();
+    if (modified) {
+      k_saved = data.fem.K_values;
+      double* K = data.fem.K_values.data();
+      if (actuated) model.actuation.add_stiffness(x, data.lambda_a, fem.pattern, K);
+      if (diagonal_shift != 0)
+        for (int d = 0; d < static_cast<int>(fem.pattern.diagonal.size()); ++d)
+          if (!fem.fixed[d]) K[fem.pattern.diagonal[d]] += diagonal_shift;
+      for (const auto& dofs : proximal_dofs) {
+        double diag_max = 0;
+        for (int d : dofs) diag_max = std::max(diag_max, std::abs(k_saved[fem.pattern.diagonal[d]]));
+        for (int d : dofs) K[fem.pattern.diagonal[d]] += proximal * diag_max;
+      }
+    }
+    const StepStatus st = prepare_rigidified(model, data, x, 1.0, load_step);
+    if (modified) data.fem.K_values.swap(k_saved);
+    return st;
+  };
 
   for (long s = 1; s <= L; ++s) {
     const double factor = static_cast<double>(s) / L;
@@ -233,6 +259,13 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
         data.timings.assembly += seconds_since(t0);
         t0 = Clock::now();
         status = factorize(model, data, s);
+        // Parts: the Schur complement of their 6 m dofs on this factor. On a body held by
+        // contact alone (2026-12-04, rstp) the proximal term of its free dofs, the parts'
+        // too, enters their coupling (as the diagonal shift does): S = P^T (K + tau_p E) P
+        // on the parts, otherwise S lacks it on the body's rigid motions and is indefinite
+        // under stress (the static solve stopped with "not positive definite"). S not
+        // positive definite grows the proximal factor or the shift as A's factorization does.
+        if (status.ok() && rigidified) status = prepare_parts(out.x, s, shifted ? shift : 0.0);
         data.timings.factorization += seconds_since(t0);
         if (status.ok()) break;
         if (status.code != StepStatus::Code::not_positive_definite || attempt >= kMaxShifts) return status;
@@ -257,13 +290,6 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
       }
       if (shifted || proximal_grown) ++data.static_shifted_iterations;
       else shift = 0;
-      // Parts: the Schur complement of their 6 m dofs on this iteration's factor (A = K).
-      if (rigidified) {
-        t0 = Clock::now();
-        status = prepare_rigidified(model, data, out.x, 1.0, s);
-        data.timings.factorization += seconds_since(t0);
-        if (!status.ok()) return status;
-      }
       t0 = Clock::now();
       double rigid_moved = 0;  // the rigid bodies' largest vertex move in this iteration (static_rigid.hpp)
       // Without contact forces in the free solve: the NCP's lambda is the total force.

@@ -71,7 +71,6 @@ class EquilibriumSystem {
     for (const auto& b : model_.fem.bodies)
       SOFTDIFF_DEMAND(!b.psd_projection, "static derivatives: psd_projection (body '" + b.name +
                                              "') is not differentiated in this version");
-    if (!model_.rigidify.empty()) demand_parts_supported();
     // Free bodies beside soft bodies: refused (docs/method.md "Static equilibrium with rigid
     // bodies", *Free bodies beside soft bodies*, 2026-12-04, rstat). With friction the
     // static answer is not a function of the parameters: each Newton iteration's NCP sticks
@@ -151,16 +150,25 @@ class EquilibriumSystem {
       }
     }
     if (n == 0) factorized = true;
+    // With parts the reduced matrix S - Q must factorize too: on a body held by contact
+    // alone (rstp) its proximal term is in S (prepare_parts), and c grows where either
+    // factorization fails (under stress S - Q is indefinite along the body's rigid
+    // rotations that the contacts hold, as K is).
+    bool parts_ready = false;
     for (double c = held_.empty() ? 0.0 : kProximalMin; !factorized; c *= 10) {
       assemble(c);
       factorized = factorize(model_, data_, 1).ok();
+      if (factorized && !model_.rigidify.empty()) factorized = parts_ready = prepare_parts();
       if (!factorized && (held_.empty() || c >= kProximalMax)) return false;
     }
-    if (!model_.rigid.empty()) return prepare_rigid_contact();
+    // Parts: every soft solve below is the reduced one (beside rigid bodies too, since
+    // rstp: their rows W_r and the contacts' G are built on solver_, the parts' reduced
+    // system then).
     if (!model_.rigidify.empty()) {
-      if (!prepare_parts()) return false;
+      if (!parts_ready && !prepare_parts()) return false;
       solver_ = &reduced_;
     }
+    if (!model_.rigid.empty()) return prepare_rigid_contact();
     // (With parts no A_upper: the operator path's preconditioner is built from the full A,
     // not the reduced one; without it the mode-fixed system is solved through solver_.)
     if (contact_ && !stage_.prepare(model_, contact_data(), *x_, *solver_, 1.0, false, &modes_, &sigma_,
@@ -261,40 +269,48 @@ class EquilibriumSystem {
   // sum a_i x R_i (its antisymmetric part is [sum a_i x R_i]x / 2): its symmetric part is
   // taken. The solves are rigidify.hpp's Schur complement on the one factorization of
   // K (parts' dofs identity rows) with S - Q (ReducedSystem below).
-  void demand_parts_supported() const {
-    const auto& rm = model_.rigidify;
-    const std::string part = rm.parts.front().name;
-    SOFTDIFF_DEMAND(model_.rigid.empty(),
-                    "static derivatives with rigidified parts and rigid bodies in one scene are not supported yet "
-                    "(issue 21; " + part + ")");
-    for (const auto& a : model_.actuation.actuators)
-      if (const auto* cable = std::get_if<actuation::Cable>(&a.kind))
-        for (int node : cable->nodes())
-          SOFTDIFF_DEMAND(rm.dof_part[3 * static_cast<std::size_t>(node)] < 0,
-                          "static derivatives: cable '" + a.name + "' acts on rigidified part " +
-                              rm.parts[static_cast<std::size_t>(rm.dof_part[3 * static_cast<std::size_t>(node)])].name +
-                              ": the part's coupling leaves the cable's stiffness out (the static solve's modified "
-                              "Newton), so the reduced tangent is not the derivative's (issue 21)");
-    if (model_.contact.enabled)
-      for (const auto& held_part : rm.parts) {
-        const auto& b = model_.fem.bodies[static_cast<std::size_t>(held_part.body)];
-        bool any_fixed = false;
-        for (int d = 3 * b.node_begin; d < 3 * (b.node_begin + b.num_nodes); ++d) any_fixed = any_fixed || model_.fem.fixed[d];
-        SOFTDIFF_DEMAND(any_fixed, "static derivatives with a rigidified part on a body held by contact alone (no "
-                                   "fixed node: its proximal term would sit on the parts' identity rows) are not "
-                                   "supported yet (issue 21; " + held_part.name + ")");
-      }
-  }
-
-  // The parts' Schur complement at x* (prepare_rigidified, h = 1: K's coupling), less Q.
+  // Every scene with free or servo-attached parts is differentiated since rstp (rstat
+  // refused three): beside rigid bodies (the bodies' rows W_r beside the parts' reduced
+  // system: prepare; a free body beside soft bodies stays refused, as without parts), a
+  // cable acting on a part's nodes (its stiffness in the parts' coupling: prepare_parts),
+  // a part on a body held by contact alone (its proximal term in the coupling too).
+  //
+  // The parts' Schur complement at x* (prepare_rigidified, h = 1), less Q. Its coupling
+  // values are the derivative's tangent's (2026-12-04, branch rstp): prepare_rigidified
+  // reads a static model's coupling from data.fem.K_values alone, so while it reads them
+  // K_values holds K + the cables' stiffness lambda d^2L/dx^2 (the cables' cliques are in
+  // the pattern: ActuationModel::stiffness_cliques; the soft rows' factor, assemble, has
+  // it already) + the held bodies' proximal term, and K again afterwards. (rstat read K
+  // alone, as the static solve did then: modified Newton for a cable through a part,
+  // whose converged answer does not depend on it, but not the derivative's tangent.)
+  // A part on a body held by contact alone (rstp): the proximal term tau E of the
+  // refinement (assemble, apply_m: tau on every dof of the body, the part's too) must be
+  // the reduced system's as well, P^T (K + tau E) P: the factor has it on the soft dofs
+  // (and on the part's identity rows, where it does nothing), the coupling gets it here,
+  // T^T tau I T in S. The refinement's fixed point then solves the reduced equilibrium
+  // without tau, as without parts (with tau on the soft dofs only, S would miss it: S is
+  // then indefinite on the held body's rigid motions under stress, and the refinement's
+  // M would not be the reduced system's term).
   bool prepare_parts() {
     const auto& rm = model_.rigidify;
     auto& w = data_.rigidify;
-    if (!prepare_rigidified(model_, data_, *x_, 1.0, -1).ok() || w.reduced_pcg) return false;
+    const bool cables = !model_.actuation.empty();
+    const bool modified = cables || !held_.empty();
+    if (modified) {
+      saved_K_ = data_.fem.K_values;
+      double* K = data_.fem.K_values.data();
+      if (cables) model_.actuation.add_stiffness(*x_, data_.lambda_a, model_.fem.pattern, K);
+      for (const auto& h : held_)
+        for (int d = h.begin; d < h.begin + h.size; ++d) K[model_.fem.pattern.diagonal[d]] += h.tau;
+    }
+    const bool prepared = prepare_rigidified(model_, data_, *x_, 1.0, -1).ok();
+    if (modified) data_.fem.K_values.swap(saved_K_);
+    if (!prepared || w.reduced_pcg) return false;
     // R = f_int + P + f_act + H_c^T lambda at x* (the final load factor 1).
     force_parts_ = data_.fem.f_int + model_.fem.gravity_force;
     if (!model_.actuation.empty()) model_.actuation.add_forces(*x_, data_.lambda_a, 1.0, force_parts_);
-    if (contact_) force_parts_.noalias() += contact_data().Ht * contact_data().lambda;
+    // (lambda's head: the contacts' rows; with rigid bodies a joint limit's rows follow.)
+    if (contact_) force_parts_.noalias() += contact_data().Ht * contact_data().lambda.head(contact_data().Ht.cols());
     for (int p = 0; p < rm.size(); ++p) {
       Mat3 Q = Mat3::Zero();
       for (int i : rm.parts[static_cast<std::size_t>(p)].nodes) {
@@ -593,7 +609,8 @@ class EquilibriumSystem {
     lambda_ext_ = cd.lambda.head(m);
     mu_ext_ = cd.mu;
     contact::ContactStageDerivative::NcpSystem system{&G_ext_, &mu_ext_, &lambda_ext_, &sigma_, &modes_};
-    return stage_.prepare(model_, cd, ext_x_, *solver_, 1.0, false, &modes_, &sigma_, &data_.A, &system);
+    return stage_.prepare(model_, cd, ext_x_, *solver_, 1.0, false, &modes_, &sigma_,
+                          model_.rigidify.empty() ? &data_.A : nullptr, &system);
   }
 
   bool apply_phi_transposed(const VecX& v, VecX& out, VecX& bar_mu) {
@@ -743,6 +760,7 @@ class EquilibriumSystem {
   Data& data_;
   ReducedSystem reduced_{model_, data_};
   VecX force_parts_;  // R at x* (prepare_parts)
+  VecX saved_K_;      // K_values while prepare_parts reads K + the cables' stiffness
   const VecX* x_ = nullptr;
   LinearSolver* solver_ = nullptr;  // data's, or EmptySystem without soft dofs
   int limited_ = 0;                  // bodies held on an active limit (hold_limited_bodies)

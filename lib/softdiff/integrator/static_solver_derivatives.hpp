@@ -61,8 +61,12 @@ struct StaticTheta {
 // H_r^T). Rows 3n + 6R (the soft dofs, then (dp, dtheta) per body: the check-grad rows).
 // Since rstfree (docs/method.md "Static derivatives: sliders, joint limits, rigid bodies
 // only"): sliders; an active joint limit holds its body (W_r = 0); scenes of rigid bodies
-// only (no soft system; free bodies there too). Not covered (SOFTDIFF_DEMAND, issue 21):
-// a free body beside soft bodies, rigidified parts.
+// only (no soft system; free bodies there too). Rigidified parts (free and
+// translation-servo; rstat, 2026-12-04): the reduced equilibrium P^T R = 0 on the parts'
+// Schur complement less the arms' rotation term Q (docs/method.md "Static equilibrium with
+// rigidified parts", *Derivatives*); since rstp also beside rigid bodies, with a cable
+// through a part and on a body held by contact alone. Not covered (SOFTDIFF_DEMAND, issue
+// 21): a free body beside soft bodies.
 //
 // dx*/dtheta (3n (+ 6R) x (parameters + actuators + rigid parameters)) at the equilibrium `equilibrium` of
 // solve_static (its last load step; data holds that solve's record, data.contact its
