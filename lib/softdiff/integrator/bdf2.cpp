@@ -232,10 +232,13 @@ StepStatus time_step_rigid_contact_limits(const Model& model, Data& data, const 
   for (std::size_t r = 0; r < data.rigid.size() && r < model.rigid.size(); ++r) restart = restart || data.rigid[r].at_limit;
   auto usable = [](const StepStatus& st) { return st.ok() || st.code == StepStatus::Code::not_converged; };
   StepStatus status;
+  double attempt_residual = -1;  // the BDF2 attempt's NCP residual when it did not converge
   if (!restart) {
     bool crossed = false;
     status = attempt(previous, &crossed);
     if (!usable(status)) return status;
+    if (!crossed && data.contact.contacts.size() > 0 && !data.contact.result.converged)
+      attempt_residual = data.contact.result.residuals.max();
     if (!crossed) {
       if (!mark_limits(model, data) && !impact(model, data, in, *previous, impact_closing_speed(model)))
         return status;  // the BDF2 branch
@@ -244,6 +247,22 @@ StepStatus time_step_rigid_contact_limits(const Model& model, Data& data, const 
   // The implicit Euler branch: of size h from s_n (previous null: every part implicit Euler).
   for (auto& info : data.rigid) info.at_limit = false;
   status = attempt(nullptr, nullptr);
+  // The redo warm-starts from the BDF2 attempt's forces. When the attempt's NCP did not
+  // converge and the redo's ended further from a solution than the attempt's (or the
+  // redo failed), the redo runs again from zero forces (docs/method.md "BDF2",
+  // *gripper_lift under bdf2*, 2026-12-04 glift): configs/gripper_lift.yaml under bdf2,
+  // step 123: the attempt stopped at residual 9.7e-3 with |lambda| up to 3.5, the redo
+  // from those forces diverged (residual 2.5e9, |lambda| 1.8e11) and the step with it;
+  // from zero it reaches 1e-5 and the run finishes. A converged redo is kept as it is
+  // (the attempt's forces are the better start there: the cube on the soft slab's step 8
+  // converges from them, not from zero). A function of the step's inputs and warm start,
+  // so the derivatives' recomputed step (diff/trajectory.cpp) takes the same branch.
+  if (attempt_residual >= 0 && data.contact.contacts.size() > 0 &&
+      (!usable(status) || (!data.contact.result.converged && !(data.contact.result.residuals.max() <= attempt_residual)))) {
+    for (auto& info : data.rigid) info.at_limit = false;
+    data.contact.previous_keys.clear();  // no key matches: the NCP starts from zero forces
+    status = attempt(nullptr, nullptr);
+  }
   if (!usable(status)) return status;
   mark_limits(model, data);
   return status;
