@@ -10,6 +10,7 @@
 #include <hdf5.h>
 
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <string>
 
@@ -83,6 +84,50 @@ TEST(CliStaticContact, CheckGradThroughStaticContact) {
   EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
   for (const char* block : {"young", "friction"})
     EXPECT_NE(r.out.find(std::string("\n") + block + " "), std::string::npos) << r.out;
+  // Every contact sticks from the first iterate (none slid along the path): no
+  // path-dependence is claimed, so a failure here would be a verdict on the derivative.
+  EXPECT_NE(r.out.find("decided by the solver's path: 0 sliding, 0 stuck after sliding\n"), std::string::npos)
+      << r.out;
+}
+
+// A wrong derivative still fails on a path-independent scene (2026-12-04, branch sgrad):
+// the young block multiplied by 1.001 (SOFTDIFF_CHECK_GRAD_FAULT, docs/cli.md) gives a
+// relative error of 1e-3 > 1e-5, exit 1, and no path-dependence message.
+TEST(CliStaticContact, CheckGradStillFailsAWrongStaticDerivative) {
+  const fs::path dir = fresh_dir(kWork, "check_grad_fault");
+  write_text(dir / "scene.yaml", kRestingBeam);
+  ::setenv("SOFTDIFF_CHECK_GRAD_FAULT", "young:1.001", 1);
+  const CliRun r = run_cli("check-grad scene.yaml --wrt young --quiet", dir);
+  ::unsetenv("SOFTDIFF_CHECK_GRAD_FAULT");
+  EXPECT_EQ(r.code, 1) << r.out << r.err;
+  EXPECT_NE(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("path-dependent"), std::string::npos) << r.out;
+  EXPECT_EQ(r.err.find("path-dependent"), std::string::npos) << r.err;
+}
+
+// The shipped configs/beam_supports_static.yaml (mu 0.5; 2026-12-04, branch sgrad): the
+// beam's ends slid outwards along the Newton iterates; at the equilibrium the right
+// support's 5 contacts slide (force on the cone) and the left's 5 stick at 0.9997-0.9999
+// of the cone after sliding ~0.23 mm. The solves at young 1e6 -/+ 100 Pa end with the
+// same modes, and the stuck node 34 at x = -0.085230099506 / -0.085230056980 m: 2.1e-10
+// m/Pa, the same at eps 1e-3 to 1e-6 and static tolerances 1e-8 and 1e-10 (not the
+// solver's noise: the path's own dependence on young), where the derivative, which
+// holds the stuck point, has 0. check-grad must not pass it (exit 1) and must say why:
+// the verdict path-dependent, with the counts, naming issue 21.
+TEST(CliStaticContact, CheckGradSaysTheShippedFrictionalSceneIsPathDependent) {
+  const fs::path dir = fresh_dir(kWork, "check_grad_path");
+  const CliRun r = run_cli("check-grad " + kScene + " --wrt young --json --quiet", dir);
+  EXPECT_EQ(r.code, 1) << r.out << r.err;
+  EXPECT_NE(r.out.find("\"path_dependent\":true"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("\"path_dependent_contacts\":{\"sliding\":5,\"stuck_after_sliding\":5}"),
+            std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("\"worst_row\":\"x[beam node 34].x\""), std::string::npos) << r.out;
+  EXPECT_NE(r.err.find("is path-dependent here: 5 contact(s) slide and 5 stick after sliding"), std::string::npos)
+      << r.err;
+  EXPECT_NE(r.err.find("issue 21"), std::string::npos) << r.err;
+  // The smoothing warning is not given: the same difference with contact.smoothing off.
+  EXPECT_EQ(r.err.find("smoothed contact derivatives"), std::string::npos) << r.err;
 }
 
 // The shipped static scene (its contacts on the supports' edges slide: the derivative
