@@ -257,10 +257,8 @@ int run_check_grad(const CheckGradOptions& o) {
     const StepStatus st =
         integrator::solve_static(model, data, model.initial, final, [&](long, const State&) { progress.advance(); });
     if (!st.ok()) throw ComputationError("the analytic run failed: " + describe(model, st));
-    integrator::StaticTheta theta{sel.layout.parameters, sel.layout.actuation, {}};
-    for (const auto& id : sel.layout.rigid_parameters) theta.rigid_parameters.emplace_back(id.body, id.index);
-    if (!integrator::static_sensitivities(model, data, final, theta, dx))
-      throw ComputationError("the derivative of the equilibrium failed");
+    if (const std::string error = diff::static_jacobian(model, data, final, sel.layout, dx); !error.empty())
+      throw ComputationError(error);
     dv = MatX::Zero(dx.rows(), dx.cols());
     // Frictional contacts whose tangential state the solver's path decided (docs/method.md
     // "Static equilibrium with contact", *Sliding contacts*; 2026-12-04, branch sgrad): the

@@ -458,23 +458,13 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
       if (failure.ok() && theta) {
         // The implicit function theorem at the final equilibrium (static_solver_derivatives.hpp).
         auto td = Clock::now();
-        integrator::StaticTheta st{theta->layout.parameters, theta->layout.actuation, {}};
-        for (const auto& id : theta->layout.rigid_parameters) st.rigid_parameters.emplace_back(id.body, id.index);
         // A ComputationError of the derivative (the contact derivative's iterations,
         // contact_step_derivatives.cpp) is reported as the equilibrium's, with its load step.
-        std::string derivative_error;
-        bool derivative_ok = false;
-        try {
-          derivative_ok = integrator::static_sensitivities(model, data, state, st, static_jacobian);
-        } catch (const ComputationError& e) {
-          derivative_error = e.what();
-        }
-        if (!derivative_ok) {
+        const std::string derivative_error = diff::static_jacobian(model, data, state, theta->layout, static_jacobian);
+        if (!derivative_error.empty()) {
           failure.code = StepStatus::Code::solver_failed;
           failure.step = steps_done;
-          failure.detail = derivative_error.empty()
-                               ? "the derivative of the equilibrium failed (inverted element or tangent not positive definite)"
-                               : "the derivative of the equilibrium failed: " + derivative_error;
+          failure.detail = derivative_error;
         }
         derivative_seconds += seconds_since(td);
       }

@@ -393,21 +393,12 @@ class Simulator {
           done = k;
         });
         if (s.ok() && theta_) {
-          integrator::StaticTheta st{theta_->layout.parameters, theta_->layout.actuation, {}};
-          for (const auto& id : theta_->layout.rigid_parameters) st.rigid_parameters.emplace_back(id.body, id.index);
-          std::string derivative_error;
-          bool derivative_ok = false;
-          try {
-            derivative_ok = integrator::static_sensitivities(*model_, *data_, next_, st, static_jacobian_);
-          } catch (const ComputationError& e) {
-            derivative_error = e.what();
-          }
-          if (!derivative_ok) {
+          const std::string derivative_error =
+              diff::static_jacobian(*model_, *data_, next_, theta_->layout, static_jacobian_);
+          if (!derivative_error.empty()) {
             s.code = StepStatus::Code::solver_failed;
             s.step = done;
-            s.detail = derivative_error.empty()
-                           ? "the derivative of the equilibrium failed (inverted element or tangent not positive definite)"
-                           : "the derivative of the equilibrium failed: " + derivative_error;
+            s.detail = derivative_error;
           }
         }
         if (!s.ok()) failure = describe(*model_, s);

@@ -36,7 +36,7 @@ shorten() {
       c="$(sed -E 's/ [0-9]+ [0-9]+$/ 6 4/' <<<"$c")" ;;
   esac
   c="$(sed -E -e "s#(^|[ ;])scripts/#\1$src/scripts/#g" -e "s#(^|[ ;=])configs/#\1$src/configs/#g" \
-              -e "s#(^|[ ;])meshes/#\1$src/meshes/#g" -e "s#(^|[ ;])build/#\1$SOFTDIFF_BUILD_DIR/#g" <<<"$c")"
+              -e "s#(^|[ ;])meshes/#\1$src/meshes/#g" -e "s#(^|[ ;=])build/#\1$SOFTDIFF_BUILD_DIR/#g" <<<"$c")"
   printf '%s\n' "$c"
 }
 

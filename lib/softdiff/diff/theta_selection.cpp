@@ -2,6 +2,7 @@
 
 #include <softdiff/core/error.hpp>
 #include <softdiff/core/text.hpp>
+#include <softdiff/integrator/static_solver_derivatives.hpp>
 
 #include <algorithm>
 #include <sstream>
@@ -182,6 +183,18 @@ ThetaSelection parse_theta(const std::string& option, const std::string& list, c
     sel.groups.push_back(std::move(g));
   }
   return sel;
+}
+
+std::string static_jacobian(const Model& model, Data& data, const State& equilibrium, const ThetaLayout& layout,
+                            MatX& dx_dtheta) {
+  integrator::StaticTheta theta{layout.parameters, layout.actuation, {}};
+  for (const auto& id : layout.rigid_parameters) theta.rigid_parameters.emplace_back(id.body, id.index);
+  try {
+    if (integrator::static_sensitivities(model, data, equilibrium, theta, dx_dtheta)) return {};
+  } catch (const ComputationError& e) {
+    return std::string("the derivative of the equilibrium failed: ") + e.what();
+  }
+  return "the derivative of the equilibrium failed (inverted element or tangent not positive definite)";
 }
 
 }  // namespace softdiff::diff

@@ -43,4 +43,13 @@ std::string rigid_row_name(const Model& model, int body, int k, bool velocity, c
 
 ThetaSelection parse_theta(const std::string& option, const std::string& list, const Model& model);
 
+// The static Jacobian d x*/d theta over `layout`'s columns at the equilibrium
+// (integrator::static_sensitivities: parameters, actuation, rigid bodies' mass and
+// inertia), as `simulate --jacobian`, `check-grad` and the Python module take it. Returns
+// "" or the failure's message: "the derivative of the equilibrium failed" with the
+// derivative's own ComputationError (its iterations, contact_step_derivatives.cpp) after a
+// colon, or the cause that static_sensitivities reports by returning false.
+std::string static_jacobian(const Model& model, Data& data, const State& equilibrium, const ThetaLayout& layout,
+                            MatX& dx_dtheta);
+
 }  // namespace softdiff::diff
