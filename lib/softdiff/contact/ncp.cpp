@@ -248,7 +248,6 @@ struct Buffers {
   MatX ac_J;                     // (3 na x 3 na)
   VecX ac_rhs, ac_du;            // (3 na)
   VecX ac_in_l, ac_in_s;         // (n) the stage's input, restored unless it converges
-  VecX core_l, core_s;           // (n) solve_core: the stalled ADMM's (polished) iterate, kept if PGS ends above it
 
   void resize(Eigen::Index n) {
     if (x.size() == n) return;
@@ -258,7 +257,7 @@ struct Buffers {
     in_c.resize(static_cast<std::size_t>(n / 3));
     for (VecX* v : {&x, &y, &z, &s, &rhs, &x_prev, &y_prev, &power, &d3, &d3_sqrt_inv, &lambda_best, &lambda_p, &sigma_p, &lambda_kept,
                      &sigma_kept, &gw, &lw, &sw, &lambda_alt, &sigma_alt, &ac_l, &ac_s, &ac_F, &ac_d, &ac_Gd, &ac_lt, &ac_st,
-                     &ac_Ft, &ac_best_l, &ac_best_s, &ac_in_l, &ac_in_s, &core_l, &core_s})
+                     &ac_Ft, &ac_best_l, &ac_best_s, &ac_in_l, &ac_in_s})
       v->resize(n);
     ac_rho.resize(n / 3);
     ac_modes.resize(static_cast<std::size_t>(n / 3));
@@ -1053,15 +1052,6 @@ NcpResult solve_core(Buffers& w, const Problem& p, const NcpOptions& options, Ve
                          ? admm(w, p, lambda, sigma, options.admm_fallback ? admm_stall_window : 0, options.admm_scaling)
                          : pgs(w, p, lambda, sigma);
   bool polish_done = false;
-  // The stalled ADMM's iterate (after the polish) when PGS continues from it: PGS is not
-  // monotone in the NCP residual and can end above where it started (measured on the
-  // grip, configs/gripper_free.yaml: the operator's stall fallback problems of its 15
-  // failing steps, dumped and solved alone, 8 of 15, e.g. step 81's 38 contacts, ADMM
-  // 1.7e-7, PGS after 900 sweeps 5.2e-7; test NcpDumps.GripStallKeepsTheBetterOfAdmmAndPgs,
-  // docs/method.md "The NCP on the grip, measured"); the better of the two is kept (below).
-  bool kept_admm = false;
-  NcpResiduals admm_residuals;
-  bool admm_polished = false;
   if (result.fallback_iterations < 0) {
     // ADMM stalled. Its iterate usually has the right modes already: polish it first;
     // if that does not reach the tolerance, PGS continues from ADMM's iterate with
@@ -1070,12 +1060,6 @@ NcpResult solve_core(Buffers& w, const Problem& p, const NcpOptions& options, Ve
     polish_if_small(w, p, options, lambda, sigma, modes, result);
     polish_done = result.residuals.max() <= p.tolerance;
     if (!polish_done) {
-      const Eigen::Index n = 3 * static_cast<Eigen::Index>(p.nc);
-      w.core_l.head(n) = lambda;
-      w.core_s.head(n) = sigma;
-      admm_residuals = result.residuals;
-      admm_polished = result.polished;
-      kept_admm = true;
       result.polished = false;  // PGS starts from the better of ADMM's and the polished iterate
       const Problem rest{p.G, p.g, p.mu, p.nc, p.vscale, p.tolerance, p.max_iterations - result.iterations};
       const NcpResult q = pgs(w, rest, lambda, sigma);
@@ -1106,20 +1090,6 @@ NcpResult solve_core(Buffers& w, const Problem& p, const NcpOptions& options, Ve
       sigma = w.ac_in_s.head(n);
       result.residuals = kept;
     }
-  }
-  // Last, so that a solve that converges (by PGS, the polish or the Newton stage from
-  // PGS's iterate) is exactly as before: only an unconverged result is replaced, and
-  // only by one at least twice lower. (Without that margin the choice flipped between
-  // ties at round-off, e.g. 2.336e-12 against 2.337e-12 at tolerance 1e-12 on the rigid
-  // stack of test_rigid_only_derivatives.cpp, whose central differences then jumped:
-  // RigidOnlyDerivatives .../stack_euler_dense_T2, 2.1e-5 against its 7.2e-6 bound.)
-  if (kept_admm && result.residuals.max() > p.tolerance && admm_residuals.max() < 0.5 * result.residuals.max()) {
-    const Eigen::Index n = 3 * static_cast<Eigen::Index>(p.nc);
-    lambda = w.core_l.head(n);
-    sigma = w.core_s.head(n);
-    result.residuals = admm_residuals;
-    result.polished = admm_polished;
-    classify(p, lambda, sigma, modes);
   }
   return result;
 }
