@@ -8,6 +8,7 @@
 #include <softdiff/core/error.hpp>
 #include <softdiff/data.hpp>
 #include <softdiff/integrator/bdf2.hpp>
+#include <softdiff/integrator/contact_status.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
 #include <softdiff/integrator/static_solver.hpp>
 #include <softdiff/integrator/static_solver_derivatives.hpp>
@@ -504,17 +505,7 @@ int simulate_model(const SimulateOptions& o, const io::SceneDesc& scene, const M
           contacts_total += cd.contacts.size();
           contacts_max = std::max<long>(contacts_max, cd.contacts.size());
           contact_iterations += cd.result.iterations;
-          if (!cd.result.converged) {
-            StepStatus c;
-            c.code = StepStatus::Code::contact_not_converged;
-            c.step = k;
-            std::ostringstream d;
-            d.precision(3);
-            d << (model.contact.ncp.solver == contact::NcpSolverKind::admm ? "ADMM" : "PGS") << ", "
-              << cd.contacts.size() << " contacts, " << cd.result.iterations << " iterations: residuals primal "
-              << cd.result.residuals.primal << ", dual " << cd.result.residuals.dual << ", complementarity "
-              << cd.result.residuals.complementarity << " > tolerance " << model.contact.ncp.tolerance;
-            c.detail = d.str();
+          if (const StepStatus c = integrator::contact_status(model, data, k); !c.ok()) {
             if (o.strict)
               failure = c;
             else if (warnings_contact++ == 0) {

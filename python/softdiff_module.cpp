@@ -20,6 +20,7 @@
 #include <softdiff/diff/theta_selection.hpp>
 #include <softdiff/diff/trajectory.hpp>
 #include <softdiff/integrator/bdf2.hpp>
+#include <softdiff/integrator/contact_status.hpp>
 #include <softdiff/integrator/implicit_euler_derivatives.hpp>
 #include <softdiff/integrator/static_solver.hpp>
 #include <softdiff/integrator/static_solver_derivatives.hpp>
@@ -555,18 +556,7 @@ class Simulator {
       return describe(*model_, s);
     }
     if (model_->contact.enabled) {
-      const auto& cd = data_->contact;
-      if (!cd.result.converged) {
-        StepStatus c;
-        c.code = StepStatus::Code::contact_not_converged;
-        c.step = k;
-        std::ostringstream d;
-        d.precision(3);
-        d << (model_->contact.ncp.solver == contact::NcpSolverKind::admm ? "ADMM" : "PGS") << ", "
-          << cd.contacts.size() << " contacts, " << cd.result.iterations << " iterations: residuals primal "
-          << cd.result.residuals.primal << ", dual " << cd.result.residuals.dual << ", complementarity "
-          << cd.result.residuals.complementarity << " > tolerance " << model_->contact.ncp.tolerance;
-        c.detail = d.str();
+      if (const StepStatus c = integrator::contact_status(*model_, *data_, k); !c.ok()) {
         if (strict_) return describe(*model_, c);
         ++contact_not_converged_;
         warning = describe(*model_, c) + " (strict=True makes it an error)";
