@@ -633,8 +633,8 @@ class Simulator {
 // analysis kept), as calibration's workspace does (optim/calibration.cpp).
 //   record(steps, values, actuation, x0, v0) -> (x, v, recording): a trajectory with the
 //     theta values and a per-step actuation sequence (steps x n_a, each actuator's own
-//     value: cable force (N) or displacement (m), pressure (Pa), servo angle (rad) or
-//     position (m), replacing its schedule), recorded on a diff::Tape kept in `recording`.
+//     value: cable tension (N), pressure (Pa), servo force (N) or torque (N m), replacing
+//     its schedule), recorded on a diff::Tape kept in `recording`.
 //   adjoint(recording, bar_x, bar_v) -> dict: the reverse sweep (diff::adjoint) over that
 //     recording for l = sum_k bar_x[k] . x_k + bar_v[k] . v_k (a cotangent per frame),
 //     with the model set back to the recording's values: dl/dtheta, dl/d(actuation

@@ -83,9 +83,8 @@ def trajectory(rollout, theta=None, actuation=None, steps=None, x0=None, v0=None
       density kg/m^3, rayleigh_mass 1/s, rayleigh_stiffness s, friction), or None for
       the scene's values (then no gradient).
     actuation: (steps, n_actuators) every actuator's value at every step, in
-      rollout.actuators' order and the actuator's own unit (cable: tension N, or
-      displacement m; pressure Pa; servo: force N or torque N m, or position m / angle
-      rad), replacing its schedule: step k (1-based) uses row k - 1 (the value at its
+      rollout.actuators' order and the actuator's own unit (cable: tension N; pressure:
+      Pa; servo: force N, or torque N m for a rotation servo), replacing its schedule: step k (1-based) uses row k - 1 (the value at its
       end, t_k, as the schedules are sampled); None: the schedules (rollout.schedule).
     steps: the number of steps (needed when actuation is None; else its rows).
     x0, v0: (n, 3) the initial positions and velocities (None: the scene's).
