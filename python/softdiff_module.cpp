@@ -41,6 +41,7 @@
 #include <new>
 #include <optional>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -653,6 +654,20 @@ struct Recording {
 };
 
 class Rollout {
+  // The GIL is released during runs and sweeps, which use the one workspace: a second
+  // Python thread calling in meanwhile is refused (RuntimeError), not raced.
+  struct Busy {
+    explicit Busy(bool& flag) : flag_(flag) {
+      if (flag_) throw std::runtime_error("Rollout: in use by another thread (one workspace: one run or sweep at a time; "
+                                          "make a Rollout per thread)");
+      flag_ = true;
+    }
+    ~Busy() { flag_ = false; }
+    Busy(const Busy&) = delete;
+    Busy& operator=(const Busy&) = delete;
+    bool& flag_;
+  };
+
  public:
   Rollout(const Scene& scene, const py::object& theta, int threads, bool strict) : threads_(threads), strict_(strict) {
     if (threads < 0) throw py::value_error("threads must be >= 0 (0: all cores), got " + std::to_string(threads));
@@ -798,6 +813,7 @@ class Rollout {
     std::string failure, set_error;
     std::vector<std::string> warnings;
     {
+      const Busy busy(busy_);  // taken with the GIL held
       py::gil_scoped_release release;
       use_my_threads();
       set_error = set_values(rec->values);
@@ -843,6 +859,7 @@ class Rollout {
     diff::AdjointResult result;
     std::string failure, set_error;
     {
+      const Busy busy(busy_);
       py::gil_scoped_release release;
       use_my_threads();
       set_error = set_values(rec->values);  // the recording's model, bit for bit (restore, then set)
@@ -965,6 +982,7 @@ class Rollout {
 
   int threads_, plan_threads_ = 1;
   bool strict_, friction_ = false;
+  bool busy_ = false;  // a run or sweep is under way (Busy)
   std::unique_ptr<Model> base_, model_;  // the scene's model; the one the runs set values in
   std::unique_ptr<Data> data_;
   diff::ThetaSelection selection_;

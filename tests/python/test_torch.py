@@ -185,6 +185,34 @@ def test_rollout_refusals(tmp_path):
     assert np.array_equal(r.record(2)[0], softdiff.Simulator(scene).run(2)["beam"])
 
 
+def test_rollout_refuses_a_second_thread_while_it_runs(tmp_path):
+    # The GIL is released during a run: another thread calling the same rollout meanwhile
+    # is refused (one workspace), and the run itself is unaffected.
+    import threading
+    r = softdiff.Rollout(cable_beam(tmp_path))
+    ref = r.record(30)[0]
+    result = {}
+
+    def work():
+        while "x" not in result:
+            try:
+                result["x"] = r.record(30)[0]
+            except RuntimeError:   # the main thread's short run came first: try again
+                pass
+
+    worker = threading.Thread(target=work)
+    worker.start()
+    refused = 0
+    while worker.is_alive():
+        try:
+            r.record(0)
+        except RuntimeError as e:
+            assert "in use by another thread" in str(e)
+            refused += 1
+    worker.join()
+    assert refused > 0 and np.array_equal(result["x"], ref)
+
+
 # --- softdiff.torch ----------------------------------------------------------------------
 
 @needs_torch
