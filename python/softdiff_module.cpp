@@ -651,6 +651,7 @@ struct Recording {
   VecX x0, v0;            // the initial state of the run
   long contact_not_converged = 0;
   long id = 0;            // the run's number in its Rollout
+  long owner = 0;         // the serial number of the Rollout that recorded it
 };
 
 class Rollout {
@@ -829,6 +830,7 @@ class Rollout {
       raise(g_step_error, failure, attributes);
     }
     rec->id = ++runs_;
+    rec->owner = serial_;
     py::array_t<double> x({static_cast<py::ssize_t>(steps + 1), static_cast<py::ssize_t>(base_->fem.num_nodes), py::ssize_t{3}});
     py::array_t<double> v({static_cast<py::ssize_t>(steps + 1), static_cast<py::ssize_t>(base_->fem.num_nodes), py::ssize_t{3}});
     for (long f = 0; f <= steps; ++f) {
@@ -841,6 +843,7 @@ class Rollout {
 
   py::dict adjoint(const std::shared_ptr<Recording>& rec, const py::object& bar_x, const py::object& bar_v) {
     if (!rec) throw py::type_error("adjoint: a Recording from record()");
+    if (rec->owner != serial_) throw py::value_error("adjoint: the recording is another Rollout's (record() it with this one)");
     const long T = rec->tape.steps();
     const std::size_t frames = static_cast<std::size_t>(T + 1);
     const auto cotangent = [&](const py::object& o, const char* what) {
@@ -983,6 +986,8 @@ class Rollout {
   int threads_, plan_threads_ = 1;
   bool strict_, friction_ = false;
   bool busy_ = false;  // a run or sweep is under way (Busy)
+  const long serial_ = ++serials_;  // unique over the process (a freed Rollout's address may be reused)
+  static inline long serials_ = 0;  // (with the GIL held)
   std::unique_ptr<Model> base_, model_;  // the scene's model; the one the runs set values in
   std::unique_ptr<Data> data_;
   diff::ThetaSelection selection_;

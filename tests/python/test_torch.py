@@ -174,6 +174,8 @@ def test_rollout_refusals(tmp_path):
     _, _, rec = r.record(2)
     with pytest.raises(ValueError, match=r"bar_x: shape \(3, 1025, 3\) expected \(a cotangent per frame\), got \(2, 1025, 3\)"):
         r.adjoint(rec, bar_x=np.zeros((2, 1025, 3)))
+    with pytest.raises(ValueError, match="the recording is another Rollout's"):
+        softdiff.Rollout(scene, theta="young,poisson").adjoint(rec)
     with pytest.raises(KeyError, match="no effector 'nose'.*effectors: tip"):
         r.effector("nose")
     # A run that fails is a StepError with the CLI's message (a beam so soft that an element inverts).
