@@ -17,6 +17,7 @@
 #include <softdiff/core/error.hpp>
 #include <softdiff/core/threads.hpp>
 #include <softdiff/data.hpp>
+#include <softdiff/diff/parameters.hpp>  // torch support (ptorch): set_parameter, restore_parameter
 #include <softdiff/diff/theta_selection.hpp>
 #include <softdiff/diff/trajectory.hpp>
 #include <softdiff/integrator/bdf2.hpp>
@@ -40,6 +41,7 @@
 #include <new>
 #include <optional>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -624,6 +626,376 @@ class Simulator {
   std::vector<std::string> names_;  // soft bodies, then rigid bodies (run()'s order)
 };
 
+// --- torch support (ptorch) ---
+// softdiff.Rollout: the runs and adjoints that softdiff.torch (python/softdiff/torch.py,
+// docs/python.md "PyTorch") differentiates. A model of its own (a copy of the scene's,
+// `base_`) whose parameters are set per run, and one Data workspace restarted before
+// every run and every reverse sweep (Data::restart: a fresh workspace, symbolic
+// analysis kept), as calibration's workspace does (optim/calibration.cpp).
+//   record(steps, values, actuation, x0, v0) -> (x, v, recording): a trajectory with the
+//     theta values and a per-step actuation sequence (steps x n_a, each actuator's own
+//     value: cable tension (N), pressure (Pa), servo force (N) or torque (N m), replacing
+//     its schedule), recorded on a diff::Tape kept in `recording`.
+//   adjoint(recording, bar_x, bar_v) -> dict: the reverse sweep (diff::adjoint) over that
+//     recording for l = sum_k bar_x[k] . x_k + bar_v[k] . v_k (a cotangent per frame),
+//     with the model set back to the recording's values: dl/dtheta, dl/d(actuation
+//     sequence) (AdjointResult::lambda_a), dl/dx0, dl/dv0, recompute_mismatch.
+// The record loop is diff::record's (lib/softdiff/diff/trajectory.cpp) with the
+// simulator's contact policy added per step (a ConvergenceWarning, or with strict a
+// StepError); a Newton solve that misses its tolerance is a StepError (diff::adjoint
+// cannot recompute such a step: it stops on its status). Soft bodies only, implicit
+// Euler or BDF2; rigid bodies and static scenes are refused (issue 23).
+struct Recording {
+  diff::Tape tape;
+  VecX values;            // theta's values of the run (theta column order)
+  VecX x0, v0;            // the initial state of the run
+  long contact_not_converged = 0;
+  long id = 0;            // the run's number in its Rollout
+  long owner = 0;         // the serial number of the Rollout that recorded it
+};
+
+class Rollout {
+  // The GIL is released during runs and sweeps, which use the one workspace: a second
+  // Python thread calling in meanwhile is refused (RuntimeError), not raced.
+  struct Busy {
+    explicit Busy(bool& flag) : flag_(flag) {
+      if (flag_) throw std::runtime_error("Rollout: in use by another thread (one workspace: one run or sweep at a time; "
+                                          "make a Rollout per thread)");
+      flag_ = true;
+    }
+    ~Busy() { flag_ = false; }
+    Busy(const Busy&) = delete;
+    Busy& operator=(const Busy&) = delete;
+    bool& flag_;
+  };
+
+ public:
+  Rollout(const Scene& scene, const py::object& theta, int threads, bool strict) : threads_(threads), strict_(strict) {
+    if (threads < 0) throw py::value_error("threads must be >= 0 (0: all cores), got " + std::to_string(threads));
+    io::BuildReport report;
+    report.strict = strict;
+    try {
+      py::gil_scoped_release release;
+      plan_threads_ = set_threads(threads_).threads;
+      base_ = std::make_unique<Model>(io::build_model(scene.desc, &report));
+    } catch (const InputError& e) {
+      raise(g_scene_error, e.what());
+    } catch (const ComputationError& e) {
+      raise(g_step_error, e.what());
+    }
+    for (const auto& w : report.warnings)
+      if (PyErr_WarnEx(g_scene_warning, w.c_str(), 1) != 0) throw py::error_already_set();
+    if (base_->step.integrator == IntegratorKind::static_equilibrium)
+      throw py::value_error("Rollout: a static scene (integrator: static) has no trajectory to differentiate; not bound "
+                            "yet (issue 23): Simulator.jacobian() after run() gives d x* / d theta");
+    if (!base_->rigid.empty())
+      throw py::value_error("Rollout: scenes with rigid bodies are not bound yet (issue 23): the torch interop "
+                            "differentiates soft bodies' node trajectories; Simulator.adjoint() covers rigid bodies");
+    if (!theta.is_none()) {
+      std::string list;
+      if (py::isinstance<py::str>(theta)) {
+        list = theta.cast<std::string>();
+      } else {
+        for (const auto& name : theta) {
+          if (!py::isinstance<py::str>(name)) throw py::type_error("theta: names as strings, e.g. ['young', 'poisson']");
+          list += (list.empty() ? "" : ",") + name.cast<std::string>();
+        }
+      }
+      if (!list.empty()) {
+        try {
+          selection_ = diff::parse_theta("theta", list, *base_);
+        } catch (const InputError& e) {
+          raise(g_scene_error, e.what());
+        }
+        for (const auto& g : selection_.groups)
+          if (g.name == "actuation" || g.name == "x0" || g.name == "v0" || g.name == "mass" || g.name == "inertia")
+            throw py::value_error("Rollout: theta '" + g.name + "': theta holds material parameters (young, poisson, "
+                                  "density, rayleigh_mass, rayleigh_stiffness, friction); the actuation sequence is "
+                                  "record()'s `actuation`, the initial state its x0, v0");
+      }
+    }
+    for (const auto& p : selection_.layout.parameters) friction_ = friction_ || p.kind == Parameter::friction;
+    model_ = std::make_unique<Model>(*base_);
+    data_ = std::make_unique<Data>(*model_);
+    n3_ = 3L * base_->fem.num_nodes;
+  }
+
+  long num_nodes() const { return base_->fem.num_nodes; }
+  long num_actuators() const { return static_cast<long>(base_->actuation.actuators.size()); }
+  double dt() const { return base_->step.dt; }
+  std::vector<std::string> actuators() const {
+    std::vector<std::string> out;
+    for (const auto& a : base_->actuation.actuators) out.push_back(a.name);
+    return out;
+  }
+  std::vector<std::string> theta_columns() const {
+    std::vector<std::string> out;
+    for (const auto& g : selection_.groups) out.insert(out.end(), g.columns.begin(), g.columns.end());
+    return out;
+  }
+  std::vector<std::string> theta_groups() const {
+    std::vector<std::string> out;
+    for (const auto& g : selection_.groups) out.push_back(g.name);
+    return out;
+  }
+  // The scene's values of theta's columns (diff::get_parameter).
+  VecX scene_values() const {
+    const auto& ps = selection_.layout.parameters;
+    VecX v(static_cast<Eigen::Index>(ps.size()));
+    for (std::size_t j = 0; j < ps.size(); ++j) v[static_cast<Eigen::Index>(j)] = diff::get_parameter(*base_, ps[j]);
+    return v;
+  }
+  py::array_t<double> theta_values() const {
+    const VecX v = scene_values();
+    py::array_t<double> a(static_cast<py::ssize_t>(v.size()));
+    if (v.size()) std::memcpy(a.mutable_data(), v.data(), sizeof(double) * static_cast<std::size_t>(v.size()));
+    return a;
+  }
+  // The actuators' scheduled values of steps 1..steps, (steps, n_a): lambda_a(t_k) at the
+  // end of each step, t_k = t_{k-1} + dt as the step computes it (implicit_euler.cpp).
+  py::array_t<double> schedule(long steps) const {
+    if (steps < 0) throw py::value_error("steps must be >= 0, got " + std::to_string(steps));
+    const Eigen::Index na = static_cast<Eigen::Index>(base_->actuation.actuators.size());
+    py::array_t<double> a({static_cast<py::ssize_t>(steps), static_cast<py::ssize_t>(na)});
+    VecX lambda(na);
+    double t = base_->initial.t;
+    for (long k = 0; k < steps; ++k) {
+      t = t + base_->step.dt;
+      base_->actuation.values(t, lambda);
+      for (Eigen::Index i = 0; i < na; ++i) a.mutable_data()[k * na + i] = lambda[i];
+    }
+    return a;
+  }
+  // An effector's embedding: (global node indices, weights), p = sum_a w_a x[nodes[a]].
+  py::tuple effector(const std::string& name) const {
+    std::string known;
+    for (const auto& e : base_->actuation.effectors) {
+      if (e.name == name) {
+        const auto& pt = e.effector.point();
+        py::array_t<long> nodes(static_cast<py::ssize_t>(pt.count));
+        py::array_t<double> w(static_cast<py::ssize_t>(pt.count));
+        for (int i = 0; i < pt.count; ++i) nodes.mutable_data()[i] = pt.nodes[static_cast<std::size_t>(i)], w.mutable_data()[i] = pt.w[i];
+        return py::make_tuple(nodes, w);
+      }
+      known += (known.empty() ? "" : ", ") + e.name;
+    }
+    throw py::key_error("no effector '" + name + "' in the scene (effectors: " + (known.empty() ? "none" : known) + ")");
+  }
+  // A soft body's nodes in the trajectory's node axis.
+  py::slice nodes(const std::string& name) const {
+    std::string known;
+    for (const auto& b : base_->fem.bodies) {
+      if (b.name == name) return py::slice(b.node_begin, b.node_begin + b.num_nodes, 1);
+      known += (known.empty() ? "" : ", ") + b.name;
+    }
+    throw py::key_error("no soft body '" + name + "' in the scene (bodies: " + known + ")");
+  }
+
+  py::tuple record(long steps, const py::object& values, const py::object& actuation, const py::object& x0,
+                   const py::object& v0) {
+    if (steps < 0) throw py::value_error("steps must be >= 0, got " + std::to_string(steps));
+    auto rec = std::make_shared<Recording>();
+    const auto k = static_cast<Eigen::Index>(selection_.layout.parameters.size());
+    rec->values = values.is_none() ? scene_values() : array(values, k, "values");
+    const Eigen::Index na = static_cast<Eigen::Index>(base_->actuation.actuators.size());
+    MatX lambda;  // (n_a x steps), empty: the schedules
+    if (!actuation.is_none()) {
+      const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(actuation);
+      if (!a) throw py::type_error("actuation: an array of numbers (steps, n_actuators)");
+      if (a.ndim() != 2 || a.shape(0) != steps || a.shape(1) != na)
+        throw py::value_error("actuation: shape (" + std::to_string(steps) + ", " + std::to_string(na) +
+                              ") expected (steps, n_actuators), got " + shape_text(a));
+      lambda = Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>(a.data(), steps, na)
+                   .transpose();
+      if (!lambda.allFinite()) throw py::value_error("actuation: a value is not finite");
+    }
+    rec->x0 = x0.is_none() ? VecX(base_->initial.x) : array(x0, n3_, "x0");
+    rec->v0 = v0.is_none() ? VecX(base_->initial.v) : array(v0, n3_, "v0");
+    std::string failure, set_error;
+    std::vector<std::string> warnings;
+    {
+      const Busy busy(busy_);  // taken with the GIL held
+      py::gil_scoped_release release;
+      use_my_threads();
+      set_error = set_values(rec->values);
+      if (set_error.empty()) failure = run(steps, lambda, *rec, warnings);
+    }
+    if (!set_error.empty()) throw py::value_error(set_error);
+    for (const auto& w : warnings)
+      if (PyErr_WarnEx(g_convergence_warning, w.c_str(), 1) != 0) throw py::error_already_set();
+    if (!failure.empty()) {
+      py::dict attributes;
+      attributes["exit_code"] = 1;
+      attributes["steps_done"] = rec->tape.steps();
+      raise(g_step_error, failure, attributes);
+    }
+    rec->id = ++runs_;
+    rec->owner = serial_;
+    py::array_t<double> x({static_cast<py::ssize_t>(steps + 1), static_cast<py::ssize_t>(base_->fem.num_nodes), py::ssize_t{3}});
+    py::array_t<double> v({static_cast<py::ssize_t>(steps + 1), static_cast<py::ssize_t>(base_->fem.num_nodes), py::ssize_t{3}});
+    for (long f = 0; f <= steps; ++f) {
+      const State& s = rec->tape.frames[static_cast<std::size_t>(f)];
+      std::memcpy(x.mutable_data() + f * n3_, s.x.data(), sizeof(double) * static_cast<std::size_t>(n3_));
+      std::memcpy(v.mutable_data() + f * n3_, s.v.data(), sizeof(double) * static_cast<std::size_t>(n3_));
+    }
+    return py::make_tuple(x, v, rec);
+  }
+
+  py::dict adjoint(const std::shared_ptr<Recording>& rec, const py::object& bar_x, const py::object& bar_v) {
+    if (!rec) throw py::type_error("adjoint: a Recording from record()");
+    if (rec->owner != serial_) throw py::value_error("adjoint: the recording is another Rollout's (record() it with this one)");
+    const long T = rec->tape.steps();
+    const std::size_t frames = static_cast<std::size_t>(T + 1);
+    const auto cotangent = [&](const py::object& o, const char* what) {
+      MatX c;  // (3n x T + 1), empty: zero
+      if (o.is_none()) return c;
+      const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(o);
+      if (!a) throw py::type_error(std::string(what) + ": an array of numbers (steps + 1, n, 3)");
+      if (a.size() != static_cast<py::ssize_t>(frames) * n3_ || a.ndim() < 1 || a.shape(0) != static_cast<py::ssize_t>(frames))
+        throw py::value_error(std::string(what) + ": shape (" + std::to_string(T + 1) + ", " + std::to_string(n3_ / 3) +
+                              ", 3) expected (a cotangent per frame), got " + shape_text(a));
+      c = Eigen::Map<const MatX>(a.data(), n3_, static_cast<Eigen::Index>(frames));
+      if (!c.allFinite()) throw py::value_error(std::string(what) + ": a value is not finite");
+      return c;
+    };
+    const MatX bx = cotangent(bar_x, "bar_x"), bv = cotangent(bar_v, "bar_v");
+    diff::AdjointResult result;
+    std::string failure, set_error;
+    {
+      const Busy busy(busy_);
+      py::gil_scoped_release release;
+      use_my_threads();
+      set_error = set_values(rec->values);  // the recording's model, bit for bit (restore, then set)
+      if (set_error.empty()) {
+        const auto loss = [&](long k, const State&, VecX& gx, VecX& gv) {
+          if (bx.size()) gx += bx.col(k);
+          if (bv.size()) gv += bv.col(k);
+        };
+        try {
+          const StepStatus s = diff::adjoint(*model_, *data_, rec->tape, selection_.layout, loss, result);
+          if (!s.ok()) failure = describe(*model_, s);
+        } catch (const ComputationError& e) {
+          failure = e.what();
+        }
+      }
+    }
+    if (!set_error.empty()) throw py::value_error(set_error);
+    if (!failure.empty()) raise(g_step_error, "adjoint: " + failure, py::dict(py::arg("exit_code") = 1));
+    if (!result.theta.allFinite() || !result.lambda_a.allFinite() || !result.x0.allFinite() || !result.v0.allFinite())
+      raise(g_step_error, "adjoint: the gradient has non-finite entries", py::dict(py::arg("exit_code") = 1));
+    py::dict out;
+    const auto k = static_cast<Eigen::Index>(selection_.layout.parameters.size());
+    py::array_t<double> theta(static_cast<py::ssize_t>(k));
+    if (k) std::memcpy(theta.mutable_data(), result.theta.data(), sizeof(double) * static_cast<std::size_t>(k));
+    out["theta"] = theta;
+    const Eigen::Index na = result.lambda_a.rows();
+    py::array_t<double> act({static_cast<py::ssize_t>(T), static_cast<py::ssize_t>(na)});
+    for (long s = 0; s < T; ++s)
+      for (Eigen::Index i = 0; i < na; ++i) act.mutable_data()[s * na + i] = result.lambda_a(i, s);
+    out["actuation"] = act;
+    py::array_t<double> gx({static_cast<py::ssize_t>(n3_ / 3), py::ssize_t{3}}), gv({static_cast<py::ssize_t>(n3_ / 3), py::ssize_t{3}});
+    std::memcpy(gx.mutable_data(), result.x0.data(), sizeof(double) * static_cast<std::size_t>(n3_));
+    std::memcpy(gv.mutable_data(), result.v0.data(), sizeof(double) * static_cast<std::size_t>(n3_));
+    out["x0"] = gx;
+    out["v0"] = gv;
+    out["recompute_mismatch"] = result.recompute_mismatch;
+    return out;
+  }
+
+ private:
+  static std::string shape_text(const py::array& a) {
+    std::string s = "(";
+    for (py::ssize_t d = 0; d < a.ndim(); ++d) s += (d ? ", " : "") + std::to_string(a.shape(d));
+    return s + (a.ndim() == 1 ? ",)" : ")");
+  }
+  static VecX array(const py::object& o, Eigen::Index n, const std::string& what) {
+    const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(o);
+    if (!a) throw py::type_error(what + ": an array of numbers");
+    if (a.size() != n)
+      throw py::value_error(what + ": " + std::to_string(n) + " values expected, got " + std::to_string(a.size()));
+    VecX v = Eigen::Map<const VecX>(a.data(), n);
+    if (!v.allFinite()) throw py::value_error(what + ": a value is not finite");
+    return v;
+  }
+  void use_my_threads() const {
+    if (thread_plan().threads != plan_threads_) set_threads(threads_);
+  }
+  // The model at `values`: every theta parameter back to the scene's value, then set in
+  // order (the same model, bit for bit, as set on a fresh copy: diff/parameters.hpp), and
+  // the workspace restarted. "" or why a value was refused (its range).
+  std::string set_values(const VecX& values) {
+    const auto& ps = selection_.layout.parameters;
+    for (const auto& p : ps) diff::restore_parameter(*model_, *base_, p);
+    try {
+      for (std::size_t j = 0; j < ps.size(); ++j) diff::set_parameter(*model_, ps[j], values[static_cast<Eigen::Index>(j)]);
+    } catch (const std::invalid_argument& e) {
+      for (const auto& p : ps) diff::restore_parameter(*model_, *base_, p);
+      data_->restart(*model_, friction_);
+      return std::string("values: ") + e.what();
+    }
+    data_->restart(*model_, friction_);
+    return "";
+  }
+  // diff::record's loop (trajectory.cpp), with the contact policy of Simulator::advance.
+  std::string run(long steps, const MatX& actuation, Recording& rec, std::vector<std::string>& warnings) {
+    diff::Tape& tape = rec.tape;
+    State initial = model_->initial;
+    initial.x = rec.x0;
+    initial.v = rec.v0;
+    tape.frames.assign(1, initial);
+    tape.frames.reserve(static_cast<std::size_t>(steps) + 1);
+    tape.lambda_a.clear();
+    tape.lambda_a.reserve(static_cast<std::size_t>(steps));
+    tape.warm_start.clear();
+    tape.rigid_at_limit.clear();
+    State next = initial;
+    VecX lambda;
+    try {
+      for (long step = 1; step <= steps; ++step) {
+        const VecX* override_values = nullptr;
+        if (actuation.size()) {
+          lambda = actuation.col(step - 1);
+          override_values = &lambda;
+        }
+        if (model_->contact.enabled)
+          tape.warm_start.push_back({data_->contact.previous_keys, data_->contact.previous_lambda, data_->contact.rigid.limit_lambda});
+        const State* previous = step > 1 ? &tape.frames[tape.frames.size() - 2] : nullptr;
+        const StepStatus st = integrator::time_step(*model_, *data_, tape.frames.back(), previous, next, step, override_values);
+        if (!st.ok()) {
+          tape.frames.resize(static_cast<std::size_t>(step));  // steps done: step - 1
+          return describe(*model_, st);
+        }
+        if (model_->contact.enabled) {
+          if (const StepStatus c = integrator::contact_status(*model_, *data_, step); !c.ok()) {
+            if (strict_) return describe(*model_, c);
+            ++rec.contact_not_converged;
+            warnings.push_back(describe(*model_, c) + " (strict=True makes it an error)");
+          }
+        }
+        tape.frames.push_back(next);
+        tape.lambda_a.push_back(data_->lambda_a);
+      }
+    } catch (const ComputationError& e) {
+      return e.what();
+    } catch (const std::bad_alloc&) {
+      return "out of memory (an allocation failed)";
+    }
+    return "";
+  }
+
+  int threads_, plan_threads_ = 1;
+  bool strict_, friction_ = false;
+  bool busy_ = false;  // a run or sweep is under way (Busy)
+  const long serial_ = ++serials_;  // unique over the process (a freed Rollout's address may be reused)
+  static inline long serials_ = 0;  // (with the GIL held)
+  std::unique_ptr<Model> base_, model_;  // the scene's model; the one the runs set values in
+  std::unique_ptr<Data> data_;
+  diff::ThetaSelection selection_;
+  Eigen::Index n3_ = 0;
+  long runs_ = 0;
+};
+// --- end torch support (ptorch) ---
+
 // A softdiff HDF5 output (docs/output.md) read whole by the library's reader
 // (io::Hdf5Reader; no h5py needed): nested dicts of float64 arrays per group (the
 // XDMF views under /xdmf left out: they store no values), the root's status and
@@ -762,6 +1134,39 @@ PYBIND11_MODULE(_softdiff, m) {
       .def_property_readonly("bodies", &Simulator::bodies, "body names: soft bodies, then rigid bodies")
       .def_property_readonly("newton_not_converged_steps", &Simulator::newton_not_converged)
       .def_property_readonly("contact_not_converged_steps", &Simulator::contact_not_converged);
+
+  // --- torch support (ptorch) ---
+  py::class_<Recording, std::shared_ptr<Recording>>(m, "Recording",
+                                                    "A recorded run of Rollout.record() (its states, actuation values "
+                                                    "and contact warm starts), for Rollout.adjoint()")
+      .def_property_readonly("steps", [](const Recording& r) { return r.tape.steps(); })
+      .def_property_readonly("bytes", [](const Recording& r) { return r.tape.bytes(); })
+      .def_property_readonly("id", [](const Recording& r) { return r.id; })
+      .def_property_readonly("contact_not_converged_steps", [](const Recording& r) { return r.contact_not_converged; })
+      .def_property_readonly("values", [](const Recording& r) { return std::vector<double>(r.values.data(), r.values.data() + r.values.size()); });
+  py::class_<Rollout>(m, "Rollout")
+      .def(py::init<const Scene&, const py::object&, int, bool>(), py::arg("scene"), py::arg("theta") = py::none(),
+           py::arg("threads") = 1, py::arg("strict") = false,
+           "A scene's model for differentiated runs (softdiff.torch): theta = material parameter groups "
+           "(young, poisson, density, rayleigh_mass, rayleigh_stiffness, friction)")
+      .def("record", &Rollout::record, py::arg("steps"), py::arg("values") = py::none(), py::arg("actuation") = py::none(),
+           py::arg("x0") = py::none(), py::arg("v0") = py::none(),
+           "Run steps steps with theta's values and the actuation sequence (steps, n_actuators): (x, v, recording), "
+           "x, v (steps + 1, n, 3)")
+      .def("adjoint", &Rollout::adjoint, py::arg("recording"), py::arg("bar_x") = py::none(), py::arg("bar_v") = py::none(),
+           "Reverse sweep over a recording for l = sum_k bar_x[k] . x_k + bar_v[k] . v_k: dict theta, actuation, x0, v0, "
+           "recompute_mismatch")
+      .def("schedule", &Rollout::schedule, py::arg("steps"), "The actuators' scheduled values of steps 1..steps, (steps, n_a)")
+      .def("effector", &Rollout::effector, py::arg("name"), "(node indices, weights) of an effector")
+      .def("nodes", &Rollout::nodes, py::arg("body"), "A soft body's slice of the node axis")
+      .def_property_readonly("theta_values", &Rollout::theta_values, "the scene's values of theta's columns")
+      .def_property_readonly("theta_columns", &Rollout::theta_columns)
+      .def_property_readonly("theta_groups", &Rollout::theta_groups)
+      .def_property_readonly("actuators", &Rollout::actuators)
+      .def_property_readonly("num_actuators", &Rollout::num_actuators)
+      .def_property_readonly("num_nodes", &Rollout::num_nodes)
+      .def_property_readonly("dt", &Rollout::dt);
+  // --- end torch support (ptorch) ---
 
   m.def(
       "thread_plan",

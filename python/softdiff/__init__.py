@@ -27,6 +27,7 @@ from ._softdiff import (  # noqa: F401
     thread_plan,
 )
 from ._softdiff import _load_scene, _read_output
+from ._softdiff import Recording, Rollout  # noqa: F401  torch support (ptorch): softdiff.torch's runs
 
 import math as _math
 import os as _os
@@ -34,6 +35,16 @@ from collections.abc import Mapping as _Mapping
 
 __all__ = ["load_scene", "read_result", "Result", "Scene", "Simulator", "SceneError", "StepError", "ConvergenceWarning", "SceneWarning", "thread_plan",
            "__version__"]
+__all__ += ["Rollout", "Recording"]  # torch support (ptorch)
+
+
+def __getattr__(name):
+    # softdiff.torch (python/softdiff/torch.py, docs/python.md "PyTorch") is imported on
+    # first use: `import softdiff` does not need PyTorch.
+    if name == "torch":
+        import importlib
+        return importlib.import_module(".torch", __name__)
+    raise AttributeError(f"module 'softdiff' has no attribute {name!r}")
 
 
 def _yaml_value(value):
