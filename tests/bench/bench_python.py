@@ -11,7 +11,9 @@ Each repeat builds two fresh simulators (not timed) and advances them together, 
 steps at a time (A's block, then B's, the order alternating from block to block), so
 that a drift of the machine's load touches both alike. Reported: the medians over the
 repeats of A's and B's total times, their ratio B / A (the figure), the per-repeat
-ratios, the median of the blocks' ratios, and the absolute per-step difference. The same loops on a scene
+ratios, the median of the blocks' ratios, and the absolute per-step difference; then a
+control, the same measurement with advance() for both (its ratio is 1 but for the
+noise of this machine in this run: the resolution of the figure). The same loops on a scene
 whose step costs microseconds (the rigid stack without contact) give the binding's
 own cost per step, which the Trunk's ratio divides by its step time. A benchmark, not a
 test: it asserts nothing about time; it checks that both loops reached the same state
@@ -35,22 +37,24 @@ def uptime():
     return subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
 
 
-def measure(scene, steps, repeats, threads, block):
+def measure(scene, steps, repeats, threads, block, control=False):
     """Per repeat: two fresh simulators A, B (not timed) advanced together, `block`
     steps at a time, A by advance(block), B by block step() calls, the order of the two
     alternating from block to block: the two loops run interleaved at a fine grain, so
-    that a change of the machine's load touches both alike."""
+    that a change of the machine's load touches both alike; which simulator is built
+    first alternates from repeat to repeat. control: B runs advance() too (A against A:
+    the noise of the ratio in this run)."""
     a_times, b_times, block_ratios, fastest = [], [], [], {"A": float("inf"), "B": float("inf")}
     same = True
     for r in range(repeats):
-        sims = {w: softdiff.Simulator(scene, threads=threads) for w in "AB"}
+        sims = {w: softdiff.Simulator(scene, threads=threads) for w in ("AB" if r % 2 == 0 else "BA")}
         totals = {"A": 0.0, "B": 0.0}
         for i in range(steps // block):
             took = {}
             for which in (("A", "B") if (r + i) % 2 == 0 else ("B", "A")):
                 sim = sims[which]
                 t0 = time.perf_counter()
-                if which == "A":
+                if which == "A" or control:
                     sim.advance(block)
                 else:
                     for _ in range(block):
@@ -105,11 +109,13 @@ def main():
     scene = softdiff.load_scene(args.scene)
     m = measure(scene, args.steps, args.repeats, args.threads, args.block)
     report(f"{scene.name} ({args.scene})", args.steps, m)
+    c = measure(scene, args.steps, args.repeats, args.threads, args.block, control=True)
+    report("control: the same with advance() for both loops (the ratio's noise in this run)", args.steps, c)
     tiny = softdiff.load_scene(ROOT / "configs" / "rigid_stack.yaml", overrides={"contact.enabled": False})
     t = measure(tiny, args.tiny_steps, args.repeats, args.threads, args.tiny_steps // 20)
     report("rigid stack without contact (the binding's own cost per step)", args.tiny_steps, t)
     print(f"== uptime: {uptime()}")
-    return 0 if m["same"] and t["same"] else 1
+    return 0 if m["same"] and t["same"] and c["same"] else 1
 
 
 if __name__ == "__main__":
