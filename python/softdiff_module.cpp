@@ -536,6 +536,10 @@ class Simulator {
                               std::to_string(p[i]) + ")");
     if (b >= 0) {
       const auto& body = model_->fem.bodies[static_cast<std::size_t>(b)];
+      for (const auto& part : model_->rigidify.parts)
+        if (part.body == b)
+          throw py::value_error(std::string(what) + "('" + name + "'): the body has rigidified parts (" + part.name +
+                                ": its nodes move as one rigid body); setting its state is not bound (issue 23)");
       if (shape != std::vector<py::ssize_t>{body.num_nodes, 3})
         throw py::value_error(std::string(what) + "('" + name + "'): shape (" + std::to_string(body.num_nodes) +
                               ", 3) expected, got " + shape_text());

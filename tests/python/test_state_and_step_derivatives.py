@@ -189,7 +189,7 @@ def test_rigid_bdf2_chain_matches_central_differences(overrides, steps):
     # e = 1e-4: measured 2.4e-10 and 3.2e-11 of the largest entry (1e-5: 8.2e-10, 1.0e-9;
     # 1e-6: 1.8e-8, 1.4e-8, round-off). Tolerance 1e-8.
     warnings.simplefilter("ignore", softdiff.ConvergenceWarning)
-    sim = softdiff.Simulator(stack(**overrides), jacobian="mass")
+    sim = softdiff.Simulator(stack(**overrides), jacobian="x0,v0")
     start = rigid_states(sim)
     d = random_rigid_direction(sim.bodies, 0)
     dx, dv = split(d, sim.bodies)
@@ -199,6 +199,11 @@ def test_rigid_bdf2_chain_matches_central_differences(overrides, steps):
         nx, nv = sim.step_jvp(dx=dx, dv=dv, dx_prev=px, dv_prev=pv)
         px, pv, dx, dv = dx, dv, nx, nv
     jvp, out = join(dx, dv, 3), rigid_states(sim)
+    # The chain is jacobian()'s x0, v0 columns applied to d (the same products): 1e-12.
+    d0x, d0v = split(d, sim.bodies)
+    J, Jv = sim.jacobian(), sim.jacobian(of="v")
+    assert np.abs(J["x0"] @ d0x + J["v0"] @ d0v - dx).max() <= 1e-12 * np.abs(dx).max()
+    assert np.abs(Jv["x0"] @ d0x + Jv["v0"] @ d0v - dv).max() <= 1e-12 * np.abs(dv).max()
     e = 1e-4
     moved = []
     for sign in (1, -1):
@@ -459,6 +464,9 @@ def test_set_state_refuses_bad_input():
     st = softdiff.Simulator(softdiff.load_scene(STATIC))
     with pytest.raises(ValueError, match="a static scene's state is the equilibrium"):
         st.set_x("beam", good)
+    hub = softdiff.Simulator(softdiff.load_scene(ROOT / "configs" / "trunk_hub.yaml"))
+    with pytest.raises(ValueError, match=r"set_v\('trunk'\): the body has rigidified parts \(body 'trunk' rigidify\[0\]"):
+        hub.set_v("trunk", hub.v("trunk"))
 
 
 # --- advance(n): the C++ loop ------------------------------------------------------------------
