@@ -602,9 +602,10 @@ class Simulator {
       for (long i = 0; i < steps && failure.empty(); ++i) {
         warning.clear();
         failure = advance(warning);
-        if (!warning.empty() && failure.empty()) {
+        if (!warning.empty() && failure.empty()) {  // issued now (a failed step's with its error, below)
           py::gil_scoped_acquire acquire;
           warn(warning);
+          warning.clear();
         }
       }
     }

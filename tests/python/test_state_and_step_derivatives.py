@@ -483,3 +483,22 @@ def test_advance_is_run_without_frames():
     with pytest.raises(softdiff.StepError, match="^step 1: inverted element") as info:
         bad.advance(3)
     assert info.value.steps_done == 0 and info.value.exit_code == 1
+
+
+def test_advance_warns_once_per_unconverged_step():
+    # Newton capped at 2 iterations with an unreachable tolerance: every step warns, once.
+    not_converging = {"simulation.newton_iterations": 2, "simulation.newton_tolerance": 1e-30}
+    sim = softdiff.Simulator(softdiff.load_scene(BEAM, overrides=not_converging))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", softdiff.ConvergenceWarning)
+        sim.advance(3)
+    messages = [str(w.message) for w in caught if issubclass(w.category, softdiff.ConvergenceWarning)]
+    assert [m.split(":")[0] for m in messages] == ["step 1", "step 2", "step 3"]
+    assert sim.newton_not_converged_steps == 3 and sim.steps_done == 3
+    # A warnings filter "error" stops the loop after the step that warned.
+    sim = softdiff.Simulator(softdiff.load_scene(BEAM, overrides=not_converging))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", softdiff.ConvergenceWarning)
+        with pytest.raises(softdiff.ConvergenceWarning, match="^step 1: Newton did not converge"):
+            sim.advance(3)
+    assert sim.steps_done == 1
