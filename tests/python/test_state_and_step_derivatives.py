@@ -369,6 +369,8 @@ def test_static_adjoint_is_the_jacobian_transposed():
         sim.adjoint(bar_x=w, bar_v=w)
     with pytest.raises(ValueError, match="bar_x: 3075 values expected, got 2"):
         sim.adjoint(bar_x=[1.0, 2.0])
+    with pytest.raises(ValueError, match=r"bar_rigid \(static: 6 per rigid body\): 0 values expected, got 6"):
+        sim.adjoint(bar_x=w, bar_rigid=np.ones(6))
     with pytest.raises(softdiff.SceneError, match="^theta: 'x0' has no effect on a static equilibrium"):
         sim.adjoint(bar_x=w, theta="x0")
     with pytest.raises(ValueError, match="the number of steps is needed"):
