@@ -650,6 +650,7 @@ class Simulator {
     record_valid_ = false;
     data_->contact.previous_keys.clear();  // no key matches: the next NCP starts from zero forces
     data_->contact.previous_lambda.resize(0);
+    data_->contact.rigid.limit_lambda.resize(0);  // the joint limits' warm start (as a fresh Data's)
     for (auto& info : data_->rigid) info.at_limit = false;
     if (sensitivity_) sensitivity_ = std::make_unique<diff::ForwardSensitivity>(*model_, theta_->layout);
   }
