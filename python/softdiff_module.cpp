@@ -21,6 +21,7 @@
 #include <softdiff/diff/theta_selection.hpp>
 #include <softdiff/diff/trajectory.hpp>
 #include <softdiff/integrator/bdf2.hpp>
+#include <softdiff/integrator/bdf2_derivatives.hpp>  // pyrig
 #include <softdiff/integrator/contact_status.hpp>
 #include <softdiff/integrator/implicit_euler_derivatives.hpp>
 #include <softdiff/integrator/static_solver.hpp>
@@ -35,6 +36,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <memory>
@@ -154,77 +156,153 @@ class Simulator {
       for (const auto& g : theta_->groups) out[py::str(g.name)] = g.columns;
     return out;
   }
-  // The last step's JVP (integrator::StepDerivatives::jvp): tangents of its input state
-  // (dx, dv: 3n each, soft nodes) and of theta's groups (dtheta: group -> its size; not
-  // x0, v0: those are dx, dv) -> (dx_out, dv_out). Implicit Euler scenes of soft bodies
-  // (the step's derivative with rigid bodies or BDF2 chains more: issue 23).
-  py::tuple step_jvp(const py::object& dx, const py::object& dv, const py::dict& dtheta) {
+  // --- pyrig --- the last step's JVP and VJP with rigid bodies and BDF2 (issue 23 item 2)
+  // The state's tangent is laid out as jacobian()'s rows: dx = the soft bodies' 3 n
+  // coordinates, then 6 per rigid body (position, rotation vector of the orientation
+  // change in world axes, q + dq = exp(dtheta) q); dv = 3 n, then 6 per rigid body
+  // (velocity, angular velocity). BDF2's step reads two frames: dx_prev, dv_prev are the
+  // tangent of the frame before the step's input (x_{n-1}; zero contribution on an
+  // implicit Euler step: implicit_euler scenes, BDF2's first step, a restart), and the
+  // VJP returns that frame's cotangent as "x_prev", "v_prev". The products are those of
+  // the library's chains, one step of them: diff::ForwardSensitivity::advance (JVP) and
+  // diff::adjoint's reverse step (VJP), i.e. integrator::multistep_jvp / multistep_vjp on
+  // the step's record (one solve on its factorization; with contact through the NCP's
+  // modes) and, per rigid body, its 12 x 12 step Jacobian (rigid_bdf2_derivatives.hpp;
+  // with rigid bodies in contact the bodies' rows go through the one contact solve, and
+  // BDF2's extrapolated states through the extrapolation's Jacobian).
+  py::tuple step_jvp(const py::object& dx, const py::object& dv, const py::dict& dtheta, const py::object& dx_prev,
+                     const py::object& dv_prev) {
     demand_step_derivative();
+    const Eigen::Index n3 = 3L * model_->fem.num_nodes, nr = static_cast<Eigen::Index>(model_->rigid.size());
+    const Eigen::Index rows = n3 + 6 * nr;
+    const VecX din = vector_or_zero(dx, rows, "dx"), dvin = vector_or_zero(dv, rows, "dv");
+    const VecX dxp = vector_or_zero(dx_prev, rows, "dx_prev"), dvp = vector_or_zero(dv_prev, rows, "dv_prev");
     integrator::StepTangent d;
-    const Eigen::Index n3 = state_.x.size();
-    d.x = vector_or_zero(dx, n3, "dx");
-    d.v = vector_or_zero(dv, n3, "dv");
     d.p = VecX::Zero(static_cast<Eigen::Index>(theta_->layout.parameters.size()));
     d.lambda_a = VecX::Zero(static_cast<Eigen::Index>(model_->actuation.actuators.size()));
+    VecX drp = VecX::Zero(7 * nr);  // the rigid bodies' mass and inertia tangents, 7 per body
     for (auto item : dtheta) {
       const std::string name = py::str(item.first);
       const diff::ThetaGroup& g = group(name);
       const VecX value = vector_or_zero(py::reinterpret_borrow<py::object>(item.second), g.size, "dtheta['" + name + "']");
-      if (name == "actuation")
+      if (name == "actuation") {
         d.lambda_a = value;
-      else
+      } else if (is_rigid_parameter_group(g)) {
+        for (Eigen::Index i = 0; i < g.size; ++i) {
+          const auto& p = rigid_parameter_of_column(g.offset + i);
+          drp[7 * p.body + p.index] += value[i];
+        }
+      } else {
         d.p.segment(g.offset, g.size) = value;
+      }
     }
-    integrator::StateTangent out;
-    bool ok = false;
+    VecX ox = VecX::Zero(rows), ov = VecX::Zero(rows);
+    std::string failure;
     {
       py::gil_scoped_release release;
-      ok = step_derivatives_->jvp(*model_, *data_, previous_, state_, d, out);
+      failure = step_jvp_(din, dvin, dxp, dvp, d, drp, ox, ov);
     }
-    if (!ok) raise(g_step_error, "the derivative of step " + std::to_string(k_) + " failed (a linear solve did not "
-                                 "succeed or gave non-finite values)");
-    return py::make_tuple(to_numpy(out.x, n3), to_numpy(out.v, n3));
+    if (!failure.empty()) raise(g_step_error, failure, py::dict(py::arg("exit_code") = 1));
+    return py::make_tuple(to_numpy(ox, rows), to_numpy(ov, rows));
   }
 
-  // The last step's VJP: cotangents of its output state (bar_x, bar_v) -> dict "x", "v"
-  // (of its input state) and one entry per theta group but x0, v0.
   py::dict step_vjp(const py::object& bar_x, const py::object& bar_v) {
     demand_step_derivative();
-    const Eigen::Index n3 = state_.x.size();
-    integrator::StateTangent bar;
-    bar.x = vector_or_zero(bar_x, n3, "bar_x");
-    bar.v = vector_or_zero(bar_v, n3, "bar_v");
-    integrator::StepCotangent in;
-    bool ok = false;
+    const Eigen::Index n3 = 3L * model_->fem.num_nodes, nr = static_cast<Eigen::Index>(model_->rigid.size());
+    const Eigen::Index rows = n3 + 6 * nr;
+    const VecX bx = vector_or_zero(bar_x, rows, "bar_x"), bv = vector_or_zero(bar_v, rows, "bar_v");
+    VecX gx(rows), gv(rows), gxp(rows), gvp(rows), gp, ga, grp;
+    std::string failure;
     {
       py::gil_scoped_release release;
-      ok = step_derivatives_->vjp(*model_, *data_, previous_, state_, bar, in);
+      failure = step_vjp_(bx, bv, gx, gv, gxp, gvp, gp, ga, grp);
     }
-    if (!ok) raise(g_step_error, "the derivative of step " + std::to_string(k_) + " failed (a linear solve did not "
-                                 "succeed or gave non-finite values)");
+    if (!failure.empty()) raise(g_step_error, failure, py::dict(py::arg("exit_code") = 1));
     py::dict out;
-    out["x"] = to_numpy(in.x, n3);
-    out["v"] = to_numpy(in.v, n3);
+    out["x"] = to_numpy(gx, rows);
+    out["v"] = to_numpy(gv, rows);
+    out["x_prev"] = to_numpy(gxp, rows);
+    out["v_prev"] = to_numpy(gvp, rows);
     for (const auto& g : theta_->groups) {
       if (g.name == "x0" || g.name == "v0") continue;
-      if (g.name == "actuation")
-        out[py::str(g.name)] = to_numpy(in.lambda_a, g.size);
-      else
-        out[py::str(g.name)] = to_numpy(in.p.size() ? VecX(in.p.segment(g.offset, g.size)) : VecX(), g.size);
+      if (g.name == "actuation") {
+        out[py::str(g.name)] = to_numpy(ga, g.size);
+      } else if (is_rigid_parameter_group(g)) {
+        VecX col(g.size);
+        for (Eigen::Index i = 0; i < g.size; ++i) {
+          const auto& p = rigid_parameter_of_column(g.offset + i);
+          col[i] = grp.size() ? grp[7 * p.body + p.index] : 0.0;
+        }
+        out[py::str(g.name)] = to_numpy(col, g.size);
+      } else {
+        out[py::str(g.name)] = to_numpy(gp.size() ? VecX(gp.segment(g.offset, g.size)) : VecX(), g.size);
+      }
     }
     return out;
   }
+  // --- end pyrig ---
+
+  // --- pyrig --- adjoint() of a static scene (issue 23 item 2)
+  // l = bar_x . x* (+ bar_rigid . the rigid poses' tangent, 6 per body: position,
+  // rotation vector; jacobian()'s rows) at the equilibrium run() solved: dl/dtheta =
+  // (dx*/dtheta)^T bar by integrator::static_vjp, the implicit function theorem's
+  // transposed solve (one factorization at x*, one solve whatever the number of theta
+  // columns; diff::static_jacobian's system). theta as the dynamic adjoint's.
+  py::dict adjoint_static(const py::object& bar_x, const py::object& bar_v, const py::object& bar_rigid,
+                          const py::object& theta) {
+    if (!solved_) throw py::value_error("adjoint(): run() solves the static equilibrium first");
+    if (!bar_v.is_none()) throw py::value_error("bar_v: a static equilibrium has no velocities");
+    diff::ThetaSelection selection;
+    if (!theta.is_none()) {
+      try {
+        selection = diff::parse_theta("theta", theta_list(theta), *model_);
+      } catch (const InputError& e) {
+        raise(g_scene_error, e.what());
+      }
+    } else if (theta_) {
+      selection = *theta_;
+    } else {
+      throw py::value_error("no theta: give adjoint(bar_x=..., theta=\"young, ...\") or Simulator(scene, jacobian=...)");
+    }
+    const Eigen::Index n3 = state_.x.size(), nr = static_cast<Eigen::Index>(model_->rigid.size());
+    VecX bar(n3 + 6 * nr);
+    bar.head(n3) = vector_or_zero(bar_x, n3, "bar_x");
+    bar.tail(6 * nr) = vector_or_zero(bar_rigid, 6 * nr, "bar_rigid (static: 6 per rigid body)");
+    integrator::StaticTheta st{selection.layout.parameters, selection.layout.actuation, {}};
+    for (const auto& id : selection.layout.rigid_parameters) st.rigid_parameters.emplace_back(id.body, id.index);
+    VecX g;
+    std::string failure;
+    {
+      py::gil_scoped_release release;
+      use_my_threads();
+      try {
+        if (!integrator::static_vjp(*model_, *data_, state_, st, bar, g))
+          failure = "the derivative of the equilibrium failed (inverted element or tangent not positive definite)";
+      } catch (const ComputationError& e) {
+        failure = std::string("the derivative of the equilibrium failed: ") + e.what();
+      }
+    }
+    if (!failure.empty()) raise(g_step_error, failure, py::dict(py::arg("exit_code") = 1));
+    py::dict out;
+    for (const auto& grp : selection.groups)
+      out[py::str(grp.name)] = to_numpy(VecX(g.segment(grp.offset, grp.size)), grp.size);
+    return out;
+  }
+  // --- end pyrig ---
 
   // The gradient of a loss of the state `steps` steps from now, l = bar_x . x_T +
   // bar_v . v_T (+ bar_rigid . the rigid states' tangent), by the adjoint (diff::record,
   // diff::adjoint): a run of its own from the current state on a workspace of its own
   // (the simulator's state and record are unchanged), the reverse sweep recomputing it.
   // theta: groups as jacobian= (default: the simulator's).
-  py::dict adjoint(long steps, const py::object& bar_x, const py::object& bar_v, const py::object& bar_rigid,
-                   const py::object& theta) {
-    if (is_static_)
-      throw py::value_error("adjoint() of a static scene is not bound yet (issue 23): jacobian() after run() gives "
-                            "d x* / d theta");
+  py::dict adjoint(std::optional<long> steps_given, const py::object& bar_x, const py::object& bar_v,
+                   const py::object& bar_rigid, const py::object& theta) {
+    if (is_static_) {  // pyrig: the equilibrium's adjoint (static scenes: no steps)
+      if (steps_given) throw py::value_error("adjoint() of a static scene takes no steps: adjoint(bar_x=...) after run()");
+      return adjoint_static(bar_x, bar_v, bar_rigid, theta);
+    }
+    if (!steps_given) throw py::value_error("adjoint(steps, ...): the number of steps is needed");
+    const long steps = *steps_given;
     if (steps < 0) throw py::value_error("steps must be >= 0, got " + std::to_string(steps));
     diff::ThetaSelection selection;
     if (!theta.is_none()) {
@@ -428,6 +506,116 @@ class Simulator {
     return out;
   }
 
+  // --- pyrig --- setting the state from Python (issue 23): a restart from that state
+  // Soft (n, 3) positions or velocities; rigid (7,) position + unit quaternion w, x, y, z,
+  // or (6,) velocity + angular velocity (world): the shapes x() and v() return. The
+  // simulator then continues as a new simulator started from its state would: BDF2's
+  // next step is its first (implicit Euler, no previous frame), the contact solve has no
+  // warm start, no step record (step_jvp/step_vjp need a step), and the forward
+  // sensitivities restart at this state (jacobian(): x0, v0 the set state's identity,
+  // parameters zero). time and steps_done are kept (sim.time can be set).
+  void set_state(const std::string& name, const py::object& values, bool velocity) {
+    const char* what = velocity ? "set_v" : "set_x";
+    if (is_static_)
+      throw py::value_error(std::string(what) + ": a static scene's state is the equilibrium run() solves");
+    const auto a = py::array::ensure(values);
+    if (!a) throw py::type_error(std::string(what) + ": a numpy array (or a nested list) of float64 values");
+    const char kind = a.dtype().kind();
+    if (kind != 'f' && kind != 'i' && kind != 'u')
+      throw py::type_error(std::string(what) + ": real numbers expected, got dtype " + std::string(py::str(a.dtype())));
+    const auto f = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(a);
+    const int b = soft_index(name);
+    std::vector<py::ssize_t> shape(f.shape(), f.shape() + f.ndim());
+    auto shape_text = [&] {
+      std::string t = "(";
+      for (std::size_t i = 0; i < shape.size(); ++i) t += (i ? ", " : "") + std::to_string(shape[i]);
+      return t + (shape.size() == 1 ? ",)" : ")");
+    };
+    const double* p = f.data();
+    for (py::ssize_t i = 0; i < f.size(); ++i)
+      if (!std::isfinite(p[i]))
+        throw py::value_error(std::string(what) + "('" + name + "'): entry " + std::to_string(i) + " is not finite (" +
+                              std::to_string(p[i]) + ")");
+    if (b >= 0) {
+      const auto& body = model_->fem.bodies[static_cast<std::size_t>(b)];
+      for (const auto& part : model_->rigidify.parts)
+        if (part.body == b)
+          throw py::value_error(std::string(what) + "('" + name + "'): the body has rigidified parts (" + part.name +
+                                ": its nodes move as one rigid body); setting its state is not bound (issue 23)");
+      if (shape != std::vector<py::ssize_t>{body.num_nodes, 3})
+        throw py::value_error(std::string(what) + "('" + name + "'): shape (" + std::to_string(body.num_nodes) +
+                              ", 3) expected, got " + shape_text());
+      VecX& target = velocity ? state_.v : state_.x;
+      const Eigen::Index begin = 3L * body.node_begin;
+      for (Eigen::Index k = 0; k < 3L * body.num_nodes; ++k) {
+        const auto dof = static_cast<std::size_t>(begin + k);
+        const double now = velocity ? 0.0 : target[begin + k];
+        if (model_->fem.fixed[dof] && p[k] != now)
+          throw py::value_error(std::string(what) + "('" + name + "'): node " + std::to_string(k / 3) +
+                                " is fixed (its " + "xyz"[k % 3] + " " + (velocity ? "velocity is 0" : "position is " + repr(now)) +
+                                "), got " + repr(p[k]));
+      }
+      target.segment(begin, 3L * body.num_nodes) = Eigen::Map<const VecX>(p, 3L * body.num_nodes);
+    } else {
+      const int r = rigid_index(name);
+      const auto& rb = model_->rigid[static_cast<std::size_t>(r)];
+      if (rb.joint.kind != rigid::Joint::Kind::free)
+        throw py::value_error(std::string(what) + "('" + name + "'): a rigid body with a joint (hinge, slider or fixed): "
+                              "its pose and velocity are constrained by the joint; setting them is not bound (issue 23)");
+      const py::ssize_t n = velocity ? 6 : 7;
+      if (shape != std::vector<py::ssize_t>{n})
+        throw py::value_error(std::string(what) + "('" + name + "'): shape (" + std::to_string(n) + ",) expected (" +
+                              (velocity ? "velocity, angular velocity" : "position, quaternion w, x, y, z") + "), got " +
+                              shape_text());
+      auto& rs = state_.rigid[static_cast<std::size_t>(r)];
+      if (velocity) {
+        rs.velocity = Vec3(p[0], p[1], p[2]);
+        rs.angular_velocity = Vec3(p[3], p[4], p[5]);
+      } else {
+        Eigen::Quaterniond q(p[3], p[4], p[5], p[6]);
+        const double norm = q.norm();
+        // A unit quaternion to round-off is kept as given (x()'s values round-trip bit
+        // for bit); within 1e-6 of unit length it is normalized; otherwise refused.
+        if (!(std::abs(norm - 1) <= 1e-6))
+          throw py::value_error(std::string(what) + "('" + name + "'): the quaternion (w, x, y, z) must have unit length, "
+                                "got |q| = " + repr(norm));
+        if (std::abs(norm - 1) > 4e-16) q.normalize();
+        rs.position = Vec3(p[0], p[1], p[2]);
+        rs.orientation = q;
+      }
+    }
+    restart();
+  }
+  void set_time(double t) {
+    if (!std::isfinite(t)) throw py::value_error("time: a finite number expected, got " + repr(t));
+    if (is_static_) throw py::value_error("time: a static scene's time is its load factor");
+    state_.t = t;
+    restart();
+  }
+  // `steps` steps in C++ (no frame copied, the GIL released once): the loop of run()
+  // without its frames, for long runs and for the overhead figure (docs/performance.md,
+  // scripts/bench python). KeyboardInterrupt is seen after the last step.
+  void advance_steps(long steps) {
+    if (is_static_) throw py::value_error(static_whole());
+    if (steps < 0) throw py::value_error("steps must be >= 0, got " + std::to_string(steps));
+    std::string warning, failure;
+    {
+      py::gil_scoped_release release;
+      for (long i = 0; i < steps && failure.empty(); ++i) {
+        warning.clear();
+        failure = advance(warning);
+        if (!warning.empty() && failure.empty()) {  // issued now (a failed step's with its error, below)
+          py::gil_scoped_acquire acquire;
+          warn(warning);
+          warning.clear();
+        }
+      }
+    }
+    finish_step(warning, failure, nullptr);
+    if (PyErr_CheckSignals() != 0) throw py::error_already_set();
+  }
+  // --- end pyrig ---
+
   // Positions of a body: soft (n, 3) copy; rigid (7,) position + quaternion w, x, y, z.
   py::array_t<double> x(const std::string& name) const {
     const int b = soft_index(name);
@@ -456,6 +644,195 @@ class Simulator {
   }
 
  private:
+  // --- pyrig --- restart bookkeeping (set_x, set_v, time)
+  // After a state set from Python: no BDF2 history (the next step is a first step), no
+  // contact warm start, no rigid limit restart flag, no step record, sensitivities from here.
+  void restart() {
+    history_start_ = k_;
+    record_valid_ = false;
+    data_->contact.previous_keys.clear();  // no key matches: the next NCP starts from zero forces
+    data_->contact.previous_lambda.resize(0);
+    data_->contact.rigid.limit_lambda.resize(0);  // the joint limits' warm start (as a fresh Data's)
+    for (auto& info : data_->rigid) info.at_limit = false;
+    if (sensitivity_) sensitivity_ = std::make_unique<diff::ForwardSensitivity>(*model_, theta_->layout);
+  }
+  static std::string repr(double v) {
+    std::ostringstream s;
+    s.precision(17);
+    s << v;
+    return s.str();
+  }
+  long history_start_ = 0;  // k_ at the last restart: the step k_ + 1 after it has no previous frame
+  // --- end pyrig ---
+  // --- pyrig --- step_jvp / step_vjp's computation (without the GIL) and helpers
+  bool is_rigid_parameter_group(const diff::ThetaGroup& g) const {
+    return !theta_->layout.rigid_parameters.empty() && g.offset >= theta_->layout.rigid_parameter_offset(*model_);
+  }
+  const rigid::RigidParameterId& rigid_parameter_of_column(Eigen::Index column) const {
+    return theta_->layout.rigid_parameters[static_cast<std::size_t>(column - theta_->layout.rigid_parameter_offset(*model_))];
+  }
+  // The state before the last step's input (BDF2's x_{n-1}), when the step used it
+  // (data.history_weight != 0): advance()'s swaps leave it in next_ until the next step.
+  const State* step_previous() const { return data_->history_weight != 0 ? &next_ : nullptr; }
+  // Each rigid body's Jacobian of the last step (or, in contact, of its BDF2
+  // extrapolation), as diff::ForwardSensitivity::advance and diff::adjoint form it.
+  void rigid_step_jacobians() {
+    const State& in = previous_;
+    const State* prev = step_previous();
+    const bool coupled = model_->contact.with_rigid(), rigid_bdf2 = model_->step.integrator == IntegratorKind::bdf2;
+    rigid_J_.resize(model_->rigid.size());
+    for (std::size_t r = 0; r < model_->rigid.size(); ++r) {
+      auto& J = rigid_J_[r];
+      if (!coupled) {
+        const bool hat = rigid_bdf2 && data_->hat.rigid.size() == model_->rigid.size();
+        rigid::bdf2_step_jacobian(model_->rigid[r], in.rigid[r], rigid_bdf2 && prev ? &prev->rigid[r] : nullptr,
+                                  hat ? data_->hat.rigid[r] : in.rigid[r], state_.rigid[r], data_->rigid[r],
+                                  model_->step.dt, model_->step.gravity, J);
+      } else if (prev) {
+        J.bdf2 = true;
+        rigid::extrapolation_jacobian(model_->rigid[r], in.rigid[r], prev->rigid[r], data_->hat.rigid[r], J.extrapolation);
+      } else {
+        J.bdf2 = false;
+      }
+    }
+  }
+  static constexpr const char* kDerivativeFailed =
+      "failed (a linear solve did not succeed or gave non-finite values)";
+  std::string step_jvp_(const VecX& din, const VecX& dvin, const VecX& dxp, const VecX& dvp,
+                        integrator::StepTangent& d, const VecX& drp, VecX& ox, VecX& ov) {
+    use_my_threads();
+    const Eigen::Index n3 = 3L * model_->fem.num_nodes, nr = static_cast<Eigen::Index>(model_->rigid.size());
+    const bool coupled = model_->contact.with_rigid();
+    const State* prev = step_previous();
+    try {
+      rigid_step_jacobians();
+      d.x = din.head(n3);
+      d.v = dvin.head(n3);
+      integrator::StateTangent d_prev, out;
+      if (prev) {
+        d_prev.x = dxp.head(n3);
+        d_prev.v = dvp.head(n3);
+      }
+      if (coupled) {
+        // The bodies' rows go through the step's contact solve; BDF2: as the tangent of
+        // their extrapolated states.
+        d.rigid.resize(12 * nr);
+        d.rigid_p = drp;
+        for (Eigen::Index r = 0; r < nr; ++r) {
+          rigid::Vec12 d_n;
+          d_n << din.segment<6>(n3 + 6 * r), dvin.segment<6>(n3 + 6 * r);
+          const auto& J = rigid_J_[static_cast<std::size_t>(r)];
+          if (prev && J.bdf2) {
+            rigid::Vec12 d_p;
+            d_p << dxp.segment<6>(n3 + 6 * r), dvp.segment<6>(n3 + 6 * r);
+            d_n = (J.extrapolation.in * d_n + J.extrapolation.previous * d_p +
+                   J.extrapolation.params * drp.segment<7>(7 * r)).eval();
+          }
+          d.rigid.segment<12>(12 * r) = d_n;
+        }
+      }
+      if (n3 > 0 || coupled) {
+        if (!integrator::multistep_jvp(*step_derivatives_, *model_, *data_, state_, d, d_prev, out, &previous_, prev))
+          return "the derivative of step " + std::to_string(k_) + " " + kDerivativeFailed;
+        if (out.x.size()) ox.head(n3) = out.x;
+        if (out.v.size()) ov.head(n3) = out.v;
+      }
+      for (Eigen::Index r = 0; r < nr; ++r) {
+        rigid::Vec12 d_out;
+        if (coupled) {
+          d_out = out.rigid.size() ? rigid::Vec12(out.rigid.segment<12>(12 * r)) : rigid::Vec12::Zero();
+        } else {
+          const auto& J = rigid_J_[static_cast<std::size_t>(r)];
+          rigid::Vec12 d_in, d_p;
+          d_in << din.segment<6>(n3 + 6 * r), dvin.segment<6>(n3 + 6 * r);
+          d_out = J.state * d_in + J.params * drp.segment<7>(7 * r);
+          if (J.bdf2) {
+            d_p << dxp.segment<6>(n3 + 6 * r), dvp.segment<6>(n3 + 6 * r);
+            d_out += J.previous * d_p;
+          }
+        }
+        ox.segment<6>(n3 + 6 * r) = d_out.head<6>();
+        ov.segment<6>(n3 + 6 * r) = d_out.tail<6>();
+      }
+    } catch (const ComputationError& e) {
+      return "the derivative of step " + std::to_string(k_) + " failed: " + e.what();
+    } catch (const std::invalid_argument& e) {
+      return "the derivative of step " + std::to_string(k_) + " failed: " + e.what();
+    }
+    if (!ox.allFinite() || !ov.allFinite()) return "the derivative of step " + std::to_string(k_) + " gave non-finite values";
+    return "";
+  }
+  std::string step_vjp_(const VecX& bx, const VecX& bv, VecX& gx, VecX& gv, VecX& gxp, VecX& gvp, VecX& gp, VecX& ga,
+                        VecX& grp) {
+    use_my_threads();
+    const Eigen::Index n3 = 3L * model_->fem.num_nodes, nr = static_cast<Eigen::Index>(model_->rigid.size());
+    const bool coupled = model_->contact.with_rigid();
+    const State* prev = step_previous();
+    gx.setZero(), gv.setZero(), gxp.setZero(), gvp.setZero();
+    gp = VecX::Zero(static_cast<Eigen::Index>(theta_->layout.parameters.size()));
+    ga = VecX::Zero(static_cast<Eigen::Index>(model_->actuation.actuators.size()));
+    grp = VecX::Zero(7 * nr);
+    try {
+      rigid_step_jacobians();
+      if (n3 > 0 || coupled) {
+        integrator::StateTangent bar, bar_prev;
+        integrator::StepCotangent cot;
+        bar.x = bx.head(n3);
+        bar.v = bv.head(n3);
+        if (coupled) {
+          bar.rigid.resize(12 * nr);
+          for (Eigen::Index r = 0; r < nr; ++r)
+            bar.rigid.segment<12>(12 * r) << bx.segment<6>(n3 + 6 * r), bv.segment<6>(n3 + 6 * r);
+        }
+        if (!integrator::multistep_vjp(*step_derivatives_, *model_, *data_, state_, bar, cot, bar_prev, &previous_, prev))
+          return "the derivative of step " + std::to_string(k_) + " " + kDerivativeFailed;
+        if (cot.x.size()) gx.head(n3) = cot.x;
+        if (cot.v.size()) gv.head(n3) = cot.v;
+        if (bar_prev.x.size()) gxp.head(n3) = bar_prev.x;
+        if (bar_prev.v.size()) gvp.head(n3) = bar_prev.v;
+        if (cot.p.size()) gp = cot.p;
+        if (cot.lambda_a.size()) ga = cot.lambda_a;
+        if (coupled) {
+          if (cot.rigid_p.size()) grp = cot.rigid_p;
+          for (Eigen::Index r = 0; r < nr; ++r) {
+            const rigid::Vec12 bar_hat = cot.rigid.size() ? rigid::Vec12(cot.rigid.segment<12>(12 * r)) : rigid::Vec12::Zero();
+            rigid::Vec12 b_in = bar_hat, b_prev = rigid::Vec12::Zero();
+            const auto& J = rigid_J_[static_cast<std::size_t>(r)];
+            if (prev && J.bdf2) {  // split the extrapolated state's cotangent (diff::adjoint)
+              b_in = J.extrapolation.in.transpose() * bar_hat;
+              b_prev = J.extrapolation.previous.transpose() * bar_hat;
+              grp.segment<7>(7 * r) += J.extrapolation.params.transpose() * bar_hat;
+            }
+            gx.segment<6>(n3 + 6 * r) = b_in.head<6>(), gv.segment<6>(n3 + 6 * r) = b_in.tail<6>();
+            gxp.segment<6>(n3 + 6 * r) = b_prev.head<6>(), gvp.segment<6>(n3 + 6 * r) = b_prev.tail<6>();
+          }
+        }
+      }
+      for (Eigen::Index r = 0; !coupled && r < nr; ++r) {
+        const auto& J = rigid_J_[static_cast<std::size_t>(r)];
+        rigid::Vec12 bar_out;
+        bar_out << bx.segment<6>(n3 + 6 * r), bv.segment<6>(n3 + 6 * r);
+        const rigid::Vec12 b_in = J.state.transpose() * bar_out;
+        grp.segment<7>(7 * r) += J.params.transpose() * bar_out;
+        gx.segment<6>(n3 + 6 * r) = b_in.head<6>(), gv.segment<6>(n3 + 6 * r) = b_in.tail<6>();
+        if (J.bdf2) {
+          const rigid::Vec12 b_prev = J.previous.transpose() * bar_out;
+          gxp.segment<6>(n3 + 6 * r) = b_prev.head<6>(), gvp.segment<6>(n3 + 6 * r) = b_prev.tail<6>();
+        }
+      }
+    } catch (const ComputationError& e) {
+      return "the derivative of step " + std::to_string(k_) + " failed: " + e.what();
+    } catch (const std::invalid_argument& e) {
+      return "the derivative of step " + std::to_string(k_) + " failed: " + e.what();
+    }
+    if (!gx.allFinite() || !gv.allFinite() || !gxp.allFinite() || !gvp.allFinite() || !gp.allFinite() ||
+        !ga.allFinite() || !grp.allFinite())
+      return "the derivative of step " + std::to_string(k_) + " gave non-finite values";
+    return "";
+  }
+  std::vector<rigid::Bdf2StepJacobian> rigid_J_;  // step_jvp/step_vjp: the last step's, per rigid body
+  // --- end pyrig ---
+
   int soft_index(const std::string& name) const {
     for (std::size_t b = 0; b < model_->fem.bodies.size(); ++b)
       if (model_->fem.bodies[b].name == name) return static_cast<int>(b);
@@ -475,13 +852,8 @@ class Simulator {
   void demand_step_derivative() {
     if (!theta_) throw py::value_error("no theta: give Simulator(scene, jacobian=\"young, ...\") first");
     if (is_static_)
-      throw py::value_error("step_jvp/step_vjp: a static scene has no time step; jacobian() after run() gives d x* / d theta");
-    if (!model_->rigid.empty())
-      throw py::value_error("step_jvp/step_vjp with rigid bodies are not bound yet (issue 23): use jacobian() (forward "
-                            "sensitivities through the steps)");
-    if (model_->step.integrator != IntegratorKind::implicit_euler)
-      throw py::value_error("step_jvp/step_vjp are bound for implicit_euler only (issue 23: BDF2's step depends on two "
-                            "states): use jacobian()");
+      raise(g_scene_error, "step_jvp/step_vjp: a static scene (integrator: static) has no time step; jacobian() and "
+                           "adjoint() after run() give d x* / d theta");  // pyrig: SceneError (a ValueError)
     if (!record_valid_) throw py::value_error("no step to differentiate: step() first (a failed step leaves none)");
     if (!step_derivatives_) step_derivatives_ = std::make_unique<integrator::StepDerivatives>(*model_, theta_->layout.parameters);
   }
@@ -543,7 +915,7 @@ class Simulator {
     record_valid_ = false;  // data is about to hold this step's record
     StepStatus s;
     try {
-      s = integrator::time_step(*model_, *data_, state_, k > 1 ? &previous_ : nullptr, next_, k);
+      s = integrator::time_step(*model_, *data_, state_, k > history_start_ + 1 ? &previous_ : nullptr, next_, k);  // pyrig: history_start_
     } catch (const ComputationError& e) {
       return e.what();
     } catch (const std::bad_alloc&) {
@@ -1115,18 +1487,32 @@ PYBIND11_MODULE(_softdiff, m) {
       .def("jacobian", &Simulator::jacobian, py::arg("of") = "x",
            "d x / d theta (of='v': d v / d theta) at the current state: dict theta group -> (rows, k) array")
       .def_property_readonly("theta_columns", &Simulator::theta_columns, "dict theta group -> its column names")
+      // --- pyrig ---
       .def("step_jvp", &Simulator::step_jvp, py::arg("dx") = py::none(), py::arg("dv") = py::none(),
-           py::arg("dtheta") = py::dict(),
-           "The last step's JVP: (dx_out, dv_out) for tangents dx, dv of its input state and dtheta "
-           "(theta group -> values); implicit Euler, soft bodies")
+           py::arg("dtheta") = py::dict(), py::arg("dx_prev") = py::none(), py::arg("dv_prev") = py::none(),
+           "The last step's JVP: (dx_out, dv_out) for tangents dx, dv of its input state (jacobian()'s rows: 3n soft, "
+           "then 6 per rigid body), dx_prev, dv_prev of the frame before it (BDF2) and dtheta (theta group -> values)")
       .def("step_vjp", &Simulator::step_vjp, py::arg("bar_x") = py::none(), py::arg("bar_v") = py::none(),
-           "The last step's VJP: dict x, v (input state) and theta groups, for cotangents of its output state")
-      .def("adjoint", &Simulator::adjoint, py::arg("steps"), py::arg("bar_x") = py::none(),
+           "The last step's VJP: dict x, v (its input state), x_prev, v_prev (the frame before it, BDF2) and theta "
+           "groups, for cotangents bar_x, bar_v of its output state (jacobian()'s rows)")
+      // --- end pyrig ---
+      .def("adjoint", &Simulator::adjoint, py::arg("steps") = py::none(), py::arg("bar_x") = py::none(),
            py::arg("bar_v") = py::none(), py::arg("bar_rigid") = py::none(), py::arg("theta") = py::none(),
            "Gradient of l = bar_x . x_T + bar_v . v_T (T = steps from now) by the adjoint: dict theta group -> "
            "dl/dtheta, x, v, rigid (of the current state), x_T, v_T; the simulator's state is unchanged")
       .def("rows", &Simulator::rows, py::arg("body"), "The slice of a body's rows in jacobian()'s arrays")
-      .def_property_readonly("time", &Simulator::time)
+      // --- pyrig ---
+      .def("set_x", [](Simulator& s, const std::string& body, const py::object& a) { s.set_state(body, a, false); },
+           py::arg("body"), py::arg("values"),
+           "Set a body's positions (soft (n, 3); free rigid (7,) position + unit quaternion w, x, y, z): a restart "
+           "from that state (docs/python.md)")
+      .def("set_v", [](Simulator& s, const std::string& body, const py::object& a) { s.set_state(body, a, true); },
+           py::arg("body"), py::arg("values"),
+           "Set a body's velocities (soft (n, 3); free rigid (6,) velocity + angular velocity): a restart")
+      .def("advance", &Simulator::advance_steps, py::arg("steps"),
+           "steps time steps in C++ without frames (the GIL released once); raises StepError")
+      .def_property("time", &Simulator::time, &Simulator::set_time, "the state's time (settable: a restart)")
+      // --- end pyrig ---
       .def_property_readonly("steps_done", &Simulator::steps_done)
       .def_property_readonly("dt", &Simulator::dt)
       .def_property_readonly("scene_steps", &Simulator::scene_steps, "the scene's simulation.steps (or duration / dt)")
