@@ -807,7 +807,13 @@ py::dict control_py(const std::string& scene, const std::vector<std::string>& se
     try {
       set_threads(threads);
       problem.emplace(optim::prepare_control(o, [&](const std::string& m) { scene_warnings.push_back(m); }));
-      r = optim::run_control(*problem, max_actuation, strict, [&](const std::string& m) { run_warnings.push_back(m); });
+      r = optim::run_control(*problem, max_actuation, strict, [&](const std::string& m) {
+        // The CLI's text, with the module's name of --strict (as Simulator's warnings).
+        std::string w = m;
+        if (const auto at = w.find("--strict makes it an error"); at != std::string::npos)
+          w.replace(at, 8, "strict=True");
+        run_warnings.push_back(w);
+      });
     } catch (const InputError& e) {
       input_error = e.what();
     } catch (const ComputationError& e) {

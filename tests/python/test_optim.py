@@ -180,6 +180,39 @@ def test_control_timed_goals_and_output_every(tmp_path, cli, control_scene):
     assert np.array_equal(got["goal"], f.data["control"]["goal"])
 
 
+def test_control_through_contact_with_a_rigid_block_equals_the_cli(tmp_path, cli, control_scene):
+    # tests/app/test_cli_control.cpp PushesAFreeRigidBlock: the tip pushes a free rigid
+    # block (contact, beta > 0: the contact-force term through the NCP derivative).
+    scene = tmp_path / "block.yaml"
+    scene.write_text(control_scene.read_text() + """  - name: block
+    type: rigid
+    shape: {type: box, half_extents: [0.015, 0.005, 0.015]}
+    density: 300
+    position: [0.19, 0.0255, 0.01]
+contact: {friction: 0.3, pairs: [[beam, block, 0.3]]}
+""")
+    r = cli(["control", scene, "--target", "0.2,0.025,0.01", "--axes", "y", "--weights", "1,1", "-o", "c.h5", "--json",
+             "--quiet", "--threads", "1"], tmp_path)
+    assert r.returncode == 0, r.stderr
+    expected = json.loads(r.stdout)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = softdiff.control(scene, target="0.2,0.025,0.01", axes="y", weights="1,1", threads=1)
+    for key, value in expected.items():
+        if key not in TIMING:
+            assert got[key] == value, (key, got[key], value)
+    c = softdiff.read_result(tmp_path / "c.h5").data["control"]
+    assert np.array_equal(got["contact_force_norm"], c["contact_force_norm"])
+    assert got["contact_force_norm"].max() > 1e-4  # the tip pushed the block
+    # The CLI's non-convergence warnings (the first one shown), --strict as strict=True.
+    cli_warnings = [line[len("softdiff: warning: "):] for line in r.stderr.splitlines()
+                    if line.startswith("softdiff: warning: ")]
+    got_warnings = [str(w.message) for w in caught if issubclass(w.category, softdiff.ConvergenceWarning)]
+    assert got_warnings == [w.replace("--strict makes it an error", "strict=True makes it an error")
+                            for w in cli_warnings]
+    assert (got["contact_not_converged_steps"] > 0) == bool(cli_warnings)
+
+
 def test_control_bad_input_raises_scene_error_with_the_cli_message(tmp_path, cli, control_scene):
     bad = tmp_path / "bad.csv"
     bad.write_text("time,x,y,z\n0,0.2,0.01\n")
