@@ -94,6 +94,28 @@ def test_calibrate_equals_the_cli_json_bit_for_bit(tmp_path, cli, beam_target):
     assert again["parameters"] == got["parameters"] and again["final_cost"] == got["final_cost"]
 
 
+def test_calibrate_from_markers_equals_the_cli_json(tmp_path, cli, beam_target):
+    # Four points of the beam followed in the target (tests/app/test_cli_calibrate.cpp
+    # RecoversYoungFromMarkers): the nodes' positions at frames 0, 5 and 10.
+    f = softdiff.read_result(beam_target)
+    x = f.bodies["beam"]["x"]
+    lines = ["time,marker,x,y,z"]
+    for k in (0, 5, 10):
+        for m, node in enumerate((100, 400, 700, 1000)):
+            lines.append(f"{f.time[k]!r},m{m}," + ",".join(repr(float(c)) for c in x[k, node]))
+    (tmp_path / "markers.csv").write_text("\n".join(lines) + "\n")
+    r = cli(["calibrate", CALIB, "--param", "young", "--init", "5e5", "--markers", "markers.csv", "-o", "cal.h5",
+             "--json", "--quiet", "--threads", "1", "--set", "simulation.duration=0.1"], tmp_path)
+    assert r.returncode == 0, r.stderr
+    expected = json.loads(r.stdout)
+    got = softdiff.calibrate(CALIB, param="young", init=[5e5], markers=tmp_path / "markers.csv", set=SHORT, threads=1)
+    assert got["residuals"] == 2 * 4 * 3 and got["target_steps"] == 10
+    assert abs(got["parameters"]["young"] / 1e6 - 1) < 1e-6
+    for key in ("converged", "stop_reason", "iterations", "evaluations", "final_cost", "parameters", "residuals"):
+        assert got[key] == expected[key], key
+    assert [h["values"] for h in got["history"]] == [h["values"] for h in expected["history"]]
+
+
 def test_calibrate_frames_and_the_single_frame_warning(beam_target):
     with pytest.warns(softdiff.SceneWarning, match="a single frame as target"):
         r = softdiff.calibrate(CALIB, param="young", init=[5e5], target=beam_target, frames="last", set=SHORT,
