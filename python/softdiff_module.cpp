@@ -30,12 +30,16 @@
 #include <softdiff/io/hdf5_reader.hpp>
 #include <softdiff/io/scene.hpp>
 #include <softdiff/model.hpp>
+#include <softdiff/optim/calibrate_run.hpp>  // calibrate/control (pycal)
+#include <softdiff/optim/control_run.hpp>    // calibrate/control (pycal)
+#include <softdiff/io/input_error.hpp>       // calibrate/control (pycal): io::join
 #include <softdiff/version.hpp>
 
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -1416,6 +1420,212 @@ py::dict read_output(const std::string& path) {
   return out;
 }
 
+// --- calibrate/control (pycal) ---
+// softdiff.calibrate() and softdiff.control() (docs/python.md "calibrate and control"):
+// the CLI's commands through the library's option handling (optim/calibrate_run.hpp,
+// optim/control_run.hpp: the CLI's checks, messages and defaults), returning what the
+// CLI's --json prints. python/softdiff/__init__.py turns Python values into the CLI's
+// option strings (lists joined with commas, floats with repr) and refuses output=.
+// The GIL is released during the run; messages are collected and issued after it
+// (build warnings and the single-frame warning as SceneWarning, a solve that missed its
+// tolerance as ConvergenceWarning, the target's notes in the result's "notes").
+
+void issue_warnings(const std::vector<std::string>& messages, PyObject* category) {
+  for (const auto& m : messages)
+    if (PyErr_WarnEx(category, m.c_str(), 1) != 0) throw py::error_already_set();
+}
+
+py::dict calibrate_py(const std::string& scene, const std::vector<std::string>& set, const std::string& param,
+                      const std::string& target, const std::string& markers, const std::string& frames,
+                      const std::string& init, int max_iterations, double tolerance, int threads, bool strict) {
+  if (threads < 0) throw py::value_error("threads must be >= 0 (0: all cores), got " + std::to_string(threads));
+  // The CLI's checks of --max-iterations and --tolerance (its CLI11 validators, app/common.cpp:
+  // the same words, the value as Python writes it).
+  if (max_iterations < 1) raise(g_scene_error, "--max-iterations: must be >= 1, got " + std::to_string(max_iterations));
+  if (!(tolerance > 0) || !std::isfinite(tolerance))
+    raise(g_scene_error, "--tolerance: must be > 0, got " + py::repr(py::float_(tolerance)).cast<std::string>());
+  optim::CalibrateRunOptions o;
+  o.scene = scene;
+  o.set = set;
+  o.param = param;
+  o.target = target;
+  o.markers = markers;
+  o.frames = frames;
+  o.init = init;
+  o.max_iterations = max_iterations;
+  o.tolerance = tolerance;
+  o.strict = strict;
+  std::vector<std::string> warnings, notes;
+  std::string input_error, run_error;
+  std::optional<optim::CalibrationProblem> problem;
+  optim::CalibrationResult result;
+  double seconds = 0;
+  {
+    py::gil_scoped_release release;
+    try {
+      set_threads(threads);
+      problem.emplace(optim::prepare_calibration(
+          o, [&](const std::string& m) { warnings.push_back(m); }, [&](const std::string& m) { notes.push_back(m); }));
+      const auto t0 = std::chrono::steady_clock::now();
+      result = optim::calibrate(problem->model, problem->ids, problem->rigid_ids, problem->init, problem->target,
+                                optim::calibration_options(o));
+      seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    } catch (const InputError& e) {
+      input_error = e.what();
+    } catch (const ComputationError& e) {
+      run_error = e.what();
+    }
+  }
+  issue_warnings(warnings, g_scene_warning);
+  if (!input_error.empty()) raise(g_scene_error, input_error);
+  if (!run_error.empty()) raise(g_step_error, run_error);
+  // The keys and order of `calibrate --json` (docs/cli.md); output: None (no file).
+  py::dict out;
+  out["command"] = "calibrate";
+  out["scene"] = scene;
+  out["output"] = py::none();
+  out["converged"] = result.converged;
+  out["stop_reason"] = result.stop_reason;
+  out["iterations"] = result.iterations;
+  out["evaluations"] = result.evaluations;
+  out["rejected"] = result.rejected;
+  out["failed"] = result.failed;
+  out["final_cost"] = result.cost;
+  out["wall_seconds"] = seconds;
+  out["residuals"] = static_cast<long>(problem->target.residual_size());
+  out["target_steps"] = problem->target.steps();
+  out["rigid_matched"] = io::join(problem->rigid_matched);
+  py::dict parameters;
+  for (std::size_t k = 0; k < problem->names.size(); ++k) parameters[py::str(problem->names[k])] = result.values[k];
+  out["parameters"] = parameters;
+  py::list history;
+  for (const auto& h : result.history) {
+    py::dict d;
+    d["iteration"] = h.iteration;
+    d["values"] = h.values;
+    d["cost"] = h.cost;
+    d["gradient_norm"] = h.gradient_norm;
+    d["damping"] = h.damping;
+    d["seconds"] = h.seconds;
+    d["evaluations"] = h.evaluations;
+    d["rejected"] = h.rejected;
+    d["failed"] = h.failed;
+    d["last_failure"] = h.last_failure;
+    history.append(d);
+  }
+  out["history"] = history;
+  out["notes"] = notes;
+  return out;
+}
+
+py::dict control_py(const std::string& scene, const std::vector<std::string>& set, const std::string& target,
+                    const std::string& effector, const std::optional<long>& steps, const std::string& weights,
+                    const std::string& axes, double regularization, double filter, bool shared, bool max_actuation,
+                    int threads, bool strict) {
+  if (threads < 0) throw py::value_error("threads must be >= 0 (0: all cores), got " + std::to_string(threads));
+  // The CLI's checks of --steps and --regularization (CLI11 validators).
+  if (steps && *steps < 1) raise(g_scene_error, "--steps: must be >= 1, got " + std::to_string(*steps));
+  if (!(regularization >= 0) || !std::isfinite(regularization))
+    raise(g_scene_error, "--regularization: must be a non-negative number, got " +
+                             py::repr(py::float_(regularization)).cast<std::string>());
+  optim::ControlRunOptions o;
+  o.scene = scene;
+  o.set = set;
+  o.target = target;
+  o.effector = effector;
+  o.steps = steps;
+  o.weights = weights;
+  o.axes = axes;
+  o.regularization = regularization;
+  o.filter = filter;
+  o.shared = shared;
+  o.max_actuation = max_actuation;
+  o.strict = strict;
+  std::vector<std::string> scene_warnings, run_warnings;
+  std::string input_error, run_error;
+  std::optional<optim::ControlProblem> problem;
+  optim::ControlRunResult r;
+  {
+    py::gil_scoped_release release;
+    try {
+      set_threads(threads);
+      problem.emplace(optim::prepare_control(o, [&](const std::string& m) { scene_warnings.push_back(m); }));
+      r = optim::run_control(*problem, max_actuation, strict, [&](const std::string& m) {
+        // The CLI's text, with the module's name of --strict (as Simulator's warnings).
+        std::string w = m;
+        if (const auto at = w.find("--strict makes it an error"); at != std::string::npos)
+          w.replace(at, 8, "strict=True");
+        run_warnings.push_back(w);
+      });
+    } catch (const InputError& e) {
+      input_error = e.what();
+    } catch (const ComputationError& e) {
+      run_error = e.what();
+    }
+  }
+  issue_warnings(scene_warnings, g_scene_warning);
+  if (!input_error.empty()) raise(g_scene_error, input_error);
+  issue_warnings(run_warnings, g_convergence_warning);
+  if (!run_error.empty()) raise(g_step_error, run_error);
+  const auto& s = r.summary;
+  if (s.qp_not_converged_steps > 0)
+    issue_warnings({std::to_string(s.qp_not_converged_steps) + " steps' QP did not converge (see the result's kkt_residual)"},
+                   g_convergence_warning);
+  // The keys and order of `control --json` (docs/cli.md); output: None (no file); then
+  // the /control series of the CLI's file, one row per frame (output.every), frame 0 first.
+  const long n = std::max<long>(1, s.steps);
+  py::dict out;
+  out["command"] = "control";
+  out["scene"] = scene;
+  out["output"] = py::none();
+  out["steps"] = s.steps;
+  out["effector"] = s.effector;
+  out["final_distance"] = s.final_distance;
+  out["min_distance"] = s.min_distance;
+  out["kkt_max"] = s.kkt_max;
+  out["qp_not_converged_steps"] = s.qp_not_converged_steps;
+  out["within_limits"] = s.within_limits;
+  out["actuation_final"] = s.actuation_final;
+  out["wall_seconds"] = r.run_seconds;
+  out["control_ms_per_step"] = 1e3 * s.control_seconds / static_cast<double>(n);
+  out["other_ms_per_step"] = 1e3 * (r.run_seconds - s.control_seconds) / static_cast<double>(n);
+  const auto frames = static_cast<py::ssize_t>(r.frames.size());
+  const auto na = static_cast<py::ssize_t>(problem->model.actuation.actuators.size());
+  py::array_t<double> time(frames), distance(frames), kkt(frames), goal({frames, py::ssize_t{3}}),
+      actuation({frames, na});
+  for (py::ssize_t i = 0; i < frames; ++i) {
+    const auto& f = r.frames[static_cast<std::size_t>(i)];
+    time.mutable_at(i) = r.times[static_cast<std::size_t>(i)];
+    distance.mutable_at(i) = f.distance;
+    kkt.mutable_at(i) = f.kkt;
+    for (py::ssize_t c = 0; c < 3; ++c) goal.mutable_at(i, c) = f.goal[c];
+    for (py::ssize_t j = 0; j < na; ++j) actuation.mutable_at(i, j) = r.actuation[static_cast<std::size_t>(i)][j];
+  }
+  out["time"] = time;
+  out["goal"] = goal;
+  out["distance"] = distance;
+  out["actuation"] = actuation;
+  if (problem->model.contact.enabled) {
+    py::array_t<double> force(frames);
+    for (py::ssize_t i = 0; i < frames; ++i) force.mutable_at(i) = r.frames[static_cast<std::size_t>(i)].force_norm;
+    out["contact_force_norm"] = force;
+  }
+  out["kkt_residual"] = kkt;
+  out["newton_not_converged_steps"] = r.newton_not_converged_steps;
+  out["contact_not_converged_steps"] = r.contact_not_converged_steps;
+  return out;
+}
+
+void bind_calibrate_control(py::module_& m) {
+  m.def("_calibrate", &calibrate_py, py::arg("scene"), py::arg("set"), py::arg("param"), py::arg("target"),
+        py::arg("markers"), py::arg("frames"), py::arg("init"), py::arg("max_iterations"), py::arg("tolerance"),
+        py::arg("threads"), py::arg("strict"));
+  m.def("_control", &control_py, py::arg("scene"), py::arg("set"), py::arg("target"), py::arg("effector"),
+        py::arg("steps"), py::arg("weights"), py::arg("axes"), py::arg("regularization"), py::arg("filter"),
+        py::arg("shared_actuation"), py::arg("max_actuation"), py::arg("threads"), py::arg("strict"));
+}
+// --- end calibrate/control (pycal) ---
+
 }  // namespace
 }  // namespace softdiff::python
 
@@ -1458,6 +1668,7 @@ PYBIND11_MODULE(_softdiff, m) {
 
   m.def("_load_scene", &load_scene, py::arg("path"), py::arg("overrides"));
   m.def("_read_output", &read_output, py::arg("path"));
+  bind_calibrate_control(m);  // calibrate/control (pycal)
 
   py::class_<Simulator>(m, "Simulator")
       .def(py::init([](const Scene& scene, int threads, bool strict, const py::object& jacobian) {

@@ -28,12 +28,14 @@ from ._softdiff import (  # noqa: F401
 )
 from ._softdiff import _load_scene, _read_output
 from ._softdiff import Recording, Rollout  # noqa: F401  torch support (ptorch): softdiff.torch's runs
+from ._softdiff import _calibrate, _control  # calibrate/control (pycal)
 
 import math as _math
+import numbers as _numbers
 import os as _os
 from collections.abc import Mapping as _Mapping
 
-__all__ = ["load_scene", "read_result", "Result", "Scene", "Simulator", "SceneError", "StepError", "ConvergenceWarning", "SceneWarning", "thread_plan",
+__all__ = ["load_scene", "read_result", "Result", "calibrate", "control", "Scene", "Simulator", "SceneError", "StepError", "ConvergenceWarning", "SceneWarning", "thread_plan",
            "__version__"]
 __all__ += ["Rollout", "Recording"]  # torch support (ptorch)
 
@@ -142,3 +144,106 @@ def read_result(path):
     output (not HDF5, or no root attribute `status`)."""
     path = _os.fspath(path)
     return Result(path, _read_output(path))
+
+
+# --- calibrate/control (pycal) ---
+# softdiff.calibrate() and softdiff.control(): the CLI's commands with its options
+# (docs/python.md "calibrate and control"; optim/calibrate_run.hpp, optim/control_run.hpp).
+# Python values become the CLI's option strings here: lists joined with commas, floats
+# written with repr (the shortest text that reads back as the same double).
+
+def _scene_and_sets(scene, set):
+    """The scene file and its --set strings: a Scene's path and overrides, then `set`."""
+    if isinstance(scene, Scene):
+        path, sets = scene.path, list(scene.overrides)
+    else:
+        path, sets = _os.fspath(scene), []
+    if set is not None:
+        if isinstance(set, str):
+            set = [set]
+        if isinstance(set, _Mapping):
+            for key, value in set.items():
+                sets.append(f"{key}={_yaml_value(value)}")
+        else:
+            sets.extend(str(s) for s in set)
+    return path, sets
+
+
+def _number_text(value):
+    """A number as the CLI's text: integers as they are, floats with repr."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, _numbers.Integral) and not isinstance(value, bool):
+        return str(int(value))
+    try:
+        return repr(float(value))
+    except (TypeError, ValueError):
+        raise TypeError(f"{value!r}: expected a number") from None
+
+
+def _list_text(value, number=False):
+    """A CLI list option: a string as it is, a sequence joined with commas."""
+    if value is None:
+        return ""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, _os.PathLike):
+        return _os.fspath(value)
+    return ",".join(_number_text(v) if number else str(v) for v in value)
+
+
+def _refuse_output(output, force, command):
+    if output is not None:
+        raise ValueError(f"output={output!r}: writing the {command} run's HDF5 file from Python is not bound yet "
+                         f"(issue 23: the file is written by the CLI's simulate loop, app/cmd_simulate.cpp); "
+                         f"run `softdiff {command} ... -o FILE` for it")
+    if force:
+        raise ValueError("force=True: only with output=, which is not bound yet (issue 23)")
+
+
+def calibrate(scene, param, target=None, markers=None, frames="all", init=None, max_iterations=50,
+              tolerance=1e-10, set=None, threads=1, strict=False, output=None, force=False):
+    """Identify material parameters from an observed motion: `softdiff calibrate` (docs/cli.md).
+
+    scene: a Scene (load_scene: its overrides are the --set strings) or a path. param:
+    "young,poisson" or a list of names (the CLI's --param). target: a softdiff HDF5
+    trajectory (--target) or markers: a CSV (--markers). frames: "all", "last" or a list
+    of frame indices. init: initial values (a list, or the CLI's "V,V" text). set: more
+    --set overrides (a dict or "KEY=VALUE" strings). threads: as Simulator (0: all cores).
+    Returns the dict that `calibrate --json` prints (output None) plus "notes" (the
+    CLI's notes on the target). Bad input raises SceneError with the CLI's message, a
+    failed run StepError; not converging is `converged` False (the CLI exits 1).
+    output= (the CLI's -o file) is not bound yet (issue 23): ValueError.
+    """
+    _refuse_output(output, force, "calibrate")
+    path, sets = _scene_and_sets(scene, set)
+    if isinstance(frames, int):
+        frames = [frames]
+    return _calibrate(path, sets, _list_text(param), _list_text(target), _list_text(markers),
+                      _list_text(frames), _list_text(init, number=True), int(max_iterations), float(tolerance),
+                      int(threads), bool(strict))
+
+
+def control(scene, target, effector=None, steps=None, weights="1,0", axes="xyz", regularization=1e-6, filter=1.0,
+            shared_actuation=False, max_actuation=False, set=None, threads=1, strict=False, output=None,
+            force=False):
+    """Drive an effector to a goal by inverse dynamics: `softdiff control` (docs/cli.md).
+
+    target: a point (x, y, z) in metres (a sequence, or the CLI's "X,Y,Z") or the path of
+    a CSV of timed goals (time,x,y,z). weights: (alpha, beta) or "ALPHA,BETA". The other
+    options are the CLI's (dashes as underscores). Returns the dict that `control --json`
+    prints (output None) plus the /control series of the CLI's file as numpy arrays, one
+    row per written frame (output.every), frame 0 first: time, goal (T, 3), distance,
+    actuation (T, n_a), contact_force_norm (with contact), kkt_residual. Bad input raises
+    SceneError with the CLI's message, a failed step StepError. output= is not bound yet
+    (issue 23): ValueError.
+    """
+    _refuse_output(output, force, "control")
+    path, sets = _scene_and_sets(scene, set)
+    if isinstance(target, (str, _os.PathLike)):
+        target = _os.fspath(target)
+    else:
+        target = _list_text(target, number=True)
+    return _control(path, sets, target, effector or "", None if steps is None else int(steps),
+                    _list_text(weights, number=True), axes, float(regularization), float(filter),
+                    bool(shared_actuation), bool(max_actuation), int(threads), bool(strict))
