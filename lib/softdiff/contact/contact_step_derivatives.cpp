@@ -189,6 +189,12 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
         // With rigid rows, bound to the system's unpadded Ht: set_rigid pads it to the
         // widest of Kt (the limit rows' columns) and Kt_more (a part's K_p: the contacts'
         // columns only), as the step's operator (contact_step.cpp) does.
+        // B's storage (pattern, values, factorization) is the step's NCP's (cd.sparse): the
+        // NCP has finished with its B, whose pattern contains this one (A's and the active
+        // contacts' blocks); one CHOLMOD factor of B instead of two (docs/method.md "The
+        // derivative's memory"). The next step's NCP overwrites it; a jvp after that (a
+        // replay of the same step, whose cache key matches) refactorizes this B.
+        shifted_.share_shifted_storage(cd.sparse);
         shifted_.bind(solver, *A_upper, Kt_active_.rows() > 0 ? *Ht_rows : *Ht, h, model.solver);
         if (Kt_active_.rows() > 0) {  // + h Kt^T Kt (bind clears it)
           static const MatX none;
