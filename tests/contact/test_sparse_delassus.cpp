@@ -494,3 +494,77 @@ TEST(SparseDelassus, BooksTheSystemsAssemblyApartFromItsFactorizations) {
 }
 
 }  // namespace sparse_delassus_test
+
+namespace sparse_delassus_test {
+
+// Shared storage (sparse_delassus.hpp; docs/method.md "The derivative's memory"): two
+// operators of one step, as the NCP's and the contact derivative's, with different Bs
+// (another subset W, scale and shift) in one storage. Each one's shifted solves must be
+// those of an operator with storage of its own, bit for bit, whatever the other
+// factorized in between: an overwritten B is rebuilt from the same values and
+// refactorized (the same factorization of the same matrix: exact equality, no
+// tolerance), the pattern is analyzed once, and the refactorization is counted.
+TEST(SparseDelassus, SharedStorageGivesEachOperatorItsOwnSolves) {
+  for (const bool soft : {false, true}) {
+    const Model model = soft ? stack_model() : slab_model();
+    const char* what = soft ? "stack" : "slab";
+    Data data(model);
+    step_to_contact(model, data);
+    const auto& cd = data.contact;
+    const int nc = cd.contacts.size();
+    ASSERT_GT(nc, 3) << what;
+    const double h = model.step.dt;
+    std::vector<int> W;
+    for (int i = 0; i < nc; i += 2) W.push_back(i);
+    const int nw = static_cast<int>(W.size());
+    VecX dw(nw);
+    for (int b = 0; b < nw; ++b) dw[b] = b % 2 ? 1.0 : 1e-3;
+    // first: every contact, unscaled, c = 1; second: W, scaled, c = 1e-2.
+    const auto set_up = [&](contact::SparseDelassus& op, bool first) {
+      op.bind(*data.solver, data.A, cd.Ht, h, model.solver);
+      if (!first) {
+        op.restrict_to(W);
+        op.set_scale(dw);
+      }
+    };
+    contact::SparseDelassus own1, own2, shared1, shared2;
+    set_up(own1, true);
+    // own2's pattern as the shared one's (analyzed with every contact's blocks first: the
+    // stack's soft-soft blocks of W alone would be a smaller pattern, another ordering).
+    own2.bind(*data.solver, data.A, cd.Ht, h, model.solver);
+    ASSERT_TRUE(own2.factorize_shifted(1.0)) << what;
+    set_up(own2, false);
+    ASSERT_TRUE(own1.factorize_shifted(1.0)) << what;
+    ASSERT_TRUE(own2.factorize_shifted(1e-2)) << what;
+    shared2.share_shifted_storage(shared1);
+    EXPECT_TRUE(shared2.shares_shifted_storage_with(shared1)) << what;
+    EXPECT_FALSE(own2.shares_shifted_storage_with(own1)) << what;
+    set_up(shared1, true);
+    set_up(shared2, false);
+    ASSERT_TRUE(shared1.factorize_shifted(1.0)) << what;
+    ASSERT_TRUE(shared2.factorize_shifted(1e-2)) << what;  // overwrites shared1's B
+    const VecX r1 = random_vector(3 * nc, 11), r2 = random_vector(3 * nw, 12);
+    VecX e1 = r1, e2 = r2;
+    ASSERT_TRUE(own1.solve_shifted(e1)) << what;
+    ASSERT_TRUE(own2.solve_shifted(e2)) << what;
+    for (int round = 0; round < 2; ++round) {  // alternating: each solve takes the storage back
+      VecX x1 = r1, x2 = r2;
+      ASSERT_TRUE(shared1.solve_shifted(x1)) << what;
+      ASSERT_TRUE(shared2.solve_shifted(x2)) << what;
+      EXPECT_EQ(x1, e1) << what << " round " << round;
+      EXPECT_EQ(x2, e2) << what << " round " << round;
+    }
+    // shared1: its factorization, then one refactorization per round (shared2 had the
+    // storage); shared2: likewise. Neither analyzed the pattern twice.
+    EXPECT_EQ(shared1.factorizations(), 3) << what;
+    EXPECT_EQ(shared2.factorizations(), 3) << what;
+    EXPECT_EQ(shared1.analyses() + shared2.analyses(), 1) << what;
+    // Two solves in a row by the owner: no refactorization.
+    VecX x2 = r2;
+    ASSERT_TRUE(shared2.solve_shifted(x2)) << what;
+    EXPECT_EQ(x2, e2) << what;
+    EXPECT_EQ(shared2.factorizations(), 3) << what;
+  }
+}
+
+}  // namespace sparse_delassus_test

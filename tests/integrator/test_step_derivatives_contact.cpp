@@ -628,6 +628,67 @@ TEST(StepDerivativesContact, PreconditionedOperatorMatchesDenseBeyond64) {
   for (const Case c : {Case::sticking, Case::sliding, Case::tipped}) test_precond_local::compare_paths(c);
 }
 
+// The contact derivative's preconditioner B shares its storage (pattern, values, CHOLMOD
+// factor) with the step's NCP (sparse_delassus.hpp, docs/method.md "The derivative's
+// memory"). When the NCP's B is written into it after the derivative was prepared (as a
+// replay of the same step does: the derivative's cache key, v_f, then matches and it is
+// not prepared again), the derivative's next solve refactorizes its own B: the same
+// matrix, the same factorization, so the jvp and vjp are bit for bit those before
+// (exact equality, no tolerance). The 9 x 9 slab beyond 64 active contacts on the
+// operator: all sticking (the sticking case with mu = 2: PCG, B factorized in prepare)
+// and mixed (the sticking case as it is, 1 of 100 sliding: GMRES, the reduced
+// preconditioner factorized at the first solve).
+TEST(StepDerivativesContact, OperatorPreconditionerSharedWithTheNcpSurvivesItsOverwrite) {
+  for (const bool all_sticking : {true, false}) {
+    const Case c = Case::sticking;
+    Params p;
+    p.backend = contact::NcpBackend::sparse;
+    p.cells = 9;
+    p.operator_mode = true;
+    if (all_sticking) p.mu = 2;
+    const Model model = build(c, p);
+    const State in = start(model, c, p);
+    Data data(model);
+    State out;
+    const StepStatus status = integrator::implicit_euler_step(model, data, in, out, 1);
+    ASSERT_TRUE(status.ok()) << name_of(c) << ": " << describe(model, status);
+    const std::vector<ParameterId> params = {{Parameter::friction, 0}};
+    integrator::StepDerivatives d(model, params);
+    StepTangent t;
+    t.v = VecX::Unit(in.v.size(), 0);
+    t.p = VecX::Ones(1);
+    StateTangent first, second;
+    ASSERT_TRUE(d.jvp(model, data, in, out, t, first)) << name_of(c);
+    ASSERT_TRUE(d.ncp_derivative().on_operator()) << name_of(c);
+    const auto& act = d.ncp_derivative().active_contacts();
+    const auto sliding = std::count_if(act.begin(), act.end(), [&](int i) {
+      return data.contact.modes[static_cast<std::size_t>(i)] == contact::Mode::sliding;
+    });
+    ASSERT_GT(act.size(), 64u) << name_of(c);
+    if (all_sticking)
+      EXPECT_EQ(sliding, 0) << "expected every active contact sticking";
+    else
+      EXPECT_GT(sliding, 0) << "expected a mixed set";
+    // PCG's M (all sticking); the mixed path's reduced preconditioner is not M.
+    EXPECT_EQ(d.ncp_derivative().operator_system().preconditioned(), all_sticking);
+    StateTangent bar;
+    bar.x = test::random_vector(in.x.size(), 1.0, 3);
+    bar.v = test::random_vector(in.v.size(), 1.0, 4);
+    StepCotangent vjp_first, vjp_second;
+    ASSERT_TRUE(d.vjp(model, data, in, out, bar, vjp_first)) << name_of(c);
+    // The NCP's operator writes a B of its own (every contact, c = 1) into the storage.
+    ASSERT_TRUE(data.contact.sparse.factorize_shifted(1.0)) << name_of(c);
+    ASSERT_TRUE(d.jvp(model, data, in, out, t, second)) << name_of(c);
+    EXPECT_EQ(first.x, second.x) << name_of(c);
+    EXPECT_EQ(first.v, second.v) << name_of(c);
+    ASSERT_TRUE(data.contact.sparse.factorize_shifted(1.0)) << name_of(c);
+    ASSERT_TRUE(d.vjp(model, data, in, out, bar, vjp_second)) << name_of(c);
+    EXPECT_EQ(vjp_first.x, vjp_second.x) << name_of(c);
+    EXPECT_EQ(vjp_first.v, vjp_second.v) << name_of(c);
+    EXPECT_EQ(vjp_first.p, vjp_second.p) << name_of(c);
+  }
+}
+
 // Central differences of the step through the reduced preconditioner's GMRES on more
 // than 64 active contacts: the 9 x 9 slab's "sticking" case (mixed: a few contacts
 // slide) and "sliding" case (all slide), derivative_dense_max_active 0, along random

@@ -189,6 +189,12 @@ bool ContactStageDerivative::prepare(const Model& model, const ContactData& cd, 
         // With rigid rows, bound to the system's unpadded Ht: set_rigid pads it to the
         // widest of Kt (the limit rows' columns) and Kt_more (a part's K_p: the contacts'
         // columns only), as the step's operator (contact_step.cpp) does.
+        // B's storage (pattern, values, factorization) is the step's NCP's (cd.sparse): the
+        // NCP has finished with its B, whose pattern contains this one (A's and the active
+        // contacts' blocks); one CHOLMOD factor of B instead of two (docs/method.md "The
+        // derivative's memory"). The next step's NCP overwrites it; a jvp after that (a
+        // replay of the same step, whose cache key matches) refactorizes this B.
+        shifted_.share_shifted_storage(cd.sparse);
         shifted_.bind(solver, *A_upper, Kt_active_.rows() > 0 ? *Ht_rows : *Ht, h, model.solver);
         if (Kt_active_.rows() > 0) {  // + h Kt^T Kt (bind clears it)
           static const MatX none;
@@ -285,22 +291,32 @@ bool ContactStageDerivative::sampled_max_diagonal(integrator::LinearSolver& solv
   const int na = static_cast<int>(active_ids_.size());
   const int ns = std::min(na, scale_sample_contacts);
   const Eigen::Index n = Ht_active_.rows();
-  sample_B_.setZero(n, 3 * ns);
-  for (int j = 0; j < ns; ++j) {
-    const int a = static_cast<int>((static_cast<long>(j) * na) / ns);
-    for (int k = 0; k < 3; ++k) sample_B_.col(3 * j + k) = Ht_active_.col(3 * a + k);
-  }
-  if (!solver.solve(sample_B_, sample_X_)) return false;
+  // In blocks of scale_sample_block_contacts contacts (3 columns each): the dense n x 3 s
+  // right-hand sides, their solutions and the solver's workspaces of as many columns
+  // (CHOLMOD's X, Y: 4 such matrices) were 4 x 26 MB at s = 32 on the slab of
+  // configs/slab_on_plane.yaml (n = 34k), 100 of its 476 MB (docs/performance.md
+  // "Contact at scale", "The derivative's memory"); per block they are 1/8 of that.
+  const int block = std::min(ns, scale_sample_block_contacts);
+  sample_B_.resize(n, 3 * block);
   L = 0;
-  for (Eigen::Index c = 0; c < sample_B_.cols(); ++c) {
-    double Gcc = h * sample_B_.col(c).dot(sample_X_.col(c));
-    // + the rigid part's diagonal h |Kt_A's column|^2 (the same sampled column).
-    if (Kt_active_.rows() > 0) {
-      const int j = static_cast<int>(c / 3), k = static_cast<int>(c % 3);
-      const int a = static_cast<int>((static_cast<long>(j) * na) / ns);
-      Gcc += h * Kt_active_.col(3 * a + k).squaredNorm();
+  for (int j0 = 0; j0 < ns; j0 += block) {
+    const int nb = std::min(block, ns - j0);
+    sample_B_.setZero(n, 3 * nb);
+    for (int j = 0; j < nb; ++j) {
+      const int a = static_cast<int>((static_cast<long>(j0 + j) * na) / ns);
+      for (int k = 0; k < 3; ++k) sample_B_.col(3 * j + k) = Ht_active_.col(3 * a + k);
     }
-    L = std::max(L, Gcc);
+    if (!solver.solve(sample_B_, sample_X_)) return false;
+    for (Eigen::Index c = 0; c < sample_B_.cols(); ++c) {
+      double Gcc = h * sample_B_.col(c).dot(sample_X_.col(c));
+      // + the rigid part's diagonal h |Kt_A's column|^2 (the same sampled column).
+      if (Kt_active_.rows() > 0) {
+        const int j = j0 + static_cast<int>(c / 3), k = static_cast<int>(c % 3);
+        const int a = static_cast<int>((static_cast<long>(j) * na) / ns);
+        Gcc += h * Kt_active_.col(3 * a + k).squaredNorm();
+      }
+      L = std::max(L, Gcc);
+    }
   }
   if (!(L > 0) || !std::isfinite(L)) return false;
   return true;

@@ -94,6 +94,9 @@ class ContactStageDerivative {
   // How many active contacts the mixed path's scale samples (docs/method.md "The
   // derivative's scale").
   static constexpr int scale_sample_contacts = 32;
+  // ... solved in blocks of this many contacts (3 right-hand sides each): the memory of
+  // the dense right-hand sides is 3 n x 3 block, not 3 n x 3 scale_sample_contacts.
+  static constexpr int scale_sample_block_contacts = 4;
   // Contacts whose geometry derivative does not exist (taken as zero), and those whose
   // derivative is the randomized-smoothing estimate (model.contact.smoothing).
   int nondifferentiable_contacts() const { return nondifferentiable_; }
@@ -108,7 +111,7 @@ class ContactStageDerivative {
   PowerIteration scale_;         // operator path: the scale L's power iteration
   VecX scale_y_, scale_gy_;      //   its (3 na) iterate and product
   VecX scale_w_;                 //   (3n) A^{-1} H_A^T y of its last product: the next start
-  MatX sample_B_, sample_X_;     // mixed sets: (3n x 3 s) the sampled columns of H_A^T and A^{-1} times them
+  MatX sample_B_, sample_X_;     // mixed sets: (3n x 3 block) a block of the sampled columns of H_A^T, A^{-1} times them
   bool sampled_max_diagonal(integrator::LinearSolver& solver, double h, double& L);
   VecX op_u_, op_w_;             // operator path: (3n) scratch of the products with G_AA
   SparseMatrix Ht_padded_;       // an NcpSystem's Ht with zero columns up to its Kt's (limit rows)

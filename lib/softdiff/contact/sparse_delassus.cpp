@@ -266,19 +266,21 @@ void SparseDelassus::build_pattern() {
   const SparseMatrix full = Hs * Hs.transpose();
   const SparseMatrix P = full.triangularView<Eigen::Upper>();
   const SparseMatrix blocks = node_block_pattern(P);
-  bool contained = analyzed_ && S_.rows() == A_->rows() && scatter_into(blocks, S_, p_values_);  // (a test)
+  ShiftedStorage& st = *storage_;
+  bool contained = st.analyzed && st.S.rows() == A_->rows() && scatter_into(blocks, st.S, st.p_values);  // (a test)
   if (!contained) {
     // S = S (or A's pattern, the first time) + P's node blocks; analyzed once.
-    SparseMatrix base = analyzed_ && S_.rows() == A_->rows() ? ones_like(S_) : ones_like(*A_);
-    S_ = base + blocks;
-    S_.makeCompressed();
-    if (!B_solver_) B_solver_ = integrator::make_linear_solver(options_);
-    B_solver_->analyze(S_);
-    analyzed_ = true;
+    SparseMatrix base = st.analyzed && st.S.rows() == A_->rows() ? ones_like(st.S) : ones_like(*A_);
+    st.S = base + blocks;
+    st.S.makeCompressed();
+    if (!st.solver) st.solver = integrator::make_linear_solver(options_);
+    st.solver->analyze(st.S);
+    st.analyzed = true;
     ++analyses_;
   }
-  SOFTDIFF_DEMAND(scatter_into(P, S_, p_values_), "SparseDelassus: H^T H outside the analyzed pattern");
-  SOFTDIFF_DEMAND(scatter_into(*A_, S_, a_values_), "SparseDelassus: A outside the analyzed pattern");
+  SOFTDIFF_DEMAND(scatter_into(P, st.S, st.p_values), "SparseDelassus: H^T H outside the analyzed pattern");
+  SOFTDIFF_DEMAND(scatter_into(*A_, st.S, st.a_values), "SparseDelassus: A outside the analyzed pattern");
+  generation_ = ++st.generation;  // the storage's values are this operator's B
   pattern_ready_ = true;
   assembly_seconds_ += seconds_since(t0);
 }
@@ -287,11 +289,13 @@ bool SparseDelassus::factorize_shifted(double c) {
   SOFTDIFF_DEMAND(c > 0, "SparseDelassus::factorize_shifted: the shift must be positive");
   c_ = 0;
   if (!soft_empty_) {
-    if (!pattern_ready_) build_pattern();
+    // (another operator sharing the storage may have written its B since: its values again)
+    if (!pattern_ready_ || !owns_storage()) build_pattern();
+    ShiftedStorage& st = *storage_;
     const auto t0 = Clock::now();
-    Eigen::Map<VecX>(S_.valuePtr(), S_.nonZeros()) = a_values_ + (h_ / c) * p_values_;
+    Eigen::Map<VecX>(st.S.valuePtr(), st.S.nonZeros()) = st.a_values + (h_ / c) * st.p_values;
     ++factorizations_;
-    const bool ok = B_solver_->factorize(S_).ok;
+    const bool ok = st.solver->factorize(st.S).ok;
     factorization_seconds_ += seconds_since(t0);
     if (!ok) return false;
   }
@@ -322,15 +326,29 @@ bool SparseDelassus::shifted_soft(Eigen::Ref<VecX> r) {
   }
   const SparseMatrix& Hs = scaled_columns(HtW_, HtWs_, scale_sqrt_inv_);
   u_.noalias() = Hs * r;
-  const bool ok = B_solver_->solve(u_, w_);
+  const bool ok = storage_->solver->solve(u_, w_);
   failed_ = failed_ || !ok;
   r.noalias() -= (h_ / c_) * (Hs.transpose() * w_);
   r /= c_;
   return ok;
 }
 
+void SparseDelassus::share_shifted_storage(const SparseDelassus& other) {
+  if (storage_ != other.storage_) storage_ = other.storage_;
+  generation_ = 0;
+  pattern_ready_ = false;
+  c_ = 0;
+}
+
 bool SparseDelassus::solve_shifted(Eigen::Ref<VecX> r) {
   SOFTDIFF_DEMAND(c_ > 0, "SparseDelassus::solve_shifted without factorize_shifted");
+  // The shared storage holds another operator's B since factorize_shifted(c_): this one's
+  // again (the same B, the same factorization; docs/method.md "The derivative's memory").
+  if (!soft_empty_ && !owns_storage() && !factorize_shifted(c_)) {
+    failed_ = true;
+    r.setConstant(std::numeric_limits<double>::quiet_NaN());
+    return false;
+  }
   const bool scaled = scale_sqrt_inv_.size() == r.size();
   if (scaled) r.array() *= scale_sqrt_inv_.array();
   const bool ok = shifted_soft(r);

@@ -43,11 +43,21 @@
 // only, the analysis is that of A's pattern, once per scene (analyses() counts them).
 // A change of c rescales one value array (B = A_S + (h/c) P_S on the analyzed
 // pattern S) and refactorizes: no analysis, no allocation.
+//
+// Shared storage (share_shifted_storage; docs/method.md "The derivative's memory"): the
+// analyzed pattern S, the values A_S, P_S and B's factorization (with its solver's
+// workspaces) are one storage that several operators may share: the step's NCP and the
+// contact derivative (contact_step_derivatives.cpp) of the same record, whose Bs have one
+// pattern. Each holds its own B (its W, scale or frames, c); the storage holds the last
+// one written. An operator whose B was overwritten by another's since its
+// factorize_shifted rebuilds its values and refactorizes at its next solve_shifted (the
+// same numbers: the same factorization of the same B); the pattern only grows, as above.
 #include <softdiff/core/types.hpp>
 #include <softdiff/integrator/linear_solver.hpp>
 
 #include <Eigen/Cholesky>
 
+#include <cstdint>
 #include <memory>
 #include <vector>
 
@@ -109,6 +119,12 @@ class SparseDelassus {
   void set_frames(const std::vector<Mat3>& frames, const Eigen::Ref<const VecX>& s);
   // Factorize B for the shift c > 0; false if B is not positive definite (A is not).
   bool factorize_shifted(double c);
+  // From now on, keep B's pattern, values and factorization in other's storage (see
+  // above; other's next B may overwrite this one's: then this one refactorizes at its next
+  // solve_shifted). Invalidates the shifted factorization.
+  void share_shifted_storage(const SparseDelassus& other);
+  // The factorizations of B in this operator's storage (shared: all its operators').
+  bool shares_shifted_storage_with(const SparseDelassus& other) const { return storage_ == other.storage_; }
   // r <- (G_WW + c D)^{-1} r with the last factorize_shifted(c).
   bool solve_shifted(Eigen::Ref<VecX> r);
   // Largest eigenvalue of D^-1/2 G_WW D^-1/2 by power iteration (iterations applies),
@@ -122,7 +138,7 @@ class SparseDelassus {
   // An iterative linear solver (cg) missed its tolerance since bind().
   bool failed() const { return failed_; }
   int analyses() const { return analyses_; }          // symbolic analyses of B
-  Eigen::Index pattern_nonzeros() const { return S_.nonZeros(); }  // of the analyzed pattern (upper)
+  Eigen::Index pattern_nonzeros() const { return storage_ ? storage_->S.nonZeros() : 0; }  // analyzed pattern (upper)
   int factorizations() const { return factorizations_; }
   // Wall seconds since bind() (reports only, never asserted): forming contact-system
   // matrices (restrict_to's columns, set_scale's H~, B's pattern and values from
@@ -157,11 +173,19 @@ class SparseDelassus {
   const VecX* mass_ = nullptr;       // (3n) set_mass
   bool pattern_ready_ = false;       // S holds B's pattern for the current W
   double c_ = 0;                     // the shift of the current factorization (0: none)
-  // The analyzed pattern S (upper, compressed) and B = A_S + (h/c) P_S on it.
-  SparseMatrix S_;
-  VecX a_values_, p_values_;         // (nnz S) A and H_W^T H_W scattered into S
-  std::unique_ptr<integrator::LinearSolver> B_solver_;
-  bool analyzed_ = false;
+  // The analyzed pattern S (upper, compressed), B = A_S + (h/c) P_S on it and B's
+  // solver: the storage (shared, see above). generation: bumped by each operator that
+  // writes its values; an operator's B is the storage's while its generation_ is it.
+  struct ShiftedStorage {
+    SparseMatrix S;
+    VecX a_values, p_values;         // (nnz S) A and H_W^T H_W scattered into S
+    std::unique_ptr<integrator::LinearSolver> solver;
+    bool analyzed = false;
+    std::uint64_t generation = 0;
+  };
+  std::shared_ptr<ShiftedStorage> storage_ = std::make_shared<ShiftedStorage>();
+  std::uint64_t generation_ = 0;     // 0: none written
+  bool owns_storage() const { return generation_ != 0 && generation_ == storage_->generation; }
   VecX u_, w_, power_, power_next_;  // (3n) scratch; (3|W|) power iteration
   // Rigid rows (set_rigid): all contacts, W's columns, scaled; the shifted solve's Z, C.
   MatX Kt_, KtW_, KtWs_, Z_;
