@@ -203,3 +203,32 @@ def test_a_failed_run_finishes_the_file_as_the_cli_and_says_where(tmp_path, cli)
     assert softdiff.read_result(tmp_path / "py.h5").status == softdiff.read_result(tmp_path / "cli.h5").status
     assert softdiff.read_result(tmp_path / "py.h5").status.startswith("diverged: step 1: inverted element")
     assert assert_same_file(tmp_path / "py.h5", tmp_path / "cli.h5") > 5
+
+
+def test_ctrl_c_stops_after_the_step_and_finishes_the_file_as_interrupted(tmp_path):
+    # A Python process writing a long run gets SIGINT (the interpreter's handler: the module
+    # installs none) once its file exists: the run stops after the step in progress, the
+    # file is finished with status interrupted and KeyboardInterrupt names where the frames are.
+    import signal
+    import subprocess
+    import sys
+    import time
+    script = (f"import softdiff\n"
+              f"try:\n"
+              f"    softdiff.simulate({str(BEAM)!r}, output='run.h5', steps=5000, threads=1)\n"
+              f"except KeyboardInterrupt as e:\n"
+              f"    print('KeyboardInterrupt:', e)\n")
+    env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=str(pathlib.Path(softdiff.__file__).parents[1]))
+    p = subprocess.Popen([sys.executable, "-c", script], cwd=tmp_path, env=env, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not (tmp_path / "run.h5.partial").exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(0.5)  # a few steps
+    p.send_signal(signal.SIGINT)
+    out, err = p.communicate(timeout=60)
+    assert p.returncode == 0, err
+    assert out.startswith("KeyboardInterrupt: interrupted after "), (out, err)
+    assert "are in run.h5" in out
+    r = softdiff.read_result(tmp_path / "run.h5")
+    assert r.status == "interrupted" and 2 <= len(r.time) < 5001
