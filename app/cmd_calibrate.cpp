@@ -75,19 +75,9 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
   const Model& model = problem.model;
   const optim::CalibrationTarget& target = problem.target;
 
-  std::filesystem::path out_path = o.output;
-  if (out_path.empty()) out_path = std::filesystem::path(o.scene).stem().string() + "_calibrated.h5";
-  std::error_code ec;
-  if (std::filesystem::exists(out_path, ec) && !o.force)
-    throw InputError(out_path.string() + ": exists (use --force to overwrite)");
-  {
-    // Checked before the identification runs (simulate_model checks the scene's
-    // files again before writing).
-    std::vector<std::string> inputs = scene_input_files(scene);
-    inputs.push_back(o.target);
-    inputs.push_back(o.markers);
-    check_output_is_not_input(out_path.string(), inputs);
-  }
+  // -o: its default, the refusal of an existing file without --force and of an input
+  // (optim/calibrate_run.hpp, shared with softdiff.calibrate(output=...)).
+  const std::filesystem::path out_path = optim::calibration_output_path(ro, o.output, o.force, scene);
 
   optim::CalibrationOptions co = optim::calibration_options(ro);
   // On a terminal: a progress bar over each run's steps ("run 7 [====  ] 40/100 steps"),
@@ -131,45 +121,8 @@ int run_calibrate(const CalibrateOptions& o, const std::string& command_line) {
   so.quiet = o.quiet;  // its progress bar
   so.summary = false;
   so.progress_label = "final run";
-  const auto write_calibration = [&](io::Hdf5Writer& w) {
-    const Eigen::Index p = static_cast<Eigen::Index>(problem.names.size());
-    MatX table(static_cast<Eigen::Index>(result.history.size()), p + 5);
-    std::string columns = "iteration";
-    for (const auto& n : problem.names) columns += "," + n;
-    columns += ",cost,gradient_norm,damping,seconds";
-    for (std::size_t i = 0; i < result.history.size(); ++i) {
-      const auto& h = result.history[i];
-      const Eigen::Index r = static_cast<Eigen::Index>(i);
-      table(r, 0) = h.iteration;
-      for (Eigen::Index j = 0; j < p; ++j) table(r, 1 + j) = h.values[static_cast<std::size_t>(j)];
-      table(r, p + 1) = h.cost;
-      table(r, p + 2) = h.gradient_norm;
-      table(r, p + 3) = h.damping;
-      table(r, p + 4) = h.seconds;
-    }
-    // Units per column: iteration 1, each parameter's, cost m^2 (1/2 |r|^2, r in m),
-    // gradient_norm m^2 per the parameters' unit (|J^T r|; "mixed" when they differ),
-    // damping 1, seconds s.
-    std::vector<std::string> parameter_units;
-    for (const auto& id : problem.ids) parameter_units.push_back(parameter_unit(id.kind));
-    for (const auto& id : problem.rigid_ids) parameter_units.push_back(id.index == 0 ? "kg" : "kg m^2");
-    std::vector<std::string> units{"1"};
-    units.insert(units.end(), parameter_units.begin(), parameter_units.end());
-    const std::string common = column_units(parameter_units);
-    const std::map<std::string, std::string> m2_per{
-        {"Pa", "m^2/Pa"}, {"1", "m^2"}, {"kg/m^3", "m^5/kg"}, {"1/s", "m^2 s"}, {"s", "m^2/s"}, {"kg", "m^2/kg"}, {"kg m^2", "1/kg"}};
-    const auto gradient = m2_per.find(common);
-    units.insert(units.end(), {"m^2", gradient == m2_per.end() ? std::string("mixed") : gradient->second, "1", "s"});
-    w.write_matrix("/calibration/iterations", table, column_units(units), {{"columns", columns}});
-    for (std::size_t j = 0; j < problem.names.size(); ++j) w.set_attribute("/calibration", problem.names[j], result.values[j]);
-    w.set_attribute("/calibration", "converged", std::int64_t{result.converged ? 1 : 0});
-    w.set_attribute("/calibration", "iterations", std::int64_t{result.iterations});
-    w.set_attribute("/calibration", "final_cost", result.cost);
-    w.set_attribute("/calibration", "stop_reason", result.stop_reason);
-    w.set_attribute("/calibration", "evaluations", std::int64_t{result.evaluations});
-  };
   RunHooks hooks;
-  hooks.finish = write_calibration;
+  hooks.finish = [&](io::Hdf5Writer& w) { optim::write_calibration(w, problem, result); };
   const int code = simulate_model(so, scene, final_model, t_setup, command_line, hooks);
   if (code != kExitOk) return code;
 

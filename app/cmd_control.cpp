@@ -72,42 +72,15 @@ int run_control(const ControlOptions& o, const std::string& command_line) {
   const io::SceneDesc& scene = problem.scene;
   const Model& model = problem.model;
 
-  std::filesystem::path out_path = o.output;
-  if (out_path.empty()) out_path = std::filesystem::path(o.scene).stem().string() + "_control.h5";
-  {
-    std::vector<std::string> inputs = scene_input_files(scene);
-    inputs.push_back(o.target);  // a CSV of goals (three numbers name no file)
-    check_output_is_not_input(out_path.string(), inputs);
-  }
+  // -o: its default and the refusal of an input (optim/control_run.hpp, shared with
+  // softdiff.control(output=...)).
+  const std::filesystem::path out_path = optim::control_output_path(ro, o.output, scene);
 
   // The controller, the previous actuation, BDF2's history and the frames' records
   // (optim::ControlRun: --max-actuation without limits is refused here, exit 2).
   optim::ControlRun run(problem, o.max_actuation);
-  const Eigen::Index na = static_cast<Eigen::Index>(model.actuation.actuators.size());
-  struct Series {
-    int goal = -1, distance = -1, actuation = -1, force = -1, kkt = -1;
-  } series;
-  RunHooks hooks;
-  hooks.data = &run.data();  // one factorization per control step (optim/control.hpp)
-  hooks.setup = [&](io::Hdf5Writer& wr) {
-    std::vector<std::string> actuation_units;
-    for (const auto& a : model.actuation.actuators) actuation_units.push_back(actuator_value_unit(a));
-    series.goal = wr.add_series("/control/goal", 3, "m");
-    series.distance = wr.add_series("/control/distance", 0, "m");
-    series.actuation = wr.add_series("/control/actuation", static_cast<int>(na), column_units(actuation_units));
-    if (model.contact.enabled) series.force = wr.add_series("/control/contact_force_norm", 0, "N");
-    series.kkt = wr.add_series("/control/kkt_residual", 0, "1");  // relative to max(1, |g|_inf): box_qp.hpp
-  };
-  hooks.actuation = [&](long k, const State& s, VecX& lambda) { return run.actuation(k, s, lambda); };
-  hooks.frame = [&](io::Hdf5Writer& wr, const State& s, const Data& data, bool first) {
-    run.observe(s, data, first);
-    const auto& f = run.frame();
-    wr.append_series(series.goal, f.goal.data());
-    wr.append_series(series.distance, &f.distance);
-    wr.append_series(series.actuation, run.applied().data());
-    if (series.force >= 0) wr.append_series(series.force, &f.force_norm);
-    wr.append_series(series.kkt, &f.kkt);
-  };
+  // The run's hooks: the controller's actuation and record, the /control series.
+  const RunHooks hooks = optim::control_output_hooks(problem, run);
   SimulateOptions so;
   so.scene = o.scene;
   so.output = out_path.string();

@@ -4,6 +4,7 @@
 #include <CLI/CLI.hpp>
 
 #include <softdiff/data.hpp>
+#include <softdiff/io/run_output.hpp>
 #include <softdiff/model.hpp>
 
 #include <chrono>
@@ -12,12 +13,6 @@
 #include <string>
 #include <vector>
 
-namespace softdiff {
-namespace io {
-struct SceneDesc;
-class Hdf5Writer;
-}  // namespace io
-}  // namespace softdiff
 
 namespace softdiff::app {
 
@@ -39,21 +34,8 @@ struct SimulateOptions {
 };
 void add_simulate(CLI::App& app, SimulateOptions& o);
 int run_simulate(const SimulateOptions& o, const std::string& command_line);
-// What a caller of simulate_model adds to the run (all optional):
-//   setup: before frame 0 (e.g. add series to the writer);
-//   actuation: the actuation values of step k (1-based) from the state it starts from,
-//     instead of the scene's schedules (control); a failed status stops the run;
-//   frame: after each written frame (first: frame 0), with the step's record;
-//   finish: once the run is complete, before the file is finished (own groups);
-//   data: the record to step with instead of the run's own (control: the controller's,
-//     whose factorization of the step's matrix the committed step reuses).
-struct RunHooks {
-  std::function<void(io::Hdf5Writer&)> setup;
-  std::function<StepStatus(long k, const State& s, VecX& lambda)> actuation;
-  std::function<void(io::Hdf5Writer&, const State& s, const Data& data, bool first)> frame;
-  std::function<void(io::Hdf5Writer&)> finish;
-  Data* data = nullptr;
-};
+// What a caller of simulate_model adds to the run: the library's (io/run_output.hpp).
+using RunHooks = io::RunHooks;
 
 // simulate's run of a model already built from `scene` (calibrate and control write
 // their runs this way): frames, series, contact, --jacobian, the summary and --json.
@@ -154,11 +136,9 @@ std::string version_text();
 CLI::Validator positive_number(const std::string& unit = "");
 CLI::Validator positive_integer();
 
-// Files the run reads: the scene, its bodies' and obstacles' meshes.
-std::vector<std::string> scene_input_files(const io::SceneDesc& scene);
-// Exit 2 (InputError) when the output, or a file written beside it (.partial, .xmf,
-// the side files of an unfinished run), is one of `inputs` (the same file: compared
-// by identity, so links and other spellings of a path are caught).
-void check_output_is_not_input(const std::string& output, const std::vector<std::string>& inputs);
+// Files the run reads, and the refusal of an output that is an input (exit 2): the
+// library's (io/run_output.hpp).
+using io::check_output_is_not_input;
+using io::scene_input_files;
 
 }  // namespace softdiff::app

@@ -267,29 +267,4 @@ CLI::Validator positive_integer() {
       ">= 1");
 }
 
-std::vector<std::string> scene_input_files(const io::SceneDesc& scene) {
-  std::vector<std::string> files{scene.file.string()};
-  for (const auto& b : scene.bodies) files.push_back(b.mesh.string());
-  for (const auto& r : scene.rigid_bodies)
-    if (!r.shape.mesh.empty()) files.push_back(r.shape.mesh.string());
-  for (const auto& o : scene.obstacles)
-    if (!o.mesh.empty()) files.push_back(o.mesh.string());
-  return files;
-}
-
-void check_output_is_not_input(const std::string& output, const std::vector<std::string>& inputs) {
-  namespace fs = std::filesystem;
-  for (const fs::path& written : io::output_file_names(output)) {
-    for (const auto& input : inputs) {
-      if (input.empty()) continue;
-      std::error_code ec;
-      // equivalent(): the same file (device and inode), whatever the spelling.
-      if (fs::equivalent(written, input, ec) && !ec)
-        throw InputError(output + ": the output would overwrite the input file " + input +
-                         (written == fs::path(output) ? std::string() : " (as " + written.string() + ")") +
-                         "; choose another -o");
-    }
-  }
-}
-
 }  // namespace softdiff::app

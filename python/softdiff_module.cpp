@@ -33,6 +33,8 @@
 #include <softdiff/optim/calibrate_run.hpp>  // calibrate/control (pycal)
 #include <softdiff/optim/control_run.hpp>    // calibrate/control (pycal)
 #include <softdiff/io/input_error.hpp>       // calibrate/control (pycal): io::join
+#include <softdiff/io/run_output.hpp>        // output files (pyout): io::OutputRun
+#include <softdiff/io/hdf5_writer.hpp>       // output files (pyout)
 #include <softdiff/version.hpp>
 
 #include <pybind11/numpy.h>
@@ -1435,9 +1437,64 @@ void issue_warnings(const std::vector<std::string>& messages, PyObject* category
     if (PyErr_WarnEx(category, m.c_str(), 1) != 0) throw py::error_already_set();
 }
 
+// --- output files (pyout) ---
+// calibrate(output=...), control(output=...) and simulate(): the CLI's file, written by
+// the library's run (io/run_output.hpp, the code `softdiff simulate` runs). The run's
+// messages are collected (the GIL is released) and issued after it. Ctrl-C: the
+// interpreter's SIGINT handler only sets a flag; the run checks it between steps (GIL
+// taken for PyErr_CheckSignals), stops after the step in progress, finishes the file as
+// "interrupted" (its side files, hdf5_writer.hpp) and KeyboardInterrupt is raised naming
+// where the frames are. No signal handler is installed by the module.
+struct FileRunMessages {
+  std::vector<std::string> warnings, scene_warnings, notes, errors;
+  bool interrupted = false;
+};
+
+// The CLI's words for its options in the run's messages, as Python spells them.
+std::string python_words(std::string m) {
+  if (const auto at = m.find("--strict makes it an error"); at != std::string::npos) m.replace(at, 8, "strict=True");
+  return m;
+}
+
+io::RunCallbacks file_run_callbacks(FileRunMessages& msg) {
+  io::RunCallbacks cb;
+  cb.warn = [&msg](const std::string& m) {
+    // The size warning is about the output, not a solve.
+    (m.rfind("the output will take", 0) == 0 ? msg.scene_warnings : msg.warnings).push_back(python_words(m));
+  };
+  cb.note = [&msg](const std::string& m) { msg.notes.push_back(m); };
+  cb.error = [&msg](const std::string& m) { msg.errors.push_back(m); };
+  cb.stop_requested = [&msg] {
+    if (msg.interrupted) return true;
+    py::gil_scoped_acquire acquire;
+    if (PyErr_CheckSignals() != 0) {  // KeyboardInterrupt (or a Python handler's exception): raised after the run
+      PyErr_Clear();
+      msg.interrupted = true;
+    }
+    return msg.interrupted;
+  };
+  return cb;
+}
+
+// After a run (GIL held): its warnings, then its failure: KeyboardInterrupt for a
+// Ctrl-C, StepError (exit_code 1) otherwise, the message followed by where the frames are.
+void finish_file_run(const io::RunOutputResult& r, const FileRunMessages& msg) {
+  issue_warnings(msg.scene_warnings, g_scene_warning);
+  issue_warnings(msg.warnings, g_convergence_warning);
+  if (r.ok && !msg.interrupted) return;
+  std::string text = r.ok ? "interrupted as the run completed (" + r.path + " is complete)" : r.error;
+  for (const auto& n : msg.notes) text += "; " + n;
+  if (msg.interrupted) {
+    PyErr_SetString(PyExc_KeyboardInterrupt, text.c_str());
+    throw py::error_already_set();
+  }
+  raise(g_step_error, text, py::dict(py::arg("exit_code") = 1));
+}
+
 py::dict calibrate_py(const std::string& scene, const std::vector<std::string>& set, const std::string& param,
                       const std::string& target, const std::string& markers, const std::string& frames,
-                      const std::string& init, int max_iterations, double tolerance, int threads, bool strict) {
+                      const std::string& init, int max_iterations, double tolerance, int threads, bool strict,
+                      const std::string& output, bool force, const std::string& command) {
   if (threads < 0) throw py::value_error("threads must be >= 0 (0: all cores), got " + std::to_string(threads));
   // The CLI's checks of --max-iterations and --tolerance (its CLI11 validators, app/common.cpp:
   // the same words, the value as Python writes it).
@@ -1460,16 +1517,40 @@ py::dict calibrate_py(const std::string& scene, const std::vector<std::string>& 
   std::optional<optim::CalibrationProblem> problem;
   optim::CalibrationResult result;
   double seconds = 0;
+  std::string out_path;
+  FileRunMessages file_messages;
+  io::RunOutputResult file_result;
+  bool ran_file = false;
   {
     py::gil_scoped_release release;
     try {
+      const auto t_setup = Clock::now();
       set_threads(threads);
       problem.emplace(optim::prepare_calibration(
           o, [&](const std::string& m) { warnings.push_back(m); }, [&](const std::string& m) { notes.push_back(m); }));
+      // output=: the CLI's -o (its default name is the CLI's only: None writes no file),
+      // checked before the identification runs.
+      if (!output.empty()) out_path = optim::calibration_output_path(o, output, force, problem->scene);
       const auto t0 = std::chrono::steady_clock::now();
       result = optim::calibrate(problem->model, problem->ids, problem->rigid_ids, problem->init, problem->target,
                                 optim::calibration_options(o));
       seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      if (!out_path.empty()) {
+        // The scene with the identified parameters, written as `calibrate -o` writes it:
+        // the final run (io::OutputRun) plus /calibration.
+        const Model final_model = optim::calibrated_model(*problem, result.values);
+        io::RunOutputOptions ro;
+        ro.scene = scene;
+        ro.output = out_path;
+        ro.force = force;
+        ro.strict = strict;
+        ro.command_line = command;
+        io::RunHooks hooks;
+        hooks.finish = [&](io::Hdf5Writer& w) { optim::write_calibration(w, *problem, result); };
+        io::OutputRun run(ro, problem->scene, final_model, t_setup, hooks, file_run_callbacks(file_messages));
+        file_result = run.run();
+        ran_file = true;
+      }
     } catch (const InputError& e) {
       input_error = e.what();
     } catch (const ComputationError& e) {
@@ -1479,11 +1560,12 @@ py::dict calibrate_py(const std::string& scene, const std::vector<std::string>& 
   issue_warnings(warnings, g_scene_warning);
   if (!input_error.empty()) raise(g_scene_error, input_error);
   if (!run_error.empty()) raise(g_step_error, run_error);
-  // The keys and order of `calibrate --json` (docs/cli.md); output: None (no file).
+  if (ran_file) finish_file_run(file_result, file_messages);
+  // The keys and order of `calibrate --json` (docs/cli.md); output: the file, or None.
   py::dict out;
   out["command"] = "calibrate";
   out["scene"] = scene;
-  out["output"] = py::none();
+  out["output"] = out_path.empty() ? py::object(py::none()) : py::object(py::str(out_path));
   out["converged"] = result.converged;
   out["stop_reason"] = result.stop_reason;
   out["iterations"] = result.iterations;
@@ -1521,7 +1603,7 @@ py::dict calibrate_py(const std::string& scene, const std::vector<std::string>& 
 py::dict control_py(const std::string& scene, const std::vector<std::string>& set, const std::string& target,
                     const std::string& effector, const std::optional<long>& steps, const std::string& weights,
                     const std::string& axes, double regularization, double filter, bool shared, bool max_actuation,
-                    int threads, bool strict) {
+                    int threads, bool strict, const std::string& output, bool overwrite, const std::string& command) {
   if (threads < 0) throw py::value_error("threads must be >= 0 (0: all cores), got " + std::to_string(threads));
   // The CLI's checks of --steps and --regularization (CLI11 validators).
   if (steps && *steps < 1) raise(g_scene_error, "--steps: must be >= 1, got " + std::to_string(*steps));
@@ -1545,11 +1627,40 @@ py::dict control_py(const std::string& scene, const std::vector<std::string>& se
   std::string input_error, run_error;
   std::optional<optim::ControlProblem> problem;
   optim::ControlRunResult r;
+  std::string out_path;
+  FileRunMessages file_messages;
+  io::RunOutputResult file_result;
+  bool ran_file = false;
   {
     py::gil_scoped_release release;
     try {
+      const auto t_setup = Clock::now();
       set_threads(threads);
       problem.emplace(optim::prepare_control(o, [&](const std::string& m) { scene_warnings.push_back(m); }));
+      if (!output.empty()) {
+        // output=: the CLI's -o, written as `control -o` writes it (io::OutputRun with
+        // control's hooks); the result's series are the frames' records.
+        out_path = optim::control_output_path(o, output, problem->scene);
+        optim::ControlRun run(*problem, max_actuation);
+        const io::RunHooks hooks = optim::control_output_hooks(*problem, run, [&](const State& st) {
+          r.times.push_back(st.t);
+          r.frames.push_back(run.frame());
+          r.actuation.push_back(run.applied());
+        });
+        io::RunOutputOptions ro;
+        ro.scene = scene;
+        ro.output = out_path;
+        ro.force = overwrite;
+        ro.strict = strict;
+        ro.command_line = command;
+        io::OutputRun file_run(ro, problem->scene, problem->model, t_setup, hooks, file_run_callbacks(file_messages));
+        file_result = file_run.run();
+        ran_file = true;
+        r.summary = run.summary();
+        r.newton_not_converged_steps = file_result.newton_not_converged_steps;
+        r.contact_not_converged_steps = file_result.contact_not_converged_steps;
+        r.run_seconds = file_result.run_seconds;
+      } else {
       r = optim::run_control(*problem, max_actuation, strict, [&](const std::string& m) {
         // The CLI's text, with the module's name of --strict (as Simulator's warnings).
         std::string w = m;
@@ -1557,6 +1668,7 @@ py::dict control_py(const std::string& scene, const std::vector<std::string>& se
           w.replace(at, 8, "strict=True");
         run_warnings.push_back(w);
       });
+      }
     } catch (const InputError& e) {
       input_error = e.what();
     } catch (const ComputationError& e) {
@@ -1567,6 +1679,7 @@ py::dict control_py(const std::string& scene, const std::vector<std::string>& se
   if (!input_error.empty()) raise(g_scene_error, input_error);
   issue_warnings(run_warnings, g_convergence_warning);
   if (!run_error.empty()) raise(g_step_error, run_error);
+  if (ran_file) finish_file_run(file_result, file_messages);
   const auto& s = r.summary;
   if (s.qp_not_converged_steps > 0)
     issue_warnings({std::to_string(s.qp_not_converged_steps) + " steps' QP did not converge (see the result's kkt_residual)"},
@@ -1577,7 +1690,7 @@ py::dict control_py(const std::string& scene, const std::vector<std::string>& se
   py::dict out;
   out["command"] = "control";
   out["scene"] = scene;
-  out["output"] = py::none();
+  out["output"] = out_path.empty() ? py::object(py::none()) : py::object(py::str(out_path));
   out["steps"] = s.steps;
   out["effector"] = s.effector;
   out["final_distance"] = s.final_distance;
@@ -1616,15 +1729,123 @@ py::dict control_py(const std::string& scene, const std::vector<std::string>& se
   return out;
 }
 
+// --- simulate (pyout) ---
+// softdiff.simulate(): `softdiff simulate SCENE -o FILE` (its options; the file by
+// io::OutputRun), returning the keys of `simulate --json` but "bodies" (the states are
+// in the file: read_result).
+py::dict simulate_py(const std::string& scene, const std::vector<std::string>& set, const std::optional<long>& steps,
+                     const std::optional<double>& duration, const std::optional<double>& dt, const std::string& output,
+                     bool force, const std::string& jacobian, int threads, bool strict, const std::string& command) {
+  if (threads < 0) throw py::value_error("threads must be >= 0 (0: all cores), got " + std::to_string(threads));
+  // The CLI's checks of --steps, --duration and --dt (its CLI11 validators, app/common.cpp).
+  if (steps && duration) raise(g_scene_error, "--steps excludes --duration");
+  if (steps && *steps < 1) raise(g_scene_error, "--steps: must be >= 1, got " + std::to_string(*steps));
+  if (duration && !(*duration > 0 && std::isfinite(*duration)))
+    raise(g_scene_error, "--duration: must be > 0 s, got " + py::repr(py::float_(*duration)).cast<std::string>());
+  if (dt && !(*dt > 0 && std::isfinite(*dt)))
+    raise(g_scene_error, "--dt: must be > 0 s, got " + py::repr(py::float_(*dt)).cast<std::string>());
+  std::vector<std::string> build_warnings;
+  std::string input_error, run_error;
+  FileRunMessages messages;
+  io::RunOutputResult r;
+  std::optional<io::SceneDesc> desc;
+  std::optional<Model> model;
+  {
+    py::gil_scoped_release release;
+    try {
+      const auto t_setup = Clock::now();
+      set_threads(threads);
+      desc.emplace(io::load_scene(scene, io::simulate_overrides(set, steps, duration, dt)));
+      io::BuildReport report;
+      report.strict = strict;
+      model.emplace(io::build_model(*desc, &report));
+      build_warnings = report.warnings;
+      io::RunOutputOptions ro;
+      ro.scene = scene;
+      ro.output = output;
+      ro.force = force;
+      ro.jacobian = jacobian;
+      ro.strict = strict;
+      ro.command_line = command;
+      io::OutputRun run(ro, *desc, *model, t_setup, {}, file_run_callbacks(messages));
+      r = run.run();
+    } catch (const InputError& e) {
+      input_error = e.what();
+    } catch (const ComputationError& e) {
+      run_error = e.what();
+    }
+  }
+  issue_warnings(build_warnings, g_scene_warning);
+  if (!input_error.empty()) raise(g_scene_error, input_error);
+  if (!run_error.empty()) raise(g_step_error, run_error, py::dict(py::arg("exit_code") = 1));
+  finish_file_run(r, messages);
+  const double n = static_cast<double>(std::max<long>(1, r.steps_done));
+  py::dict out;
+  out["command"] = "simulate";
+  out["scene"] = scene;
+  out["output"] = r.path;
+  out["status"] = r.status;
+  out["steps"] = r.steps_done;
+  out["frames"] = r.frames;
+  out["time"] = r.state.t;
+  out["wall_seconds"] = r.run_seconds;
+  out["setup_seconds"] = r.setup_seconds;
+  py::dict ms;
+  ms["assembly"] = 1e3 * r.timings.assembly / n;
+  ms["factorization"] = 1e3 * r.timings.factorization / n;
+  ms["solve"] = 1e3 * r.timings.solve / n;
+  ms["other"] = 1e3 * r.timings.other / n;
+  ms["contact"] = 1e3 * r.timings.contact() / n;
+  ms["detection"] = 1e3 * r.timings.detection / n;
+  ms["delassus"] = 1e3 * r.timings.delassus / n;
+  ms["ncp"] = 1e3 * r.timings.ncp / n;
+  ms["correction"] = 1e3 * r.timings.correction / n;
+  ms["derivatives"] = 1e3 * r.derivative_seconds / n;
+  ms["output"] = 1e3 * r.output_seconds / n;
+  out["ms_per_step"] = ms;
+  out["factorizations"] = r.factorizations;
+  py::dict ls;
+  ls["numeric_factorizations"] = r.solver.numeric_factorizations;
+  ls["kept_factors"] = r.solver.kept_factors;
+  ls["pcg_solves"] = r.solver.pcg_solves;
+  ls["pcg_iterations"] = r.solver.pcg_iterations;
+  ls["pcg_fallbacks"] = r.solver.pcg_fallbacks;
+  out["linear_solver"] = ls;
+  if (r.jacobian) {
+    py::dict d;
+    d["ncp_rank_deficient_steps"] = r.rank_deficient_steps;
+    d["ncp_rank_deficiency_max"] = r.rank_deficiency_max;
+    d["nondifferentiable_contacts"] = r.nondifferentiable_contacts;
+    d["smoothed_contacts"] = r.smoothed_contacts;
+    out["derivatives"] = d;
+  }
+  out["newton_not_converged_steps"] = r.newton_not_converged_steps;
+  if (model->contact.enabled) {
+    py::dict c;
+    c["contacts_mean"] = static_cast<double>(r.contacts_total) / n;
+    c["contacts_max"] = r.contacts_max;
+    c["iterations_mean"] = static_cast<double>(r.contact_iterations) / n;
+    c["not_converged_steps"] = r.contact_not_converged_steps;
+    out["contact"] = c;
+  }
+  return out;
+}
+// --- end simulate (pyout) ---
+
 void bind_calibrate_control(py::module_& m) {
   m.def("_calibrate", &calibrate_py, py::arg("scene"), py::arg("set"), py::arg("param"), py::arg("target"),
         py::arg("markers"), py::arg("frames"), py::arg("init"), py::arg("max_iterations"), py::arg("tolerance"),
-        py::arg("threads"), py::arg("strict"));
+        py::arg("threads"), py::arg("strict"), py::arg("output"), py::arg("force"), py::arg("command"));
   m.def("_control", &control_py, py::arg("scene"), py::arg("set"), py::arg("target"), py::arg("effector"),
         py::arg("steps"), py::arg("weights"), py::arg("axes"), py::arg("regularization"), py::arg("filter"),
-        py::arg("shared_actuation"), py::arg("max_actuation"), py::arg("threads"), py::arg("strict"));
+        py::arg("shared_actuation"), py::arg("max_actuation"), py::arg("threads"), py::arg("strict"), py::arg("output"),
+        py::arg("force"), py::arg("command"));
+  m.def("_simulate", &simulate_py, py::arg("scene"), py::arg("set"), py::arg("steps"), py::arg("duration"),
+        py::arg("dt"), py::arg("output"), py::arg("force"), py::arg("jacobian"), py::arg("threads"), py::arg("strict"),
+        py::arg("command"));  // simulate (pyout)
 }
 // --- end calibrate/control (pycal) ---
+
 
 }  // namespace
 }  // namespace softdiff::python

@@ -29,6 +29,7 @@ from ._softdiff import (  # noqa: F401
 from ._softdiff import _load_scene, _read_output
 from ._softdiff import Recording, Rollout  # noqa: F401  torch support (ptorch): softdiff.torch's runs
 from ._softdiff import _calibrate, _control  # calibrate/control (pycal)
+from ._softdiff import _simulate  # output files (pyout)
 
 import math as _math
 import numbers as _numbers
@@ -38,6 +39,7 @@ from collections.abc import Mapping as _Mapping
 __all__ = ["load_scene", "read_result", "Result", "calibrate", "control", "Scene", "Simulator", "SceneError", "StepError", "ConvergenceWarning", "SceneWarning", "thread_plan",
            "__version__"]
 __all__ += ["Rollout", "Recording"]  # torch support (ptorch)
+__all__ += ["simulate"]  # output files (pyout)
 
 
 def __getattr__(name):
@@ -192,13 +194,22 @@ def _list_text(value, number=False):
     return ",".join(_number_text(v) if number else str(v) for v in value)
 
 
-def _refuse_output(output, force, command):
-    if output is not None:
-        raise ValueError(f"output={output!r}: writing the {command} run's HDF5 file from Python is not bound yet "
-                         f"(issue 23: the file is written by the CLI's simulate loop, app/cmd_simulate.cpp); "
-                         f"run `softdiff {command} ... -o FILE` for it")
-    if force:
-        raise ValueError("force=True: only with output=, which is not bound yet (issue 23)")
+def _output(output, force):
+    """output= and force= as the CLI's -o and --force: "" for no file (None)."""
+    if output is None:
+        if force:
+            raise ValueError("force=True: only with output= (the CLI's --force overwrites its -o file)")
+        return ""
+    output = _os.fspath(output)
+    if not output:
+        raise ValueError("output='': expected a file name (None: no file)")
+    return output
+
+
+def _command(name, **kwargs):
+    """The output file's `command` attribute (docs/output.md): the Python call."""
+    args = ", ".join(f"{k}={v!r}" for k, v in kwargs.items())
+    return f"python: softdiff.{name}({args})"
 
 
 def calibrate(scene, param, target=None, markers=None, frames="all", init=None, max_iterations=50,
@@ -210,18 +221,22 @@ def calibrate(scene, param, target=None, markers=None, frames="all", init=None, 
     trajectory (--target) or markers: a CSV (--markers). frames: "all", "last" or a list
     of frame indices. init: initial values (a list, or the CLI's "V,V" text). set: more
     --set overrides (a dict or "KEY=VALUE" strings). threads: as Simulator (0: all cores).
-    Returns the dict that `calibrate --json` prints (output None) plus "notes" (the
-    CLI's notes on the target). Bad input raises SceneError with the CLI's message, a
-    failed run StepError; not converging is `converged` False (the CLI exits 1).
-    output= (the CLI's -o file) is not bound yet (issue 23): ValueError.
+    output: the CLI's -o file (the scene simulated with the identified parameters plus
+    /calibration, docs/output.md; None: no file); an existing file is refused (SceneError,
+    the CLI's message) unless force=True (--force).
+    Returns the dict that `calibrate --json` prints (output: the file, or None) plus
+    "notes" (the CLI's notes on the target). Bad input raises SceneError with the CLI's
+    message, a failed run StepError; not converging is `converged` False (the CLI exits 1).
     """
-    _refuse_output(output, force, "calibrate")
+    out = _output(output, force)
     path, sets = _scene_and_sets(scene, set)
     if isinstance(frames, int):
         frames = [frames]
+    command = _command("calibrate", scene=path, param=param, target=target, markers=markers, frames=frames, init=init,
+                       max_iterations=max_iterations, tolerance=tolerance, set=sets, output=out, force=force)
     return _calibrate(path, sets, _list_text(param), _list_text(target), _list_text(markers),
                       _list_text(frames), _list_text(init, number=True), int(max_iterations), float(tolerance),
-                      int(threads), bool(strict))
+                      int(threads), bool(strict), out, bool(force), command)
 
 
 def control(scene, target, effector=None, steps=None, weights="1,0", axes="xyz", regularization=1e-6, filter=1.0,
@@ -235,15 +250,39 @@ def control(scene, target, effector=None, steps=None, weights="1,0", axes="xyz",
     prints (output None) plus the /control series of the CLI's file as numpy arrays, one
     row per written frame (output.every), frame 0 first: time, goal (T, 3), distance,
     actuation (T, n_a), contact_force_norm (with contact), kkt_residual. Bad input raises
-    SceneError with the CLI's message, a failed step StepError. output= is not bound yet
-    (issue 23): ValueError.
+    SceneError with the CLI's message, a failed step StepError. output: the CLI's -o file
+    (None: no file); force=True overwrites an existing one (--force).
     """
-    _refuse_output(output, force, "control")
+    out = _output(output, force)
     path, sets = _scene_and_sets(scene, set)
     if isinstance(target, (str, _os.PathLike)):
         target = _os.fspath(target)
     else:
         target = _list_text(target, number=True)
+    command = _command("control", scene=path, target=target, effector=effector, steps=steps, weights=weights, axes=axes,
+                       regularization=regularization, filter=filter, shared_actuation=shared_actuation,
+                       max_actuation=max_actuation, set=sets, output=out, force=force)
     return _control(path, sets, target, effector or "", None if steps is None else int(steps),
                     _list_text(weights, number=True), axes, float(regularization), float(filter),
-                    bool(shared_actuation), bool(max_actuation), int(threads), bool(strict))
+                    bool(shared_actuation), bool(max_actuation), int(threads), bool(strict), out, bool(force), command)
+
+
+def simulate(scene, output=None, steps=None, duration=None, dt=None, set=None, jacobian=None, force=False, threads=1,
+             strict=False):
+    """Run a scene and write its output file: `softdiff simulate SCENE -o FILE` (docs/cli.md).
+
+    output: the file (None: the scene's output.file, else <scene stem>.h5 in the current
+    folder, as the CLI). steps, duration, dt: --steps, --duration, --dt. jacobian: the
+    theta of --jacobian ("young,poisson" or a list): /jacobians/<theta> in the file.
+    force: --force. Returns the dict that `simulate --json` prints but "bodies" (the
+    states are in the file: read_result). Bad input raises SceneError with the CLI's
+    message (an existing file without force=True included), a failed run StepError (the
+    file is finished as the CLI finishes it, where the frames are named in the message).
+    """
+    path, sets = _scene_and_sets(scene, set)
+    out = "" if output is None else _os.fspath(output)
+    command = _command("simulate", scene=path, output=out, steps=steps, duration=duration, dt=dt, set=sets,
+                       jacobian=jacobian, force=force)
+    return _simulate(path, sets, None if steps is None else int(steps), None if duration is None else float(duration),
+                     None if dt is None else float(dt), out, bool(force), _list_text(jacobian), int(threads),
+                     bool(strict), command)

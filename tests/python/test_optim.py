@@ -156,9 +156,9 @@ def test_calibrate_bad_input_raises_scene_error_with_the_cli_message(tmp_path, c
     # --tolerance: the CLI echoes its text ("0"), Python its value ("0.0").
     with pytest.raises(softdiff.SceneError, match=r"^--tolerance: must be > 0, got 0.0$"):
         softdiff.calibrate(CALIB, param="young", target=beam_target, tolerance=0, set=SHORT)
-    # The CLI's output file is not bound yet (issue 23).
-    with pytest.raises(ValueError, match="issue 23"):
-        softdiff.calibrate(CALIB, param="young", target=beam_target, set=SHORT, output=tmp_path / "out.h5")
+    # force= only with output= (tests/python/test_output.py: output= itself).
+    with pytest.raises(ValueError, match="force=True: only with output="):
+        softdiff.calibrate(CALIB, param="young", target=beam_target, set=SHORT, force=True)
 
 
 # --- control --------------------------------------------------------------------------
@@ -256,8 +256,8 @@ def test_control_bad_input_raises_scene_error_with_the_cli_message(tmp_path, cli
         assert not (tmp_path / "never.h5").exists()
     with pytest.raises(softdiff.SceneError, match=r"^--filter 2: must be in \(0, 1\]$"):
         softdiff.control(control_scene, target=(0, 0, 0), filter=2)
-    with pytest.raises(ValueError, match="issue 23"):
-        softdiff.control(control_scene, target=(0, 0, 0), output="c.h5")
+    with pytest.raises(ValueError, match="force=True: only with output="):
+        softdiff.control(control_scene, target=(0, 0, 0), force=True)
 
 
 def test_control_step_error_carries_the_cli_message(tmp_path, cli, control_scene):

@@ -6,14 +6,19 @@
 // bad input an InputError with the CLI's message, exit 2), the target (--target
 // trajectory or --markers CSV) loaded into a CalibrationTarget, and the model with the
 // identified values. The identification itself is optim::calibrate (calibration.hpp);
-// the output file (the final run written as `simulate` writes it, plus /calibration)
-// stays the CLI's (app/cmd_calibrate.cpp: app/cmd_simulate.cpp's simulate_model).
+// the output file is the final run written as `simulate` writes it (io/run_output.hpp,
+// since 2026-12-04, branch pyout) plus /calibration (write_calibration below), by the CLI
+// and by softdiff.calibrate(output=...).
 #include <softdiff/io/scene.hpp>
 #include <softdiff/optim/calibration.hpp>
 
 #include <functional>
 #include <string>
 #include <vector>
+
+namespace softdiff::io {
+class Hdf5Writer;
+}
 
 namespace softdiff::optim {
 
@@ -61,5 +66,15 @@ CalibrationOptions calibration_options(const CalibrateRunOptions& o);
 
 // The problem's model with the result's values (the final run's).
 Model calibrated_model(const CalibrationProblem& problem, const std::vector<double>& values);
+
+// -o: the file to write (output, or <scene stem>_calibrated.h5), refused (InputError,
+// the CLI's messages) when it exists without `force` or is one of the inputs (the
+// scene's files, the target) - checked before the identification runs.
+std::string calibration_output_path(const CalibrateRunOptions& o, const std::string& output, bool force,
+                                    const io::SceneDesc& scene);
+
+// /calibration of the output (docs/output.md): the iterations table with its units and
+// the result's attributes (io::RunHooks::finish of the final run).
+void write_calibration(io::Hdf5Writer& w, const CalibrationProblem& problem, const CalibrationResult& result);
 
 }  // namespace softdiff::optim

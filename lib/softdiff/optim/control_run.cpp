@@ -9,7 +9,9 @@
 #include <softdiff/integrator/bdf2.hpp>
 #include <softdiff/integrator/contact_status.hpp>
 #include <softdiff/io/build_model.hpp>
+#include <softdiff/io/hdf5_writer.hpp>
 #include <softdiff/io/input_error.hpp>
+#include <softdiff/io/units.hpp>
 
 #include <algorithm>
 #include <cctype>
@@ -18,6 +20,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <memory>
 #include <utility>
 
 namespace softdiff::optim {
@@ -276,6 +279,49 @@ ControlRunResult run_control(const ControlProblem& problem, bool max_actuation, 
   out.run_seconds = seconds_since(t_run);
   out.summary = run.summary();
   return out;
+}
+
+std::string control_output_path(const ControlRunOptions& o, const std::string& output, const io::SceneDesc& scene) {
+  std::filesystem::path out_path = output;
+  if (out_path.empty()) out_path = std::filesystem::path(o.scene).stem().string() + "_control.h5";
+  std::vector<std::string> inputs = io::scene_input_files(scene);
+  inputs.push_back(o.target);  // a CSV of goals (three numbers name no file)
+  io::check_output_is_not_input(out_path.string(), inputs);
+  return out_path.string();
+}
+
+io::RunHooks control_output_hooks(const ControlProblem& problem, ControlRun& run,
+                                  std::function<void(const State& s)> on_frame) {
+  const Model& model = problem.model;
+  struct Series {
+    int goal = -1, distance = -1, actuation = -1, force = -1, kkt = -1;
+  };
+  auto series = std::make_shared<Series>();  // shared by the hooks (copies of one another)
+  io::RunHooks hooks;
+  hooks.data = &run.data();  // one factorization per control step (optim/control.hpp)
+  hooks.setup = [&model, series](io::Hdf5Writer& wr) {
+    const Eigen::Index na = static_cast<Eigen::Index>(model.actuation.actuators.size());
+    std::vector<std::string> actuation_units;
+    for (const auto& a : model.actuation.actuators) actuation_units.push_back(io::actuator_value_unit(a));
+    series->goal = wr.add_series("/control/goal", 3, "m");
+    series->distance = wr.add_series("/control/distance", 0, "m");
+    series->actuation = wr.add_series("/control/actuation", static_cast<int>(na), io::column_units(actuation_units));
+    if (model.contact.enabled) series->force = wr.add_series("/control/contact_force_norm", 0, "N");
+    series->kkt = wr.add_series("/control/kkt_residual", 0, "1");  // relative to max(1, |g|_inf): box_qp.hpp
+  };
+  hooks.actuation = [&run](long k, const State& s, VecX& lambda) { return run.actuation(k, s, lambda); };
+  hooks.frame = [&run, series, on_frame = std::move(on_frame)](io::Hdf5Writer& wr, const State& s, const Data& data,
+                                                                 bool first) {
+    run.observe(s, data, first);
+    const auto& f = run.frame();
+    wr.append_series(series->goal, f.goal.data());
+    wr.append_series(series->distance, &f.distance);
+    wr.append_series(series->actuation, run.applied().data());
+    if (series->force >= 0) wr.append_series(series->force, &f.force_norm);
+    wr.append_series(series->kkt, &f.kkt);
+    if (on_frame) on_frame(s);
+  };
+  return hooks;
 }
 
 }  // namespace softdiff::optim

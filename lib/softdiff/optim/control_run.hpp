@@ -12,6 +12,7 @@
 // simulate_model: integrator::time_step with the previous state for BDF2, the same
 // non-convergence policy, a frame every output.every steps and at the last) without
 // writing a file (the Python module); the CLI runs the same hooks inside simulate_model.
+#include <softdiff/io/run_output.hpp>
 #include <softdiff/io/scene.hpp>
 #include <softdiff/optim/control.hpp>
 
@@ -128,5 +129,17 @@ struct ControlRunResult {
 // texts). A failed step (or with strict a non-converged solve) throws ComputationError
 // with describe(model, status), the CLI's message.
 ControlRunResult run_control(const ControlProblem& problem, bool max_actuation, bool strict, const ControlMessageSink& warn);
+
+// -o: the file to write (output, or <scene stem>_control.h5), refused (InputError, the
+// CLI's message) when it is one of the inputs (the scene's files, a CSV of goals).
+std::string control_output_path(const ControlRunOptions& o, const std::string& output, const io::SceneDesc& scene);
+
+// The hooks of the run that writes control's file (io::OutputRun; since 2026-12-04,
+// branch pyout, shared by the CLI and softdiff.control(output=...)): run's actuation at
+// each step, its record (one factorization per step), and the /control series (goal,
+// distance, actuation, contact_force_norm with contact, kkt_residual) at each frame.
+// `problem` and `run` must outlive the hooks; on_frame (optional) is called after each frame's rows.
+io::RunHooks control_output_hooks(const ControlProblem& problem, ControlRun& run,
+                                  std::function<void(const State& s)> on_frame = {});
 
 }  // namespace softdiff::optim

@@ -1,11 +1,11 @@
 // SI units of the output datasets: see units.hpp.
-#include "units.hpp"
+#include <softdiff/io/units.hpp>
 
 #include <softdiff/core/assert.hpp>
 
 #include <variant>
 
-namespace softdiff::app {
+namespace softdiff::io {
 
 std::string parameter_unit(Parameter p) {
   switch (p) {
@@ -53,4 +53,4 @@ std::string column_units(const std::vector<std::string>& units) {
   return same ? units.front() : out;
 }
 
-}  // namespace softdiff::app
+}  // namespace softdiff::io
