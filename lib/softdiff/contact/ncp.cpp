@@ -1229,7 +1229,10 @@ NcpResult solve_core(Buffers& w, const Problem& p, const NcpOptions& options, Ve
   // stall fallback on G_CC). There it took configs/gripper_free.yaml from 15 to 0 solves
   // above the tolerance but the shipped configs/gripper_lift.yaml diverged at step 142
   // (implicit Euler) and inverted an element at step 128 (BDF2) on the changed
-  // trajectory (docs/method.md "The NCP on redundant contacts: a proximal point stage").
+  // trajectory; in the stall fallback alone (no working-set round) gripper_lift passed
+  // under implicit Euler (46 -> 13 solves above the tolerance, the cylinder within
+  // 0.05 mm) but inverted an element at step 123 under BDF2 (docs/method.md "The NCP on
+  // redundant contacts: a proximal point stage").
   if (proximal_stage && options.polish && result.residuals.max() > p.tolerance && active <= options.polish_max_active) {
     const Eigen::Index n = 3 * static_cast<Eigen::Index>(p.nc);
     w.ac_in_l.head(n) = lambda;
