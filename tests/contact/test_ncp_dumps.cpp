@@ -7,6 +7,8 @@
 // solve started from (3 nc), then G's upper triangle row by row (G is symmetric).
 #include <softdiff/contact/ncp.hpp>
 
+#include <Eigen/SVD>
+#include <cmath>
 #include <fstream>
 #include <iostream>
 #include <gtest/gtest.h>
@@ -76,6 +78,134 @@ TEST(NcpDumps, GripLateStepReachesTheTolerance) {
   const NcpResult r0 = NcpSolver().solve(d.G, d.g, d.mu, o, lambda0, sigma0, modes);
   EXPECT_GT(r0.residuals.max(), o.tolerance);
 }
+
+
+// Step 4 of configs/pads_lift.yaml (`softdiff simulate configs/pads_lift.yaml --steps 50
+// --threads 1`; the dense path's whole problem, dumped once 2026-12-04, branch ncpprox,
+// with the options of the scene: tolerance 1e-8, max_iterations 10000, the working set):
+// 115 contacts of the block on the two soft pads, 37 active, redundant (vertices of the
+// block against soft triangles). ADMM stalls, PGS, the polish and the Newton stage stop
+// at 1.7e-5; the proximal point stage (ncp.cpp, proximal_point_stage: NCP(G + eps D,
+// g - eps D lambda^k) by the Newton stage, then PGS, eps adapted) reaches 2.7e-15 (46
+// outer iterations, 562 Newton steps, 2600 PGS sweeps in all; ~0.25 s). The check is
+// independent of the solver's residuals; the bound 1e-12 is the stage's own stop (1e-6
+// of the tolerance) with two decades of margin for rounding of a 345 x 345 G whose
+// entries are ~1e-3 (a solution only at the tolerance would carry 1e-8 noise into finite
+// differences: the stage iterates to round-off, as the Newton stage). Without the polish
+// (which turns every stage off) the solvers stop above the tolerance: the problem is one
+// the stage is for.
+TEST(NcpDumps, PadsLiftStallReachesRoundOffByTheProximalStage) {
+  const Dump d = load_dump("ncp_pads_lift_proximal.txt");
+  ASSERT_EQ(d.mu.size(), 115);
+  NcpOptions o;
+  o.max_iterations = 10000;  // the scene's
+  VecX lambda = d.warm, sigma;
+  std::vector<Mode> modes;
+  const NcpResult r = NcpSolver().solve(d.G, d.g, d.mu, o, lambda, sigma, modes);
+  const NcpResiduals check = ncp_residuals(d.G, d.g, d.mu, lambda);
+  std::cout << "pads_lift step 4: residual " << check.max() << " (solver " << r.residuals.max() << "), "
+            << r.iterations << " iterations, sticking " << r.sticking << ", sliding " << r.sliding << "\n";
+  EXPECT_TRUE(r.converged);
+  EXPECT_LE(check.max(), 1e-12);
+  EXPECT_LE((sigma - (d.G * lambda + d.g)).cwiseAbs().maxCoeff(), 1e-12 * d.g.cwiseAbs().maxCoeff());
+  o.polish = false;
+  VecX lambda0 = d.warm, sigma0;
+  const NcpResult r0 = NcpSolver().solve(d.G, d.g, d.mu, o, lambda0, sigma0, modes);
+  EXPECT_GT(r0.residuals.max(), o.tolerance);
+}
+
+// Step 76 of the grip (configs/gripper_free.yaml, the same run as above; dumped
+// 2026-12-04, branch ncpprox): the operator path's stall fallback's 19 contacts (the dense
+// G_CC of the contacts that may carry force), as the fallback received them. No stage
+// reaches the tolerance from this warm start (ADMM, PGS, the polish, the Newton stage and
+// the proximal point stage, whose better iterate above the tolerance is not taken: the
+// solve returns 1.5e-4 after the scene's 2000 iterations). What is checked is
+// that such a solve is reported as it is: converged exactly when the independently
+// recomputed residual is within the tolerance, the reported residual that of the
+// returned forces, sigma consistent with them, everything finite.
+TEST(NcpDumps, GripStallIsReportedAsItIs) {
+  const Dump d = load_dump("ncp_grip_step76_fallback.txt");
+  ASSERT_EQ(d.mu.size(), 19);
+  NcpOptions o;
+  o.working_set = false;  // the fallback's inner solve
+  o.max_iterations = 2000;  // the scene's
+  VecX lambda = d.warm, sigma;
+  std::vector<Mode> modes;
+  const NcpResult r = NcpSolver().solve(d.G, d.g, d.mu, o, lambda, sigma, modes);
+  const NcpResiduals check = ncp_residuals(d.G, d.g, d.mu, lambda);
+  std::cout << "grip step 76 fallback: residual " << check.max() << " (solver " << r.residuals.max() << "), "
+            << r.iterations << " iterations\n";
+  ASSERT_TRUE(lambda.allFinite() && sigma.allFinite());
+  EXPECT_EQ(r.converged, check.max() <= o.tolerance);
+  EXPECT_NEAR(r.residuals.max(), check.max(), 1e-6 * check.max());
+  EXPECT_LE((sigma - (d.G * lambda + d.g)).cwiseAbs().maxCoeff(), 1e-12 * d.g.cwiseAbs().maxCoeff());
+}
+
+// A synthetic redundant rim (issue 21: the cylinder's rim on the pedestal, whose manifold
+// reduction keeps all 26 points since every point of a circle is a hull vertex): a rigid
+// body (m = 0.2 kg, I = diag(2, 2, 3) 1e-4 kg m^2) touching a plane at 26 points of a
+// circle of radius 0.02 m, 0.03 m below its centre, mu 0.85, h = 0.01 s. G = h H A^-1 H^T
+// (78 x 78) has rank 6. The free velocity pushes the body down, sideways and turns it
+// within the friction cones: all 26 points stick (78 sticking rows on 6 dofs, the
+// maximally redundant case). The body's velocity u = u_free + h A^-1 H^T lambda is unique
+// where lambda is not; it is compared with an independent reference, ADMM alone (no
+// stall fallback, no polish, no working set) to 1e-14. Measured: residual 4e-16, the
+// velocities agree to 3e-14 of |u_free|; the check's 1e-8 is the NCP tolerance. (PGS
+// is no reference here: on the variants with sliding points it ended at 0.09 after
+// 200000 sweeps.) The solver reaches it without the proximal point stage; the test
+// guards the redundant rim as such.
+TEST(NcpDumps, RedundantRimOfTwentySixPointsIsSolvedToRoundOff) {
+  const int nc = 26;
+  const double h = 0.01, m = 0.2, radius = 0.02, depth = 0.03;
+  const Eigen::Vector3d inertia(2e-4, 2e-4, 3e-4);
+  MatX H = MatX::Zero(3 * nc, 6);  // rows (t1, t2, n) per contact on (v, omega)
+  for (int i = 0; i < nc; ++i) {
+    const double a = 2 * 3.14159265358979323846 * i / nc;
+    const Eigen::Vector3d r(radius * std::cos(a), radius * std::sin(a), -depth);
+    const Eigen::Matrix3d C = Eigen::Matrix3d::Identity();  // t1 = x, t2 = y, n = z
+    for (int c = 0; c < 3; ++c) {
+      const Eigen::Vector3d t = C.col(c);
+      H.block<1, 3>(3 * i + c, 0) = t.transpose();
+      H.block<1, 3>(3 * i + c, 3) = r.cross(t).transpose();
+    }
+  }
+  Eigen::Matrix<double, 6, 1> Ainv;
+  Ainv << 1 / m, 1 / m, 1 / m, 1 / inertia[0], 1 / inertia[1], 1 / inertia[2];
+  const MatX G = h * H * Ainv.asDiagonal() * H.transpose();
+  Eigen::Matrix<double, 6, 1> u_free;
+  u_free << 0.2, 0.1, -0.5, 10.0, -5.0, 3.0;
+  const VecX g = H * u_free;  // gaps 0
+  const VecX mu = VecX::Constant(nc, 0.85);
+  Eigen::JacobiSVD<MatX> svd(G);
+  const int rank = static_cast<int>((svd.singularValues().array() > 1e-10 * svd.singularValues()[0]).count());
+  EXPECT_EQ(rank, 6);
+  auto velocity = [&](const VecX& lambda) -> Eigen::Matrix<double, 6, 1> {
+    return u_free + h * Ainv.asDiagonal() * (H.transpose() * lambda);
+  };
+  NcpOptions o;
+  VecX lambda = VecX::Zero(3 * nc), sigma;
+  std::vector<Mode> modes;
+  const NcpResult r = NcpSolver().solve(G, g, mu, o, lambda, sigma, modes);
+  const NcpResiduals check = ncp_residuals(G, g, mu, lambda);
+  NcpOptions reference;
+  reference.solver = NcpSolverKind::admm;
+  reference.admm_fallback = false;
+  reference.polish = false;
+  reference.working_set = false;
+  reference.tolerance = 1e-14;
+  reference.max_iterations = 200000;
+  VecX lambda_ref = VecX::Zero(3 * nc), sigma_ref;
+  const NcpResult rr = NcpSolver().solve(G, g, mu, reference, lambda_ref, sigma_ref, modes);
+  const double du = (velocity(lambda) - velocity(lambda_ref)).norm() / u_free.norm();
+  std::cout << "rim: residual " << check.max() << " (solver " << r.residuals.max() << ", " << r.iterations
+            << " iterations, sticking " << r.sticking << ", sliding " << r.sliding << ", breaking " << r.breaking
+            << "); ADMM reference " << rr.residuals.max() << " after " << rr.iterations << " iterations; |du| / |u_free| "
+            << du << "\n";
+  EXPECT_TRUE(r.converged);
+  EXPECT_LE(check.max(), 1e-10);
+  EXPECT_LE(du, 1e-8);
+}
+
 
 }  // namespace
 }  // namespace softdiff::contact
