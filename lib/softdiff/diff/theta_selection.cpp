@@ -60,12 +60,16 @@ void demand_differentiable(const std::string& option, const Model& model) {
       for (const auto& rule : model.contact.detection.pairs)
         if (rule.a == soft_bodies + static_cast<int>(r) || rule.b == soft_bodies + static_cast<int>(r))
           mu = std::max(mu, rule.mu);
-      if (mu > 0)
+      if (mu > 0) {
+        std::ostringstream friction;
+        friction << mu;
         throw InputError(option + ": derivatives of a static scene with a free rigid body in frictional contact "
                                   "beside soft bodies are not supported yet (issue 21; rigid body '" + b.name +
-                                  "', friction " + std::to_string(mu) +
-                                  "): its static tangential state is the stick accumulated along the solver's path; "
-                                  "frictionless free bodies, hinged, slider and fixed bodies are differentiated");
+                                  "'): with friction (" + friction.str() +
+                                  ") its static tangential state is the stick accumulated along the solver's path; "
+                                  "frictionless free bodies held in all six dofs by their contacts, hinged, slider and "
+                                  "fixed bodies are differentiated");
+      }
     }
     for (const auto& b : model.fem.bodies)
       if (b.psd_projection)
