@@ -150,7 +150,9 @@ inline Model tilted_cube_on_slab_slider(double h) {
 // slab to 5 mm below the cube's top, each ending 5 mm short of the corner (no wall edge on
 // a cube edge); frictionless, gravity (2, 1.5, -9.81) leans it into the corner: the slab's
 // normals hold z and the two tilts, the walls' x, y and the yaw. Walls `nw` cells along
-// their length and height (one through their thickness).
+// their length and height (one through their thickness). The cube and the walls are moved
+// by (ox, oy) in the plane (the slab stays: (0, 0) puts the slab's centre node under the
+// cube's bottom diagonal), the walls' tops at z = `top`.
 inline Model cube_in_soft_corner(double h, int nw = 4, double ox = 0, double oy = 0, double top = 0.045) {
   const BodySpec slab = damped_slab_spec();
   BodySpec wall = slab;
