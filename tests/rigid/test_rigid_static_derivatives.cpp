@@ -261,10 +261,10 @@ TEST(RigidStaticDerivatives, FreeBodyBesideSoftBodiesIsRefused) {
 // A free body beside soft bodies, frictionless (issue 21, srfree): the 40 mm cube leaning
 // into a soft corner (rigid_scenes.hpp cube_in_soft_corner: the slab and two walls, gravity
 // (2, 1.5, -9.81)); the contacts' normals hold all six dofs. The cube and its walls are
-// moved by (1.3, -1.2) mm off the slab's lattice (written while the solve cycled on it,
-// at (0.06, 0.06): a slab node under the cube's bottom diagonal, whose detection record
-// switched between its two triangles; fixed in detection since, docs/method.md srfree;
-// validation_rigid runs both). Against central differences of whole solves, as
+// moved by (1.3, -1.2) mm off the slab's lattice: at (0.06, 0.06) a slab node lies under
+// the cube's bottom diagonal, its detection record switches between the two triangles
+// each iteration (one with a sideways normal) and the static solve cycles without
+// converging (docs/method.md srfree). Against central differences of whole solves, as
 // the hinge's (steps and tolerance at the top of this file); every loaded contact slides
 // (frictionless: no path dependence).
 TEST(RigidStaticDerivatives, FreeCubeInASoftCorner) {

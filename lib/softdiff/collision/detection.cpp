@@ -41,10 +41,7 @@
 //     vertex-triangle tests report.
 //   - vertex-triangle with q in the face: kept.
 //   - q on an edge e of the triangle: kept only for the lowest-index triangle of e
-//     (among those that the self-contact rule does not skip for this vertex), and not
-//     on a flat edge (coplanar faces) when the vertex lies over the edge's other face
-//     and is farther than kFlatDistance times the triangle's size from q: that face's
-//     record holds it (srfree; the edge record's normal would point sideways).
+//     (among those that the self-contact rule does not skip for this vertex).
 //   - q on a vertex w: kept only for the lowest-index triangle incident to w (same).
 //   So a vertex near an edge or a vertex of the other surface gives one point-edge or
 //   one point-point contact, whose weights are the triangle's barycentrics (one or two
@@ -560,26 +557,6 @@ void CollisionDetector::Impl::soft_soft(const PairRule& rule, const VecX& x, Con
       }
       if (rep != t) continue;
       pseudo = edge_normal(S, e);
-      // A flat edge (its two faces coplanar) with the vertex over the other face: that
-      // face's record holds the vertex (its closest point inside, n = N, the gap the
-      // height over the plane). This one's d = p - q is then mostly along the face (the
-      // vertex's offset from the edge), so its normal would point sideways and its gap be
-      // minus that offset where the vertex is a round-off below the plane: a spurious
-      // lateral push. Seen on a rigid cube resting on a soft slab whose node lay on the
-      // cube's bottom diagonal (2026-12-04, srfree; docs/method.md "Static equilibrium
-      // with rigid bodies"): the record switched between the two triangles each Newton
-      // iteration of the static solve (gap -5.9e-7 m against -2e-13 m), which never
-      // converged. Closer than kFlatDistance times the triangle's size the record is kept:
-      // the rule below records it against the face (n = N, the same gap as the other
-      // face's), and a vertex on the edge to round-off keeps one owner (dropping it there
-      // too made the owner switch between the two faces with round-off: the frictional
-      // cube on the slab then stalled at 1.2e-10).
-      const int other = S.edge_tris[e][0] == t ? S.edge_tris[e][1] : S.edge_tris[e][0];
-      if (other >= 0 && !(self && S.skip_vt(v, other)) && 1 - pseudo.dot(S.face_normal[t]) < kFlatAngle &&
-          !(std::sqrt(r.dist2) < kFlatDistance * triangle_scale(P(T(0, t)), P(T(1, t)), P(T(2, t))))) {
-        const PointTriangleResult ro = point_triangle_closest(p, P(T(0, other)), P(T(1, other)), P(T(2, other)));
-        if (ro.feature == Feature::face && ro.dist2 < m2) continue;
-      }
     } else if (r.feature == Feature::vertex) {
       const int w = T(r.local, t);
       const int lw = S.local[w];
