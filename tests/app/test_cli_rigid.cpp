@@ -456,9 +456,9 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
       // bdf2 with rigid bodies is differentiated since issue 21's rbd2
       // (test_cli_rigid_derivatives.cpp CheckGradUnderBdf2).
       // static with rigid bodies (Cli.RigidBodyRestsStatically): a body with dofs needs
-      // contact; the derivatives of a free or slider body are refused (hinged bodies are
-      // differentiated: test_cli_rigid_static_derivatives.cpp; joint limits run:
-      // Cli.LimitedSliderRestsStatically, their derivatives are refused).
+      // contact; the derivatives of a free body in frictional contact beside soft bodies are
+      // refused (hinged, slider and limited bodies are differentiated, a frictionless free
+      // body held in all six dofs too since srfree: test_cli_rigid_static_derivatives.cpp).
       {"static", beam_and_sphere(),
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null",
@@ -469,7 +469,8 @@ TEST(Cli, RigidBodiesRefuseWhatIsNotSupportedYet) {
                            "contact: {pairs: [[ball, floor, 0.3]]}\n"),
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null --jacobian young",
-       "--jacobian: derivatives of a static scene with a free rigid body beside soft bodies are not supported yet "
+       "--jacobian: derivatives of a static scene with a free rigid body in frictional contact beside soft bodies are "
+       "not supported yet "
        "(issue 21; rigid body 'ball')"},
       // calibrate and control with rigid bodies run since issue 21's rcal and rctl
       // (test_cli_calibrate_rigid.cpp, test_cli_control.cpp PushesAFreeRigidBlock); what

@@ -502,7 +502,8 @@ TEST(Cli, RigidifyRefusesWhatIsNotSupportedYet) {
       {"static_jacobian_free_rigid", beam(kTip, kCube),
        "simulate scene.yaml -o out.h5 --set simulation.integrator=static --set simulation.dt=null --set "
        "simulation.steps=null --jacobian young",
-       "--jacobian: derivatives of a static scene with a free rigid body beside soft bodies are not supported yet "
+       "--jacobian: derivatives of a static scene with a free rigid body in frictional contact beside soft bodies are "
+       "not supported yet "
        "(issue 21; rigid body 'cube')"},
       // (A cable acting on a part's node, statically, was refused here until rstp:
       // StaticCheckGradWithACableThroughARigidifiedTip.)

@@ -144,6 +144,35 @@ inline Model tilted_cube_on_slab_slider(double h) {
   return model;
 }
 
+// The free 40 mm cube of slab_and_cube (500 kg/m^3, at zero gap on the slab) leaning into a
+// soft corner (issue 21, srfree): two walls 0.01 m thick (E = 50 kPa, nu 0.4, 1000 kg/m^3,
+// their outer faces fixed) at zero gap against its +x and +y faces, from 2 mm above the
+// slab to 5 mm below the cube's top, each ending 5 mm short of the corner (no wall edge on
+// a cube edge); frictionless, gravity (2, 1.5, -9.81) leans it into the corner: the slab's
+// normals hold z and the two tilts, the walls' x, y and the yaw. Walls `nw` cells along
+// their length and height (one through their thickness). The cube and the walls are moved
+// by (ox, oy) in the plane (the slab stays: (0, 0) puts the slab's centre node under the
+// cube's bottom diagonal), the walls' tops at z = `top`.
+inline Model cube_in_soft_corner(double h, int nw = 4, double ox = 0, double oy = 0, double top = 0.045) {
+  const BodySpec slab = damped_slab_spec();
+  BodySpec wall = slab;
+  mesh::TetMesh s = box_mesh(8, 8, 2, 0.12, 0.12, 0.01);
+  mesh::TetMesh wx = box_mesh(1, nw, nw, 0.01, 0.055, top - 0.012), wy = box_mesh(nw, 1, nw, 0.055, 0.01, top - 0.012);
+  for (Eigen::Index i = 0; i < wx.X.cols(); ++i) wx.X.col(i) += Vec3(0.08 + ox, 0.02 + oy, 0.012);
+  for (Eigen::Index i = 0; i < wy.X.cols(); ++i) wy.X.col(i) += Vec3(0.02 + ox, 0.08 + oy, 0.012);
+  BodySpec wall_x = wall, wall_y = wall;
+  wall_x.fixed = [ox](const Vec3& p) { return p.x() > 0.09 + ox - 1e-9; };
+  wall_y.fixed = [oy](const Vec3& p) { return p.y() > 0.09 + oy - 1e-9; };
+  const Vec3 g(2, 1.5, -9.81);
+  Model model = make_model({{s, slab, "body"}, {wx, wall_x, "wall_x"}, {wy, wall_y, "wall_y"}}, g, h);
+  rigid::RigidState c;
+  c.position = Vec3(0.06 + ox, 0.06 + oy, 0.03);
+  add_rigid_body(model, "cube", box_shape(Vec3(0.02, 0.02, 0.02)), 500, c);
+  enable_rigid_contact(model, {}, {{"body", "cube", 0.0}, {"wall_x", "cube", 0.0}, {"wall_y", "cube", 0.0}}, 1e-3,
+                       contact::NcpOptions{});
+  return model;
+}
+
 // A bar (0.2 x 0.04 x 0.02 m, 800 kg/m^3) hinged about y through its left end's
 // mid-height (anchor (0, 0, 0.01)), its right end on a soft pad (0.03 x 0.024 x 0.02 m
 // under x in [0.165, 0.195], y in [-0.012, 0.012]; E = 20 kPa, nu 0.3, 1000 kg/m^3,

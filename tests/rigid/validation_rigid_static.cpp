@@ -129,6 +129,60 @@ TEST(RigidStatic, CubeRestsOnASoftSlab) {
   EXPECT_EQ(out.rigid[0].velocity.norm(), 0);  // static: velocities zero
 }
 
+// A free cube leaning into a soft corner (issue 21, srfree; rigid_scenes.hpp
+// cube_in_soft_corner, moved (1.3, -1.2) mm off the slab's lattice: on it the static solve
+// cycles, docs/method.md srfree),
+// frictionless, gravity (2, 1.5, -9.81): the contacts' normals hold all six dofs, so the
+// static answer is determinate. Closed form: the reaction on the cube is minus its weight
+// (three components); each support carries the load along its normal, the slab the
+// vertical part, wall_x the x part, wall_y the y part, up to the tilt of the deformed
+// surfaces' normals (they turn by about the supports' strain, the cube's move over their
+// 0.01 m thickness: ~1e-3; 1e-3 of the weight bounds it, measured 4e-5). Independent reference: the dynamic run of the same scene (implicit Euler,
+// damped supports) to rest, whose pose must be the static one.
+TEST(RigidStatic, FreeCubeLeansIntoASoftCorner) {
+  Model model = static_of(test::rigid_scenes::cube_in_soft_corner(2e-3, 4, 1.3e-3, -1.2e-3));
+  model.step.static_max_iterations = 200;
+  model.step.static_tolerance = 1e-12;
+  model.contact.ncp = test::rigid_scenes::tight_ncp(1e-12);
+  Data data(model);
+  State out;
+  const StepStatus st = integrator::solve_static(model, data, model.initial, out);
+  ASSERT_TRUE(st.ok()) << describe(model, st);
+  ASSERT_TRUE(data.contact.result.converged);
+  // names: body 0, wall_x 1, wall_y 2, cube 3
+  int count = 0;
+  const Vec3 f = force_on(data, 3, &count);
+  const Vec3 weight = model.rigid[0].mass * model.step.gravity;
+  const Vec3 slab = -force_on(data, 0), wx = -force_on(data, 1), wy = -force_on(data, 2);
+  const double W = weight.norm();
+  // The dynamic run to rest.
+  Model dynamic = test::rigid_scenes::cube_in_soft_corner(2e-3, 4, 1.3e-3, -1.2e-3);
+  dynamic.contact.ncp = test::rigid_scenes::tight_ncp(1e-12);
+  Data ddata(dynamic);
+  const State rest = run_to_rest(dynamic, ddata, 50, 4000, 1e-9);
+  const Vec3 dp = out.rigid[0].position - rest.rigid[0].position;
+  const double dtheta = 2 * (out.rigid[0].orientation.conjugate() * rest.rigid[0].orientation).vec().norm();
+  const Vec3 moved = out.rigid[0].position - model.initial.rigid[0].position;
+  std::cout << "[rigid static] free cube in a soft corner: " << st.iterations << " Newton iterations, " << count
+            << " contacts; reaction " << f.transpose() << " N, weight " << weight.transpose() << " N; slab "
+            << slab.transpose() << ", wall_x " << wx.transpose() << ", wall_y " << wy.transpose()
+            << " N; moved " << moved.transpose() << " m; dynamic rest: position difference " << dp.transpose()
+            << " m, rotation difference " << dtheta << " rad\n";
+  // The rigid equations hold to the NCP's tolerance (1e-12 relative): 1e-7 of the weight.
+  EXPECT_LT((f + weight).norm(), 1e-7 * W);
+  EXPECT_NEAR(slab.z(), -weight.z(), 1e-3 * W);
+  EXPECT_NEAR(wx.x(), -weight.x(), 1e-3 * W);
+  EXPECT_NEAR(wy.y(), -weight.y(), 1e-3 * W);
+  // The cube moved into the corner (+x, +y) and down, by the supports' compliance.
+  EXPECT_GT(moved.x(), 0);
+  EXPECT_GT(moved.y(), 0);
+  EXPECT_LT(moved.z(), 0);
+  // The dynamic rest: at rest to 1e-9 m/s with damping 20 /s the motion left is below
+  // 1e-9 m; its contact forces hold to the same NCP tolerance: 1e-3 of the cube's move
+  // (~1e-5 m) bounds the difference, as CubeRestsOnASoftSlab's sink.
+  EXPECT_LT(dp.norm(), 1e-3 * moved.norm());
+}
+
 // A bar (0.2 x 0.04 x 0.02 m, 800 kg/m^3) hinged about y through its left end's
 // mid-height, its right end on a soft pad (0.03 x 0.024 x 0.02 m under x in
 // [0.165, 0.195], y in [-0.012, 0.012]: inside the bar's footprint, so the pad's top

@@ -49,12 +49,28 @@ void demand_differentiable(const std::string& option, const Model& model) {
     // Static with rigid bodies (integrator/static_solver_derivatives.hpp, the rigid
     // equations in the implicit function theorem): hinged, slider and fixed bodies, beside
     // soft bodies or alone, joint limits (an active one holds its body), free bodies in a
-    // scene of rigid bodies only; free bodies beside soft bodies are not differentiated yet.
-    for (const auto& b : model.rigid)
-      if (b.joint.kind == rigid::Joint::Kind::free && model.fem.num_nodes > 0)
-        throw InputError(option + ": derivatives of a static scene with a free rigid body beside soft bodies are not "
-                                  "supported yet (issue 21; rigid body '" + b.name +
-                                  "'): hinged, slider and fixed bodies are");
+    // scene of rigid bodies only, and frictionless free bodies beside soft bodies (held in
+    // all six dofs by their contacts at the equilibrium: checked there, 2026-12-04, srfree);
+    // a free body with friction beside soft bodies is not differentiated yet.
+    const int soft_bodies = static_cast<int>(model.fem.bodies.size());
+    for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+      const auto& b = model.rigid[r];
+      if (b.joint.kind != rigid::Joint::Kind::free || model.fem.num_nodes == 0) continue;
+      double mu = 0;
+      for (const auto& rule : model.contact.detection.pairs)
+        if (rule.a == soft_bodies + static_cast<int>(r) || rule.b == soft_bodies + static_cast<int>(r))
+          mu = std::max(mu, rule.mu);
+      if (mu > 0) {
+        std::ostringstream friction;
+        friction << mu;
+        throw InputError(option + ": derivatives of a static scene with a free rigid body in frictional contact "
+                                  "beside soft bodies are not supported yet (issue 21; rigid body '" + b.name +
+                                  "'): with friction (" + friction.str() +
+                                  ") its static tangential state is the stick accumulated along the solver's path; "
+                                  "frictionless free bodies held in all six dofs by their contacts, hinged, slider and "
+                                  "fixed bodies are differentiated");
+      }
+    }
     for (const auto& b : model.fem.bodies)
       if (b.psd_projection)
         throw InputError(option + ": a static scene with psd_projection (body '" + b.name +

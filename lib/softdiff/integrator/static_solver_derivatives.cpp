@@ -5,14 +5,18 @@
 #include <softdiff/contact/rigid_contact.hpp>
 #include <softdiff/rigid/rigid_body.hpp>
 #include <softdiff/core/assert.hpp>
+#include <softdiff/core/error.hpp>
 #include <softdiff/fem/assembly.hpp>
 #include <softdiff/fem/fem_derivatives.hpp>
 #include <softdiff/integrator/empty_system.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
 #include <softdiff/integrator/rigidify.hpp>
 
+#include <Eigen/Eigenvalues>
+
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <string>
 #include <variant>
@@ -71,18 +75,15 @@ class EquilibriumSystem {
     for (const auto& b : model_.fem.bodies)
       SOFTDIFF_DEMAND(!b.psd_projection, "static derivatives: psd_projection (body '" + b.name +
                                              "') is not differentiated in this version");
-    // Free bodies beside soft bodies: refused (docs/method.md "Static equilibrium with rigid
-    // bodies", *Free bodies beside soft bodies*, 2026-12-04, rstat). With friction the
-    // static answer is not a function of the parameters: each Newton iteration's NCP sticks
-    // relative to that iterate, so the tangential state is the stick accumulated along the
-    // solver's path (2% to 20% off the differences on the cube on the slab, rstd).
-    // Frictionless, the pose is determinate only where the contacts' normals hold all six
-    // dofs (a flat support leaves sliding and spinning free); the scene built for it, a cube
-    // leaning into a soft corner (slab and two walls, frictionless, lateral gravity), is not
-    // solved by the static solver (relative residual 0.11 after 200 Newton iterations), so
-    // no derivative could be validated. Hinges, sliders (validated against differences) and
-    // fixed bodies are differentiated, and free bodies in a scene of rigid bodies only
-    // (their poses are set by the rigid contacts alone: RigidOnlyStack).
+    // Free bodies beside soft bodies (docs/method.md "Static equilibrium with rigid bodies",
+    // *Free bodies beside soft bodies*). Frictionless: differentiated (2026-12-04, srfree)
+    // where the contacts at x* hold all six dofs (demand_free_bodies_held, in prepare: a
+    // flat support leaves sliding and spinning free, and the pose is then not determinate).
+    // With friction refused: each Newton iteration's NCP sticks relative to that iterate, so
+    // the tangential state is the stick accumulated along the solver's path (2% to 20% off
+    // the differences on the cube on the slab, rstd), and check-grad's path-dependence count
+    // (sgrad) reads the soft nodes' displacement only, not the rigid body's share of a
+    // contact's slip, so it could not tell a body stuck from the first iterate.
     const int nb = static_cast<int>(model_.fem.bodies.size());
     for (std::size_t r = 0; r < model_.rigid.size(); ++r) {
       const auto& b = model_.rigid[r];
@@ -90,13 +91,10 @@ class EquilibriumSystem {
       double mu = 0;
       for (const auto& rule : model_.contact.detection.pairs)
         if (rule.a == nb + static_cast<int>(r) || rule.b == nb + static_cast<int>(r)) mu = std::max(mu, rule.mu);
-      SOFTDIFF_DEMAND(false, "static derivatives of a free rigid body are not supported yet (issue 21; rigid body '" +
-                                 b.name + "'): " +
-                                 (mu > 0 ? "with friction (" + std::to_string(mu) +
-                                               ") its static tangential state is the stick accumulated along the "
-                                               "solver's path, not a function of the parameters"
-                                         : std::string("frictionless, its pose is determinate only where the contacts "
-                                                       "hold all six dofs, and no such scene was solved and validated")));
+      SOFTDIFF_DEMAND(mu == 0, "static derivatives of a free rigid body with friction are not supported yet (issue 21; "
+                               "rigid body '" + b.name + "'): with friction (" + std::to_string(mu) +
+                                   ") its static tangential state is the stick accumulated along the solver's path, "
+                                   "not a function of the parameters (frictionless free bodies are differentiated)");
     }
     for (const auto& a : model_.actuation.actuators) {
       const auto* servo = std::get_if<actuation::Servo>(&a.kind);
@@ -134,6 +132,7 @@ class EquilibriumSystem {
       const VecX& start = data_.static_load_step_start.size() == n ? data_.static_load_step_start : model_.initial.x;
       equilibrium_modes(model_, cd, *x_, start, modes_, sigma_);
     }
+    demand_free_bodies_held();
     // First the augmented tangent (exact, no refinement for tau), then, where it does not
     // factorize or does not apply, the proximal one.
     bool factorized = false;
@@ -547,6 +546,81 @@ class EquilibriumSystem {
           Q_[static_cast<std::size_t>(r)] += w * skew(f) * skew(Vec3(rho_.segment<3>(3 * k)));
         }
       }
+    }
+  }
+
+  // A free body beside soft bodies (frictionless: demand_supported) must be held in all six
+  // dofs by the normals of the contacts the derivative keeps (modes not breaking): else its
+  // pose is not determinate (a cube flat on a slab slides and spins freely) and the
+  // refinement, whose proximal block tau_r is then the only stiffness on those motions,
+  // does not converge. Each kept contact's normal wrench on the body, h = (n, rho x n / L)
+  // (L the body's reach: forces and moments on one scale), enters S = sum h h^T; an
+  // eigenvalue of S below kHeldRatio = 1e-4 of its largest is a direction the contacts do
+  // not hold: their normals' components along it are below ~1e-2, i.e. at most the tilt
+  // of a support's surface by its deformation (a held direction that only this tilt
+  // holds has a stiffness ~ tilt^2 of the support's: the static solve does not converge
+  // there either). Measured: the frictionless cube flat on the slab 8.6e-9, 1.5e-8, 2.9e-8
+  // (x, y, yaw; the slab's dimple tilts the normals by ~1e-4), then 0.17; the cube in the
+  // soft corner's smallest 0.20. Refused as bad input (exit 2), naming those directions.
+  static constexpr double kHeldRatio = 1e-4;
+  void demand_free_bodies_held() const {
+    if (model_.fem.num_nodes == 0) return;  // rigid-only scenes: RigidOnlyStack's path
+    const auto& cd = contact_data();
+    for (std::size_t r = 0; r < model_.rigid.size(); ++r) {
+      const auto& body = model_.rigid[r];
+      if (body.joint.kind != rigid::Joint::Kind::free) continue;
+      double reach = 0;
+      for (Eigen::Index k = 0; k < body.surface.vertices.cols(); ++k)
+        reach = std::max(reach, body.surface.vertices.col(k).norm());
+      reach = std::max(reach, 1e-12);
+      rigid::Mat6 S = rigid::Mat6::Zero();
+      int kept = 0;
+      if (contact_)
+        for (int i = 0; i < cd.contacts.size(); ++i) {
+          if (modes_[static_cast<std::size_t>(i)] == contact::Mode::breaking) continue;
+          rigid::Vec6 h = Ht_r_.block<6, 1>(6 * static_cast<Eigen::Index>(r), 3L * i + 2);
+          if (h.squaredNorm() == 0) continue;
+          h.tail<3>() /= reach;
+          S.noalias() += h * h.transpose();
+          ++kept;
+        }
+      const Eigen::SelfAdjointEigenSolver<rigid::Mat6> eig(S);
+      const double largest = eig.eigenvalues().maxCoeff();
+      // The unheld subspace (eigenvectors below kHeldRatio of the largest), named by the
+      // world axes it contains where it is spanned by them (a flat support: "translation
+      // along x", "translation along y", "rotation about z"), else by its eigenvectors.
+      Eigen::Matrix<double, 6, Eigen::Dynamic> V(6, 0);
+      for (int k = 0; k < 6; ++k)
+        if (!(largest > 0 && eig.eigenvalues()[k] > kHeldRatio * largest)) {
+          V.conservativeResize(Eigen::NoChange, V.cols() + 1);
+          V.col(V.cols() - 1) = eig.eigenvectors().col(k);
+        }
+      std::string unheld, axes;
+      int on_axes = 0;
+      for (int a = 0; a < 6; ++a)
+        if ((V.transpose() * rigid::Vec6::Unit(a)).squaredNorm() > 0.99) {
+          axes += (axes.empty() ? "" : ", ") + std::string(a < 3 ? "translation along " : "rotation about ") +
+                  "xyz"[a % 3];
+          ++on_axes;
+        }
+      if (on_axes == V.cols()) unheld = axes;
+      else
+        for (Eigen::Index k = 0; k < V.cols(); ++k) {
+          const rigid::Vec6 v = V.col(k);
+          char buf[160];
+          if (v.head<3>().norm() >= v.tail<3>().norm())
+            std::snprintf(buf, sizeof buf, "translation along (%.3g, %.3g, %.3g)", v[0], v[1], v[2]);
+          else
+            std::snprintf(buf, sizeof buf, "rotation about (%.3g, %.3g, %.3g)", v[3], v[4], v[5]);
+          unheld += (unheld.empty() ? "" : ", ") + std::string(buf);
+        }
+      if (!unheld.empty())
+        throw InputError("static derivatives of free rigid body '" + body.name + "': the " + std::to_string(kept) +
+                         " contacts that hold it at the equilibrium leave " + unheld +
+                         " free, so its pose is not determinate and has no derivative (issue 21; frictionless, a "
+                         "free body beside soft bodies is differentiated where its contacts' normals hold all six "
+                         "dofs, e.g. a cube leaning into a corner: docs/method.md \"Static equilibrium with rigid "
+                         "bodies\")");
     }
   }
 
