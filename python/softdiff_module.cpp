@@ -248,6 +248,20 @@ class Simulator {
   }
   // --- end pyrig ---
 
+  // The adjoint's theta: the groups given, else the simulator's jacobian=; `call` is
+  // how the error message shows the call.
+  diff::ThetaSelection adjoint_theta(const py::object& theta, const char* call) const {
+    if (!theta.is_none()) {
+      try {
+        return diff::parse_theta("theta", theta_list(theta), *model_);
+      } catch (const InputError& e) {
+        raise(g_scene_error, e.what());
+      }
+    }
+    if (theta_) return *theta_;
+    throw py::value_error(std::string("no theta: give ") + call + " or Simulator(scene, jacobian=...)");
+  }
+
   // --- pyrig --- adjoint() of a static scene (issue 23 item 2)
   // l = bar_x . x* (+ bar_rigid . the rigid poses' tangent, 6 per body: position,
   // rotation vector; jacobian()'s rows) at the equilibrium run() solved: dl/dtheta =
@@ -258,18 +272,7 @@ class Simulator {
                           const py::object& theta) {
     if (!solved_) throw py::value_error("adjoint(): run() solves the static equilibrium first");
     if (!bar_v.is_none()) throw py::value_error("bar_v: a static equilibrium has no velocities");
-    diff::ThetaSelection selection;
-    if (!theta.is_none()) {
-      try {
-        selection = diff::parse_theta("theta", theta_list(theta), *model_);
-      } catch (const InputError& e) {
-        raise(g_scene_error, e.what());
-      }
-    } else if (theta_) {
-      selection = *theta_;
-    } else {
-      throw py::value_error("no theta: give adjoint(bar_x=..., theta=\"young, ...\") or Simulator(scene, jacobian=...)");
-    }
+    const diff::ThetaSelection selection = adjoint_theta(theta, "adjoint(bar_x=..., theta=\"young, ...\")");
     const Eigen::Index n3 = state_.x.size(), nr = static_cast<Eigen::Index>(model_->rigid.size());
     VecX bar(n3 + 6 * nr);
     bar.head(n3) = vector_or_zero(bar_x, n3, "bar_x");
@@ -310,18 +313,7 @@ class Simulator {
     if (!steps_given) throw py::value_error("adjoint(steps, ...): the number of steps is needed");
     const long steps = *steps_given;
     if (steps < 0) throw py::value_error("steps must be >= 0, got " + std::to_string(steps));
-    diff::ThetaSelection selection;
-    if (!theta.is_none()) {
-      try {
-        selection = diff::parse_theta("theta", theta_list(theta), *model_);
-      } catch (const InputError& e) {
-        raise(g_scene_error, e.what());
-      }
-    } else if (theta_) {
-      selection = *theta_;
-    } else {
-      throw py::value_error("no theta: give adjoint(..., theta=\"young, ...\") or Simulator(scene, jacobian=...)");
-    }
+    const diff::ThetaSelection selection = adjoint_theta(theta, "adjoint(..., theta=\"young, ...\")");
     const Eigen::Index n3 = state_.x.size(), nr = static_cast<Eigen::Index>(model_->rigid.size());
     const VecX bx = vector_or_zero(bar_x, n3, "bar_x"), bv = vector_or_zero(bar_v, n3, "bar_v");
     const VecX br = vector_or_zero(bar_rigid, 12 * nr, "bar_rigid");

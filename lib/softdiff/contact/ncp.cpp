@@ -1200,16 +1200,17 @@ NcpResult solve_core(Buffers& w, const Problem& p, const NcpOptions& options, Ve
   // The semismooth Newton stage where the solver and the polish missed the tolerance
   // (newton_alart_curnier(); the same size limit as the polish: its system is dense).
   const int active = p.nc - static_cast<int>(std::count(modes.begin(), modes.end(), Mode::breaking));
-  // Its result is taken only where it reaches the tolerance: a lower residual still above
-  // it keeps the solver's iterate (the callers' fallbacks, e.g. the operator's candidate
-  // rounds, decide from that iterate and its modes; a partial improvement there changed
-  // which contacts they add and made CubeRestsOnASoftSlab/operator miss, 2026-12-03).
-  if (newton_stage && options.polish && result.residuals.max() > p.tolerance && active <= options.polish_max_active) {
+  // A stage's result is taken only where it reaches the tolerance: a lower residual still
+  // above it keeps the solver's iterate, modes and residuals (the callers' fallbacks, e.g.
+  // the operator's candidate rounds, decide from that iterate and its modes; a partial
+  // improvement there changed which contacts they add and made CubeRestsOnASoftSlab/
+  // operator miss, 2026-12-03).
+  const auto try_stage = [&](auto&& stage) {
     const Eigen::Index n = 3 * static_cast<Eigen::Index>(p.nc);
     w.ac_in_l.head(n) = lambda;
     w.ac_in_s.head(n) = sigma;
     const NcpResiduals kept = result.residuals;
-    newton_alart_curnier(w, p, lambda, sigma, result.residuals);
+    stage();
     if (result.residuals.max() <= p.tolerance) {
       result.polished = true;
       classify(p, lambda, sigma, modes);
@@ -1218,7 +1219,9 @@ NcpResult solve_core(Buffers& w, const Problem& p, const NcpOptions& options, Ve
       sigma = w.ac_in_s.head(n);
       result.residuals = kept;
     }
-  }
+  };
+  if (newton_stage && options.polish && result.residuals.max() > p.tolerance && active <= options.polish_max_active)
+    try_stage([&] { newton_alart_curnier(w, p, lambda, sigma, result.residuals); });
   // The proximal point stage where the above still misses the tolerance (redundant
   // contacts; proximal_point_stage()): the same rule, its result only where it reaches
   // the tolerance, else the solver's iterate and modes stay. Only where the caller asks
@@ -1233,21 +1236,9 @@ NcpResult solve_core(Buffers& w, const Problem& p, const NcpOptions& options, Ve
   // under implicit Euler (46 -> 13 solves above the tolerance, the cylinder within
   // 0.05 mm) but inverted an element at step 123 under BDF2 (docs/method.md "The NCP on
   // redundant contacts: a proximal point stage").
-  if (proximal_stage && options.polish && result.residuals.max() > p.tolerance && active <= options.polish_max_active) {
-    const Eigen::Index n = 3 * static_cast<Eigen::Index>(p.nc);
-    w.ac_in_l.head(n) = lambda;
-    w.ac_in_s.head(n) = sigma;
-    const NcpResiduals kept = result.residuals;
-    proximal_point_stage(w, p, lambda, sigma, result.residuals);
-    if (result.residuals.max() <= p.tolerance) {
-      result.polished = true;
-      classify(p, lambda, sigma, modes);
-    } else {
-      lambda = w.ac_in_l.head(n);
-      sigma = w.ac_in_s.head(n);
-      result.residuals = kept;
-    }
-  }
+  if (proximal_stage && options.polish && result.residuals.max() > p.tolerance && active <= options.polish_max_active)
+    try_stage([&] { proximal_point_stage(w, p, lambda, sigma, result.residuals); });
+
   return result;
 }
 
