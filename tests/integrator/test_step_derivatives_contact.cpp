@@ -228,7 +228,7 @@ void check(Case c, const Params& p = Params{}) {
   if (p.newton > 1) expect_newton_matters(model, data, in, out, name_of(c));
   ASSERT_EQ(cd.result.sparse, p.backend == contact::NcpBackend::sparse) << name_of(c);
   // The operator's polish ran (and reached the tolerance: converged is checked by step()).
-  if (p.operator_mode) EXPECT_GT(cd.result.operator_polishes, 0) << name_of(c);
+  if (p.operator_mode) { EXPECT_GT(cd.result.operator_polishes, 0) << name_of(c); }
   int counts[3] = {0, 0, 0};
   for (auto m : cd.modes) ++counts[static_cast<int>(m)];
   // The case holds what it says.
@@ -299,12 +299,14 @@ void check(Case c, const Params& p = Params{}) {
   EXPECT_EQ(d.ncp_derivative().on_operator(), p.operator_mode) << name_of(c);
   // ... preconditioned by (G_AA + c I)^{-1} (mode_system.hpp) where every active contact
   // sticks (J = G_AA: PCG), unpreconditioned CGLS otherwise (contact_step_derivatives.cpp).
-  if (p.operator_mode)
+  if (p.operator_mode) {
     EXPECT_EQ(d.ncp_derivative().operator_system().preconditioned(), counts[2] == 0) << name_of(c);
+  }
   // ... and with sliding contacts by GMRES with the reduced preconditioner (mode_system.hpp
   // "Mixed sets"; the step passes A, so it is factorized).
-  if (p.operator_mode && counts[2] > 0)
+  if (p.operator_mode && counts[2] > 0) {
     EXPECT_TRUE(d.ncp_derivative().operator_system().reduced_used()) << name_of(c);
+  }
   // Reverse mode.
   std::mt19937 rng(5);
   std::uniform_real_distribution<double> u(-1, 1);
@@ -518,7 +520,7 @@ void compare_paths(Case c) {
   const contact::NcpDerivative* opp = &d_op.ncp_derivative();
   ASSERT_TRUE(opp->on_operator()) << name_of(c);
   ASSERT_EQ(opp->active_contacts(), act) << name_of(c);
-  if (sticking) ASSERT_TRUE(opp->operator_system().preconditioned()) << name_of(c);
+  if (sticking) { ASSERT_TRUE(opp->operator_system().preconditioned()) << name_of(c); }
   const contact::NcpDerivative& op = *opp;
   const MatX JM = J * M;
   const double kJ = condition(J), kJM = condition(JM);

@@ -111,8 +111,8 @@ TEST(ControlRigid, ActuationAndContactForceJacobiansMatchCentralDifferences) {
     int with_block = 0;
     const auto& contacts = id.data().contact.contacts.contacts;
     const int block_side = 1;  // contact names: beam, block, floor
-    for (const auto& c : contacts) with_block += (c.side_a == block_side) != (c.side_b == block_side) &&
-                                                 (c.side_a == 0 || c.side_b == 0);
+    for (const auto& k : contacts) with_block += (k.side_a == block_side) != (k.side_b == block_side) &&
+                                                 (k.side_a == 0 || k.side_b == 0);
     ASSERT_GT(with_block, 0);
     ASSERT_EQ(info.Ja.cols(), 1);
     ASSERT_GT(info.F.norm(), 1e-3);

@@ -48,7 +48,9 @@ State run(const Model& model, Data& data, long steps, Each each) {
     const StepStatus st = integrator::time_step(model, data, a, n == 1 ? nullptr : &previous, b, n);
     EXPECT_TRUE(st.ok()) << describe(model, st);
     if (!st.ok()) break;
-    if (data.contact.contacts.size() > 0) EXPECT_TRUE(data.contact.result.converged) << "step " << n;
+    if (data.contact.contacts.size() > 0) {
+      EXPECT_TRUE(data.contact.result.converged) << "step " << n;
+    }
     previous = a;
     std::swap(a, b);
     each(n, data, a);

@@ -57,12 +57,12 @@ ContactData::Rigid& size_rigid_record(Data& data, const std::vector<rigid::Rigid
 
 void begin_rigid_contact(const Model& model, Data& data, const std::vector<rigid::RigidState>& in,
                          const std::vector<rigid::RigidState>& free) {
-  const std::size_t R = model.rigid.size();
-  SOFTDIFF_DEMAND(in.size() == R && free.size() == R, "begin_rigid_contact: expected " + std::to_string(R) +
+  const std::size_t nr = model.rigid.size();
+  SOFTDIFF_DEMAND(in.size() == nr && free.size() == nr, "begin_rigid_contact: expected " + std::to_string(nr) +
                                                           " rigid states, got " + std::to_string(in.size()) + " and " +
                                                           std::to_string(free.size()));
   auto& rd = size_rigid_record(data, in, free);
-  for (std::size_t r = 0; r < R; ++r) {
+  for (std::size_t r = 0; r < nr; ++r) {
     const auto& body = model.rigid[r];
     rd.u_free.segment<3>(6 * r) = free[r].velocity;
     rd.u_free.segment<3>(6 * r + 3) = free[r].angular_velocity;

@@ -323,7 +323,6 @@ class Reader {
   // Euler or BDF2 (Newton too), either NCP backend. The rest is refused (issue 21).
   void check_rigid_contact(const Node& root, const SceneDesc& scene) const {
     if (scene.rigid_bodies.empty() || !scene.contact.enabled) return;
-    const Entry* contact = root.find("contact");
     // Newton (newton_iterations > 1) with rigid bodies in contact: implicit Euler and BDF2
     // (docs/method.md "Newton with rigid contact"); bdf2 with a limited joint in contact is
     // refused below either way.
