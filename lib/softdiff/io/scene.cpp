@@ -164,7 +164,7 @@ class Reader {
     read_obstacles(root, scene);
     read_contact(root, scene);
     check_rigid_support(root, scene);  // (after read_contact: static needs contact)
-    check_rigid_contact(root, scene);
+    check_rigid_contact(scene);
     check_rigidify_support(root, scene);  // (after read_contact: it reads the backend)
     read_output(root, scene.output);
     check_factor_reuse(root, scene);
@@ -321,7 +321,7 @@ class Reader {
   // Rigid bodies in contact (docs/method.md "Rigid bodies in contact"): free, fixed,
   // hinge and slider bodies (limits: rows of the NCP, on either backend), implicit
   // Euler or BDF2 (Newton too), either NCP backend. The rest is refused (issue 21).
-  void check_rigid_contact(const Node& root, const SceneDesc& scene) const {
+  void check_rigid_contact(const SceneDesc& scene) const {
     if (scene.rigid_bodies.empty() || !scene.contact.enabled) return;
     // Newton (newton_iterations > 1) with rigid bodies in contact: implicit Euler and BDF2
     // (docs/method.md "Newton with rigid contact"); bdf2 with a limited joint in contact is
