@@ -539,7 +539,7 @@ class Simulator {
       for (const auto& part : model_->rigidify.parts)
         if (part.body == b)
           throw py::value_error(std::string(what) + "('" + name + "'): the body has rigidified parts (" + part.name +
-                                ": its nodes move as one rigid body); setting its state is not bound (issue 23)");
+                                ": its nodes move as one rigid body); setting its state is not bound in this version (docs/python.md \"Not bound yet\")");
       if (shape != std::vector<py::ssize_t>{body.num_nodes, 3})
         throw py::value_error(std::string(what) + "('" + name + "'): shape (" + std::to_string(body.num_nodes) +
                               ", 3) expected, got " + shape_text());
@@ -559,7 +559,7 @@ class Simulator {
       const auto& rb = model_->rigid[static_cast<std::size_t>(r)];
       if (rb.joint.kind != rigid::Joint::Kind::free)
         throw py::value_error(std::string(what) + "('" + name + "'): a rigid body with a joint (hinge, slider or fixed): "
-                              "its pose and velocity are constrained by the joint; setting them is not bound (issue 23)");
+                              "its pose and velocity are constrained by the joint; setting them is not bound in this version (docs/python.md \"Not bound yet\")");
       const py::ssize_t n = velocity ? 6 : 7;
       if (shape != std::vector<py::ssize_t>{n})
         throw py::value_error(std::string(what) + "('" + name + "'): shape (" + std::to_string(n) + ",) expected (" +
@@ -1057,9 +1057,9 @@ class Rollout {
       if (PyErr_WarnEx(g_scene_warning, w.c_str(), 1) != 0) throw py::error_already_set();
     if (base_->step.integrator == IntegratorKind::static_equilibrium)
       throw py::value_error("Rollout: a static scene (integrator: static) has no trajectory to differentiate; not bound "
-                            "yet (issue 23): Simulator.jacobian() after run() gives d x* / d theta");
+                            "yet (docs/python.md \"Not bound yet\"): Simulator.jacobian() after run() gives d x* / d theta");
     if (!base_->rigid.empty())
-      throw py::value_error("Rollout: scenes with rigid bodies are not bound yet (issue 23): the torch interop "
+      throw py::value_error("Rollout: scenes with rigid bodies are not bound yet (docs/python.md \"Not bound yet\"): the torch interop "
                             "differentiates soft bodies' node trajectories; Simulator.adjoint() covers rigid bodies");
     if (!theta.is_none()) {
       std::string list;

@@ -156,9 +156,9 @@ def test_rollout_refusals(tmp_path):
         softdiff.Rollout(scene, theta="young,actuation")
     with pytest.raises(softdiff.SceneError, match="^theta frobnicate: unknown name"):
         softdiff.Rollout(scene, theta="frobnicate")
-    with pytest.raises(ValueError, match=r"static scene .* not bound yet \(issue 23\)"):
+    with pytest.raises(ValueError, match=r'static scene .* not bound yet \(docs/python.md "Not bound yet"\)'):
         softdiff.Rollout(softdiff.load_scene(ROOT / "configs" / "beam_cantilever_static.yaml"), theta="young")
-    with pytest.raises(ValueError, match=r"rigid bodies are not bound yet \(issue 23\)"):
+    with pytest.raises(ValueError, match=r'rigid bodies are not bound yet \(docs/python.md "Not bound yet"\)'):
         softdiff.Rollout(softdiff.load_scene(ROOT / "configs" / "rigid_stack.yaml"))
     r = softdiff.Rollout(scene, theta="young,poisson")
     with pytest.raises(ValueError, match=r"actuation: shape \(3, 2\) expected \(steps, n_actuators\), got \(3, 3\)"):
