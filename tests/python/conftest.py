@@ -38,3 +38,31 @@ def cli():
                               timeout=120)
 
     return run
+
+
+# tests/app/test_cli_control.cpp's scene: a beam whose tip a servo pulls sideways (no
+# contact); control's and the output's tests run it.
+_SERVO_BEAM = """softdiff: 1
+simulation: {{dt: 0.01, steps: {steps}, gravity: [0, 0, 0]}}
+bodies:
+  - name: beam
+    mesh: {mesh}
+    material: {{law: corotational, young: 2.0e5, poisson: 0.4, density: 1000}}
+    damping: {{rayleigh_mass: 5}}
+    fixed:
+      - group: clamp
+    actuators:
+      - {{name: pull, type: servo, nodes: {{box: [0.19, -1, -1, 1, 1, 1]}}, direction: [0, 1, 0], force: 0, limits: [-0.05, 0.05]}}
+    effectors:
+      - {{name: tip, point: [0.2, 0.01, 0.01]}}
+"""
+
+
+@pytest.fixture(scope="session")
+def servo_beam_scene():
+    """write(path, steps) -> path: the servo beam's scene with `steps` steps."""
+    def write(path, steps):
+        path.write_text(_SERVO_BEAM.format(steps=steps, mesh=ROOT / "meshes" / "beam.msh"))
+        return path
+
+    return write

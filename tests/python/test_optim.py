@@ -18,22 +18,6 @@ SHORT = {"simulation.duration": 0.1}
 # Keys of --json that measure time (not reproducible) or name the CLI's output file.
 TIMING = {"wall_seconds", "output", "control_ms_per_step", "other_ms_per_step"}
 
-# tests/app/test_cli_control.cpp's scene: a beam whose tip a servo pulls sideways (no contact).
-CONTROL_SCENE = """softdiff: 1
-simulation: {{dt: 0.01, steps: 40, gravity: [0, 0, 0]}}
-bodies:
-  - name: beam
-    mesh: {mesh}
-    material: {{law: corotational, young: 2.0e5, poisson: 0.4, density: 1000}}
-    damping: {{rayleigh_mass: 5}}
-    fixed:
-      - group: clamp
-    actuators:
-      - {{name: pull, type: servo, nodes: {{box: [0.19, -1, -1, 1, 1, 1]}}, direction: [0, 1, 0], force: 0, limits: [-0.05, 0.05]}}
-    effectors:
-      - {{name: tip, point: [0.2, 0.01, 0.01]}}
-"""
-
 
 def cli_error(r):
     """The CLI's message of an exit-2 run: its stderr without the `softdiff: error: ` prefix
@@ -59,10 +43,8 @@ def beam_target(tmp_path_factory):
 
 
 @pytest.fixture
-def control_scene(tmp_path):
-    path = tmp_path / "servo.yaml"
-    path.write_text(CONTROL_SCENE.format(mesh=ROOT / "meshes" / "beam.msh"))
-    return path
+def control_scene(tmp_path, servo_beam_scene):
+    return servo_beam_scene(tmp_path / "servo.yaml", 40)
 
 
 # --- calibrate ------------------------------------------------------------------------

@@ -23,21 +23,6 @@ TIMING_DATASETS = {"solver/step_seconds"}
 TIMING_LAST_COLUMN = {"calibration/iterations"}
 RUN_ATTRIBUTES = {"command", "created", "host", "softdiff_version", "wall_seconds", "setup_seconds"}
 
-SERVO_SCENE = """softdiff: 1
-simulation: {{dt: 0.01, steps: 20, gravity: [0, 0, 0]}}
-bodies:
-  - name: beam
-    mesh: {mesh}
-    material: {{law: corotational, young: 2.0e5, poisson: 0.4, density: 1000}}
-    damping: {{rayleigh_mass: 5}}
-    fixed:
-      - group: clamp
-    actuators:
-      - {{name: pull, type: servo, nodes: {{box: [0.19, -1, -1, 1, 1, 1]}}, direction: [0, 1, 0], force: 0, limits: [-0.05, 0.05]}}
-    effectors:
-      - {{name: tip, point: [0.2, 0.01, 0.01]}}
-"""
-
 
 def datasets(path):
     """{name: (array, attributes)} of every dataset, and the groups' attributes."""
@@ -118,9 +103,8 @@ def test_calibrate_output_is_the_cli_file(tmp_path, cli, beam_target):
         assert f["calibration"].attrs["young"] == got["parameters"]["young"]
 
 
-def test_control_output_is_the_cli_file(tmp_path, cli):
-    scene = tmp_path / "servo.yaml"
-    scene.write_text(SERVO_SCENE.format(mesh=ROOT / "meshes" / "beam.msh"))
+def test_control_output_is_the_cli_file(tmp_path, cli, servo_beam_scene):
+    scene = servo_beam_scene(tmp_path / "servo.yaml", 20)
     r = cli(["control", scene, "--target=0.2,0.015,0.01", "-o", "cli.h5", "--quiet", "--threads", "1"], tmp_path)
     assert r.returncode == 0, r.stderr
     got = softdiff.control(scene, target=(0.2, 0.015, 0.01), threads=1, output=tmp_path / "py.h5")
@@ -164,9 +148,8 @@ def test_force_semantics_and_the_refusal_to_overwrite(tmp_path, cli, beam_target
         softdiff.control(BEAM, target=(0, 0, 0), force=True)
 
 
-def test_bad_output_path_is_a_scene_error_and_leaves_no_file(tmp_path, cli, beam_target):
-    scene = tmp_path / "servo.yaml"
-    scene.write_text(SERVO_SCENE.format(mesh=ROOT / "meshes" / "beam.msh"))
+def test_bad_output_path_is_a_scene_error_and_leaves_no_file(tmp_path, cli, beam_target, servo_beam_scene):
+    scene = servo_beam_scene(tmp_path / "servo.yaml", 20)
     missing = tmp_path / "no_such_folder" / "out.h5"
     for run in (lambda: softdiff.simulate(BEAM, output=missing, steps=2, threads=1),
                 lambda: softdiff.control(scene, target=(0.2, 0.015, 0.01), steps=2, threads=1, output=missing),
