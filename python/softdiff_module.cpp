@@ -845,7 +845,7 @@ class Simulator {
   }
   // The thread plan is process-wide: another simulator may have set its own since.
   void use_my_threads() const {
-    if (thread_plan().threads != plan_threads_) set_threads(threads_);
+    if (plan_threads() != plan_threads_) set_threads(threads_);
   }
   void demand_step_derivative() {
     if (!theta_) throw py::value_error("no theta: give Simulator(scene, jacobian=\"young, ...\") first");
@@ -1288,7 +1288,7 @@ class Rollout {
     return v;
   }
   void use_my_threads() const {
-    if (thread_plan().threads != plan_threads_) set_threads(threads_);
+    if (plan_threads() != plan_threads_) set_threads(threads_);
   }
   // The model at `values`: every theta parameter back to the scene's value, then set in
   // order (the same model, bit for bit, as set on a fresh copy: diff/parameters.hpp), and

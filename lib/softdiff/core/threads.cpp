@@ -43,6 +43,8 @@ ThreadPlan thread_plan() {
   return plan;
 }
 
+int plan_threads() { return omp_get_max_threads(); }
+
 ThreadPlan set_threads(int n) {
   if (n <= 0) n = omp_get_max_threads();
   omp_set_num_threads(n);

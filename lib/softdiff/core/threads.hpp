@@ -33,6 +33,8 @@ ThreadPlan set_threads(int n);
 // The plan in force (set_threads's last result; before any call, what the libraries
 // chose from the environment).
 ThreadPlan thread_plan();
+// Its `threads` alone, without the BLAS's description (a string): cheap enough per step.
+int plan_threads();
 
 // RAII: OpenMP regions opened while it lives run on one thread (max-active-levels 0),
 // then the previous setting returns. Used around CHOLMOD calls. Not for use inside a
