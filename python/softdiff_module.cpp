@@ -1308,43 +1308,22 @@ class Rollout {
   }
   // diff::record's loop (trajectory.cpp), with the contact policy of Simulator::advance.
   std::string run(long steps, const MatX& actuation, Recording& rec, std::vector<std::string>& warnings) {
-    diff::Tape& tape = rec.tape;
     State initial = model_->initial;
     initial.x = rec.x0;
     initial.v = rec.v0;
-    tape.frames.assign(1, initial);
-    tape.frames.reserve(static_cast<std::size_t>(steps) + 1);
-    tape.lambda_a.clear();
-    tape.lambda_a.reserve(static_cast<std::size_t>(steps));
-    tape.warm_start.clear();
-    tape.rigid_at_limit.clear();
-    State next = initial;
-    VecX lambda;
+    // diff::record's loop, with the contact solves' check after each step: strict, an
+    // unconverged solve ends the run there; else it is counted and warned about.
+    const auto contact_check = [&](long step, const Data& data) -> StepStatus {
+      if (!model_->contact.enabled) return {};
+      const StepStatus c = integrator::contact_status(*model_, data, step);
+      if (c.ok() || strict_) return c;
+      ++rec.contact_not_converged;
+      warnings.push_back(describe(*model_, c) + " (strict=True makes it an error)");
+      return {};
+    };
     try {
-      for (long step = 1; step <= steps; ++step) {
-        const VecX* override_values = nullptr;
-        if (actuation.size()) {
-          lambda = actuation.col(step - 1);
-          override_values = &lambda;
-        }
-        if (model_->contact.enabled)
-          tape.warm_start.push_back({data_->contact.previous_keys, data_->contact.previous_lambda, data_->contact.rigid.limit_lambda});
-        const State* previous = step > 1 ? &tape.frames[tape.frames.size() - 2] : nullptr;
-        const StepStatus st = integrator::time_step(*model_, *data_, tape.frames.back(), previous, next, step, override_values);
-        if (!st.ok()) {
-          tape.frames.resize(static_cast<std::size_t>(step));  // steps done: step - 1
-          return describe(*model_, st);
-        }
-        if (model_->contact.enabled) {
-          if (const StepStatus c = integrator::contact_status(*model_, *data_, step); !c.ok()) {
-            if (strict_) return describe(*model_, c);
-            ++rec.contact_not_converged;
-            warnings.push_back(describe(*model_, c) + " (strict=True makes it an error)");
-          }
-        }
-        tape.frames.push_back(next);
-        tape.lambda_a.push_back(data_->lambda_a);
-      }
+      const StepStatus st = diff::record(*model_, *data_, initial, steps, rec.tape, actuation, contact_check);
+      if (!st.ok()) return describe(*model_, st);
     } catch (const ComputationError& e) {
       return e.what();
     } catch (const std::bad_alloc&) {

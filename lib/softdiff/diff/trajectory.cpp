@@ -273,7 +273,8 @@ std::size_t Tape::bytes() const {
   return b;
 }
 
-StepStatus record(const Model& model, Data& data, const State& initial, long steps, Tape& tape, const MatX& actuation) {
+StepStatus record(const Model& model, Data& data, const State& initial, long steps, Tape& tape, const MatX& actuation,
+                  const AfterStep& after_step) {
   const Eigen::Index na = num_actuators(model);
   SOFTDIFF_DEMAND(actuation.size() == 0 || (actuation.rows() == na && actuation.cols() == steps),
                   "actuation: expected (" + std::to_string(na) + " x " + std::to_string(steps) + ") values, got (" +
@@ -298,6 +299,8 @@ StepStatus record(const Model& model, Data& data, const State& initial, long ste
     const State* previous = step > 1 ? &tape.frames[tape.frames.size() - 2] : nullptr;
     const StepStatus st = integrator::time_step(model, data, tape.frames.back(), previous, next, step, override_values);
     if (!st.ok()) return st;
+    if (after_step)
+      if (const StepStatus hook = after_step(step, data); !hook.ok()) return hook;
     tape.frames.push_back(next);
     tape.lambda_a.push_back(data.lambda_a);
     for (std::size_t r = 0; r < model.rigid.size(); ++r) tape.rigid_at_limit.push_back(data.rigid[r].at_limit ? 1 : 0);

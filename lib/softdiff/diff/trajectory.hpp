@@ -136,10 +136,16 @@ struct Tape {
   std::size_t bytes() const;  // memory held (states and actuation values)
 };
 
+// Called after each step that succeeded, before its frame is recorded (data holds the
+// step): a status that is not ok stops the recording there, as a failed step does (the
+// tape then holds the frames before that step). The Python Rollout counts or refuses
+// unconverged contact solves through it.
+using AfterStep = std::function<StepStatus(long step, const Data& data)>;
+
 // Runs `steps` steps from `initial`, recording them. actuation: the values of every
 // step (steps columns of n_a), or empty for the model's schedules.
 StepStatus record(const Model& model, Data& data, const State& initial, long steps, Tape& tape,
-                  const MatX& actuation = {});
+                  const MatX& actuation = {}, const AfterStep& after_step = {});
 
 // The loss's direct cotangents: for frame k (0..T, called from T down to 0) and its
 // state, ADD dl/dx_k and dl/dv_k into bar_x, bar_v (3n; they hold the cotangent
