@@ -6,7 +6,9 @@
 #include <softdiff/data.hpp>
 #include <softdiff/model.hpp>
 
+#include <functional>
 #include <sstream>
+#include <string>
 
 namespace softdiff::integrator {
 
@@ -24,6 +26,28 @@ inline StepStatus contact_status(const Model& model, const Data& data, long k) {
     << " > tolerance " << model.contact.ncp.tolerance;
   c.detail = d.str();
   return c;
+}
+
+// The runs' rule for a step's status (simulate's output run and control's run; --strict):
+// what stops the run, or ok. A Newton iteration that did not converge (not_converged) and
+// an unconverged contact solve stop it under strict; otherwise they are counted in
+// newton_warnings / contact_warnings and the first of each is passed to warn (then
+// counted, not shown). Any other failure stops the run.
+inline StepStatus strict_or_warn(const Model& model, const Data& data, long k, StepStatus s, bool strict,
+                                 long& newton_warnings, long& contact_warnings,
+                                 const std::function<void(const std::string&)>& warn) {
+  if (s.code == StepStatus::Code::not_converged) {
+    if (strict) return s;
+    if (newton_warnings++ == 0 && warn) warn(describe(model, s) + " (further such warnings are counted, not shown)");
+  } else if (!s.ok()) {
+    return s;
+  }
+  if (const StepStatus c = contact_status(model, data, k); !c.ok()) {
+    if (strict) return c;
+    if (contact_warnings++ == 0 && warn)
+      warn(describe(model, c) + " (further such warnings are counted, not shown; --strict makes it an error)");
+  }
+  return {};
 }
 
 }  // namespace softdiff::integrator

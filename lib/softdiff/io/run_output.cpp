@@ -462,6 +462,10 @@ struct OutputRun::Impl {
         }
       } else {
         State previous;  // the state before `state` (BDF2), set after the first step
+        const std::function<void(const std::string&)> warn_step = [&](const std::string& w) {
+          progress_clear();
+          say(cb.warn, w);
+        };
         for (long k = 1; k <= total; ++k) {
           if (stop_requested()) {
             status = "interrupted";
@@ -478,34 +482,13 @@ struct OutputRun::Impl {
             s = integrator::time_step(model, data, state, k > 1 ? &previous : nullptr, next, k,
                                       hooks.actuation ? &applied : nullptr);
           const double step_seconds = seconds_since(t0);
-          if (s.code == StepStatus::Code::not_converged) {
-            if (o.strict) {
-              failure = s;
-            } else {
-              if (warnings_newton++ == 0) {
-                progress_clear();
-                say(cb.warn, describe(model, s) + " (further such warnings are counted, not shown)");
-              }
-              s = StepStatus{};
-            }
-          } else if (!s.ok()) {
-            failure = s;
-          }
-          if (s.ok() && model.contact.enabled) {
+          failure = integrator::strict_or_warn(model, data, k, s, o.strict, warnings_newton, warnings_contact, warn_step);
+          // The step's contacts, unless it failed before its contact solve was judged.
+          if (model.contact.enabled && (failure.ok() || failure.code == StepStatus::Code::contact_not_converged)) {
             const auto& cd = data.contact;
             contacts_total += cd.contacts.size();
             contacts_max = std::max<long>(contacts_max, cd.contacts.size());
             contact_iterations += cd.result.iterations;
-            if (const StepStatus c = integrator::contact_status(model, data, k); !c.ok()) {
-              if (o.strict)
-                failure = c;
-              else if (warnings_contact++ == 0) {
-                progress_clear();
-                say(cb.warn, describe(model, c) +
-                                 " (further such warnings are counted, not "
-                                 "shown; --strict makes it an error)");
-              }
-            }
           }
           timings += data.timings;
           if (!failure.ok()) break;

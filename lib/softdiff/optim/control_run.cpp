@@ -249,28 +249,10 @@ ControlRunResult run_control(const ControlProblem& problem, bool max_actuation, 
   VecX applied = VecX::Zero(static_cast<Eigen::Index>(model.actuation.actuators.size()));
   record(state, true);
   for (long k = 1; k <= total; ++k) {
-    StepStatus failure;
     StepStatus s = run.actuation(k, state, applied);
     if (s.ok()) s = integrator::time_step(model, data, state, k > 1 ? &previous : nullptr, next, k, &applied);
-    if (s.code == StepStatus::Code::not_converged) {
-      if (strict) {
-        failure = s;
-      } else {
-        if (out.newton_not_converged_steps++ == 0 && warn)
-          warn(describe(model, s) + " (further such warnings are counted, not shown)");
-        s = StepStatus{};
-      }
-    } else if (!s.ok()) {
-      failure = s;
-    }
-    if (s.ok() && model.contact.enabled) {
-      if (const StepStatus c = integrator::contact_status(model, data, k); !c.ok()) {
-        if (strict)
-          failure = c;
-        else if (out.contact_not_converged_steps++ == 0 && warn)
-          warn(describe(model, c) + " (further such warnings are counted, not shown; --strict makes it an error)");
-      }
-    }
+    const StepStatus failure = integrator::strict_or_warn(model, data, k, s, strict, out.newton_not_converged_steps,
+                                                          out.contact_not_converged_steps, warn);
     if (!failure.ok()) throw ComputationError(describe(model, failure));
     std::swap(previous, state);  // BDF2's history
     std::swap(state, next);
