@@ -51,6 +51,21 @@ struct NcpTable {
       std::fwrite(cd.mu.data(), sizeof(double), static_cast<std::size_t>(cd.mu.size()), f);
       std::fwrite(cd.lambda.data(), sizeof(double), static_cast<std::size_t>(cd.lambda.size()), f);
       std::fclose(f);
+      // The contacts' records beside it (text, one line each): kind side_a side_b count,
+      // nodes (4), weights (4), normal (3), gap, point (3), point_b (3), feature_a,
+      // feature_b, kind_b: to find duplicate records of one point (self-contact).
+      std::FILE* t = std::fopen((dump_dir + "/" + scene + "_" + std::to_string(step) + ".ctc").c_str(), "w");
+      if (!t) return;
+      for (const auto& c : cd.contacts.contacts) {
+        const Vec3 nrm = c.frame.col(2);
+        std::fprintf(t, "%d %d %d %d  %d %d %d %d  %.17g %.17g %.17g %.17g  %.17g %.17g %.17g  %.17g  "
+                        "%.17g %.17g %.17g  %.17g %.17g %.17g  %d %d %d\n",
+                     static_cast<int>(c.kind), c.side_a, c.side_b, c.count, c.nodes[0], c.nodes[1], c.nodes[2],
+                     c.nodes[3], c.weights[0], c.weights[1], c.weights[2], c.weights[3], nrm[0], nrm[1], nrm[2],
+                     c.gap, c.point[0], c.point[1], c.point[2], c.point_b[0], c.point_b[1], c.point_b[2],
+                     c.feature_a, c.feature_b, static_cast<int>(c.kind_b));
+      }
+      std::fclose(t);
     }
   }
   void summary(const std::string& end) const {
