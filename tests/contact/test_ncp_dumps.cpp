@@ -269,7 +269,7 @@ CompactDump load_compact_dump(const std::string& name) {
 // Step 18 of the self-contact scene (validation_contact's SelfContactFoldedBeamDoesNot
 // PassThroughItself, 80 steps of 5 ms; dumped 2026-12-04, branch selfimp, by the harness
 // DISABLED_SelfContactResidualTable, and written in the compact form above by
-// scripts/ncp_compact_dump.py: G rebuilt here equals the dumped one to 8e-15 of max |G|).
+// scripts/analysis/ncp_compact_dump.py: G rebuilt here equals the dumped one to 8e-15 of max |G|).
 // Just after the impact: 151 contacts (65 vertex-triangle on faces, 17 on edges, 2 on
 // vertices, 67 edge-edge; 2 pairs of records on one point pair) between the 51 free
 // nodes of the upper arm's underside and the fixed top of the lower arm: 453 rows on 153

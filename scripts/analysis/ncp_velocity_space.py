@@ -7,7 +7,7 @@ s-fixed problems  min 1/2 |y|^2  s.t.  z_i = A_i y + b_i in the second-order con
 solved in the velocity space y by a primal-dual path-following method (AHO direction,
 80 iterations). The forces are its multipliers: lambda_i = (mu x_1, mu x_2, x_0).
 
-    /usr/bin/python3 scripts/ncp_velocity_space.py DUMP.ncp OUTER MU_SCALE [anderson] [OUT.bin]
+    /usr/bin/python3 scripts/analysis/ncp_velocity_space.py DUMP.ncp OUTER MU_SCALE [anderson] [OUT.bin]
 
 MU_SCALE 0: the frictionless problem (one s-fixed solve); 1: the dump's friction.
 "anderson": Anderson acceleration (memory 5) of the outer iteration, else plain.

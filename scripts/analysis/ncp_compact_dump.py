@@ -9,7 +9,7 @@ velocity is zero: its columns do not). Also writes an existence certificate: lam
 with sigma_hat = G lambda_hat + g strictly inside every dual cone mu |s_T| <= s_N (a
 linear program over an inscribed 16-gon of each cone, the margin capped at 0.1 |g|).
 
-    /usr/bin/python3 scripts/ncp_compact_dump.py DUMP.ncp DUMP.ctc OUT.txt
+    /usr/bin/python3 scripts/analysis/ncp_compact_dump.py DUMP.ncp DUMP.ctc OUT.txt
 
 Needs numpy and scipy. Prints the rank, the reconstruction error |H W H^T - G| / |G|
 and the certificate's margin; refuses (exit 2) if G is not reproduced to 1e-12 or no
