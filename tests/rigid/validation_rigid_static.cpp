@@ -183,40 +183,6 @@ TEST(RigidStatic, FreeCubeLeansIntoASoftCorner) {
   EXPECT_LT(dp.norm(), 1e-3 * moved.norm());
 }
 
-// The same corner ON the slab's lattice (the cube at (0.06, 0.06): the slab's nodes at
-// (0.045, 0.045), (0.075, 0.075), ... lie under diagonals of the cube's tessellated bottom
-// face; docs/method.md srfree, cgrid). Until 2026-12-04 (cgrid) such a node's record
-// against the diagonal's lower-index triangle, while the node lay over the other one, had
-// its closest point on the diagonal: d = p - q along the face, a sideways normal and a gap
-// of -5.9e-7 m (the node's offset from the diagonal), and the solve cycled between two
-// contact sets (relative residual 3.8e-5 after 200 iterations). With the record dropped
-// where the other triangle is closer (detection.cpp) it converges as off the lattice: the
-// reaction is minus the weight (the rigid equations hold to the NCP's tolerance, 1e-12
-// relative: 1e-7 of the weight, as FreeCubeLeansIntoASoftCorner), in a few iterations.
-TEST(RigidStatic, FreeCubeInASoftCornerOnTheSlabLattice) {
-  Model model = static_of(test::rigid_scenes::cube_in_soft_corner(2e-3));
-  model.step.static_max_iterations = 200;
-  model.step.static_tolerance = 1e-12;
-  model.contact.ncp = test::rigid_scenes::tight_ncp(1e-12);
-  Data data(model);
-  State out;
-  const StepStatus st = integrator::solve_static(model, data, model.initial, out);
-  ASSERT_TRUE(st.ok()) << describe(model, st);
-  ASSERT_TRUE(data.contact.result.converged);
-  int count = 0;
-  const Vec3 f = force_on(data, 3, &count), weight = model.rigid[0].mass * model.step.gravity;
-  const Vec3 slab = -force_on(data, 0), wx = -force_on(data, 1), wy = -force_on(data, 2);
-  const double W = weight.norm();
-  std::cout << "[rigid static] free cube in a soft corner, on the slab's lattice: " << st.iterations
-            << " Newton iterations, " << count << " contacts; reaction " << f.transpose() << " N; slab "
-            << slab.transpose() << ", wall_x " << wx.transpose() << ", wall_y " << wy.transpose() << " N\n";
-  EXPECT_LE(st.iterations, 20);
-  EXPECT_LT((f + weight).norm(), 1e-7 * W);
-  EXPECT_NEAR(slab.z(), -weight.z(), 1e-3 * W);
-  EXPECT_NEAR(wx.x(), -weight.x(), 1e-3 * W);
-  EXPECT_NEAR(wy.y(), -weight.y(), 1e-3 * W);
-}
-
 // A bar (0.2 x 0.04 x 0.02 m, 800 kg/m^3) hinged about y through its left end's
 // mid-height, its right end on a soft pad (0.03 x 0.024 x 0.02 m under x in
 // [0.165, 0.195], y in [-0.012, 0.012]: inside the bar's footprint, so the pad's top

@@ -43,13 +43,6 @@
 //   - q on an edge e of the triangle: kept only for the lowest-index triangle of e
 //     (among those that the self-contact rule does not skip for this vertex).
 //   - q on a vertex w: kept only for the lowest-index triangle incident to w (same).
-//   - q on a flat edge or vertex (coplanar faces, the feature's pseudo-normal within
-//     kFlatAngle of the face's) farther than kFlatDistance times the triangle's size
-//     from p: dropped when a neighbouring triangle of the feature (the edge's other one,
-//     another of the vertex's fan) has its closest point to p off that feature: p lies
-//     over the neighbour (its face) or beyond it, and that closer feature's record holds
-//     it (cgrid, docs/method.md "Records beside a flat edge": this record's d lay along
-//     the face, a sideways normal and a gap of -|d| for a vertex a round-off inside).
 //   So a vertex near an edge or a vertex of the other surface gives one point-edge or
 //   one point-point contact, whose weights are the triangle's barycentrics (one or two
 //   of them zero). A point-point pair (v, w) found from both vertices (v against a
@@ -564,22 +557,6 @@ void CollisionDetector::Impl::soft_soft(const PairRule& rule, const VecX& x, Con
       }
       if (rep != t) continue;
       pseudo = edge_normal(S, e);
-      // A flat edge with p beyond it: the other triangle's closest point off e (in its
-      // face, or on another of its edges or vertices) is closer, and that feature's own
-      // record holds p (header; docs/method.md "Records beside a flat edge").
-      const int other = S.edge_tris[e][0] == t ? S.edge_tris[e][1] : S.edge_tris[e][0];
-      if (other >= 0 && !(self && S.skip_vt(v, other)) && 1 - pseudo.dot(S.face_normal[t]) < kFlatAngle &&
-          !(std::sqrt(r.dist2) < kFlatDistance * triangle_scale(P(T(0, t)), P(T(1, t)), P(T(2, t))))) {
-        const PointTriangleResult ro = point_triangle_closest(p, P(T(0, other)), P(T(1, other)), P(T(2, other)));
-        bool on_e = false;
-        if (ro.feature == Feature::edge) {
-          on_e = S.tri_edges[other][ro.local] == e;
-        } else if (ro.feature == Feature::vertex) {
-          const int wo = T(ro.local, other);
-          on_e = wo == S.surface->edges(0, e) || wo == S.surface->edges(1, e);
-        }
-        if (!on_e) continue;
-      }
     } else if (r.feature == Feature::vertex) {
       const int w = T(r.local, t);
       const int lw = S.local[w];
@@ -588,19 +565,6 @@ void CollisionDetector::Impl::soft_soft(const PairRule& rule, const VecX& x, Con
         if (!(self && S.skip_vt(v, S.vt[i]))) rep = S.vt[i];
       if (rep != t) continue;
       pseudo = vertex_normal(S, x, w);
-      // A flat vertex with p beyond it: another triangle of its fan has its closest point
-      // off w, and that feature's record holds p (as the flat edge above).
-      if (1 - pseudo.dot(S.face_normal[t]) < kFlatAngle &&
-          !(std::sqrt(r.dist2) < kFlatDistance * triangle_scale(P(T(0, t)), P(T(1, t)), P(T(2, t))))) {
-        bool closer = false;
-        for (int i = S.vt_begin[lw]; i < S.vt_begin[lw + 1] && !closer; ++i) {
-          const int tt = S.vt[i];
-          if (tt == t || (self && S.skip_vt(v, tt))) continue;
-          const PointTriangleResult ro = point_triangle_closest(p, P(T(0, tt)), P(T(1, tt)), P(T(2, tt)));
-          closer = !(ro.feature == Feature::vertex && T(ro.local, tt) == w);
-        }
-        if (closer) continue;
-      }
     } else {
       pseudo = S.face_normal[t];
     }
