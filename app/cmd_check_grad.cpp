@@ -10,6 +10,7 @@
 #include <softdiff/diff/trajectory.hpp>
 #include <softdiff/integrator/bdf2.hpp>
 #include <softdiff/integrator/implicit_euler.hpp>
+#include <softdiff/integrator/static_rigid.hpp>
 #include <softdiff/integrator/static_solver.hpp>
 #include <softdiff/integrator/static_solver_derivatives.hpp>
 #include <softdiff/io/build_model.hpp>
@@ -253,6 +254,8 @@ int run_check_grad(const CheckGradOptions& o) {
                          model.contact.smoothing.sigma > 0;
   long smoothed_contacts = is_static ? -1 : 0;
   long path_sliding = 0, path_slid_sticking = 0;  // static with friction: below
+  long path_earlier_load_steps = 0;                // static.friction load_step: below
+  const bool load_step_friction = model.step.static_friction == StaticFriction::load_step;
   if (is_static) {
     const StepStatus st =
         integrator::solve_static(model, data, model.initial, final, [&](long, const State&) { progress.advance(); });
@@ -272,7 +275,27 @@ int run_check_grad(const CheckGradOptions& o) {
     // displacement from the initial state above 1e-9 of the scene's size (the threshold
     // equilibrium_modes takes for a slip; a contact that sticks from the first iterate
     // has none).
-    if (model.contact.enabled && data.contact.contacts.size() > 0) {
+    // With static.friction load_step (2026-12-04, branch sfric) each load step's NCP acts
+    // on the slip from that load step's start, by construction: no contact is decided by
+    // the Newton path. What the derivative does not follow is the start of the last load
+    // step (held as given): with several load steps a frictional contact whose points
+    // moved tangentially in the earlier ones (from the initial state to the last load
+    // step's start, through its frame at x*; the rigid bodies' share included) has a
+    // start that depends on theta; counted as path_earlier_load_steps.
+    if (load_step_friction && model.contact.enabled && data.contact.contacts.size() > 0 &&
+        model.step.static_load_steps > 1) {
+      std::vector<contact::Mode> modes;
+      VecX sigma, initial, slip;
+      integrator::equilibrium_modes(model, data.contact, final.x, data.static_load_step_start, modes, sigma);
+      integrator::extended_positions(model, model.initial.x, model.initial.rigid, initial);
+      integrator::contact_slips(model, data.contact.contacts, initial, data.static_load_step_start_extended, slip);
+      double size = 0;
+      for (const auto& b : model.fem.bodies) size = std::max(size, b.bbox_diagonal);
+      for (int i = 0; i < static_cast<int>(modes.size()); ++i) {
+        if (modes[static_cast<std::size_t>(i)] == contact::Mode::breaking || data.contact.mu[i] == 0) continue;
+        if (slip.segment<2>(3 * i).norm() > 1e-9 * size) ++path_earlier_load_steps;
+      }
+    } else if (!load_step_friction && model.contact.enabled && data.contact.contacts.size() > 0) {
       std::vector<contact::Mode> modes;
       VecX sigma;
       const VecX moved = final.x - model.initial.x;
@@ -421,7 +444,7 @@ int run_check_grad(const CheckGradOptions& o) {
 
   // The table.
   bool passed = true, any_path_dependent = false;
-  const bool path_dependent = is_static && path_sliding + path_slid_sticking > 0;
+  const bool path_dependent = is_static && path_sliding + path_slid_sticking + path_earlier_load_steps > 0;
   Json j;
   j.begin_object();
   j.value("command", "check-grad").value("scene", o.scene).value("steps", o.steps).value("eps", o.eps);
@@ -479,6 +502,8 @@ int run_check_grad(const CheckGradOptions& o) {
     j.begin_object("path_dependent_contacts")
         .value("sliding", path_sliding)
         .value("stuck_after_sliding", path_slid_sticking)
+        .value("static_friction", load_step_friction ? "load_step" : "iterate")
+        .value("moved_in_earlier_load_steps", path_earlier_load_steps)
         .end_object();
   j.value("smoothed_contact_derivatives", smoothing);
   j.begin_object("contact_smoothing")
@@ -500,7 +525,11 @@ int run_check_grad(const CheckGradOptions& o) {
                                  : ": " + std::to_string(smoothed_contacts) +
                                        " smoothed contact(s) over the analytic run's steps");
   table << smoothing_line << "\n";
-  if (is_static && model.contact.enabled)
+  if (is_static && model.contact.enabled && load_step_friction)
+    table << "frictional contacts: slip from the load step's start (static.friction load_step), "
+          << path_earlier_load_steps << " moved in earlier load steps" << (path_dependent ? " (path-dependent)" : "")
+          << "\n";
+  else if (is_static && model.contact.enabled)
     table << "frictional contacts decided by the solver's path: " << path_sliding << " sliding, "
           << path_slid_sticking << " stuck after sliding" << (path_dependent ? " (path-dependent)" : "") << "\n";
   if (o.json)
@@ -515,7 +544,15 @@ int run_check_grad(const CheckGradOptions& o) {
                                      std::to_string(smoothed_contacts) + " smoothed contact(s))") +
          ", which can fail near a contact feature boundary by design; to check the exact derivative, rerun with "
          "--set contact.smoothing.samples=0 (docs/cli.md \"check-grad\")");
-  if (any_path_dependent)
+  if (any_path_dependent && load_step_friction)
+    error("the static equilibrium with friction depends on the earlier load steps here: " +
+          std::to_string(path_earlier_load_steps) +
+          " frictional contact(s) moved tangentially before the last load step, whose start the derivative holds "
+          "as given (static.friction load_step), so the finite differences of whole solves measure how that start "
+          "changes with theta as well; a block above the tolerance here is not a verdict on the derivative (one load "
+          "step, static.load_steps: 1, has none; docs/method.md \"Static equilibrium with contact\", docs/cli.md "
+          "\"check-grad\")");
+  else if (any_path_dependent)
     error("the static equilibrium with friction is path-dependent here: " + std::to_string(path_sliding) +
           " contact(s) slide and " + std::to_string(path_slid_sticking) +
           " stick after sliding along the solver's Newton iterates, so the finite differences of whole solves "

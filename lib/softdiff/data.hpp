@@ -58,7 +58,11 @@ struct ContactData {
   SparseMatrix Ht;                  // (3n, 3nc) H_c^T, projected (no fixed dof)
   MatX G;                           // (3nc, 3nc) Delassus h H_c A^{-1} H_c^T (dense backend; empty on the sparse one)
   contact::SparseDelassus sparse;   // the same as an operator (sparse backend, NcpResult::sparse)
-  VecX g;                           // (3nc) H_c v_free + (0, 0, phi_i / h)
+  VecX g;                           // (3nc) H_c v_free + (0, 0, phi_i / h) (+ slip_offset)
+  // static.friction: load_step (integrator/static_solver.cpp): per contact the tangential
+  // slip of its points since the load step's start, (t1, t2, 0) . sum_k w_k (X_k - X_k^start),
+  // added to g by solve_contact_problem when sized 3nc (set after detection, per iteration).
+  VecX slip_offset;
   VecX mu;                          // (nc)
   VecX lambda;                      // (3nc) contact forces (N) in each frame (t1, t2, n)
   VecX sigma;                       // (3nc) G lambda + g: contact velocities
@@ -154,6 +158,11 @@ struct Data {
   double newton_residual = 0;
   VecX static_load_step_start;       // (3n) solve_static: x at the start of the last load step (the
                                     // static contact derivative's slip over that load step)
+  // solve_static with rigid bodies: their poses at the start of the last load step, and
+  // the extended positions there (3 (n + pseudo-nodes): soft x, then the rigid bodies'
+  // surface vertices posed; static.friction load_step's slip of a rigid point).
+  std::vector<rigid::RigidState> static_load_step_start_rigid;
+  VecX static_load_step_start_extended;
   int static_shifted_iterations = 0;  // solve_static: Newton iterations of the last solve whose
                                       // tangent was shifted (A + tau I: A not positive definite)
   ContactData contact;              // contact stage (model.contact.enabled)

@@ -20,6 +20,16 @@ namespace softdiff {
 // (integrator/bdf2.hpp).
 enum class IntegratorKind { implicit_euler, static_equilibrium, bdf2 };
 
+// Friction in the static solver (scene.md `static.friction`; docs/method.md "Static
+// equilibrium with contact", *Load-step-anchored friction*, 2026-12-04, branch sfric):
+// iterate: each Newton iteration's NCP sees the tangential increment H_T dx alone (the
+// stick point is wherever the iterations left it: the answer depends on the solver's
+// path); load_step: it sees the slip accumulated since the load step began,
+// H_T (x_k - x_start) + H_T dx (Coulomb's law on the load step's total slip: one
+// implicit step without inertia; the equilibrium a function of the parameters and the
+// start state).
+enum class StaticFriction { iterate, load_step };
+
 struct StepSettings {
   IntegratorKind integrator = IntegratorKind::implicit_euler;
   double dt = 0.01;                 // h
@@ -39,6 +49,7 @@ struct StepSettings {
   double static_displacement_tolerance = 0;
   double static_residual_tolerance = 0;
   int static_load_steps = 1;
+  StaticFriction static_friction = StaticFriction::iterate;
   double divergence_factor = 100;   // a node further than this many body diagonals from rest: diverged
 };
 

@@ -90,6 +90,53 @@ TEST(CliStaticContact, CheckGradThroughStaticContact) {
       << r.out;
 }
 
+// static.friction load_step (2026-12-04, branch sfric; docs/method.md "Static equilibrium
+// with contact", *Load-step-anchored friction*): the same resting beam with mu 0.3, where
+// the default (iterate) is path-dependent (measured: young 3.4e-2, friction 0.78; 25
+// contacts sliding, 64 stuck after sliding), passes with load_step (measured: young
+// 1.1e-8, friction 4.6e-8; the same eps and solves as above): each Newton iteration's
+// contact solve acts on the slip since the load step's start, so the equilibrium is a
+// function of theta, and check-grad reports no path dependence (one load step).
+TEST(CliStaticContact, CheckGradWithLoadStepFriction) {
+  const fs::path dir = fresh_dir(kWork, "check_grad_load_step");
+  std::string scene = kRestingBeam;
+  scene.replace(scene.find("friction: 2.0"), 13, "friction: 0.3");
+  scene.replace(scene.find("load_steps: 1}"), 14, "load_steps: 1, friction: load_step}");
+  write_text(dir / "scene.yaml", scene);
+  const CliRun r = run_cli("check-grad scene.yaml --wrt young,friction --quiet", dir);
+  EXPECT_EQ(r.code, 0) << r.out << r.err;
+  EXPECT_EQ(r.out.find("ABOVE TOLERANCE"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("frictional contacts: slip from the load step's start (static.friction load_step), 0 moved "
+                       "in earlier load steps\n"),
+            std::string::npos)
+      << r.out;
+  EXPECT_EQ(r.err.find("path-dependent"), std::string::npos) << r.err;
+}
+
+// configs/beam_supports_static.yaml with static.friction load_step has no equilibrium
+// within reach of the solver (docs/method.md *Load-step-anchored friction*): every loaded
+// contact slides (both ends outwards, 10 contacts), the beam's translation along x is
+// resisted only by the difference of the two ends' friction forces (~1.5e-6 of the load),
+// and the iterates drift along it by 2.5e-8 m per iteration with 2.5e-4 m to go: not
+// converged, said so (exit 1), the frame of the start written.
+TEST(CliStaticContact, ShippedBeamOnSupportsWithLoadStepFrictionDoesNotConverge) {
+  const fs::path dir = fresh_dir(kWork, "supports_load_step");
+  const CliRun r = run_cli("simulate " + kScene + " -o out.h5 --quiet --set simulation.static.friction=load_step", dir);
+  EXPECT_EQ(r.code, 1) << r.err;
+  EXPECT_NE(r.err.find("load step 1: Newton did not converge in 50 iterations"), std::string::npos) << r.err;
+}
+
+// Bad input: an unknown static.friction is refused, exit 2, naming the choices.
+TEST(CliStaticContact, UnknownStaticFrictionIsRefused) {
+  const fs::path dir = fresh_dir(kWork, "static_friction_bad");
+  const CliRun r = run_cli("simulate " + kScene + " -o out.h5 --set simulation.static.friction=sticky", dir);
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_NE(r.err.find("simulation.static.friction: must be one of: iterate, load_step; got 'sticky'"),
+            std::string::npos)
+      << r.err;
+  EXPECT_FALSE(fs::exists(dir / "out.h5"));
+}
+
 // A wrong derivative still fails on a path-independent scene (2026-12-04, branch sgrad):
 // the young block multiplied by 1.001 (SOFTDIFF_CHECK_GRAD_FAULT, docs/cli.md) gives a
 // relative error of 1e-3 > 1e-5, exit 1, and no path-dependence message.
@@ -119,7 +166,8 @@ TEST(CliStaticContact, CheckGradSaysTheShippedFrictionalSceneIsPathDependent) {
   const CliRun r = run_cli("check-grad " + kScene + " --wrt young --json --quiet", dir);
   EXPECT_EQ(r.code, 1) << r.out << r.err;
   EXPECT_NE(r.out.find("\"path_dependent\":true"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("\"path_dependent_contacts\":{\"sliding\":5,\"stuck_after_sliding\":5}"),
+  EXPECT_NE(r.out.find("\"path_dependent_contacts\":{\"sliding\":5,\"stuck_after_sliding\":5,\"static_friction\":\"iterate\","
+                       "\"moved_in_earlier_load_steps\":0}"),
             std::string::npos)
       << r.out;
   EXPECT_NE(r.out.find("\"worst_row\":\"x[beam node 34].x\""), std::string::npos) << r.out;

@@ -281,4 +281,41 @@ TEST(StaticContactDerivatives, StickingSetBeyond64OnTheOperator) {
   check(slab(2.0, true), {{Parameter::young, 0}, {Parameter::poisson, 0}}, "slab, sticking, on the operator");
 }
 
+// static.friction load_step (docs/method.md "Static equilibrium with contact",
+// *Load-step-anchored friction*; 2026-12-04, branch sfric): each Newton iteration's NCP
+// acts on the slip since the load step's start, so the equilibrium is a function of the
+// parameters and the start state, and the derivative (a sticking contact holds its total
+// slip at zero, a sliding one slides along its total slip: equilibrium_modes) is exact
+// where contacts slide too. The cases that iterate could not check against central
+// differences (the derivative approximated its path-dependent answer), with this file's
+// steps and tolerance (e = 1e-5 of the scale, solves to 1e-12, 1e-5 relative, the same
+// contacts and modes at theta +/- e, checked):
+//  - the cube on the plane with mu 0.5 (its corners end on the cone: sliding);
+//  - the slab of MixedSetBeyond64OnTheOperator with mu 0.1 (96 of 100 contacts slide, the
+//    rest stick; dense G_AA crossovers, and the operator).
+// Not here: soft-soft contacts (the stacked cubes under gravity tilted by 20 degrees, mu
+// 0.5, load_step: young and density 7.7e-7 to 5.2e-6, friction 2.1e-4 relative, measured):
+// the derivative holds a face contact's barycentric weights and frame, while the slip it
+// sticks is measured through the current ones (docs/method.md *Load-step-anchored
+// friction*), a term the mode rows do not carry.
+Model load_step(Model model) {
+  model.step.static_friction = StaticFriction::load_step;
+  return model;
+}
+
+TEST(StaticContactDerivatives, LoadStepFrictionCubeWithSlidingCorners) {
+  const Model model = load_step(cube(Vec3(0, 0, -kG), 0.5));
+  auto params = elastic_and_density();
+  params.push_back({Parameter::friction, 0});
+  check(model, params, "cube, mu 0.5, load_step");
+}
+
+TEST(StaticContactDerivatives, LoadStepFrictionMixedSlab) {
+  for (const bool on_operator : {false, true}) {
+    const Model model = load_step(slab(0.1, on_operator));
+    check(model, {{Parameter::young, 0}, {Parameter::poisson, 0}, {Parameter::friction, 0}},
+          on_operator ? "slab, mu 0.1, load_step, operator" : "slab, mu 0.1, load_step, dense");
+  }
+}
+
 }  // namespace static_contact_derivatives

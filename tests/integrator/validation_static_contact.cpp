@@ -364,4 +364,143 @@ TEST(StaticContactValidation, ShippedStaticBeamMatchesTheSettledDynamicBeam) {
   EXPECT_NEAR(sag_static, sag_dynamic, 0.25e-3);
 }
 
+// static.friction load_step (docs/method.md "Static equilibrium with contact",
+// *Load-step-anchored friction*; 2026-12-04, branch sfric): a 0.1 m soft block (3 x 3 x 3
+// boxes, E 1 MPa, nu 0 (with nu 0.3 the pressed bottom's Poisson spreading makes its rim
+// slide outwards: measured, 5.4e-5 m), no gravity) on the rigid plane z = 0 (mu 0.5), its top face
+// fixed at a prescribed displacement (shift, 0, -1 mm): pressed by 1% and pushed sideways.
+// Closed forms of Coulomb's law on the load step's total slip:
+//  - shift 0.1 mm (the shear it asks for, ~G A shift / H = 3.8 N, is ~4% of mu N with N
+//    ~ E A 1% = 100 N: far inside the cone, the edge nodes' Poisson traction included):
+//    every loaded contact sticks and its total slip is zero: each bottom node ends where
+//    it started tangentially (to the NCP's accuracy on the slip, 1e-10 relative to |g| ~
+//    the 1 mm press: asserted 1e-12 m);
+//  - shift 5 mm (~190 N asked, above mu N): every loaded contact slides (the trailing row
+//    lifts off), against its own total slip, the magnitudes of the tangential forces sum
+//    to mu times the normal load (the sum of per-contact equalities on the cone), their
+//    vector sum opposes the push, and the bottom has slid along +x.
+// In both the force balance of the whole block holds: the fixed top's reaction balances
+// the contact forces (residual checked as the other tests).
+struct PressedBlock {
+  Model model;
+  explicit PressedBlock(double shift, StaticFriction friction) {
+    test::BodySpec spec;
+    spec.young = 1e6;
+    spec.poisson = 0;  // no Poisson spreading of the pressed bottom: the press alone asks no friction
+    spec.density = 1000;
+    spec.fixed = [](const Vec3& p) { return p.z() > 0.1 - 1e-9; };
+    model = test::make_model(test::box_mesh(3, 3, 3, 0.1, 0.1, 0.1), spec, Vec3::Zero());
+    model.step.integrator = IntegratorKind::static_equilibrium;
+    model.step.static_tolerance = 1e-10;
+    model.step.static_max_iterations = 100;
+    model.step.static_friction = friction;
+    for (int i = 0; i < model.fem.num_nodes; ++i)
+      if (model.fem.X(2, i) > 0.1 - 1e-9) model.initial.x.segment<3>(3 * i) += Vec3(shift, 0, -1e-3);
+    test::ContactSpec cs;
+    cs.mu = 0.5;
+    cs.ncp.tolerance = 1e-10;
+    cs.ncp.max_iterations = 5000;
+    test::enable_contact(model, {test::plane(Vec3(0, 0, 1), 0)}, cs);
+  }
+};
+
+TEST(StaticContactValidation, LoadStepFrictionPressedBlockSticksWithZeroSlip) {
+  for (const auto friction : {StaticFriction::load_step, StaticFriction::iterate}) {
+    const bool load_step = friction == StaticFriction::load_step;
+    SCOPED_TRACE(load_step ? "load_step" : "iterate");
+    PressedBlock b(1e-4, friction);
+    const Model& model = b.model;
+    Data data(model);
+    State out;
+    const StepStatus st = integrator::solve_static(model, data, model.initial, out);
+    ASSERT_TRUE(st.ok()) << describe(model, st);
+    test::expect_valid_contact_solution(data, model.contact.ncp.tolerance, "stick", 1.0);
+    const auto& cd = data.contact;
+    int sticking = 0;
+    double normal = 0, tangential = 0;
+    for (int i = 0; i < cd.contacts.size(); ++i) {
+      const Vec3 world = cd.contacts.contacts[static_cast<std::size_t>(i)].frame * cd.lambda.segment<3>(3 * i);
+      normal += world.z();
+      tangential += world.x();
+      if (cd.modes[static_cast<std::size_t>(i)] == contact::Mode::breaking) continue;
+      EXPECT_EQ(cd.modes[static_cast<std::size_t>(i)], contact::Mode::sticking) << "contact " << i;
+      ++sticking;
+    }
+    EXPECT_EQ(sticking, 16);  // the 4 x 4 bottom nodes
+    double slip = 0;
+    for (int i = 0; i < model.fem.num_nodes; ++i)
+      if (model.fem.X(2, i) < 1e-9)
+        slip = std::max(slip, (out.x.segment<2>(3 * i) - model.fem.X.col(i).head<2>()).norm());
+    std::cout << "[ pressed block, shift 0.1 mm, " << (load_step ? "load_step" : "iterate") << " ] normal load "
+              << normal << " N, tangential " << tangential << " N, largest slip of a bottom node " << slip
+              << " m, " << st.iterations << " iterations\n";
+    EXPECT_GT(normal, 50.0);
+    EXPECT_LT(std::abs(tangential), 0.1 * 0.5 * normal);
+    // load_step: zero total slip (the NCP's stick is on it). iterate: measured only.
+    if (load_step) {
+      EXPECT_LT(slip, 1e-12);
+    }
+  }
+}
+
+TEST(StaticContactValidation, LoadStepFrictionPressedBlockSlidesWithMuN) {
+  PressedBlock b(5e-3, StaticFriction::load_step);
+  const Model& model = b.model;
+  Data data(model);
+  State out;
+  const StepStatus st = integrator::solve_static(model, data, model.initial, out);
+  ASSERT_TRUE(st.ok()) << describe(model, st);
+  test::expect_valid_contact_solution(data, model.contact.ncp.tolerance, "slide", 1.0);
+  Vec3 total;
+  EXPECT_LE(residual(model, data, out, &total), 2 * model.step.static_tolerance);
+  const auto& cd = data.contact;
+  const double scale = cd.lambda.cwiseAbs().maxCoeff();
+  double normal = 0, tangential_x = 0, tangential_y = 0, tangential_magnitude = 0, worst_alignment = 1;
+  int sliding = 0;
+  for (int i = 0; i < cd.contacts.size(); ++i) {
+    const auto& c = cd.contacts.contacts[static_cast<std::size_t>(i)];
+    const Vec3 l = cd.lambda.segment<3>(3 * i);
+    const Vec3 world = c.frame * l;
+    normal += world.z();
+    tangential_x += world.x();
+    tangential_y += world.y();
+    tangential_magnitude += l.head<2>().norm();
+    if (cd.modes[static_cast<std::size_t>(i)] == contact::Mode::breaking) continue;
+    EXPECT_EQ(cd.modes[static_cast<std::size_t>(i)], contact::Mode::sliding) << "contact " << i;
+    EXPECT_NEAR(l.head<2>().norm(), 0.5 * l[2], 1e-8 * scale) << "contact " << i;
+    // The force opposes the node's total slip over the load step (from its start, the
+    // initial state here: one load step): cos(lambda_T, -slip) = 1.
+    ASSERT_EQ(c.count, 1);
+    const Vec3 moved = out.x.segment<3>(3 * c.nodes[0]) - model.initial.x.segment<3>(3 * c.nodes[0]);
+    const Eigen::Vector2d slip(c.frame.col(0).dot(moved), c.frame.col(1).dot(moved));
+    worst_alignment = std::min(worst_alignment, -l.head<2>().dot(slip) / (l.head<2>().norm() * slip.norm()));
+    ++sliding;
+  }
+  // The bottom's trailing row lifts off under the push's moment (4 breaking, measured).
+  EXPECT_GE(sliding, 8);
+  double mean_x = 0;
+  int bottom = 0;
+  for (int i = 0; i < model.fem.num_nodes; ++i)
+    if (model.fem.X(2, i) < 1e-9) {
+      mean_x += out.x[3 * i] - model.fem.X(0, i);
+      ++bottom;
+    }
+  mean_x /= bottom;
+  std::cout << "[ pressed block, shift 5 mm, load_step ] normal load " << normal << " N, tangential (" << tangential_x
+            << ", " << tangential_y << ") N, mu N " << 0.5 * normal << " N; bottom slid by " << mean_x << " m, "
+            << st.iterations << " iterations\n";
+  std::cout << "  sum |lambda_T| " << tangential_magnitude << " N; worst cos(lambda_T, -total slip) "
+            << worst_alignment << "\n";
+  // Coulomb on the cone: the tangential forces' magnitudes sum to mu N (the sum of the
+  // per-contact equalities), each against its total slip (to the NCP's accuracy:
+  // 1e-8 asserted on the cosine); their vector sum is at most mu N, along -x up to the
+  // slips' spread about x (the mesh's tetrahedra are not symmetric in y: measured
+  // (-50.7496, -0.3648) N against mu N 50.7509 N).
+  EXPECT_NEAR(tangential_magnitude, 0.5 * normal, 1e-8 * scale * cd.contacts.size());
+  EXPECT_GT(worst_alignment, 1 - 1e-8);
+  EXPECT_LE(std::hypot(tangential_x, tangential_y), 0.5 * normal * (1 + 1e-8));
+  EXPECT_GT(-tangential_x, 0.99 * 0.5 * normal);
+  EXPECT_GT(mean_x, 1e-3);
+}
+
 }  // namespace static_contact_validation

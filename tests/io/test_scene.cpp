@@ -292,6 +292,21 @@ TEST_F(Scene, StaticConvergenceCriterion) {
             std::string::npos);
 }
 
+// static.friction (extension, method.md "Static equilibrium with contact",
+// *Load-step-anchored friction*; 2026-12-04, branch sfric): iterate by default, load_step
+// on request (and into the model's StepSettings), anything else refused naming the choices.
+TEST_F(Scene, StaticFriction) {
+  const auto base = [](const std::string& static_section) {
+    return edit("  dt: 0.01\n  steps: 10\n", "  integrator: static\n" + static_section);
+  };
+  EXPECT_FALSE(load(base("")).simulation.static_friction_load_step);
+  EXPECT_FALSE(load(base("  static: {friction: iterate}\n")).simulation.static_friction_load_step);
+  EXPECT_TRUE(load(base("  static: {friction: load_step}\n")).simulation.static_friction_load_step);
+  const std::string message = error(base("  static: {friction: sticky}\n"));
+  EXPECT_NE(message.find("simulation.static.friction"), std::string::npos) << message;
+  EXPECT_NE(message.find("iterate, load_step"), std::string::npos) << message;
+}
+
 TEST_F(Scene, LinearSolverAsString) {
   EXPECT_EQ(load(kBase + "linear_solver: ldlt\n").linear_solver.kind, LinearSolverKind::ldlt);
   EXPECT_EQ(load(kBase + "linear_solver: cg\n").linear_solver.kind, LinearSolverKind::cg);

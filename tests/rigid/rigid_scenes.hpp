@@ -109,11 +109,11 @@ inline BodySpec damped_slab_spec() {
 // The static rigid tests' cube on a soft slab (validation_rigid_static.cpp, the static
 // derivatives' test): the slab 0.12 x 0.12 x 0.01 m (8 x 8 x 2 boxes, damped_slab_spec),
 // a rigid 40 mm cube (500 kg/m^3) resting on it at zero gap at (0.06, 0.06, 0.03), contact
-// margin 1e-3, the pair rule body-cube mu 0.5, gravity (0, 0, -9.81), step h.
-inline Model slab_and_cube(double h) {
+// margin 1e-3, the pair rule body-cube mu 0.5, gravity g (default (0, 0, -9.81)), step h.
+inline Model slab_and_cube(double h, const Vec3& g = Vec3(0, 0, -9.81)) {
   const BodySpec spec = damped_slab_spec();
   const mesh::TetMesh m = box_mesh(8, 8, 2, 0.12, 0.12, 0.01);
-  Model model = make_model(m, spec, Vec3(0, 0, -9.81), h);
+  Model model = make_model(m, spec, g, h);
   rigid::RigidState s;
   s.position = Vec3(0.06, 0.06, 0.01 + 0.02);  // resting on the slab at zero gap
   add_rigid_body(model, "cube", box_shape(Vec3(0.02, 0.02, 0.02)), 500, s);

@@ -284,6 +284,9 @@ StepStatus solve_contact_problem(const Model& model, Data& data, double h, VecX&
     cd.sparse.set_rigid(with_rigid ? cd.rigid.Kt : none, rigidified ? &data.rigidify.SW : nullptr);
   }
   for (int i = 0; i < nc; ++i) cd.g[3 * i + 2] += cd.contacts.contacts[i].gap / h;
+  // static.friction load_step: the tangential slip since the load step's start (set by the
+  // static solver after detection, for these contacts; integrator/static_solver.cpp).
+  if (cd.slip_offset.size() == 3 * nc) cd.g.head(3 * nc) += cd.slip_offset;
   if (limit_rows > 0) finish_limit_rows(model, data, h, nc, sparse ? nullptr : &cd.G, cd.g);
   data.timings.delassus += seconds_since(t0);
 

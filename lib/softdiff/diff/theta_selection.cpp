@@ -51,7 +51,10 @@ void demand_differentiable(const std::string& option, const Model& model) {
     // soft bodies or alone, joint limits (an active one holds its body), free bodies in a
     // scene of rigid bodies only, and frictionless free bodies beside soft bodies (held in
     // all six dofs by their contacts at the equilibrium: checked there, 2026-12-04, srfree);
-    // a free body with friction beside soft bodies is not differentiated yet.
+    // a free body with friction beside soft bodies is not differentiated yet (with
+    // static.friction iterate its tangential state is the solver's path; with load_step it
+    // is a function of the parameters, but the derivative is not validated: 2026-12-04,
+    // branch sfric, docs/method.md *Load-step-anchored friction*).
     const int soft_bodies = static_cast<int>(model.fem.bodies.size());
     for (std::size_t r = 0; r < model.rigid.size(); ++r) {
       const auto& b = model.rigid[r];
@@ -66,9 +69,11 @@ void demand_differentiable(const std::string& option, const Model& model) {
         throw InputError(option + ": derivatives of a static scene with a free rigid body in frictional contact "
                                   "beside soft bodies are not supported yet (issue 21; rigid body '" + b.name +
                                   "'): with friction (" + friction.str() +
-                                  ") its static tangential state is the stick accumulated along the solver's path; "
-                                  "frictionless free bodies held in all six dofs by their contacts, hinged, slider and "
-                                  "fixed bodies are differentiated");
+                                  ") its static tangential state is the stick accumulated along the solver's path "
+                                  "(static.friction: iterate), or, with static.friction: load_step, a function of "
+                                  "the parameters whose derivative is not validated yet; frictionless free bodies "
+                                  "held in all six dofs by their contacts, hinged, slider and fixed bodies are "
+                                  "differentiated");
       }
     }
     for (const auto& b : model.fem.bodies)

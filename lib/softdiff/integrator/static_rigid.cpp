@@ -219,6 +219,59 @@ double static_rigid_residual(const Model& model, const Data& data, const std::ve
   return rel;
 }
 
+void extended_positions(const Model& model, const VecX& x, const std::vector<rigid::RigidState>& poses, VecX& e) {
+  if (!model.contact.enabled || !model.contact.with_rigid()) {
+    e = x;
+    return;
+  }
+  const Eigen::Index n3 = x.size();
+  e.resize(n3 + 3 * static_cast<Eigen::Index>(model.contact.rigid_node_body.size()));
+  e.head(n3) = x;
+  for (std::size_t r = 0; r < model.rigid.size(); ++r) {
+    const auto& body = model.rigid[r];
+    const Mat3 Rot = poses[r].orientation.toRotationMatrix();
+    const Eigen::Index begin = 3 * static_cast<Eigen::Index>(model.contact.rigid_node_begin[r]);
+    for (Eigen::Index j = 0; j < body.surface.vertices.cols(); ++j)
+      e.segment<3>(begin + 3 * j) = poses[r].position + Rot * body.surface.vertices.col(j);
+  }
+}
+
+void record_load_step_start(const Model& model, Data& data, const VecX& x, const std::vector<rigid::RigidState>& poses) {
+  data.static_load_step_start = x;
+  data.static_load_step_start_rigid = poses;
+  extended_positions(model, x, poses, data.static_load_step_start_extended);
+}
+
+void contact_slips(const Model& model, const collision::ContactSet& contacts, const VecX& from, const VecX& to,
+                   VecX& slip) {
+  SOFTDIFF_DEMAND(from.size() == to.size(), "contact_slips: positions of different sizes");
+  const int nc = contacts.size();
+  slip.setZero(3 * nc);
+  (void)model;
+  for (int i = 0; i < nc; ++i) {
+    const auto& c = contacts.contacts[static_cast<std::size_t>(i)];
+    Vec3 d = Vec3::Zero();
+    for (int k = 0; k < c.count; ++k) {
+      const Eigen::Index o = 3 * static_cast<Eigen::Index>(c.nodes[static_cast<std::size_t>(k)]);
+      d += c.weights[static_cast<std::size_t>(k)] * (to.segment<3>(o) - from.segment<3>(o));
+    }
+    slip[3 * i] = c.frame.col(0).dot(d);
+    slip[3 * i + 1] = c.frame.col(1).dot(d);
+  }
+}
+
+void static_slip_offset(const Model& model, Data& data, const VecX& x) {
+  auto& cd = data.contact;
+  if (model.step.static_friction != StaticFriction::load_step) {
+    cd.slip_offset.resize(0);
+    return;
+  }
+  const VecX& now = model.contact.with_rigid() ? cd.rigid.x : x;
+  SOFTDIFF_DEMAND(now.size() == data.static_load_step_start_extended.size(),
+                  "static_slip_offset: the load step's start is not recorded (record_load_step_start)");
+  contact_slips(model, cd.contacts, data.static_load_step_start_extended, now, cd.slip_offset);
+}
+
 StepStatus solve_static_rigid_only(const Model& model, Data& data, const State& in, State& out,
                                    const std::function<void(long, const State&)>& on_load_step) {
   const auto& settings = model.step;
@@ -245,6 +298,9 @@ StepStatus solve_static_rigid_only(const Model& model, Data& data, const State& 
   auto& cd = data.contact;
   const bool with_contact = model.contact.with_rigid();
   if (with_contact) contact::clear_contact_record(cd);
+  // static.friction load_step's offsets are this solve's: a later contact solve (a dynamic
+  // step on the same Data) must not see them, whichever way this solve ends.
+  const SlipOffsetGuard slip_guard{cd};
   VecX none_x, none_v, increment;  // no soft dof: empty
   int total = 0;
   double rel = 0;
@@ -261,6 +317,7 @@ StepStatus solve_static_rigid_only(const Model& model, Data& data, const State& 
   for (long s = 1; s <= L; ++s) {
     const double factor = static_cast<double>(s) / L;
     if (with_contact) cd.detector->set_time(factor);
+    record_load_step_start(model, data, none_x, out.rigid);
     bool solved = false;  // an NCP (or the limits' LCPs) ran in this load step
     for (int it = 0;; ++it) {
       rel = static_rigid_residual(model, data, out.rigid, factor, with_contact && solved, &worst);
@@ -277,7 +334,10 @@ StepStatus solve_static_rigid_only(const Model& model, Data& data, const State& 
       }
       begin_static_rigid(model, data, out.rigid, k, factor);
       if (with_contact) {
-        const StepStatus cs = contact::resolve_contacts(model, data, none_x, none_v, 1.0, increment, s, false);
+        // static.friction load_step: the NCP on the load step's total slip (static_slip_offset).
+        contact::detect_contacts(model, data, none_x, none_v, 1.0, increment, false);
+        static_slip_offset(model, data, none_x);
+        const StepStatus cs = contact::solve_contact_problem(model, data, 1.0, increment, s);
         if (!cs.ok()) return cs;
         if (cd.contacts.size() == 0) static_limits_without_contact(model, data);
         const int unsupported = static_rigid_unsupported(model, data);

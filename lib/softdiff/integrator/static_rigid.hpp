@@ -90,6 +90,38 @@ double static_rigid_residual(const Model& model, const Data& data, const std::ve
 StepStatus solve_static_rigid_only(const Model& model, Data& data, const State& in, State& out,
                                    const std::function<void(long, const State&)>& on_load_step);
 
+// static.friction: load_step (docs/method.md "Static equilibrium with contact",
+// *Load-step-anchored friction*; 2026-12-04, branch sfric). record_load_step_start: at a
+// load step's start, x (Data::static_load_step_start), the rigid poses
+// (static_load_step_start_rigid) and the extended positions there
+// (static_load_step_start_extended: x, then each rigid body's surface vertices posed, as
+// contact::extend_for_detection numbers them). static_slip_offset: after the detection of
+// a Newton iteration (data.contact.contacts; with rigid bodies the extended positions of
+// the current iterate in data.contact.rigid.x, otherwise x), per contact i the slip of its
+// points since the load step's start through its current frame,
+//     slip_offset[3i + r] = t_r . sum_k w_k (X_k - X_k^start)  (r = 0, 1; 0 on the normal row),
+// which solve_contact_problem adds to g: the NCP then acts on the load step's total slip
+// H_T (x_k - x_start) + H_T dx (a rigid point's share the exact displacement of its
+// material point under the pose change since x_start; a contact that appeared during the
+// load step measured the same way, from its points' start positions). With
+// static.friction: iterate, static_slip_offset empties it (g unchanged).
+void record_load_step_start(const Model& model, Data& data, const VecX& x, const std::vector<rigid::RigidState>& poses);
+// The extended positions of (x, poses): x, then (with rigid bodies in contact) each rigid
+// body's surface vertices posed (contact::extend_for_detection's numbering); x alone otherwise.
+void extended_positions(const Model& model, const VecX& x, const std::vector<rigid::RigidState>& poses, VecX& e);
+// Per contact of `contacts` the tangential slip of its points from the extended positions
+// `from` to `to` through its frame: slip[3i + r] = t_r . sum_k w_k (X_k(to) - X_k(from))
+// (r = 0, 1; 0 on the normal row).
+void contact_slips(const Model& model, const collision::ContactSet& contacts, const VecX& from, const VecX& to,
+                   VecX& slip);
+void static_slip_offset(const Model& model, Data& data, const VecX& x);
+// Empties data.contact.slip_offset when the solve ends, whichever way (the offsets are the
+// static solve's: a later contact solve on the same Data must not see them).
+struct SlipOffsetGuard {
+  ContactData& cd;
+  ~SlipOffsetGuard() { cd.slip_offset.resize(0); }
+};
+
 // Rigidified parts in the static solver (docs/method.md "Static equilibrium with
 // rigidified parts"; defined in rigidify.cpp beside the dynamic step's functions): the
 // reduced Newton P^T R(P u) = 0 on the static tangent A = K (prepare_rigidified with

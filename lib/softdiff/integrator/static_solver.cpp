@@ -125,6 +125,7 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
   VecX contact_force = VecX::Zero(with_contact ? 3L * fem.num_nodes : 0);  // H_c^T lambda of the last NCP
   bool contact_solved = false;  // an NCP was solved in this load step
   if (with_contact) contact::clear_contact_record(cd);
+  const SlipOffsetGuard slip_guard{cd};  // static.friction load_step's offsets are this solve's
   // Parts (rigidify.hpp prepare_rigidified, h = 1: its coupling values are K's, read from
   // data.fem.K_values): with cables, a diagonal shift or a body held by contact alone,
   // K_values holds K + the cables' stiffness + shift (free dofs) + tau_p (the held bodies'
@@ -154,7 +155,9 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
 
   for (long s = 1; s <= L; ++s) {
     const double factor = static_cast<double>(s) / L;
-    data.static_load_step_start = out.x;
+    // The load step's start: x, the rigid poses and their surface points (static.friction
+    // load_step measures each contact's slip from there: static_rigid.hpp static_slip_offset).
+    record_load_step_start(model, data, out.x, out.rigid);
     // A moving plane at this load step's time (the actuators' schedules are read at
     // `factor` as well): docs/method.md "Moving planes".
     if (with_contact) cd.detector->set_time(factor);
@@ -306,7 +309,13 @@ StepStatus solve_static(const Model& model, Data& data, const State& in, State& 
         // Rigid bodies: their free increments and compliances for this solve.
         if (with_rigid) begin_static_rigid(model, data, out.rigid, it == 0 ? k_first : k_rigid, factor);
         // The contact stage with h = 1: dx <- dx_free + K^{-1} H_c^T lambda.
-        const StepStatus cs = contact::resolve_contacts(model, data, out.x, dx_previous, 1.0, dx, s, false);
+        // static.friction load_step (docs/method.md "Static equilibrium with contact",
+        // *Load-step-anchored friction*): after detection, the NCP's tangential rows offset
+        // by each contact's slip since the load step's start (static_slip_offset); iterate:
+        // no offset (resolve_contacts as before).
+        contact::detect_contacts(model, data, out.x, dx_previous, 1.0, dx, false);
+        static_slip_offset(model, data, out.x);
+        const StepStatus cs = contact::solve_contact_problem(model, data, 1.0, dx, s);
         if (!cs.ok()) return cs;
         // No contact detected: no NCP ran; the joint limits' own LCPs (static_rigid.hpp).
         if (with_rigid && cd.contacts.size() == 0) static_limits_without_contact(model, data);

@@ -79,11 +79,17 @@ class EquilibriumSystem {
     // *Free bodies beside soft bodies*). Frictionless: differentiated (2026-12-04, srfree)
     // where the contacts at x* hold all six dofs (demand_free_bodies_held, in prepare: a
     // flat support leaves sliding and spinning free, and the pose is then not determinate).
-    // With friction refused: each Newton iteration's NCP sticks relative to that iterate, so
-    // the tangential state is the stick accumulated along the solver's path (2% to 20% off
-    // the differences on the cube on the slab, rstd), and check-grad's path-dependence count
-    // (sgrad) reads the soft nodes' displacement only, not the rigid body's share of a
-    // contact's slip, so it could not tell a body stuck from the first iterate.
+    // With friction refused: with static.friction iterate each Newton iteration's NCP sticks
+    // relative to that iterate, so the tangential state is the stick accumulated along the
+    // solver's path (2% to 20% off the differences on the cube on the slab, rstd), and
+    // check-grad's path-dependence count (sgrad) reads the soft nodes' displacement only,
+    // not the rigid body's share of a contact's slip, so it could not tell a body stuck
+    // from the first iterate. With static.friction load_step (2026-12-04, branch sfric) the
+    // equilibrium is a function of the parameters, but this derivative is not validated
+    // there (docs/method.md *Load-step-anchored friction*): the refinement that removes the
+    // rigid proximal block stalls at 1.5e-6 (the cube on the slab) to 4.7e-5 (the soft
+    // corner) of the mass column, above its floor, and with a 100 times larger block the
+    // differences of whole solves change contact sets within the step.
     const int nb = static_cast<int>(model_.fem.bodies.size());
     for (std::size_t r = 0; r < model_.rigid.size(); ++r) {
       const auto& b = model_.rigid[r];
@@ -91,10 +97,13 @@ class EquilibriumSystem {
       double mu = 0;
       for (const auto& rule : model_.contact.detection.pairs)
         if (rule.a == nb + static_cast<int>(r) || rule.b == nb + static_cast<int>(r)) mu = std::max(mu, rule.mu);
-      SOFTDIFF_DEMAND(mu == 0, "static derivatives of a free rigid body with friction are not supported yet (issue 21; "
-                               "rigid body '" + b.name + "'): with friction (" + std::to_string(mu) +
-                                   ") its static tangential state is the stick accumulated along the solver's path, "
-                                   "not a function of the parameters (frictionless free bodies are differentiated)");
+      SOFTDIFF_DEMAND(mu == 0,
+                      "static derivatives of a free rigid body with friction are not supported yet (issue 21; "
+                      "rigid body '" + b.name + "'): with friction (" + std::to_string(mu) +
+                          ") and static.friction iterate its static tangential state is the stick accumulated along "
+                          "the solver's path, not a function of the parameters; with static.friction load_step it "
+                          "is, but its derivative is not validated yet (frictionless free bodies are "
+                          "differentiated: docs/method.md \"Static equilibrium with rigid bodies\")");
     }
     for (const auto& a : model_.actuation.actuators) {
       const auto* servo = std::get_if<actuation::Servo>(&a.kind);
@@ -924,6 +933,10 @@ void equilibrium_modes(const Model& model, const ContactData& cd, const VecX& x,
   double size = 0;
   for (const auto& b : model.fem.bodies) size = std::max(size, b.bbox_diagonal);
   const VecX u = x - x_start;
+  // static.friction load_step: the last NCP's tangential sigma is the load step's total
+  // slip H_T (x - x_start) (its rigid bodies' share included: static_rigid.hpp
+  // static_slip_offset), to the last increment's round-off at convergence.
+  const bool load_step = model.step.static_friction == StaticFriction::load_step && cd.sigma.size() >= 3L * nc;
   for (int i = 0; i < nc; ++i) {
     const Vec3 l = cd.lambda.segment<3>(3 * i);
     const double mu = cd.mu[i], lT = l.head<2>().norm();
@@ -935,7 +948,7 @@ void equilibrium_modes(const Model& model, const ContactData& cd, const VecX& x,
       m = contact::Mode::sliding;
       if (mu == 0 || lT == 0) continue;
       Eigen::Vector2d s;
-      for (int r = 0; r < 2; ++r) s[r] = cd.Ht.col(3 * i + r).dot(u);
+      for (int r = 0; r < 2; ++r) s[r] = load_step ? cd.sigma[3 * i + r] : cd.Ht.col(3 * i + r).dot(u);
       if (s.norm() > 1e-9 * size) sigma.segment<2>(3 * i) = s;
       else sigma.segment<2>(3 * i) = -l.head<2>() / lT * (1e100 * std::max(scale, 1.0));
     } else {

@@ -495,6 +495,7 @@ Model build_model(const SceneDesc& scene, BuildReport* report) {
   model.step.static_displacement_tolerance = sim.static_answer_criterion ? sim.static_displacement_tolerance : 0.0;
   model.step.static_residual_tolerance = sim.static_answer_criterion ? sim.static_residual_tolerance : 0.0;
   model.step.static_load_steps = sim.static_load_steps;
+  model.step.static_friction = sim.static_friction_load_step ? StaticFriction::load_step : StaticFriction::iterate;
   switch (scene.linear_solver.kind) {
     case LinearSolverKind::cholmod: model.solver.kind = integrator::SolverKind::cholmod; break;
     case LinearSolverKind::ldlt: model.solver.kind = integrator::SolverKind::ldlt; break;

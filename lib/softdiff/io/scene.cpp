@@ -201,6 +201,7 @@ class Reader {
     sim.static_displacement_tolerance =
         number(get(st, "displacement_tolerance"), sim.static_displacement_tolerance);
     sim.static_residual_tolerance = number(get(st, "residual_tolerance"), sim.static_residual_tolerance);
+    if (const Node* n = get(st, "friction")) sim.static_friction_load_step = n->scalar == "load_step";
     if (st && st->is_map()) {
       const Entry* convergence = st->find("convergence");
       const Entry* answer_tolerance = st->find("displacement_tolerance");

@@ -198,6 +198,9 @@ struct SimulationDesc {
   bool static_answer_criterion = false;
   double static_displacement_tolerance = 1e-4;  // `static.displacement_tolerance`
   double static_residual_tolerance = 1e-3;      // `static.residual_tolerance`
+  // extension (method.md "Static equilibrium with contact", *Load-step-anchored
+  // friction*): `static.friction` iterate (the default) or load_step.
+  bool static_friction_load_step = false;
 };
 
 struct LinearSolverDesc {

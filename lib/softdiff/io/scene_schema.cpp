@@ -208,6 +208,7 @@ SpecPtr simulation() {
                         key("convergence", choice({"answer", "residual"})),  // extension
                         key("displacement_tolerance", number(Range{0.0, 0.1, true, false})),  // extension
                         key("residual_tolerance", number(Range{0.0, 0.1, true, false})),      // extension
+                        key("friction", choice({"iterate", "load_step"})),                    // extension
                     })),
   });
 }
