@@ -1236,7 +1236,13 @@ NcpResult solve_core(Buffers& w, const Problem& p, const NcpOptions& options, Ve
   // trajectory; in the stall fallback alone (no working-set round) gripper_lift passed
   // under implicit Euler (46 -> 13 solves above the tolerance, the cylinder within
   // 0.05 mm) but inverted an element at step 123 under BDF2 (docs/method.md "The NCP on
-  // redundant contacts: a proximal point stage").
+  // redundant contacts: a proximal point stage"). Both were the operator path returning a
+  // worse iterate than it had seen (fixed there: it returns the best of its solve); with
+  // that fix the cylinder still ends 4.2 mm low with (a), and with (b) under BDF2 a stage
+  // result with 6x its input's forces (a null direction of G_CC) at step 132 starts a
+  // divergence; with a guard on that (at most twice the input's largest force) the BDF2
+  // run ends with the cylinder tilting out of the grip (5 deg at step 150). Not kept
+  // (docs/method.md "The proximal stage on the operator path, again", 2026-12-04 opgrip).
   if (proximal_stage && options.polish && result.residuals.max() > p.tolerance && active <= options.polish_max_active)
     try_stage([&] { proximal_point_stage(w, p, lambda, sigma, result.residuals); });
 
