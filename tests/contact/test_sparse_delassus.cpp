@@ -567,4 +567,77 @@ TEST(SparseDelassus, SharedStorageGivesEachOperatorItsOwnSolves) {
   }
 }
 
+
+// The operator path returns the best iterate of its solve (docs/method.md "The grip's
+// operator path", 2026-12-04 opgrip): its rounds (the working set's, the retry on every
+// contact, the stall fallback) may each end further from a solution than an earlier one
+// or than the warm start; an unconverged solve returns the iterate with the lowest
+// residual it has seen, with that iterate's residuals. Here the slab's solution
+// perturbed by 1e-4 of |lambda| (random, projected on the cones as the solver does: its
+// residual ~7e-5 of |g|) with a budget of one ADMM iteration, which ends at ~1e-3 to
+// 5e-3 (the first iteration from a warm start moves with the unconverged multiplier z):
+// every round is worse than the warm start, so the solve returns the warm start itself
+// (before the fix: that iteration's 5e-3, above its own warm start). With 30 iterations
+// ADMM improves on it (to ~5e-10) and that is returned. The tolerance 1e-13 is
+// unreachable in either budget, so both solves end unconverged and the rule applies.
+// Checks: the returned residuals are those of the returned lambda (recomputed with the
+// dense G: the operator's and the dense G's sigma differ by round-off, ~1e-15 of |g|,
+// so 1e-9 relative plus 1e-14), and never above the warm start's. Without the polish,
+// which would reach the solution from either budget.
+TEST(SparseNcp, UnconvergedSolveReturnsTheBestIterateItHasSeen) {
+  const Model model = slab_model();
+  Data data(model);
+  step_to_contact(model, data);
+  const auto& cd = data.contact;
+  const int nc = cd.contacts.size();
+  contact::NcpOptions o = model.contact.ncp;
+  o.tolerance = 1e-10;
+  o.max_iterations = 20000;
+  VecX lam_d = VecX::Zero(3 * nc), sig_d;
+  std::vector<contact::Mode> modes;
+  contact::NcpSolver reference;
+  ASSERT_TRUE(reference.solve(cd.G, cd.g, cd.mu, o, lam_d, sig_d, modes).converged);
+  // The warm start, on the cones (the formula of ncp.cpp's project_cone).
+  VecX warm = lam_d + 1e-4 * lam_d.cwiseAbs().maxCoeff() * random_vector(3 * nc, 7);
+  for (int i = 0; i < nc; ++i) {
+    const double m = cd.mu[i], t = warm.segment<2>(3 * i).norm(), nn = warm[3 * i + 2];
+    if (t <= m * nn) continue;
+    if (m * t <= -nn) {
+      warm.segment<3>(3 * i).setZero();
+      continue;
+    }
+    const double pn = (nn + m * t) / (1 + m * m);
+    warm.segment<2>(3 * i) *= m * pn / t;
+    warm[3 * i + 2] = pn;
+  }
+  const double r_warm = contact::ncp_residuals(cd.G, cd.g, cd.mu, warm).max();
+  ASSERT_GT(r_warm, 1e-6);
+  o.dense_max_contacts = 0;  // every round by ADMM on the operator
+  o.polish = false;          // (it would jump to the solution from either budget)
+  o.tolerance = 1e-13;
+  for (const int budget : {1, 30}) {
+    for (const bool working_set : {true, false}) {
+      const std::string what = "budget " + std::to_string(budget) + (working_set ? ", working set" : "");
+      o.max_iterations = budget;
+      o.working_set = working_set;
+      contact::SparseDelassus op;
+      op.bind(*data.solver, data.A, cd.Ht, model.step.dt, model.solver);
+      VecX lam = warm, sig;
+      contact::NcpSolver solver;
+      const auto r = solver.solve(op, cd.g, cd.mu, o, lam, sig, modes);
+      EXPECT_FALSE(r.converged) << what;
+      EXPECT_GT(r.iterations, 0) << what;
+      const double r_true = contact::ncp_residuals(cd.G, cd.g, cd.mu, lam).max();
+      EXPECT_NEAR(r.residuals.max(), r_true, 1e-9 * r_true + 1e-14) << what;
+      EXPECT_LE((sig - (cd.G * lam + cd.g)).norm(), 1e-11 * (cd.G.norm() * lam.norm() + cd.g.norm())) << what;
+      EXPECT_LE(r_true, r_warm * (1 + 1e-9)) << what;
+      if (budget == 1) {
+        EXPECT_LE((lam - warm).norm(), 1e-14 * warm.norm()) << what << ": the warm start is the best iterate";
+      } else {
+        EXPECT_LT(r_true, 1e-3 * r_warm) << what << ": ADMM's iterate is the best";
+      }
+    }
+  }
+}
+
 }  // namespace sparse_delassus_test

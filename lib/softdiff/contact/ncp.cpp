@@ -236,6 +236,7 @@ struct Buffers {
   std::vector<int> set_a;        // positions in the working set of the active contacts of a sparse round
   std::vector<int> ids_a;        // their contact ids
   VecX lambda_alt, sigma_alt;    // (n) the polished candidate of a sparse round
+  VecX best_l, best_s;           // (n) the operator path's best iterate of the solve (lowest max residual)
   std::vector<Mode> modes_a;
   std::vector<double> gnn;       // (nc) G_NN,i where known (dense G_W), else the power-iteration scale
   std::vector<int> ids_c;        // the candidate set of the operator's stall fallback, ascending
@@ -260,7 +261,7 @@ struct Buffers {
     in_set.resize(static_cast<std::size_t>(n / 3));
     in_c.resize(static_cast<std::size_t>(n / 3));
     for (VecX* v : {&x, &y, &z, &s, &rhs, &x_prev, &y_prev, &power, &d3, &d3_sqrt_inv, &lambda_best, &lambda_p, &sigma_p, &lambda_kept,
-                     &sigma_kept, &gw, &lw, &sw, &lambda_alt, &sigma_alt, &ac_l, &ac_s, &ac_F, &ac_d, &ac_Gd, &ac_lt, &ac_st,
+                     &sigma_kept, &gw, &lw, &sw, &lambda_alt, &sigma_alt, &best_l, &best_s, &ac_l, &ac_s, &ac_F, &ac_d, &ac_Gd, &ac_lt, &ac_st,
                      &ac_Ft, &ac_best_l, &ac_best_s, &ac_in_l, &ac_in_s, &pp_D, &pp_g, &pp_l, &pp_s, &pp_ls, &pp_ss, &pp_cl, &pp_cs,
                      &pp_best_l, &pp_best_s})
       v->resize(n);
@@ -1235,7 +1236,13 @@ NcpResult solve_core(Buffers& w, const Problem& p, const NcpOptions& options, Ve
   // trajectory; in the stall fallback alone (no working-set round) gripper_lift passed
   // under implicit Euler (46 -> 13 solves above the tolerance, the cylinder within
   // 0.05 mm) but inverted an element at step 123 under BDF2 (docs/method.md "The NCP on
-  // redundant contacts: a proximal point stage").
+  // redundant contacts: a proximal point stage"). Both were the operator path returning a
+  // worse iterate than it had seen (fixed there: it returns the best of its solve); with
+  // that fix the cylinder still ends 4.2 mm low with (a), and with (b) under BDF2 a stage
+  // result with 6x its input's forces (a null direction of G_CC) at step 132 starts a
+  // divergence; with a guard on that (at most twice the input's largest force) the BDF2
+  // run ends with the cylinder tilting out of the grip (5 deg at step 150). Not kept
+  // (docs/method.md "The proximal stage on the operator path, again", 2026-12-04 opgrip).
   if (proximal_stage && options.polish && result.residuals.max() > p.tolerance && active <= options.polish_max_active)
     try_stage([&] { proximal_point_stage(w, p, lambda, sigma, result.residuals); });
 
@@ -1661,6 +1668,26 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
   full_sigma(w.set, lambda, sigma);
   for (int i = 0; i < nc; ++i)
     w.in_set[i] = !options.working_set || lambda.segment<3>(3 * i).squaredNorm() > 0 || violates(i);
+  // The best iterate of the solve: the (projected) warm start, each round's result and
+  // each of its polished candidates, by the largest full residual. An unconverged solve
+  // returns it (below) instead of its last round's, with its residuals (docs/method.md
+  // "The grip's operator path", 2026-12-04 opgrip): its rounds may each end further from
+  // a solution than an earlier one or than the warm start (configs/gripper_lift.yaml
+  // under bdf2 with the proximal stage in the stall fallback, step 123: the warm start
+  // at 0.34, the working set's round at 1.0e-2, the retry on every contact at 0.75 with
+  // forces up to 1.9e5 N, which were returned and inverted an element). Copies of n
+  // values per round (the workspace's, no allocation).
+  NcpResiduals best = residuals_of(lambda, sigma, mu, vscale);
+  w.best_l = lambda;
+  w.best_s = sigma;
+  auto consider = [&](const VecX& lam, const VecX& sig) {
+    const NcpResiduals r = residuals_of(lam, sig, mu, vscale);
+    if (r.max() < best.max() && all_finite(lam) && all_finite(sig)) {
+      best = r;
+      w.best_l = lam;
+      w.best_s = sig;
+    }
+  };
 
   // The polish of a round solved on the operator (lw, sw over the set W of nw
   // contacts): on the dense G_AA of its active contacts, if they are at most
@@ -1868,6 +1895,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
         Gscale = std::max(Gscale, G.last_eigenvalue());
         const bool stalled = part.fallback_iterations < 0;
         polish_candidate = polish_sparse(nw, m, stalled || part.residuals.max() > tol);
+        if (polish_candidate) consider(w.lambda_alt, w.sigma_alt);  // (a second attempt overwrites it)
         if (!stalled || sub.iterations >= budget || part.iterations == 0) break;
         if (polish_candidate && residuals_of(w.lambda_alt, w.sigma_alt, mu, vscale).max() <= tol) break;
         if (options.admm_fallback && attempt == 0 && dense_fallback(nw, m, polish_candidate, sub)) {
@@ -1895,6 +1923,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
         sub.residuals = rp;  // the round's outcome (an upper bound of its reduced residuals)
       }
     }
+    consider(lambda, sigma);
     result.converged = result.residuals.max() <= tol;
     if (result.converged || !all_finite(lambda) || G.failed()) break;
     const bool sub_failed = sub.residuals.max() > tol || result.iterations - spent >= options.max_iterations;
@@ -1910,6 +1939,13 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
     for (int i = 0; i < nc; ++i)
       if (!w.in_set[i] && violates(i)) w.in_set[i] = grown = true;
     if (!grown) break;
+  }
+  // Unconverged (or not finite): the best iterate seen, if it is lower. A converged
+  // result stays as it is (every solve that converges is unchanged by this rule).
+  if (!(result.residuals.max() <= tol) && (best.max() < result.residuals.max() || !all_finite(lambda))) {
+    lambda = w.best_l;
+    sigma = w.best_s;
+    result.residuals = best;
   }
   const auto gnn = [&](int i) { return w.gnn[i] > 0 ? w.gnn[i] : Gscale; };
   classify_by(nc, mu, lambda, sigma, gnn, std::max(Gscale, tiny), modes);
