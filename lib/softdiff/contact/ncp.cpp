@@ -1791,7 +1791,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
       w.lambda_p.setZero(n);
       for (int b = 0; b < nw; ++b) w.lambda_p.segment<3>(3 * w.set[b]) = w.lw.segment<3>(3 * b);
     }
-    double best = candidate ? residuals_of(w.lambda_alt, w.sigma_alt, mu, vscale).max() : infinity;
+    double best_fallback = candidate ? residuals_of(w.lambda_alt, w.sigma_alt, mu, vscale).max() : infinity;
     NcpOptions inner = options;
     inner.working_set = false;
     for (int round = 0; round < fallback_max_rounds; ++round) {
@@ -1828,8 +1828,8 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
       for (int a = 0; a < nc_c; ++a) w.lambda_p.segment<3>(3 * w.ids_c[a]) = w.la.segment<3>(3 * a);
       full_sigma(w.ids_c, w.lambda_p, w.sigma_p);
       const double r = residuals_of(w.lambda_p, w.sigma_p, mu, vscale).max();
-      if (r < best) {
-        best = r;
+      if (r < best_fallback) {
+        best_fallback = r;
         w.lambda_alt = w.lambda_p;
         w.sigma_alt = w.sigma_p;
       }
@@ -1841,7 +1841,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
       if (!grown) break;
     }
     G.restrict_to(w.set);
-    return std::isfinite(best);
+    return std::isfinite(best_fallback);
   };
 
   for (;;) {
