@@ -15,24 +15,11 @@ Needs numpy and scipy. Prints the rank, the reconstruction error |H W H^T - G| /
 and the certificate's margin; refuses (exit 2) if G is not reproduced to 1e-12 or no
 strictly feasible point is found.
 """
-import struct
 import sys
 
 import numpy as np
+from ncp_dump import load_ncp
 from scipy.optimize import linprog
-
-
-def load_ncp(path):
-    b = open(path, 'rb').read()
-    nc = struct.unpack('i', b[:4])[0]
-    n = 3 * nc
-    a = np.frombuffer(b[4:], dtype=np.float64)
-    G = a[:n * n].reshape(n, n, order='F').copy()
-    o = n * n
-    g = a[o:o + n].copy(); o += n
-    mu = a[o:o + nc].copy(); o += nc
-    lam = a[o:o + n].copy()
-    return G, g, mu, lam
 
 
 def frame_from_normal(n):

@@ -15,23 +15,11 @@ OUT.bin: the best forces (raw doubles), e.g. a warm start for the library's solv
 Prints per outer iteration |F(s) - s| and the NCP residuals (those of ncp.cpp's header).
 Needs numpy. ~10 s per s-fixed solve at 150 contacts.
 """
-import struct
 import sys
 import time
 
 import numpy as np
-
-
-def load(path):
-    b = open(path, 'rb').read()
-    nc = struct.unpack('i', b[:4])[0]
-    n = 3 * nc
-    a = np.frombuffer(b[4:], dtype=np.float64)
-    G = a[:n * n].reshape(n, n, order='F').copy()
-    o = n * n
-    g = a[o:o + n].copy(); o += n
-    mu = a[o:o + nc].copy(); o += nc
-    return G, g, mu, a[o:o + n].copy()
+from ncp_dump import load_ncp as load
 
 
 def proj_cone(x, mu):

@@ -279,6 +279,24 @@ TEST(SparseDelassus, ScaledShiftedSolveMatchesTheDense) {
   }
 }
 
+// The dense solve the operator's are compared with: the scene's options at tolerance 1e-10
+// (within round-off of the exact forces at these sizes) and a budget it does not reach.
+contact::NcpOptions reference_options(const Model& model) {
+  contact::NcpOptions o = model.contact.ncp;
+  o.tolerance = 1e-10;
+  o.max_iterations = 20000;
+  return o;
+}
+// Its forces, and its contact velocities in `sigma` if given.
+VecX dense_reference(const ContactData& cd, const contact::NcpOptions& o, VecX* sigma_out = nullptr) {
+  VecX lambda = VecX::Zero(cd.g.size()), sigma;
+  std::vector<contact::Mode> modes;
+  contact::NcpSolver reference;
+  EXPECT_TRUE(reference.solve(cd.G, cd.g, cd.mu, o, lambda, sigma, modes).converged) << "the dense reference";
+  if (sigma_out) *sigma_out = sigma;
+  return lambda;
+}
+
 // The scaled ADMM (admm_scaling) on the operator and on the dense G: converged, and
 // the same contact velocities as the unscaled dense solve (tolerance as below).
 TEST(SparseNcp, ScaledAdmmAgreesWithTheDenseSolver) {
@@ -288,13 +306,10 @@ TEST(SparseNcp, ScaledAdmmAgreesWithTheDenseSolver) {
     step_to_contact(model, data);
     const auto& cd = data.contact;
     const int nc = cd.contacts.size();
-    contact::NcpOptions o = model.contact.ncp;
-    o.tolerance = 1e-10;
-    o.max_iterations = 20000;
-    VecX lam_d = VecX::Zero(3 * nc), sig_d;
+    contact::NcpOptions o = reference_options(model);
     std::vector<contact::Mode> modes;
-    contact::NcpSolver reference;
-    ASSERT_TRUE(reference.solve(cd.G, cd.g, cd.mu, o, lam_d, sig_d, modes).converged);
+    VecX sig_d;
+    const VecX lam_d = dense_reference(cd, o, &sig_d);
     o.admm_scaling = true;
     o.dense_max_contacts = 0;  // every reduced problem by ADMM on the operator
     for (const bool sparse : {false, true}) {
@@ -590,13 +605,9 @@ TEST(SparseNcp, UnconvergedSolveReturnsTheBestIterateItHasSeen) {
   step_to_contact(model, data);
   const auto& cd = data.contact;
   const int nc = cd.contacts.size();
-  contact::NcpOptions o = model.contact.ncp;
-  o.tolerance = 1e-10;
-  o.max_iterations = 20000;
-  VecX lam_d = VecX::Zero(3 * nc), sig_d;
+  contact::NcpOptions o = reference_options(model);
   std::vector<contact::Mode> modes;
-  contact::NcpSolver reference;
-  ASSERT_TRUE(reference.solve(cd.G, cd.g, cd.mu, o, lam_d, sig_d, modes).converged);
+  const VecX lam_d = dense_reference(cd, o);
   // The warm start, on the cones (the formula of ncp.cpp's project_cone).
   VecX warm = lam_d + 1e-4 * lam_d.cwiseAbs().maxCoeff() * random_vector(3 * nc, 7);
   for (int i = 0; i < nc; ++i) {
