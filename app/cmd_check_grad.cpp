@@ -288,7 +288,7 @@ int run_check_grad(const CheckGradOptions& o) {
       VecX sigma, initial, slip;
       integrator::equilibrium_modes(model, data.contact, final.x, data.static_load_step_start, modes, sigma);
       integrator::extended_positions(model, model.initial.x, model.initial.rigid, initial);
-      integrator::contact_slips(model, data.contact.contacts, initial, data.static_load_step_start_extended, slip);
+      integrator::contact_slips(data.contact.contacts, initial, data.static_load_step_start_extended, slip);
       double size = 0;
       for (const auto& b : model.fem.bodies) size = std::max(size, b.bbox_diagonal);
       for (int i = 0; i < static_cast<int>(modes.size()); ++i) {

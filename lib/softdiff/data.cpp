@@ -55,7 +55,6 @@ void Data::restart(const Model& model, bool detection_changed) {
   newton_iterations_used = 0;
   newton_residual = 0;
   static_load_step_start.resize(0);
-  static_load_step_start_rigid.clear();
   static_load_step_start_extended.resize(0);
   static_shifted_iterations = 0;
   timings = {};

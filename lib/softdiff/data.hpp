@@ -158,10 +158,9 @@ struct Data {
   double newton_residual = 0;
   VecX static_load_step_start;       // (3n) solve_static: x at the start of the last load step (the
                                     // static contact derivative's slip over that load step)
-  // solve_static with rigid bodies: their poses at the start of the last load step, and
-  // the extended positions there (3 (n + pseudo-nodes): soft x, then the rigid bodies'
-  // surface vertices posed; static.friction load_step's slip of a rigid point).
-  std::vector<rigid::RigidState> static_load_step_start_rigid;
+  // solve_static: the extended positions at the start of the last load step (3 (n +
+  // pseudo-nodes): soft x, then the rigid bodies' surface vertices posed; static.friction
+  // load_step's slip of a rigid point).
   VecX static_load_step_start_extended;
   int static_shifted_iterations = 0;  // solve_static: Newton iterations of the last solve whose
                                       // tangent was shifted (A + tau I: A not positive definite)

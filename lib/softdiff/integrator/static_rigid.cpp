@@ -238,16 +238,13 @@ void extended_positions(const Model& model, const VecX& x, const std::vector<rig
 
 void record_load_step_start(const Model& model, Data& data, const VecX& x, const std::vector<rigid::RigidState>& poses) {
   data.static_load_step_start = x;
-  data.static_load_step_start_rigid = poses;
   extended_positions(model, x, poses, data.static_load_step_start_extended);
 }
 
-void contact_slips(const Model& model, const collision::ContactSet& contacts, const VecX& from, const VecX& to,
-                   VecX& slip) {
+void contact_slips(const collision::ContactSet& contacts, const VecX& from, const VecX& to, VecX& slip) {
   SOFTDIFF_DEMAND(from.size() == to.size(), "contact_slips: positions of different sizes");
   const int nc = contacts.size();
   slip.setZero(3 * nc);
-  (void)model;
   for (int i = 0; i < nc; ++i) {
     const auto& c = contacts.contacts[static_cast<std::size_t>(i)];
     Vec3 d = Vec3::Zero();
@@ -269,7 +266,7 @@ void static_slip_offset(const Model& model, Data& data, const VecX& x) {
   const VecX& now = model.contact.with_rigid() ? cd.rigid.x : x;
   SOFTDIFF_DEMAND(now.size() == data.static_load_step_start_extended.size(),
                   "static_slip_offset: the load step's start is not recorded (record_load_step_start)");
-  contact_slips(model, cd.contacts, data.static_load_step_start_extended, now, cd.slip_offset);
+  contact_slips(cd.contacts, data.static_load_step_start_extended, now, cd.slip_offset);
 }
 
 StepStatus solve_static_rigid_only(const Model& model, Data& data, const State& in, State& out,

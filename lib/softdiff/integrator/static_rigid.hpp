@@ -92,8 +92,7 @@ StepStatus solve_static_rigid_only(const Model& model, Data& data, const State& 
 
 // static.friction: load_step (docs/method.md "Static equilibrium with contact",
 // *Load-step-anchored friction*; 2026-12-04, branch sfric). record_load_step_start: at a
-// load step's start, x (Data::static_load_step_start), the rigid poses
-// (static_load_step_start_rigid) and the extended positions there
+// load step's start, x (Data::static_load_step_start) and the extended positions there
 // (static_load_step_start_extended: x, then each rigid body's surface vertices posed, as
 // contact::extend_for_detection numbers them). static_slip_offset: after the detection of
 // a Newton iteration (data.contact.contacts; with rigid bodies the extended positions of
@@ -112,8 +111,7 @@ void extended_positions(const Model& model, const VecX& x, const std::vector<rig
 // Per contact of `contacts` the tangential slip of its points from the extended positions
 // `from` to `to` through its frame: slip[3i + r] = t_r . sum_k w_k (X_k(to) - X_k(from))
 // (r = 0, 1; 0 on the normal row).
-void contact_slips(const Model& model, const collision::ContactSet& contacts, const VecX& from, const VecX& to,
-                   VecX& slip);
+void contact_slips(const collision::ContactSet& contacts, const VecX& from, const VecX& to, VecX& slip);
 void static_slip_offset(const Model& model, Data& data, const VecX& x);
 // Empties data.contact.slip_offset when the solve ends, whichever way (the offsets are the
 // static solve's: a later contact solve on the same Data must not see them).
