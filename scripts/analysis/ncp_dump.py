@@ -1,13 +1,14 @@
 """The harness's dense NCP dump (tests/support/ncp_table.hpp, <scene>_<step>.ncp), read by
 the offline studies of scripts/analysis/: int nc, then G (3nc x 3nc, column-major), g (3nc),
-mu (nc) and the warm start lambda (3nc), as doubles."""
+mu (nc) and the solver's RETURNED lambda (3nc; the dump is written after the solve, so it is
+not the warm start), as doubles."""
 import struct
 
 import numpy as np
 
 
 def load_ncp(path):
-    """(G, g, mu, lambda) of a dump."""
+    """(G, g, mu, lambda) of a dump, lambda the returned forces."""
     b = open(path, 'rb').read()
     nc = struct.unpack('i', b[:4])[0]
     n = 3 * nc

@@ -200,6 +200,49 @@ NcpResiduals ncp_residuals_at(const VecX& sigma, const VecX& g, const VecX& mu, 
 
 namespace {
 
+template <typename V>
+bool all_finite(const V& v) {
+  return v.allFinite();
+}
+
+// The best iterate of a loop by the largest NCP residual: the Newton stage's, the
+// proximal point stage's and the operator path's (each its own, in the workspace; they
+// nest). The caller passes the residuals it has computed (none are evaluated here); an
+// iterate is taken only if its largest residual is strictly lower and it is finite.
+// Storage sized by Buffers::resize (n); start() and offer() copy n values, no allocation.
+struct BestIterate {
+  VecX l, s;             // (n) storage; the iterate is its head(size)
+  Eigen::Index size = 0;
+  NcpResiduals r;        // its residuals
+  void resize(Eigen::Index n) {
+    l.resize(n);
+    s.resize(n);
+  }
+  template <typename L, typename S>
+  void start(const L& lam, const S& sig, const NcpResiduals& res) {
+    size = lam.size();
+    l.head(size) = lam;
+    s.head(size) = sig;
+    r = res;
+  }
+  template <typename L, typename S>
+  bool offer(const L& lam, const S& sig, const NcpResiduals& res) {
+    if (!(res.max() < r.max()) || !all_finite(lam) || !all_finite(sig)) return false;
+    l.head(size) = lam;
+    s.head(size) = sig;
+    r = res;
+    return true;
+  }
+  double max() const { return r.max(); }
+  // Copies the best iterate and its residuals out.
+  template <typename L, typename S>
+  void restore(L&& lam, S&& sig, NcpResiduals& res) const {
+    lam = l.head(size);
+    sig = s.head(size);
+    res = r;
+  }
+};
+
 // Every buffer of a solve; shapes in terms of n = 3 nc. (NcpSolver::Workspace is this;
 // the solvers below take the base, which needs no access to NcpSolver's private part.)
 struct Buffers {
@@ -236,13 +279,14 @@ struct Buffers {
   std::vector<int> set_a;        // positions in the working set of the active contacts of a sparse round
   std::vector<int> ids_a;        // their contact ids
   VecX lambda_alt, sigma_alt;    // (n) the polished candidate of a sparse round
-  VecX best_l, best_s;           // (n) the operator path's best iterate of the solve (lowest max residual)
+  BestIterate best_op;           // (n) the operator path's best iterate of the solve (lowest max residual)
   std::vector<Mode> modes_a;
   std::vector<double> gnn;       // (nc) G_NN,i where known (dense G_W), else the power-iteration scale
   std::vector<int> ids_c;        // the candidate set of the operator's stall fallback, ascending
   std::vector<char> in_c;        // (nc) its membership
   // semismooth Newton (newton_alart_curnier())
-  VecX ac_l, ac_s, ac_F, ac_d, ac_Gd, ac_lt, ac_st, ac_Ft, ac_best_l, ac_best_s;  // (n)
+  VecX ac_l, ac_s, ac_F, ac_d, ac_Gd, ac_lt, ac_st, ac_Ft;  // (n)
+  BestIterate ac_best;           // (n) the stage's best iterate
   VecX ac_rho;                   // (nc) rho_i = 1 / G_NN,i
   std::vector<Mode> ac_modes;    // (nc) the modes of the current iterate (breaking: y_N <= 0)
   std::vector<int> ac_active;    // its non-breaking contacts
@@ -252,7 +296,8 @@ struct Buffers {
   VecX ac_in_l, ac_in_s;         // (n) the stage's input, restored unless it converges
   // proximal point (proximal_point_stage())
   VecX pp_G;                     // storage of G + eps D (n n; grown to the largest n seen)
-  VecX pp_D, pp_g, pp_l, pp_s, pp_ls, pp_ss, pp_cl, pp_cs, pp_best_l, pp_best_s;  // (n)
+  VecX pp_D, pp_g, pp_l, pp_s, pp_ls, pp_ss, pp_cl, pp_cs;  // (n)
+  BestIterate pp_best;           // (n) the stage's best iterate
 
   void resize(Eigen::Index n) {
     if (x.size() == n) return;
@@ -261,10 +306,10 @@ struct Buffers {
     in_set.resize(static_cast<std::size_t>(n / 3));
     in_c.resize(static_cast<std::size_t>(n / 3));
     for (VecX* v : {&x, &y, &z, &s, &rhs, &x_prev, &y_prev, &power, &d3, &d3_sqrt_inv, &lambda_best, &lambda_p, &sigma_p, &lambda_kept,
-                     &sigma_kept, &gw, &lw, &sw, &lambda_alt, &sigma_alt, &best_l, &best_s, &ac_l, &ac_s, &ac_F, &ac_d, &ac_Gd, &ac_lt, &ac_st,
-                     &ac_Ft, &ac_best_l, &ac_best_s, &ac_in_l, &ac_in_s, &pp_D, &pp_g, &pp_l, &pp_s, &pp_ls, &pp_ss, &pp_cl, &pp_cs,
-                     &pp_best_l, &pp_best_s})
+                     &sigma_kept, &gw, &lw, &sw, &lambda_alt, &sigma_alt, &ac_l, &ac_s, &ac_F, &ac_d, &ac_Gd, &ac_lt, &ac_st,
+                     &ac_Ft, &ac_in_l, &ac_in_s, &pp_D, &pp_g, &pp_l, &pp_s, &pp_ls, &pp_ss, &pp_cl, &pp_cs})
       v->resize(n);
+    for (BestIterate* b : {&best_op, &ac_best, &pp_best}) b->resize(n);
     ac_rho.resize(n / 3);
     ac_modes.resize(static_cast<std::size_t>(n / 3));
     ac_active.reserve(static_cast<std::size_t>(n / 3));
@@ -285,11 +330,6 @@ struct Problem {
 };
 
 using VecRef = Eigen::Ref<VecX>;
-
-template <typename V>
-bool all_finite(const V& v) {
-  return v.allFinite();
-}
 
 // ADMM with the De Saxce correction (Carpentier, Le Lidec, Montaut 2024, Alg. 1; as in
 // Pinocchio's ADMMContactSolverTpl). Variables: x (the linear-step force), y = P_K(.)
@@ -898,7 +938,7 @@ int newton_alart_curnier(Buffers& w, const Problem& p, VecRef lambda, VecRef sig
   if (nc == 0) return 0;
   auto l = w.ac_l.head(n), s = w.ac_s.head(n), F = w.ac_F.head(n), d = w.ac_d.head(n), Gd = w.ac_Gd.head(n);
   auto lt = w.ac_lt.head(n), st = w.ac_st.head(n), Ft = w.ac_Ft.head(n);
-  auto best_l = w.ac_best_l.head(n), best_s = w.ac_best_s.head(n);
+  BestIterate& best = w.ac_best;
   auto rho = w.ac_rho.head(nc);
   const double Gmax = std::max(p.G.diagonal().maxCoeff(), tiny);
   for (int i = 0; i < nc; ++i) rho[i] = 1 / std::max(p.G(3 * i + 2, 3 * i + 2), 1e-12 * Gmax);
@@ -951,10 +991,8 @@ int newton_alart_curnier(Buffers& w, const Problem& p, VecRef lambda, VecRef sig
   };
   l = lambda;
   s = sigma;
-  best_l = l;
-  best_s = s;
-  NcpResiduals best = residuals_of(l, s, p.mu, p.vscale);
-  const NcpResiduals start = best;
+  best.start(l, s, residuals_of(l, s, p.mu, p.vscale));
+  const NcpResiduals start = best.r;
   double merit = evaluate(l, s, F, true);
   int steps = 0, since_best = 0;
   // Past the tolerance to round-off (Newton converges quadratically there: one or two more
@@ -1034,22 +1072,14 @@ int newton_alart_curnier(Buffers& w, const Problem& p, VecRef lambda, VecRef sig
     s.noalias() = p.G * l;  // exact sigma (no drift from the affine updates)
     s += p.g;
     merit = evaluate(l, s, F, true);
-    const NcpResiduals r = residuals_of(l, s, p.mu, p.vscale);
-    if (r.max() < best.max()) {
-      best = r;
-      best_l = l;
-      best_s = s;
+    if (best.offer(l, s, residuals_of(l, s, p.mu, p.vscale))) {
       since_best = 0;
     } else if (++since_best >= newton_ac_stall_steps) {
       ++steps;
       break;
     }
   }
-  if (best.max() < start.max() && best.max() < residuals.max()) {
-    lambda = best_l;
-    sigma = best_s;
-    residuals = best;
-  }
+  if (best.max() < start.max() && best.max() < residuals.max()) best.restore(lambda, sigma, residuals);
   return steps;
 }
 
@@ -1102,20 +1132,18 @@ int proximal_point_stage(Buffers& w, const Problem& p, VecRef lambda, VecRef sig
   Eigen::Map<MatX> Gp(w.pp_G.data(), n, n);
   auto D = w.pp_D.head(n), gk = w.pp_g.head(n), l = w.pp_l.head(n), s = w.pp_s.head(n);
   auto ls = w.pp_ls.head(n), ss = w.pp_ss.head(n);
-  auto best_l = w.pp_best_l.head(n), best_s = w.pp_best_s.head(n);
+  BestIterate& best = w.pp_best;
   const double Gmax = std::max(p.G.diagonal().maxCoeff(), tiny);
   double eps = prox_eps;
   for (int i = 0; i < nc; ++i) D.segment<3>(3 * i).setConstant(std::max(p.G(3 * i + 2, 3 * i + 2), 1e-12 * Gmax));
   const double target = newton_ac_exact * p.tolerance;
   l = lambda;
   s = sigma;
-  best_l = l;
-  best_s = s;
   auto cl = w.pp_cl.head(n), cs = w.pp_cs.head(n);  // the centre: the last subproblem's solution
   cl = l;
   cs = s;
-  NcpResiduals best = residuals_of(l, s, p.mu, p.vscale);
-  const NcpResiduals start = best;
+  best.start(l, s, residuals_of(l, s, p.mu, p.vscale));
+  const NcpResiduals start = best.r;
   const bool singular_before = w.polish_singular;
   int outer = 0, since_best = 0;
   for (; outer < prox_max_outer && best.max() > target; ++outer) {
@@ -1143,11 +1171,7 @@ int proximal_point_stage(Buffers& w, const Problem& p, VecRef lambda, VecRef sig
     s.noalias() = p.G * l;  // the original sigma
     s += p.g;
     if (!all_finite(l) || !all_finite(s)) break;
-    const NcpResiduals r = residuals_of(l, s, p.mu, p.vscale);
-    if (r.max() < best.max()) {
-      best = r;
-      best_l = l;
-      best_s = s;
+    if (best.offer(l, s, residuals_of(l, s, p.mu, p.vscale))) {
       since_best = 0;
     } else if (++since_best >= prox_stall_outer) {
       ++outer;
@@ -1166,11 +1190,7 @@ int proximal_point_stage(Buffers& w, const Problem& p, VecRef lambda, VecRef sig
     }
   }
   w.polish_singular = singular_before || w.polish_singular;
-  if (best.max() < start.max() && best.max() < residuals.max()) {
-    lambda = best_l;
-    sigma = best_s;
-    residuals = best;
-  }
+  if (best.max() < start.max() && best.max() < residuals.max()) best.restore(lambda, sigma, residuals);
   return outer;
 }
 
@@ -1677,17 +1697,9 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
   // at 0.34, the working set's round at 1.0e-2, the retry on every contact at 0.75 with
   // forces up to 1.9e5 N, which were returned and inverted an element). Copies of n
   // values per round (the workspace's, no allocation).
-  NcpResiduals best = residuals_of(lambda, sigma, mu, vscale);
-  w.best_l = lambda;
-  w.best_s = sigma;
-  auto consider = [&](const VecX& lam, const VecX& sig) {
-    const NcpResiduals r = residuals_of(lam, sig, mu, vscale);
-    if (r.max() < best.max() && all_finite(lam) && all_finite(sig)) {
-      best = r;
-      w.best_l = lam;
-      w.best_s = sig;
-    }
-  };
+  BestIterate& best = w.best_op;
+  best.start(lambda, sigma, residuals_of(lambda, sigma, mu, vscale));
+  NcpResiduals alt_r;  // the residuals of the candidate in lambda_alt / sigma_alt (where there is one)
 
   // The polish of a round solved on the operator (lw, sw over the set W of nw
   // contacts): on the dense G_AA of its active contacts, if they are at most
@@ -1791,7 +1803,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
       w.lambda_p.setZero(n);
       for (int b = 0; b < nw; ++b) w.lambda_p.segment<3>(3 * w.set[b]) = w.lw.segment<3>(3 * b);
     }
-    double best_fallback = candidate ? residuals_of(w.lambda_alt, w.sigma_alt, mu, vscale).max() : infinity;
+    double best_fallback = candidate ? alt_r.max() : infinity;
     NcpOptions inner = options;
     inner.working_set = false;
     for (int round = 0; round < fallback_max_rounds; ++round) {
@@ -1827,11 +1839,13 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
       w.lambda_p.setZero(n);
       for (int a = 0; a < nc_c; ++a) w.lambda_p.segment<3>(3 * w.ids_c[a]) = w.la.segment<3>(3 * a);
       full_sigma(w.ids_c, w.lambda_p, w.sigma_p);
-      const double r = residuals_of(w.lambda_p, w.sigma_p, mu, vscale).max();
+      const NcpResiduals rr = residuals_of(w.lambda_p, w.sigma_p, mu, vscale);
+      const double r = rr.max();
       if (r < best_fallback) {
         best_fallback = r;
         w.lambda_alt = w.lambda_p;
         w.sigma_alt = w.sigma_p;
+        alt_r = rr;
       }
       if (r <= tol || q.residuals.max() > tol) break;  // solved, or the reduced solve failed
       bool grown = false;
@@ -1895,9 +1909,12 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
         Gscale = std::max(Gscale, G.last_eigenvalue());
         const bool stalled = part.fallback_iterations < 0;
         polish_candidate = polish_sparse(nw, m, stalled || part.residuals.max() > tol);
-        if (polish_candidate) consider(w.lambda_alt, w.sigma_alt);  // (a second attempt overwrites it)
+        if (polish_candidate) {  // (a second attempt overwrites it)
+          alt_r = residuals_of(w.lambda_alt, w.sigma_alt, mu, vscale);
+          best.offer(w.lambda_alt, w.sigma_alt, alt_r);
+        }
         if (!stalled || sub.iterations >= budget || part.iterations == 0) break;
-        if (polish_candidate && residuals_of(w.lambda_alt, w.sigma_alt, mu, vscale).max() <= tol) break;
+        if (polish_candidate && alt_r.max() <= tol) break;
         if (options.admm_fallback && attempt == 0 && dense_fallback(nw, m, polish_candidate, sub)) {
           polish_candidate = true;
           break;
@@ -1914,7 +1931,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
     full_sigma(w.set, lambda, sigma);
     result.residuals = residuals_of(lambda, sigma, mu, vscale);
     if (polish_candidate) {
-      const NcpResiduals rp = residuals_of(w.lambda_alt, w.sigma_alt, mu, vscale);
+      const NcpResiduals rp = alt_r;
       if (rp.max() < result.residuals.max()) {
         lambda = w.lambda_alt;
         sigma = w.sigma_alt;
@@ -1923,7 +1940,7 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
         sub.residuals = rp;  // the round's outcome (an upper bound of its reduced residuals)
       }
     }
-    consider(lambda, sigma);
+    best.offer(lambda, sigma, result.residuals);
     result.converged = result.residuals.max() <= tol;
     if (result.converged || !all_finite(lambda) || G.failed()) break;
     const bool sub_failed = sub.residuals.max() > tol || result.iterations - spent >= options.max_iterations;
@@ -1942,11 +1959,8 @@ NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, con
   }
   // Unconverged (or not finite): the best iterate seen, if it is lower. A converged
   // result stays as it is (every solve that converges is unchanged by this rule).
-  if (!(result.residuals.max() <= tol) && (best.max() < result.residuals.max() || !all_finite(lambda))) {
-    lambda = w.best_l;
-    sigma = w.best_s;
-    result.residuals = best;
-  }
+  if (!(result.residuals.max() <= tol) && (best.max() < result.residuals.max() || !all_finite(lambda)))
+    best.restore(lambda, sigma, result.residuals);
   const auto gnn = [&](int i) { return w.gnn[i] > 0 ? w.gnn[i] : Gscale; };
   classify_by(nc, mu, lambda, sigma, gnn, std::max(Gscale, tiny), modes);
   result.converged = result.residuals.max() <= tol && !G.failed();
