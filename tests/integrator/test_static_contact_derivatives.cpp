@@ -78,14 +78,14 @@ Model cube(const Vec3& g, double mu) {
 // cube's top faces, 3 or 4 nodes each: the proximal refinement and the geometry term
 // dH^T lambda of the face's weights). The top cube's vertices sit inside the lower
 // faces' triangles, away from their edges (>= 2.8e-4 m), so each feature pair is unique.
-Model stacked_cubes(double mu) {
+Model stacked_cubes(double mu, const Vec3& g = Vec3(0, 0, -kG)) {
   test::BodySpec lower, upper;
   lower.young = 2e5;
   upper.young = 1e5;
   lower.fixed = [](const Vec3& p) { return p.z() < 1e-9; };
   mesh::TetMesh top = test::box_mesh(2, 2, 2, 0.06, 0.06, 0.06);
   for (int i = 0; i < top.X.cols(); ++i) top.X.col(i) += Vec3(0.025, 0.012, 0.1);
-  Model model = test::make_model({{test::box_mesh(3, 3, 3, 0.1, 0.1, 0.1), lower}, {top, upper}}, Vec3(0, 0, -kG));
+  Model model = test::make_model({{test::box_mesh(3, 3, 3, 0.1, 0.1, 0.1), lower}, {top, upper}}, g);
   set_static(model);
   test::enable_contact(model, {}, contact_spec(mu));
   model.contact.detection.pairs.push_back({1, 0, mu});
@@ -293,11 +293,7 @@ TEST(StaticContactDerivatives, StickingSetBeyond64OnTheOperator) {
 //  - the cube on the plane with mu 0.5 (its corners end on the cone: sliding);
 //  - the slab of MixedSetBeyond64OnTheOperator with mu 0.1 (96 of 100 contacts slide, the
 //    rest stick; dense G_AA crossovers, and the operator).
-// Not here: soft-soft contacts (the stacked cubes under gravity tilted by 20 degrees, mu
-// 0.5, load_step: young and density 7.7e-7 to 5.2e-6, friction 2.1e-4 relative, measured):
-// the derivative holds a face contact's barycentric weights and frame, while the slip it
-// sticks is measured through the current ones (docs/method.md *Load-step-anchored
-// friction*), a term the mode rows do not carry.
+//  - soft-soft contacts (LoadStepFrictionSoftSoftStackedCubes below).
 Model load_step(Model model) {
   model.step.static_friction = StaticFriction::load_step;
   return model;
@@ -316,6 +312,41 @@ TEST(StaticContactDerivatives, LoadStepFrictionMixedSlab) {
     check(model, {{Parameter::young, 0}, {Parameter::poisson, 0}, {Parameter::friction, 0}},
           on_operator ? "slab, mu 0.1, load_step, operator" : "slab, mu 0.1, load_step, dense");
   }
+}
+
+// Soft-soft contacts under load_step (2026-12-04, branch ffric): the stacked cubes under
+// gravity tilted by 20 degrees about y, mu 0.5 (the top cube's vertices on the lower
+// cube's deforming top faces: some stick, some slide). A face contact measures its slip
+// through its current barycentric weights and frame, s = t . sum_k w_k (X_k - X_k^start),
+// so its mode rows carry the face terms dt . d + t . sum_k dw_k (X_k - X_k^start)
+// (contact_step_derivatives.hpp add_slip_jvp) beside H_T dx; without them (sfric) the
+// friction column was 2.1e-4 off, young and density 7.7e-7 to 5.2e-6. The file's steps and
+// tolerance (e = 1e-5 of the scale, solves to 1e-12, 1e-5 relative, the same contacts and
+// modes at theta +/- e, checked); every column of both bodies, and the reverse mode against
+// the transpose of the forward columns (1e-10 relative, as ReverseModeIsTheTranspose: the
+// transposed refinement carries the face terms' transpose).
+TEST(StaticContactDerivatives, LoadStepFrictionSoftSoftStackedCubes) {
+  const double a = 20 * kDeg;
+  const Model model = load_step(stacked_cubes(0.5, Vec3(kG * std::sin(a), 0, -kG * std::cos(a))));
+  const std::vector<ParameterId> params = {{Parameter::young, 0},   {Parameter::young, 1},
+                                           {Parameter::poisson, 1}, {Parameter::density, 1},
+                                           {Parameter::friction, 0}};
+  const MatX J = check(model, params, "stacked cubes, 20 deg, mu 0.5, load_step");
+  Data data(model);
+  const Solution base = solve(model, data);
+  int sticking = 0, sliding = 0;
+  for (auto m : base.modes) {
+    sticking += m == contact::Mode::sticking;
+    sliding += m == contact::Mode::sliding;
+  }
+  EXPECT_GT(sticking, 0);
+  EXPECT_GT(sliding, 0);
+  const VecX bar_x = test::random_vector(J.rows(), 1.0, 7);
+  VecX bar_theta;
+  ASSERT_TRUE(integrator::static_vjp(model, data, base.x, {params, false, {}}, bar_x, bar_theta));
+  const VecX expected = J.transpose() * bar_x;
+  for (Eigen::Index j = 0; j < expected.size(); ++j)
+    EXPECT_NEAR(bar_theta[j], expected[j], 1e-10 * expected.cwiseAbs().maxCoeff()) << "parameter " << j;
 }
 
 }  // namespace static_contact_derivatives

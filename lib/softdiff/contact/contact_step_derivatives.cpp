@@ -23,6 +23,24 @@ Eigen::Matrix<double, 12, 1> gather_contact(const collision::Contact& c, const V
   for (int k = 0; k < c.count; ++k) u.segment<3>(3 * k) = v.segment<3>(3 * c.nodes[k]);
   return u;
 }
+// The directional derivative along dx of the contact's frame components of a nodal field F
+// read through its weights, C^T sum_k w_k F_k (C the frame, w the weights, both moving
+// with dx; F held): dC^T V + C^T sum_k dw_k F_k with V = sum_k w_k F_k. The sigma rows
+// (F the step's velocity) and the load-step slip rows (F the displacement since the load
+// step's start, its tangential components) share it.
+Vec3 frame_field_jvp(const collision::Contact& c, const collision::ContactGeometryDerivative& g, const VecX& F,
+                     const VecX& dx) {
+  const Eigen::Matrix<double, 12, 1> u = gather_contact(c, dx);
+  const Mat3 dC = Eigen::Map<const Mat3>(Eigen::Matrix<double, 9, 1>(g.dframe * u).data());
+  const Eigen::Vector4d dw = g.dweights * u;
+  Vec3 V = Vec3::Zero(), dV = Vec3::Zero();
+  for (int k = 0; k < c.count; ++k) {
+    const Vec3 Fk = F.segment<3>(3 * c.nodes[k]);
+    V += c.weights[k] * Fk;
+    dV += dw[k] * Fk;
+  }
+  return dC.transpose() * V + c.frame.transpose() * dV;
+}
 }  // namespace
 
 // The operator path beyond derivative_dense_max_active active contacts: every active
@@ -341,17 +359,8 @@ void ContactStageDerivative::add_sigma_jvp(const ContactData& cd, const VecX& u_
   for (int i = 0; i < cd.contacts.size(); ++i) {
     const auto& c = cd.contacts.contacts[i];
     const auto& g = geometry_[static_cast<std::size_t>(i)];
-    const Eigen::Matrix<double, 12, 1> u = gather_contact(c, dx);
-    const Mat3 dC = Eigen::Map<const Mat3>(Eigen::Matrix<double, 9, 1>(g.dframe * u).data());
-    const Eigen::Vector4d dw = g.dweights * u;
-    Vec3 V = Vec3::Zero(), dV = Vec3::Zero();
-    for (int k = 0; k < c.count; ++k) {
-      const Vec3 vk = u_sol.segment<3>(3 * c.nodes[k]);
-      V += c.weights[k] * vk;
-      dV += dw[k] * vk;
-    }
-    b.segment<3>(3 * i) += dC.transpose() * V + c.frame.transpose() * dV;
-    b[3 * i + 2] += (g.dgap * u)(0) / h;
+    b.segment<3>(3 * i) += frame_field_jvp(c, g, u_sol, dx);
+    b[3 * i + 2] += (g.dgap * gather_contact(c, dx))(0) / h;
   }
 }
 
@@ -375,6 +384,38 @@ void ContactStageDerivative::add_geometry_vjp(const ContactData& cd, const VecX&
     const Eigen::Matrix<double, 12, 1> gu = g.dweights.transpose() * gw +
                                             g.dframe.transpose() * Eigen::Map<const Eigen::Matrix<double, 9, 1>>(gC.data()) +
                                             g.dgap.transpose() * (bb[2] / h);
+    for (int k = 0; k < c.count; ++k) bar_x.segment<3>(3 * c.nodes[k]) += gu.segment<3>(3 * k);
+  }
+}
+
+void ContactStageDerivative::add_slip_jvp(const ContactData& cd, const VecX& D, const VecX& dx, VecX& b) const {
+  for (int i = 0; i < cd.contacts.size(); ++i) {
+    const auto& c = cd.contacts.contacts[i];
+    b.segment<2>(3 * i) += frame_field_jvp(c, geometry_[static_cast<std::size_t>(i)], D, dx).head<2>();
+  }
+}
+
+void ContactStageDerivative::add_slip_vjp(const ContactData& cd, const VecX& D, const VecX& bar_b,
+                                          VecX& bar_x) const {
+  for (int i = 0; i < cd.contacts.size(); ++i) {
+    const auto& c = cd.contacts.contacts[i];
+    const auto& g = geometry_[static_cast<std::size_t>(i)];
+    const double b0 = bar_b[3 * i], b1 = bar_b[3 * i + 1];
+    if (b0 == 0 && b1 == 0) continue;
+    // d/du of  sum_r b_r (dC_r . d + C_r . sum_k dw_k D_k).
+    const Vec3 t = b0 * c.frame.col(0) + b1 * c.frame.col(1);
+    Eigen::Matrix<double, 4, 1> gw = Eigen::Matrix<double, 4, 1>::Zero();
+    Vec3 d = Vec3::Zero();
+    for (int k = 0; k < c.count; ++k) {
+      const Vec3 Dk = D.segment<3>(3 * c.nodes[k]);
+      gw[k] = t.dot(Dk);
+      d += c.weights[k] * Dk;
+    }
+    Mat3 gC = Mat3::Zero();  // the gradient with respect to the entries of C (column-major, as dframe)
+    gC.col(0) = b0 * d;
+    gC.col(1) = b1 * d;
+    const Eigen::Matrix<double, 12, 1> gu =
+        g.dweights.transpose() * gw + g.dframe.transpose() * Eigen::Map<const Eigen::Matrix<double, 9, 1>>(gC.data());
     for (int k = 0; k < c.count; ++k) bar_x.segment<3>(3 * c.nodes[k]) += gu.segment<3>(3 * k);
   }
 }

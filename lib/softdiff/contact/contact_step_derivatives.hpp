@@ -65,6 +65,17 @@ class ContactStageDerivative {
   // bar_x += the transposes of both, for the cotangents y (of r) and bar_b (of b).
   void add_geometry_vjp(const ContactData& cd, const VecX& u, double h, const VecX& y, const VecX& bar_b,
                         VecX& bar_x) const;
+  // static.friction load_step (docs/method.md *Load-step-anchored friction*, the face terms;
+  // 2026-12-04, branch ffric): contact i's slip since the load step's start is measured
+  // through its current weights w and frame t, s_ir = t_r . sum_k w_k D_k (r = 0, 1; D = X -
+  // X^start on the positions cd's contacts number, the extended ones with rigid bodies).
+  // Beside H_T dx (weights and frame held), its change with the positions has
+  //     b_{3i+r} += dt_r[dx] . d_i + t_r . sum_k dw_k[dx] D_k,   d_i = sum_k w_k D_k,
+  // the geometry derivative's dframe and dweights (zero on planes and box faces); the
+  // normal rows are untouched. add_slip_vjp: bar_x += its transpose for the cotangent
+  // bar_b (its tangential rows; rows beyond 3 nc ignored).
+  void add_slip_jvp(const ContactData& cd, const VecX& D, const VecX& dx, VecX& b) const;
+  void add_slip_vjp(const ContactData& cd, const VecX& D, const VecX& bar_b, VecX& bar_x) const;
   // dmu (nc) of a tangent of the parameters: dmu_i = sum of dp_j over the friction
   // parameters j whose pair rule contact i belongs to (empty if there is none).
   static void friction_tangent(const Model& model, const ContactData& cd, const std::vector<ParameterId>& parameters,

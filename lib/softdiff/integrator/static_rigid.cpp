@@ -238,7 +238,12 @@ void extended_positions(const Model& model, const VecX& x, const std::vector<rig
 
 void record_load_step_start(const Model& model, Data& data, const VecX& x, const std::vector<rigid::RigidState>& poses) {
   data.static_load_step_start = x;
-  extended_positions(model, x, poses, data.static_load_step_start_extended);
+  // The extended positions are read only under static.friction load_step (static_slip_offset,
+  // the static derivative's slip terms, check-grad's count): not posed otherwise.
+  if (model.step.static_friction == StaticFriction::load_step)
+    extended_positions(model, x, poses, data.static_load_step_start_extended);
+  else
+    data.static_load_step_start_extended.resize(0);
 }
 
 void contact_slips(const collision::ContactSet& contacts, const VecX& from, const VecX& to, VecX& slip) {

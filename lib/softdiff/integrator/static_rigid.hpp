@@ -92,9 +92,9 @@ StepStatus solve_static_rigid_only(const Model& model, Data& data, const State& 
 
 // static.friction: load_step (docs/method.md "Static equilibrium with contact",
 // *Load-step-anchored friction*; 2026-12-04, branch sfric). record_load_step_start: at a
-// load step's start, x (Data::static_load_step_start) and the extended positions there
-// (static_load_step_start_extended: x, then each rigid body's surface vertices posed, as
-// contact::extend_for_detection numbers them). static_slip_offset: after the detection of
+// load step's start, x (Data::static_load_step_start) and, under static.friction load_step
+// only (empty otherwise), the extended positions there (static_load_step_start_extended: x,
+// then each rigid body's surface vertices posed, as contact::extend_for_detection numbers them). static_slip_offset: after the detection of
 // a Newton iteration (data.contact.contacts; with rigid bodies the extended positions of
 // the current iterate in data.contact.rigid.x, otherwise x), per contact i the slip of its
 // points since the load step's start through its current frame,

@@ -47,6 +47,13 @@ struct StaticTheta {
   // Rigid bodies' parameters (body, k), after the actuators: k = 0 the mass (the weight
   // m g on the body), k = 1..6 the inertia (no effect on the equilibrium: zero columns).
   std::vector<std::pair<int, int>> rigid_parameters;
+  // Measurement only (2026-12-04, branch ffric): computes the derivative of a free rigid
+  // body in frictional contact beside soft bodies under static.friction load_step, which
+  // is otherwise refused as not validated (docs/method.md *Load-step-anchored friction*,
+  // the free body: it agrees with differences on the cube on the slab, not yet with
+  // friction on the soft corner's walls). For the tests that measure it; the CLI, the
+  // Python module and calibration never set it.
+  bool measure_free_body_friction = false;
 };
 
 // With rigid bodies (docs/method.md "Static equilibrium with rigid bodies", derivatives;
@@ -56,7 +63,7 @@ struct StaticTheta {
 // forces' geometry terms (on the pseudo-nodes too), the lever arms' rotation
 // (sum_k [F_k]x [rho_k]x dtheta) and a hinge basis' change ((n x dp).f on the axis).
 // The rigid equations have no stiffness: they take the proximal block tau_r diag(m I,
-// I_w) (tau_r m = 1e-6 max K_ii) and the refinement removes it as it removes a held
+// I_w) (tau_r m = 1e-4 max K_ii; 1e-6 before ffric) and the refinement removes it as it removes a held
 // body's tau. G is then formed dense over all contacts (H_s K^{-1} H_s^T + sum_r H_r W_r
 // H_r^T). Rows 3n + 6R (the soft dofs, then (dp, dtheta) per body: the check-grad rows).
 // Since rstfree (docs/method.md "Static derivatives: sliders, joint limits, rigid bodies
