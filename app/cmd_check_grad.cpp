@@ -282,34 +282,34 @@ int run_check_grad(const CheckGradOptions& o) {
     // moved tangentially in the earlier ones (from the initial state to the last load
     // step's start, through its frame at x*; the rigid bodies' share included) has a
     // start that depends on theta; counted as path_earlier_load_steps.
-    if (load_step_friction && model.contact.enabled && data.contact.contacts.size() > 0 &&
-        model.step.static_load_steps > 1) {
+    // One pass over the frictional contacts the derivative holds (not breaking), with each
+    // one's tangential displacement: since the initial state through H_T under `iterate`,
+    // from the initial state to the last load step's start under `load_step`.
+    if (model.contact.enabled && !data.contact.contacts.empty() &&
+        (!load_step_friction || model.step.static_load_steps > 1)) {
       std::vector<contact::Mode> modes;
-      VecX sigma, initial, slip;
-      integrator::equilibrium_modes(model, data.contact, final.x, data.static_load_step_start, modes, sigma);
-      integrator::extended_positions(model, model.initial.x, model.initial.rigid, initial);
-      integrator::contact_slips(data.contact.contacts, initial, data.static_load_step_start_extended, slip);
-      double size = 0;
-      for (const auto& b : model.fem.bodies) size = std::max(size, b.bbox_diagonal);
-      for (int i = 0; i < static_cast<int>(modes.size()); ++i) {
-        if (modes[static_cast<std::size_t>(i)] == contact::Mode::breaking || data.contact.mu[i] == 0) continue;
-        if (slip.segment<2>(3 * i).norm() > 1e-9 * size) ++path_earlier_load_steps;
+      VecX sigma, slip;
+      integrator::equilibrium_modes(model, data.contact, final.x,
+                                    load_step_friction ? data.static_load_step_start : model.initial.x, modes, sigma);
+      if (load_step_friction) {
+        VecX initial;
+        integrator::extended_positions(model, model.initial.x, model.initial.rigid, initial);
+        integrator::contact_slips(data.contact.contacts, initial, data.static_load_step_start_extended, slip);
+      } else {
+        slip = data.contact.Ht.transpose() * (final.x - model.initial.x);
       }
-    } else if (!load_step_friction && model.contact.enabled && data.contact.contacts.size() > 0) {
-      std::vector<contact::Mode> modes;
-      VecX sigma;
-      const VecX moved = final.x - model.initial.x;
-      integrator::equilibrium_modes(model, data.contact, final.x, model.initial.x, modes, sigma);
       double size = 0;
       for (const auto& b : model.fem.bodies) size = std::max(size, b.bbox_diagonal);
       for (int i = 0; i < static_cast<int>(modes.size()); ++i) {
-        if (modes[static_cast<std::size_t>(i)] == contact::Mode::breaking || data.contact.mu[i] == 0) continue;
-        Eigen::Vector2d slip;
-        for (int r = 0; r < 2; ++r) slip[r] = data.contact.Ht.col(3 * i + r).dot(moved);
-        if (modes[static_cast<std::size_t>(i)] == contact::Mode::sliding)
+        const contact::Mode mode = modes[static_cast<std::size_t>(i)];
+        if (mode == contact::Mode::breaking || data.contact.mu[i] == 0) continue;
+        const bool moved = slip.segment<2>(3 * i).norm() > 1e-9 * size;
+        if (load_step_friction)
+          path_earlier_load_steps += moved;
+        else if (mode == contact::Mode::sliding)
           ++path_sliding;
-        else if (slip.norm() > 1e-9 * size)
-          ++path_slid_sticking;
+        else
+          path_slid_sticking += moved;
       }
     }
   } else {

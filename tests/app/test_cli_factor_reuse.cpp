@@ -101,6 +101,6 @@ INSTANTIATE_TEST_SUITE_P(
         Refused{"refactor_without_reuse", "{type: cholmod, refactor_iterations: 4}", "", "",
                 "linear_solver.refactor_iterations: only used with factor_reuse: pcg"},
         Refused{"bad_value", "{factor_reuse: yes}", "", "", "linear_solver.factor_reuse"}),
-    [](const auto& info) { return info.param.name; });
+    [](const auto& p) { return p.param.name; });
 
 }  // namespace cli_factor_reuse
