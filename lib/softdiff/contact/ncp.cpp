@@ -7,6 +7,7 @@
 #include <softdiff/core/timer.hpp>
 
 #include <algorithm>
+#include <type_traits>
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
@@ -1359,10 +1360,65 @@ void count_modes(const std::vector<Mode>& modes, NcpResult& result) {
 
 }  // namespace
 
-struct NcpSolver::Workspace : Buffers {};
+struct NcpSolver::Workspace : Buffers {
+  VecX restart_l, restart_s;          // (n) the first result while a restart runs
+  std::vector<Mode> restart_modes;    // (nc)
+};
+
+// Restarting a stalled solve (NcpOptions::restarts; docs/method.md *Restarting a stalled
+// solve*): from the forces an unconverged solve returned, the same solve again, which
+// starts ADMM afresh (penalty, multipliers) and the working set from their support; the
+// lower result is kept, the iterations add up. A converged solve, an invalid input (a
+// non-finite G or g) and non-finite forces are returned as they are. The first result is
+// kept in the workspace (sized with it: no allocation once it has grown).
+template <typename Op>
+NcpResult NcpSolver::solve_restarted(Op& G, const VecX& g, const VecX& mu, const NcpOptions& options, VecX& lambda,
+                                     VecX& sigma, std::vector<Mode>& modes) {
+  NcpResult result = solve_once(G, g, mu, options, lambda, sigma, modes);
+  for (int k = 0; k < options.restarts; ++k) {
+    if (result.converged || !lambda.allFinite() || !sigma.allFinite() || !input_valid(g, mu)) break;
+    if constexpr (std::is_same_v<Op, const MatX>) {
+      if (!G.allFinite()) break;
+    }
+    Workspace& w = *work_;
+    w.restart_l = lambda;
+    w.restart_s = sigma;
+    w.restart_modes = modes;
+    const NcpResult first = result;
+    NcpResult again = solve_once(G, g, mu, options, lambda, sigma, modes);
+    again.iterations += first.iterations;
+    again.rho_updates += first.rho_updates;
+    again.factorization_seconds += first.factorization_seconds;
+    again.restarts = first.restarts + 1;
+    if (again.residuals.max() < first.residuals.max() && lambda.allFinite() && sigma.allFinite()) {
+      result = again;
+    } else {  // the first result stands, with the restart's cost
+      lambda = w.restart_l;
+      sigma = w.restart_s;
+      modes = w.restart_modes;
+      result = first;
+      result.iterations = again.iterations;
+      result.rho_updates = again.rho_updates;
+      result.factorization_seconds = again.factorization_seconds;
+      result.restarts = again.restarts;
+      break;
+    }
+  }
+  return result;
+}
 
 NcpResult NcpSolver::solve(const MatX& G, const VecX& g, const VecX& mu, const NcpOptions& options, VecX& lambda,
                            VecX& sigma, std::vector<Mode>& modes) {
+  return solve_restarted<const MatX>(G, g, mu, options, lambda, sigma, modes);
+}
+
+NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, const NcpOptions& options, VecX& lambda,
+                           VecX& sigma, std::vector<Mode>& modes) {
+  return solve_restarted<SparseDelassus>(G, g, mu, options, lambda, sigma, modes);
+}
+
+NcpResult NcpSolver::solve_once(const MatX& G, const VecX& g, const VecX& mu, const NcpOptions& options,
+                                VecX& lambda, VecX& sigma, std::vector<Mode>& modes) {
   const Eigen::Index n = g.size();
   SOFTDIFF_DEMAND(n == 3 * mu.size() && G.rows() == n && G.cols() == n,
                   "sizes: expected G (3nc x 3nc), g (3nc), mu (nc); got G " + std::to_string(G.rows()) + "x" +
@@ -1644,8 +1700,8 @@ bool polish_rounds_operator(OperatorPolish& o, SparseDelassus& G, const VecX& g,
 // set covers every contact is retried once on all of them. Modes are classified with
 // rho_i = 1 / G_NN,i where a dense G_W gave it, else 1 / L (L the power iteration's
 // largest eigenvalue; the modes at a solution do not depend on rho_i).
-NcpResult NcpSolver::solve(SparseDelassus& G, const VecX& g, const VecX& mu, const NcpOptions& options, VecX& lambda,
-                           VecX& sigma, std::vector<Mode>& modes) {
+NcpResult NcpSolver::solve_once(SparseDelassus& G, const VecX& g, const VecX& mu, const NcpOptions& options,
+                                VecX& lambda, VecX& sigma, std::vector<Mode>& modes) {
   const Eigen::Index n = g.size();
   SOFTDIFF_DEMAND(n == 3 * mu.size() && 3 * static_cast<Eigen::Index>(G.contacts()) == n,
                   "sizes: expected 3 nc rows of g for the operator's " + std::to_string(G.contacts()) +
