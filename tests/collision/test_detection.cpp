@@ -307,6 +307,148 @@ TEST(Detection, FlatEdgeAtATinyGapIsTheFacesContactSharpEdgeIsNot) {
   }
 }
 
+// Records beside an edge or a vertex (docs/method.md *Records beside an edge or a
+// vertex*). A plate's 9 top nodes under the bottom face of a 0.2 m box (box_mesh(1, 1, 1):
+// the face is two triangles, split by a diagonal), 3 of them 7.1e-5 m beside that diagonal
+// (alternately on either side), the others 0.035 m or more from it; the plate's top 1e-4 m
+// or 1e-12 m below the face, or 1e-13 m inside it; the scene turned by a generic rotation.
+// Each node has one record against the box: its face's (kind_b face, n the face normal to
+// 1e-12, the gap to 1e-14: 0.2 m coordinates turned carry ~1e-16 m). Without the rule a
+// node over the higher-index triangle also had the lower one's record with its closest
+// point on the diagonal: d = p - q along the face, so a sideways normal and a gap of
+// -|d| or +|d| (12 records for 9 nodes; at the tiny gaps |n . up| = 0).
+TEST(Detection, NodesBesideAFlatDiagonalHaveOneContactEach) {
+  const double margin = 1e-3, offset = 7.1e-5;
+  for (const double gap : {1e-4, 1e-12, -1e-13}) {
+    Scene s;
+    const int plate = s.add(test::box_mesh(2, 2, 1, 0.1, 0.1, 0.02), Vec3(0.05, 0.05, -0.02 - gap), "plate");
+    const int box = s.add(test::box_mesh(1, 1, 1, 0.2, 0.2, 0.2), Vec3::Zero(), "box");
+    // The box's bottom diagonal: the edge shared by its two triangles at z = 0.
+    const auto& tris = s.surfaces[1].triangles;
+    std::map<std::pair<int, int>, int> bottom_edges;
+    for (int t = 0; t < tris.cols(); ++t) {
+      bool bottom = true;
+      for (int k = 0; k < 3; ++k) bottom = bottom && s.X(2, tris(k, t)) == 0;
+      if (!bottom) continue;
+      for (int k = 0; k < 3; ++k)
+        ++bottom_edges[std::minmax(tris(k, t), tris((k + 1) % 3, t))];
+    }
+    Vec3 d0, d1;
+    int shared = 0;
+    for (const auto& [e, count] : bottom_edges)
+      if (count == 2) {
+        ++shared;
+        d0 = s.X.col(e.first);
+        d1 = s.X.col(e.second);
+      }
+    ASSERT_EQ(shared, 1);
+    const Vec3 along = (d1 - d0).normalized(), side = Vec3::UnitZ().cross(along);
+    // The plate's top nodes on the diagonal, moved off it.
+    int top = 0, moved = 0;
+    for (int i = plate; i < box; ++i) {
+      if (std::abs(s.X(2, i) + gap) > 1e-15) continue;
+      ++top;
+      const Vec3 r = Vec3(s.X(0, i), s.X(1, i), 0) - d0;  // in the face's plane z = 0
+      if ((r - r.dot(along) * along).norm() < 1e-9) s.X.col(i) += (moved++ % 2 == 0 ? 1.0 : -1.0) * offset * side;
+    }
+    ASSERT_EQ(top, 9);
+    ASSERT_EQ(moved, 3);
+    const Mat3 R = Eigen::AngleAxisd(0.7, Vec3(0.3, -0.5, 0.8).normalized()).toRotationMatrix();
+    s.X = R * s.X;
+    const Vec3 down = -(R * Vec3::UnitZ());  // the box's bottom face's outward normal
+    ContactSet cs;
+    CollisionDetector(model_of(s, {}, {{0, 1, 0}}, margin)).detect(s.x(), cs);
+    std::map<int, int> records;
+    for (const auto& c : cs.contacts) {
+      if (c.kind != ContactKind::vertex_triangle || c.side_a != 0) continue;
+      check_contact(c);
+      ++records[c.nodes[0]];
+      EXPECT_EQ(c.kind_b, Feature::face) << "node " << c.nodes[0] << ", gap " << gap;
+      EXPECT_LT((c.frame.col(2) - down).norm(), 1e-12) << "node " << c.nodes[0] << ", gap " << gap;
+      EXPECT_NEAR(c.gap, gap, 1e-14) << "node " << c.nodes[0];
+    }
+    EXPECT_EQ(records.size(), 9u) << "gap " << gap;
+    for (const auto& [node, count] : records) EXPECT_EQ(count, 1) << "node " << node << ", gap " << gap;
+  }
+}
+
+// A single tetrahedron (its apex p, the apex's angle-weighted normal along c) beside a
+// 0.2 m box (box_mesh(1, 1, 1)), the scene turned by a generic rotation.
+Scene apex_by_box(const Vec3& p, const Vec3& c) {
+  Scene s;
+  s.add(test::box_mesh(1, 1, 1, 0.2, 0.2, 0.2), Vec3::Zero(), "box");
+  const Vec3 u = c.normalized();
+  const Vec3 e1 = u.unitOrthogonal(), e2 = u.cross(e1);
+  mesh::TetMesh t;
+  t.X.resize(3, 4);
+  t.X.col(0) = p;
+  for (int k = 0; k < 3; ++k) {
+    const double a = 2 * M_PI * k / 3;
+    t.X.col(k + 1) = p + 0.05 * (std::cos(a) * e1 + std::sin(a) * e2 - 1.5 * u);
+  }
+  t.tets.resize(4, 1);
+  t.tets << 0, 1, 2, 3;
+  if ((t.X.col(1) - p).cross(t.X.col(2) - p).dot(t.X.col(3) - p) < 0) std::swap(t.tets(1, 0), t.tets(2, 0));
+  s.add(t, Vec3::Zero(), "tip");
+  const Mat3 R = Eigen::AngleAxisd(0.7, Vec3(0.3, -0.5, 0.8).normalized()).toRotationMatrix();
+  s.X = R * s.X;
+  return s;
+}
+
+// A vertex under a sharp edge: the fingertip case of configs/gripper_lift.yaml (a cylinder
+// vertex 43 um below a fingertip's corner edge, beside its pad face). The apex 1e-5 m in
+// front of the box's side face y = 0 and 4.3e-5 m below its top edge, its normal towards
+// the box and down. One record: the side face's (n the face's outward normal -y, gap
+// +1e-5 m). Without the rule the top face's triangle, where it is the edge's lower index,
+// gave a second one with its closest point on the edge: d = p - q points out and down,
+// the sign test against the edge's pseudo-normal flips it, so n = -d / |d| is mostly up
+// (n_z 0.97) and the gap -|d| = -4.4e-5 m, a penetration read from an apex that is
+// outside (it held the cylinder up without a friction limit). Outside the edge's wedge
+// (the apex 2e-4 m beyond the side face and above the top face) the edge's record is the
+// apex's closest point and stays: n along the edge's bisector, gap +|p - q|.
+TEST(Detection, VertexUnderASharpEdgeHasOnlyTheFacesRecord) {
+  const double margin = 1e-3;
+  const Mat3 R = Eigen::AngleAxisd(0.7, Vec3(0.3, -0.5, 0.8).normalized()).toRotationMatrix();
+  const Vec3 centre(0.1, 0.1, 0.1);
+  // Each of the top face's four edges (the configuration turned about the box's vertical
+  // axis): whether the top triangle or the side one is the edge's lower index varies.
+  for (int side = 0; side < 4; ++side) {
+    SCOPED_TRACE("side " + std::to_string(side));
+    const Mat3 Z = Eigen::AngleAxisd(side * M_PI / 2, Vec3::UnitZ()).toRotationMatrix();
+    const auto turned = [&](const Vec3& q) { return Vec3(Z * (q - centre) + centre); };
+    {
+      const Scene s = apex_by_box(turned(Vec3(0.1, -1e-5, 0.2 - 4.3e-5)), Z * Vec3(0, 1, -0.3));
+      ContactSet cs;
+      CollisionDetector(model_of(s, {}, {{1, 0, 0}}, margin)).detect(s.x(), cs);
+      int records = 0;
+      for (const auto& c : cs.contacts) {
+        if (c.kind != ContactKind::vertex_triangle || c.side_a != 1 || c.nodes[0] != 8) continue;
+        ++records;
+        check_contact(c);
+        EXPECT_EQ(c.kind_b, Feature::face);
+        EXPECT_LT((c.frame.col(2) - R * Z * Vec3(0, -1, 0)).norm(), 1e-12);
+        EXPECT_NEAR(c.gap, 1e-5, 1e-15);
+      }
+      EXPECT_EQ(records, 1);
+    }
+    {
+      const Scene s = apex_by_box(turned(Vec3(0.1, -2e-4, 0.2 + 2e-4)), Z * Vec3(0, 1, -1));
+      ContactSet cs;
+      CollisionDetector(model_of(s, {}, {{1, 0, 0}}, margin)).detect(s.x(), cs);
+      int records = 0;
+      for (const auto& c : cs.contacts) {
+        if (c.kind != ContactKind::vertex_triangle || c.side_a != 1 || c.nodes[0] != 8) continue;
+        ++records;
+        check_contact(c);
+        EXPECT_EQ(c.kind_b, Feature::edge);
+        EXPECT_LT((c.frame.col(2) - R * Z * Vec3(0, -1, 1).normalized()).norm(), 1e-10);
+        EXPECT_NEAR(c.gap, 2e-4 * std::sqrt(2.0), 1e-15);
+      }
+      EXPECT_EQ(records, 1);
+    }
+  }
+}
+
 TEST(Detection, RelativeVelocityAndGapRate) {
   const double margin = 1e-3;
   for (const double gap : {4e-4, -2e-4}) {

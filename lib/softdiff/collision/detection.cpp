@@ -252,6 +252,10 @@ struct CollisionDetector::Impl {
   Vec3 vertex_normal(const SurfaceData& s, const VecX& x, int w) const;
   Vec3 edge_normal(const SurfaceData& s, int e) const;
   bool is_flat(const SurfaceData& s, int e) const;  // the edge's two faces are (nearly) coplanar
+  // Whether another triangle of the edge or vertex of t that holds r (p's closest point on
+  // t) has its own closest point to p off that feature (soft_soft's vertex-triangle loop).
+  bool off_feature(const SurfaceData& s, const VecX& x, const Vec3& p, int v, int t, const PointTriangleResult& r,
+                   bool self) const;
   void vertex_obstacle(const PairRule& rule, const VecX& x, ContactSet& out, DetectionStats& stats);
   void soft_soft(const PairRule& rule, const VecX& x, ContactSet& out, DetectionStats& stats);
   void add_candidates(bool self, const SurfaceData& A, const SurfaceData& B, int ta, int tb, const VecX& x);
@@ -407,6 +411,36 @@ Vec3 CollisionDetector::Impl::vertex_normal(const SurfaceData& s, const VecX& x,
     n += std::atan2(e1.cross(e2).norm(), e1.dot(e2)) * s.face_normal[t];
   }
   return unit_or(n, Vec3::Zero());
+}
+
+bool CollisionDetector::Impl::off_feature(const SurfaceData& s, const VecX& x, const Vec3& p, int v, int t,
+                                          const PointTriangleResult& r, bool self) const {
+  const auto& T = s.surface->triangles;
+  const auto P = [&](int node) { return Vec3(x.segment<3>(3 * node)); };
+  // Is the closest point r2 of triangle u on the feature (edge e = (a, b), or vertex a)?
+  const auto on_feature = [&](int u, const PointTriangleResult& r2, int e, int a, int b) {
+    if (r2.feature == Feature::face) return false;
+    if (r2.feature == Feature::edge) return e >= 0 && s.tri_edges[u][r2.local] == e;
+    const int w = T(r2.local, u);
+    return w == a || w == b;
+  };
+  const auto other_off = [&](int u, int e, int a, int b) {
+    if (u < 0 || u == t || (self && s.skip_vt(v, u))) return false;
+    const PointTriangleResult r2 = point_triangle_closest(p, P(T(0, u)), P(T(1, u)), P(T(2, u)));
+    return !on_feature(u, r2, e, a, b);
+  };
+  if (r.feature == Feature::edge) {
+    const int e = s.tri_edges[t][r.local];
+    const int a = s.surface->edges(0, e), b = s.surface->edges(1, e);
+    for (int k = 0; k < 2; ++k)
+      if (other_off(s.edge_tris[e][k], e, a, b)) return true;
+    return false;
+  }
+  const int w = T(r.local, t);
+  const int lw = s.local[w];
+  for (int i = s.vt_begin[lw]; i < s.vt_begin[lw + 1]; ++i)
+    if (other_off(s.vt[i], -1, w, w)) return true;
+  return false;
 }
 
 bool CollisionDetector::Impl::is_flat(const SurfaceData& s, int e) const {
@@ -570,6 +604,19 @@ void CollisionDetector::Impl::soft_soft(const PairRule& rule, const VecX& x, Con
     }
     const Vec3 d = p - r.point;
     const double dist = std::sqrt(r.dist2);
+    // Records beside a feature (docs/method.md *Records beside an edge or a vertex*): q on
+    // an edge or a vertex of t is the vertex's closest point on the surface only if no
+    // other triangle of that feature (one not skipped for v) has its closest point to p off
+    // the feature, inside its face or on another of its edges or vertices. Such a triangle
+    // holds p strictly closer (q lies in it too, and a triangle's closest point is unique)
+    // and gives p its own record; t's would read the lateral offset p - q as a normal and a
+    // gap of +-|p - q| (a node beside a flat diagonal pushed sideways, a cylinder vertex
+    // 43 um below a fingertip's edge held up). Dropped beyond kFlatDistance times t's size
+    // (within it the feature's record takes the face normal above, and dropping it would
+    // make the owner switch with round-off). Flat and sharp features alike.
+    if (r.feature != Feature::face && dist > kFlatDistance * triangle_scale(P(T(0, t)), P(T(1, t)), P(T(2, t))) &&
+        off_feature(S, x, p, v, t, r, self))
+      continue;
     const double sign = d.dot(pseudo) < 0 ? -1.0 : 1.0;
     // The normal (docs/method.md "Contact normals at tiny gaps"): d / |d| is noise when
     // |d| is round-off (its components along the face are ~eps |x| / |d|: 1e-5 rad at a
