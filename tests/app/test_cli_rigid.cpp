@@ -658,14 +658,16 @@ TEST(Cli, PadsHoldTheBlockByFrictionAndLetItSlipUnderTooLittleGrip) {
   EXPECT_LT(slips.v_end, 0.0);
 }
 
-// configs/gripper_lift.yaml as shipped, whole (150 steps of 10 ms; ~30 s on one core):
+// configs/gripper_lift.yaml as shipped, whole (150 steps of 10 ms; ~170 s on one core):
 // the Gripper lifts its free cylinder off the pedestal that drops 20 mm at 1.2-1.3 s and
-// holds it. It completes (exit 0, status complete) and the cylinder ends within 1 mm of
-// its start (measured 0.63 mm of sink: z 0.079374 m from 0.08; dropped, it would follow
-// the pedestal to ~0.06 m). The grip's NCP stops above its tolerance on some steps (46,
-// warned; docs/method.md *The NCP on the grip, measured*), so this run is sensitive to
-// how an unconverged solve's output is chosen: a change there (2026-12-04, reverted) made
-// it diverge at step 149, which the suite's 0.6 s run of every shipped scene cannot see.
+// holds it by friction. Its servos end at 0.06 N m, above the Coulomb bound (0.040 N m
+// holds, 0.039 slides: docs/method.md "The Gripper lifting its free object"). It completes
+// (exit 0, status complete) and the cylinder ends within 1 mm of its start (measured
+// z 0.0800011 m from 0.08: it rises 1 um as the fingers close; dropped, it would follow
+// the pedestal to ~0.06 m). The grip's NCP stops above its tolerance on a few steps (5
+// of 150, warned; docs/method.md *The NCP on the grip, measured*); until the edge-record
+// rule (2026-12-04) the scene's grip was 0.03 N m, below the bound, and its "hold" rested
+// on a spurious fingertip-edge record (Cli.GripperLiftAtTheOldGripSlips).
 TEST(Cli, GripperLiftHoldsItsCylinderOverTheWholeRun) {
   const fs::path scene = kRigidRoot / "configs/gripper_lift.yaml";
   const fs::path dir = softdiff::test::fresh_dir(kRigidWork, "gripper_lift_whole");
@@ -681,6 +683,36 @@ TEST(Cli, GripperLiftHoldsItsCylinderOverTheWholeRun) {
   std::printf("gripper_lift: the cylinder's z %.6f m at the start, %.6f m at 1.5 s (sink %.3f mm)\n", p[2],
               p[3 * (T - 1) + 2], 1e3 * sink);
   EXPECT_LT(std::abs(sink), 1e-3);
+}
+
+// The old grip of configs/gripper_lift.yaml (servos ending at 0.03 N m: 0.10-0.13 N per
+// finger, below the m g / (2 mu) = 0.173 N that mu 0.85 needs for the 30 g cylinder). It
+// used to "hold": a cylinder vertex 43 um below finger_b's fingertip edge had a record
+// whose normal pointed up with a gap of -4.3e-5 m (the vertex's offset below the edge read
+// as a penetration), which carried the weight without a friction limit. With one record
+// per vertex (its closest feature; docs/method.md *Records beside an edge or a vertex*)
+// friction alone acts, and the cylinder slides down after the pedestal, as Coulomb says:
+// it ends more than 10 mm below its start (measured 20 mm: on the pedestal's final
+// position, z 0.06 m). 150 steps, ~35 s on one core (fewer contacts once it slides).
+TEST(Cli, GripperLiftAtTheOldGripSlips) {
+  const fs::path scene = kRigidRoot / "configs/gripper_lift.yaml";
+  const fs::path dir = softdiff::test::fresh_dir(kRigidWork, "gripper_lift_old_grip");
+  const std::string old_grip = "[[0,0.0042],[0.2,0.0042],[1.2,0.03]]";
+  const auto r = run_cli("simulate '" + scene.string() + "' -o out.h5 --quiet --threads 1 --set "
+                         "bodies.finger_a.actuators.servo_a.schedule=" + old_grip +
+                             " --set bodies.finger_b.actuators.servo_b.schedule=" + old_grip,
+                         dir);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const hid_t f = H5Fopen((dir / "out.h5").string().c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  const std::vector<double> p = h5_read(f, "/bodies/object/position");
+  H5Fclose(f);
+  const std::size_t T = p.size() / 3;
+  ASSERT_EQ(T, 151u);
+  const double sink = p[2] - p[3 * (T - 1) + 2];
+  std::printf("gripper_lift at 0.03 N m: the cylinder's z %.6f m at the start, %.6f m at 1.5 s (sink %.3f mm)\n",
+              p[2], p[3 * (T - 1) + 2], 1e3 * sink);
+  EXPECT_GT(sink, 10e-3);
 }
 
 // configs/pads_lift.yaml (issue 21 item 6, the lift reduced; docs/method.md "Moving
