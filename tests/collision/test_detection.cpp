@@ -416,8 +416,11 @@ TEST(Detection, VertexUnderASharpEdgeHasOnlyTheFacesRecord) {
     SCOPED_TRACE("side " + std::to_string(side));
     const Mat3 Z = Eigen::AngleAxisd(side * M_PI / 2, Vec3::UnitZ()).toRotationMatrix();
     const auto turned = [&](const Vec3& q) { return Vec3(Z * (q - centre) + centre); };
-    {
-      const Scene s = apex_by_box(turned(Vec3(0.1, -1e-5, 0.2 - 4.3e-5)), Z * Vec3(0, 1, -0.3));
+    // The apex's (node 8's) records against the box, each checked; expected: exactly one,
+    // of kind `feature`, normal n to `n_tolerance`, gap `gap` to 1e-15 m.
+    const auto expect_one_record = [&](const Vec3& apex, const Vec3& normal, Feature feature, const Vec3& n,
+                                       double n_tolerance, double gap) {
+      const Scene s = apex_by_box(turned(apex), Z * normal);
       ContactSet cs;
       CollisionDetector(model_of(s, {}, {{1, 0, 0}}, margin)).detect(s.x(), cs);
       int records = 0;
@@ -425,27 +428,15 @@ TEST(Detection, VertexUnderASharpEdgeHasOnlyTheFacesRecord) {
         if (c.kind != ContactKind::vertex_triangle || c.side_a != 1 || c.nodes[0] != 8) continue;
         ++records;
         check_contact(c);
-        EXPECT_EQ(c.kind_b, Feature::face);
-        EXPECT_LT((c.frame.col(2) - R * Z * Vec3(0, -1, 0)).norm(), 1e-12);
-        EXPECT_NEAR(c.gap, 1e-5, 1e-15);
+        EXPECT_EQ(c.kind_b, feature);
+        EXPECT_LT((c.frame.col(2) - R * Z * n).norm(), n_tolerance);
+        EXPECT_NEAR(c.gap, gap, 1e-15);
       }
       EXPECT_EQ(records, 1);
-    }
-    {
-      const Scene s = apex_by_box(turned(Vec3(0.1, -2e-4, 0.2 + 2e-4)), Z * Vec3(0, 1, -1));
-      ContactSet cs;
-      CollisionDetector(model_of(s, {}, {{1, 0, 0}}, margin)).detect(s.x(), cs);
-      int records = 0;
-      for (const auto& c : cs.contacts) {
-        if (c.kind != ContactKind::vertex_triangle || c.side_a != 1 || c.nodes[0] != 8) continue;
-        ++records;
-        check_contact(c);
-        EXPECT_EQ(c.kind_b, Feature::edge);
-        EXPECT_LT((c.frame.col(2) - R * Z * Vec3(0, -1, 1).normalized()).norm(), 1e-10);
-        EXPECT_NEAR(c.gap, 2e-4 * std::sqrt(2.0), 1e-15);
-      }
-      EXPECT_EQ(records, 1);
-    }
+    };
+    expect_one_record(Vec3(0.1, -1e-5, 0.2 - 4.3e-5), Vec3(0, 1, -0.3), Feature::face, Vec3(0, -1, 0), 1e-12, 1e-5);
+    expect_one_record(Vec3(0.1, -2e-4, 0.2 + 2e-4), Vec3(0, 1, -1), Feature::edge, Vec3(0, -1, 1).normalized(), 1e-10,
+                      2e-4 * std::sqrt(2.0));
   }
 }
 

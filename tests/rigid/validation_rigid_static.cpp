@@ -129,6 +129,44 @@ TEST(RigidStatic, CubeRestsOnASoftSlab) {
   EXPECT_EQ(out.rigid[0].velocity.norm(), 0);  // static: velocities zero
 }
 
+// The static solve of cube_in_soft_corner at the offset (ox, oy) from the slab's lattice
+// (tolerance 1e-12, NCP 1e-12, at most 200 Newton iterations), and the closed form of the
+// tests below: the reaction on the cube is minus its weight to the NCP's tolerance (1e-12
+// relative: 1e-7 of the weight), each support carries its component (slab z, wall_x x,
+// wall_y y) to 1e-3 of the weight (the deformed surfaces' normals tilt by ~1e-3).
+struct CornerSolve {
+  Model model;
+  State out;
+  StepStatus status;
+  int contacts = 0;
+  Vec3 reaction, weight;
+};
+CornerSolve solve_corner_and_check(double ox, double oy) {
+  CornerSolve c{static_of(test::rigid_scenes::cube_in_soft_corner(2e-3, 4, ox, oy)), {}, {}, 0, {}, {}};
+  c.model.step.static_max_iterations = 200;
+  c.model.step.static_tolerance = 1e-12;
+  c.model.contact.ncp = test::rigid_scenes::tight_ncp(1e-12);
+  Data data(c.model);
+  c.status = integrator::solve_static(c.model, data, c.model.initial, c.out);
+  EXPECT_TRUE(c.status.ok()) << describe(c.model, c.status);
+  EXPECT_TRUE(data.contact.result.converged);
+  if (!c.status.ok()) return c;
+  // names: body 0, wall_x 1, wall_y 2, cube 3
+  c.reaction = force_on(data, 3, &c.contacts);
+  c.weight = c.model.rigid[0].mass * c.model.step.gravity;
+  const Vec3 slab = -force_on(data, 0), wx = -force_on(data, 1), wy = -force_on(data, 2);
+  const double W = c.weight.norm();
+  std::cout << "[rigid static] free cube in a soft corner at (" << ox << ", " << oy << ") from the lattice: "
+            << c.status.iterations << " Newton iterations, " << c.contacts << " contacts; reaction "
+            << c.reaction.transpose() << " N, weight " << c.weight.transpose() << " N; slab " << slab.transpose()
+            << ", wall_x " << wx.transpose() << ", wall_y " << wy.transpose() << " N\n";
+  EXPECT_LT((c.reaction + c.weight).norm(), 1e-7 * W);
+  EXPECT_NEAR(slab.z(), -c.weight.z(), 1e-3 * W);
+  EXPECT_NEAR(wx.x(), -c.weight.x(), 1e-3 * W);
+  EXPECT_NEAR(wy.y(), -c.weight.y(), 1e-3 * W);
+  return c;
+}
+
 // A free cube leaning into a soft corner (issue 21, srfree; rigid_scenes.hpp
 // cube_in_soft_corner, moved (1.3, -1.2) mm off the slab's lattice: on it the static solve
 // cycles, docs/method.md srfree),
@@ -140,21 +178,10 @@ TEST(RigidStatic, CubeRestsOnASoftSlab) {
 // 0.01 m thickness: ~1e-3; 1e-3 of the weight bounds it, measured 4e-5). Independent reference: the dynamic run of the same scene (implicit Euler,
 // damped supports) to rest, whose pose must be the static one.
 TEST(RigidStatic, FreeCubeLeansIntoASoftCorner) {
-  Model model = static_of(test::rigid_scenes::cube_in_soft_corner(2e-3, 4, 1.3e-3, -1.2e-3));
-  model.step.static_max_iterations = 200;
-  model.step.static_tolerance = 1e-12;
-  model.contact.ncp = test::rigid_scenes::tight_ncp(1e-12);
-  Data data(model);
-  State out;
-  const StepStatus st = integrator::solve_static(model, data, model.initial, out);
-  ASSERT_TRUE(st.ok()) << describe(model, st);
-  ASSERT_TRUE(data.contact.result.converged);
-  // names: body 0, wall_x 1, wall_y 2, cube 3
-  int count = 0;
-  const Vec3 f = force_on(data, 3, &count);
-  const Vec3 weight = model.rigid[0].mass * model.step.gravity;
-  const Vec3 slab = -force_on(data, 0), wx = -force_on(data, 1), wy = -force_on(data, 2);
-  const double W = weight.norm();
+  const CornerSolve c = solve_corner_and_check(1.3e-3, -1.2e-3);
+  ASSERT_TRUE(c.status.ok());
+  const State& out = c.out;
+  const Model& model = c.model;
   // The dynamic run to rest.
   Model dynamic = test::rigid_scenes::cube_in_soft_corner(2e-3, 4, 1.3e-3, -1.2e-3);
   dynamic.contact.ncp = test::rigid_scenes::tight_ncp(1e-12);
@@ -163,16 +190,9 @@ TEST(RigidStatic, FreeCubeLeansIntoASoftCorner) {
   const Vec3 dp = out.rigid[0].position - rest.rigid[0].position;
   const double dtheta = 2 * (out.rigid[0].orientation.conjugate() * rest.rigid[0].orientation).vec().norm();
   const Vec3 moved = out.rigid[0].position - model.initial.rigid[0].position;
-  std::cout << "[rigid static] free cube in a soft corner: " << st.iterations << " Newton iterations, " << count
-            << " contacts; reaction " << f.transpose() << " N, weight " << weight.transpose() << " N; slab "
-            << slab.transpose() << ", wall_x " << wx.transpose() << ", wall_y " << wy.transpose()
-            << " N; moved " << moved.transpose() << " m; dynamic rest: position difference " << dp.transpose()
-            << " m, rotation difference " << dtheta << " rad\n";
-  // The rigid equations hold to the NCP's tolerance (1e-12 relative): 1e-7 of the weight.
-  EXPECT_LT((f + weight).norm(), 1e-7 * W);
-  EXPECT_NEAR(slab.z(), -weight.z(), 1e-3 * W);
-  EXPECT_NEAR(wx.x(), -weight.x(), 1e-3 * W);
-  EXPECT_NEAR(wy.y(), -weight.y(), 1e-3 * W);
+  std::cout << "[rigid static] free cube in a soft corner: moved " << moved.transpose()
+            << " m; dynamic rest: position difference " << dp.transpose() << " m, rotation difference " << dtheta
+            << " rad\n";
   // The cube moved into the corner (+x, +y) and down, by the supports' compliance.
   EXPECT_GT(moved.x(), 0);
   EXPECT_GT(moved.y(), 0);
@@ -192,27 +212,8 @@ TEST(RigidStatic, FreeCubeLeansIntoASoftCorner) {
 // 3.8e-5). With one record per node it converges as off the lattice (6 iterations
 // measured; at most 20 asserted), to the same closed form as above.
 TEST(RigidStatic, FreeCubeInASoftCornerOnTheSlabLattice) {
-  Model model = static_of(test::rigid_scenes::cube_in_soft_corner(2e-3, 4));
-  model.step.static_max_iterations = 200;
-  model.step.static_tolerance = 1e-12;
-  model.contact.ncp = test::rigid_scenes::tight_ncp(1e-12);
-  Data data(model);
-  State out;
-  const StepStatus st = integrator::solve_static(model, data, model.initial, out);
-  ASSERT_TRUE(st.ok()) << describe(model, st);
-  ASSERT_TRUE(data.contact.result.converged);
-  int count = 0;
-  const Vec3 f = force_on(data, 3, &count);
-  const Vec3 weight = model.rigid[0].mass * model.step.gravity;
-  const Vec3 slab = -force_on(data, 0), wx = -force_on(data, 1), wy = -force_on(data, 2);
-  const double W = weight.norm();
-  std::cout << "[rigid static] free cube in a soft corner on the lattice: " << st.iterations << " Newton iterations, "
-            << count << " contacts; reaction " << f.transpose() << " N, weight " << weight.transpose() << " N\n";
-  EXPECT_LE(st.iterations, 20);
-  EXPECT_LT((f + weight).norm(), 1e-7 * W);
-  EXPECT_NEAR(slab.z(), -weight.z(), 1e-3 * W);
-  EXPECT_NEAR(wx.x(), -weight.x(), 1e-3 * W);
-  EXPECT_NEAR(wy.y(), -weight.y(), 1e-3 * W);
+  const CornerSolve c = solve_corner_and_check(0, 0);
+  EXPECT_LE(c.status.iterations, 20);
 }
 
 // A bar (0.2 x 0.04 x 0.02 m, 800 kg/m^3) hinged about y through its left end's
