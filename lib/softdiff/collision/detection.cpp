@@ -194,6 +194,11 @@ struct SurfaceData {
   std::unique_ptr<fcl::DynamicAABBTreeCollisionManagerd> manager;
   bool registered = false;
 
+  // The lowest-index triangle of vertex v (a global node of this surface) and of edge e:
+  // the broad phase emits a candidate only from the overlapping pair of its features'
+  // lowest-index triangles (add_candidates).
+  int first_triangle_of_vertex(int v) const { return vt[static_cast<std::size_t>(vt_begin[local[v]])]; }
+  int first_triangle_of_edge(int e) const { return edge_tris[static_cast<std::size_t>(e)][0]; }
   bool is_neighbor(int v, int w) const {
     const int lv = local[v];
     return std::binary_search(ring.begin() + ring_begin[lv], ring.begin() + ring_begin[lv + 1], w);
@@ -528,6 +533,16 @@ void CollisionDetector::Impl::vertex_obstacle(const PairRule& rule, const VecX& 
 // The candidates of one overlapping triangle pair (ta of A, tb of B): the features
 // whose own boxes are within the margin (a necessary condition for a distance <
 // margin), minus the self-contact exclusions. Called from FCL's collide callback.
+// Each candidate once: from the overlapping pair of its features' lowest-index triangles
+// (a vertex's, an edge's). That pair is always reported when the candidate's boxes are
+// within the margin: each of those triangles' boxes contains the feature, and the
+// inflations of the two surfaces' boxes add up to at least the pair's margin (run()). In
+// self-contact, where that pair shares a vertex or an edge, the candidate is one the
+// exclusions skip anyway (every vertex of one triangle is then the other's vertex or its
+// neighbour; of two such triangles' edges only the two opposite the shared vertex can
+// remain, and those are tried), so no candidate is lost. Before (2026-12-04) every
+// overlapping pair emitted all its feature pairs, up to 4 copies of an edge pair and
+// one copy of a vertex's per incident triangle, which soft_soft then de-duplicated.
 void CollisionDetector::Impl::add_candidates(bool self, const SurfaceData& A, const SurfaceData& B, int ta, int tb,
                                              const VecX& x) {
   const auto& TA = A.surface->triangles;
@@ -550,8 +565,11 @@ void CollisionDetector::Impl::add_candidates(bool self, const SurfaceData& A, co
           kb = l;
         }
     if (shared >= 2) return;  // every feature pair of two adjacent triangles is skipped
+    // e1 of ta, e2 of tb (FCL reports the pair once, in either order: both orders of the
+    // two triangles' edges are tried below).
     auto try_ee = [&](int e1, int e2) {
-      if (near_box(A.edge_lo[e1], A.edge_hi[e1], A.edge_lo[e2], A.edge_hi[e2]) && !A.skip_ee(e1, e2))
+      if (A.first_triangle_of_edge(e1) == ta && A.first_triangle_of_edge(e2) == tb &&
+          near_box(A.edge_lo[e1], A.edge_hi[e1], A.edge_lo[e2], A.edge_hi[e2]) && !A.skip_ee(e1, e2))
         ee.push_back({std::min(e1, e2), std::max(e1, e2)});
     };
     if (shared == 1) {
@@ -563,22 +581,30 @@ void CollisionDetector::Impl::add_candidates(bool self, const SurfaceData& A, co
     }
     for (int k = 0; k < 3; ++k) {
       const int va = TA(k, ta), vb = TA(k, tb);
-      if (near_point(X(va), A.tri_lo[tb], A.tri_hi[tb]) && !A.skip_vt(va, tb)) vt.push_back({0, va, tb});
-      if (near_point(X(vb), A.tri_lo[ta], A.tri_hi[ta]) && !A.skip_vt(vb, ta)) vt.push_back({0, vb, ta});
+      if (A.first_triangle_of_vertex(va) == ta && near_point(X(va), A.tri_lo[tb], A.tri_hi[tb]) && !A.skip_vt(va, tb))
+        vt.push_back({0, va, tb});
+      if (A.first_triangle_of_vertex(vb) == tb && near_point(X(vb), A.tri_lo[ta], A.tri_hi[ta]) && !A.skip_vt(vb, ta))
+        vt.push_back({0, vb, ta});
     }
     for (int i = 0; i < 3; ++i)
       for (int j = 0; j < 3; ++j) try_ee(A.tri_edges[ta][i], A.tri_edges[tb][j]);
   } else {
     for (int k = 0; k < 3; ++k) {
       const int va = TA(k, ta), vb = TB(k, tb);
-      if (near_point(X(va), B.tri_lo[tb], B.tri_hi[tb])) vt.push_back({0, va, tb});
-      if (near_point(X(vb), A.tri_lo[ta], A.tri_hi[ta])) vt.push_back({1, vb, ta});
+      if (A.first_triangle_of_vertex(va) == ta && near_point(X(va), B.tri_lo[tb], B.tri_hi[tb]))
+        vt.push_back({0, va, tb});
+      if (B.first_triangle_of_vertex(vb) == tb && near_point(X(vb), A.tri_lo[ta], A.tri_hi[ta]))
+        vt.push_back({1, vb, ta});
     }
-    for (int i = 0; i < 3; ++i)
+    for (int i = 0; i < 3; ++i) {
+      const int e1 = A.tri_edges[ta][i];
+      if (A.first_triangle_of_edge(e1) != ta) continue;
       for (int j = 0; j < 3; ++j) {
-        const int e1 = A.tri_edges[ta][i], e2 = B.tri_edges[tb][j];
-        if (near_box(A.edge_lo[e1], A.edge_hi[e1], B.edge_lo[e2], B.edge_hi[e2])) ee.push_back({e1, e2});
+        const int e2 = B.tri_edges[tb][j];
+        if (B.first_triangle_of_edge(e2) == tb && near_box(A.edge_lo[e1], A.edge_hi[e1], B.edge_lo[e2], B.edge_hi[e2]))
+          ee.push_back({e1, e2});
       }
+    }
   }
 }
 
