@@ -13,10 +13,12 @@
 //     with each overlapping triangle pair; the callback emits the vertex-triangle and
 //     edge-edge candidates whose own boxes (vertex point, triangle box, edge boxes) are
 //     within the margin, minus the self-contact exclusions (two triangles that share an
-//     edge give none; two that share one vertex give at most their two opposite edges).
-//     Candidates are then sorted and de-duplicated, so that the order does not depend
-//     on FCL's traversal. Two features closer than the margin always have overlapping
-//     inflated triangle boxes, so no pair closer than the margin is missed.
+//     edge give none; two that share one vertex give at most their two opposite edges),
+//     each from the pair of its features' lowest-index triangles only (add_candidates),
+//     so once. Candidates are then sorted (by buckets) and de-duplicated, so that the
+//     order does not depend on FCL's traversal. Two features closer than the margin
+//     always have overlapping inflated triangle boxes, so no pair closer than the margin
+//     is missed (Detection.BroadPhaseMissesNoPairWithinTheMargin checks it).
 //     Cost: adjacent triangles always overlap, so a self-contact surface costs ~10-20
 //     FCL pairs per triangle even without contacts (about 10 ms for 10k triangles).
 // Narrow phase: exact closest points (distance.hpp). A soft-soft candidate becomes a
