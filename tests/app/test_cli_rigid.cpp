@@ -658,7 +658,7 @@ TEST(Cli, PadsHoldTheBlockByFrictionAndLetItSlipUnderTooLittleGrip) {
   EXPECT_LT(slips.v_end, 0.0);
 }
 
-// configs/gripper_lift.yaml as shipped, whole (150 steps of 10 ms; ~170 s on one core):
+// configs/gripper_lift.yaml as shipped, whole (150 steps of 10 ms; ~100 s on one core):
 // the Gripper lifts its free cylinder off the pedestal that drops 20 mm at 1.2-1.3 s and
 // holds it by friction. Its servos end at 0.06 N m, above the Coulomb bound (0.040 N m
 // holds, 0.039 slides: docs/method.md "The Gripper lifting its free object"). It completes
