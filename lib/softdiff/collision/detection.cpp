@@ -234,11 +234,12 @@ struct EeCandidate {
 
 // Sorts v ascending and removes duplicates, as std::sort then std::unique, by a counting
 // sort on key(c) in [0, nkeys) and a sort of each key's bucket (the rest of the order):
-// O(n + nkeys + sum_b b log b) instead of O(n log n). The broad phase reports each feature
-// pair once per overlapping triangle pair (up to 4 times for an edge pair), and on a
-// gripper's self-contact surfaces the candidate lists sorted by std::sort took 30% of a
-// configs/gripper_lift.yaml run (perf, 2026-12-04). count and tmp are the caller's reused
-// buffers (no allocation once they have grown).
+// O(n + nkeys + sum_b b log b) instead of O(n log n). On a gripper's self-contact surfaces
+// the candidate lists sorted by std::sort took 30% of a configs/gripper_lift.yaml run (perf,
+// 2026-12-04, when the broad phase still emitted a candidate once per overlapping triangle
+// pair; add_candidates now emits each once, and the duplicates this removes are the
+// callback order's only). count and tmp are the caller's reused buffers (no allocation once
+// they have grown).
 template <typename T, typename Key>
 void bucket_sort_unique(std::vector<T>& v, int nkeys, Key key, std::vector<int>& count, std::vector<T>& tmp) {
   if (v.size() < 2) return;
