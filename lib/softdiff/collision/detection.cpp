@@ -237,9 +237,9 @@ struct EeCandidate {
 // O(n + nkeys + sum_b b log b) instead of O(n log n). On a gripper's self-contact surfaces
 // the candidate lists sorted by std::sort took 30% of a configs/gripper_lift.yaml run (perf,
 // 2026-12-04, when the broad phase still emitted a candidate once per overlapping triangle
-// pair; add_candidates now emits each once, and the duplicates this removes are the
-// callback order's only). count and tmp are the caller's reused buffers (no allocation once
-// they have grown).
+// pair; add_candidates now emits each once, so the sort gives the order and the
+// de-duplication is a safeguard). count and tmp are the caller's reused buffers (no
+// allocation once they have grown).
 template <typename T, typename Key>
 void bucket_sort_unique(std::vector<T>& v, int nkeys, Key key, std::vector<int>& count, std::vector<T>& tmp) {
   if (v.size() < 2) return;
