@@ -7,7 +7,6 @@
 #include <softdiff/core/timer.hpp>
 
 #include <algorithm>
-#include <type_traits>
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
@@ -299,6 +298,8 @@ struct Buffers {
   VecX pp_G;                     // storage of G + eps D (n n; grown to the largest n seen)
   VecX pp_D, pp_g, pp_l, pp_s, pp_ls, pp_ss, pp_cl, pp_cs;  // (n)
   BestIterate pp_best;           // (n) the stage's best iterate
+  // restart of a stalled solve (NcpSolver::solve_restarted)
+  BestIterate restart_first;     // (n) the first result while the restart runs
 
   void resize(Eigen::Index n) {
     if (x.size() == n) return;
@@ -310,7 +311,7 @@ struct Buffers {
                      &sigma_kept, &gw, &lw, &sw, &lambda_alt, &sigma_alt, &ac_l, &ac_s, &ac_F, &ac_d, &ac_Gd, &ac_lt, &ac_st,
                      &ac_Ft, &ac_in_l, &ac_in_s, &pp_D, &pp_g, &pp_l, &pp_s, &pp_ls, &pp_ss, &pp_cl, &pp_cs})
       v->resize(n);
-    for (BestIterate* b : {&best_op, &ac_best, &pp_best}) b->resize(n);
+    for (BestIterate* b : {&best_op, &ac_best, &pp_best, &restart_first}) b->resize(n);
     ac_rho.resize(n / 3);
     ac_modes.resize(static_cast<std::size_t>(n / 3));
     ac_active.reserve(static_cast<std::size_t>(n / 3));
@@ -1361,28 +1362,24 @@ void count_modes(const std::vector<Mode>& modes, NcpResult& result) {
 }  // namespace
 
 struct NcpSolver::Workspace : Buffers {
-  VecX restart_l, restart_s;          // (n) the first result while a restart runs
-  std::vector<Mode> restart_modes;    // (nc)
+  std::vector<Mode> restart_modes;  // (nc) the first result's modes while a restart runs
 };
 
 // Restarting a stalled solve (NcpOptions::restarts; docs/method.md *Restarting a stalled
 // solve*): from the forces an unconverged solve returned, the same solve again, which
 // starts ADMM afresh (penalty, multipliers) and the working set from their support; the
-// lower result is kept, the iterations add up. A converged solve, an invalid input (a
-// non-finite G or g) and non-finite forces are returned as they are. The first result is
-// kept in the workspace (sized with it: no allocation once it has grown).
+// lower result is kept (BestIterate: strictly lower and finite), the iterations add up. A
+// converged solve, an invalid input (a non-finite G or g: infinite residuals, as
+// invalid_input() reports them) and non-finite forces are returned as they are. The first
+// result is kept in the workspace (no allocation once it has grown).
 template <typename Op>
 NcpResult NcpSolver::solve_restarted(Op& G, const VecX& g, const VecX& mu, const NcpOptions& options, VecX& lambda,
                                      VecX& sigma, std::vector<Mode>& modes) {
   NcpResult result = solve_once(G, g, mu, options, lambda, sigma, modes);
   for (int k = 0; k < options.restarts; ++k) {
-    if (result.converged || !lambda.allFinite() || !sigma.allFinite() || !input_valid(g, mu)) break;
-    if constexpr (std::is_same_v<Op, const MatX>) {
-      if (!G.allFinite()) break;
-    }
+    if (result.converged || !(result.residuals.max() < infinity) || !lambda.allFinite() || !sigma.allFinite()) break;
     Workspace& w = *work_;
-    w.restart_l = lambda;
-    w.restart_s = sigma;
+    w.restart_first.start(lambda, sigma, result.residuals);
     w.restart_modes = modes;
     const NcpResult first = result;
     NcpResult again = solve_once(G, g, mu, options, lambda, sigma, modes);
@@ -1390,11 +1387,10 @@ NcpResult NcpSolver::solve_restarted(Op& G, const VecX& g, const VecX& mu, const
     again.rho_updates += first.rho_updates;
     again.factorization_seconds += first.factorization_seconds;
     again.restarts = first.restarts + 1;
-    if (again.residuals.max() < first.residuals.max() && lambda.allFinite() && sigma.allFinite()) {
+    if (w.restart_first.offer(lambda, sigma, again.residuals)) {
       result = again;
     } else {  // the first result stands, with the restart's cost
-      lambda = w.restart_l;
-      sigma = w.restart_s;
+      w.restart_first.restore(lambda, sigma, result.residuals);
       modes = w.restart_modes;
       result = first;
       result.iterations = again.iterations;
