@@ -678,9 +678,11 @@ void CollisionDetector::Impl::soft_soft(const PairRule& rule, const VecX& x, Con
     // 43 um below a fingertip's edge held up). Dropped beyond kFlatDistance times t's size
     // (within it the feature's record takes the face normal above, and dropping it would
     // make the owner switch with round-off). Flat and sharp features alike.
-    if (r.feature != Feature::face && dist > kFlatDistance * triangle_scale(P(T(0, t)), P(T(1, t)), P(T(2, t))) &&
-        off_feature(S, x, p, v, t, r, self))
-      continue;
+    // (flat_limit: kFlatDistance times t's size, for a closest point on an edge or vertex;
+    // also the normal's rule below.)
+    const double flat_limit =
+        r.feature == Feature::face ? 0.0 : kFlatDistance * triangle_scale(P(T(0, t)), P(T(1, t)), P(T(2, t)));
+    if (r.feature != Feature::face && dist > flat_limit && off_feature(S, x, p, v, t, r, self)) continue;
     const double sign = d.dot(pseudo) < 0 ? -1.0 : 1.0;
     // The normal (docs/method.md "Contact normals at tiny gaps"): d / |d| is noise when
     // |d| is round-off (its components along the face are ~eps |x| / |d|: 1e-5 rad at a
@@ -695,7 +697,7 @@ void CollisionDetector::Impl::soft_soft(const PairRule& rule, const VecX& x, Con
     Vec3 n;
     if (N.squaredNorm() > 0 &&
         (r.feature == Feature::face ||
-         (1 - pseudo.dot(N) < kFlatAngle && dist < kFlatDistance * triangle_scale(P(T(0, t)), P(T(1, t)), P(T(2, t)))))) {
+         (1 - pseudo.dot(N) < kFlatAngle && dist < flat_limit))) {
       n = N;
       feature = Feature::face;
     } else {
