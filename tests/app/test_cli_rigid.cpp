@@ -658,7 +658,7 @@ TEST(Cli, PadsHoldTheBlockByFrictionAndLetItSlipUnderTooLittleGrip) {
   EXPECT_LT(slips.v_end, 0.0);
 }
 
-// configs/gripper_lift.yaml as shipped, whole (150 steps of 10 ms; ~100 s on one core):
+// configs/gripper_lift.yaml as shipped, whole (150 steps of 10 ms; ~36 s on one core at rest):
 // the Gripper lifts its free cylinder off the pedestal that drops 20 mm at 1.2-1.3 s and
 // holds it by friction. Its servos end at 0.06 N m, above the Coulomb bound (0.040 N m
 // holds, 0.039 slides: docs/method.md "The Gripper lifting its free object"). It completes
@@ -701,7 +701,7 @@ TEST(Cli, GripperLiftHoldsItsCylinderOverTheWholeRun) {
 // per vertex (its closest feature; docs/method.md *Records beside an edge or a vertex*)
 // friction alone acts, and the cylinder slides down after the pedestal, as Coulomb says:
 // it ends more than 10 mm below its start (measured 20 mm: on the pedestal's final
-// position, z 0.06 m). 150 steps, ~35 s on one core (fewer contacts once it slides).
+// position, z 0.06 m). 150 steps, ~13 s on one core (13.2 s in the clean-clone CI; fewer contacts once it slides).
 TEST(Cli, GripperLiftAtTheOldGripSlips) {
   const std::string old_grip = "[[0,0.0042],[0.2,0.0042],[1.2,0.03]]";
   EXPECT_GT(gripper_lift_sink("gripper_lift_old_grip", " --set bodies.finger_a.actuators.servo_a.schedule=" + old_grip +
