@@ -28,6 +28,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <functional>
 #include <iostream>
@@ -398,6 +399,7 @@ TEST(Stress, MassRatio1e6OnTheSparseOperator) {
 // per-step NCP residual, iterations and modes of the mass-ratio stacks (light on
 // heavy; heavy on light with and without psd_projection), on the dense G and on the
 // sparse operator (every reduced problem by the operator's ADMM).
+// SOFTDIFF_TABLE_ONLY=<scene>/<dense|sparse> runs one of the six cases.
 TEST(Stress, DISABLED_MassRatioResidualTable) {
   struct Scene {
     const char* name;
@@ -406,6 +408,9 @@ TEST(Stress, DISABLED_MassRatioResidualTable) {
   for (const Scene sc : {Scene{"light-on-heavy", false, false}, Scene{"heavy-on-light", true, false},
                          Scene{"heavy-on-light-psd", true, true}})
     for (const bool sparse : {false, true}) {
+      // SOFTDIFF_TABLE_ONLY=<scene>/<backend> (e.g. heavy-on-light-psd/sparse): that case alone.
+      const char* only = std::getenv("SOFTDIFF_TABLE_ONLY");
+      if (only && std::string(only) != std::string(sc.name) + (sparse ? "/sparse" : "/dense")) continue;
       test::NcpTable table;
       table.scene = sc.name;
       table.backend = sparse ? "sparse" : "dense";
