@@ -107,10 +107,14 @@ class EquilibriumSystem {
         if (rule.a == nb + static_cast<int>(r) || rule.b == nb + static_cast<int>(r)) mu = std::max(mu, rule.mu);
       // static.friction load_step (2026-12-04, branch ffric): the derivative with the face
       // terms agrees with central differences on the free cube on the slab (1e-7) and in the
-      // soft corner with friction on the slab alone, but not yet with friction on the corner's
-      // walls (1.5e-2 at mu 0.5, growing as mu^2 below: docs/method.md *Load-step-anchored
-      // friction*, the free body): still refused; StaticTheta::measure_free_body_friction
-      // computes it for those measurements (the tests), never the CLI.
+      // soft corner with friction on the slab alone, but not with friction on the corner's
+      // walls (1.5e-2 at mu 0.5): there the edge-edge records are kinematically redundant
+      // with the vertex-face records and, under sliding friction, the mode-fixed system's
+      // null space moves the nodes, so the derivative is not unique (2026-12-04, session 20:
+      // docs/method.md *Found*). Still refused; what would lift it: refuse exactly where J's
+      // null space moves the nodes (dense path) and differentiate elsewhere.
+      // StaticTheta::measure_free_body_friction computes it for those measurements (the
+      // tests), never the CLI.
       if (model_.step.static_friction == StaticFriction::load_step && measure_free_body_friction_) continue;
       SOFTDIFF_DEMAND(mu == 0,
                       "static derivatives of a free rigid body with friction are not supported yet (issue 21; "
