@@ -333,7 +333,7 @@ TEST(RigidStaticDerivatives, FreeCubeInASoftCorner) {
 // cube's edges against the walls' and the slab's flat edges are kinematically redundant
 // with the vertex-face records, and under sliding friction the mode-fixed system's null
 // space (dimension 6) moves the nodes (|H^T n| 0.05-0.2), so the derivative is not unique;
-// without those records it agrees to 1e-7. The flat cube on the slab has no such direction.
+// without those records it agrees to 1e-7. The flat cube on the slab agrees (below).
 TEST(RigidStaticDerivatives, FreeCubeOnTheSlabWithLoadStepFriction) {
   Model model = tight(test::rigid_scenes::slab_and_cube(2e-3, Vec3(1.5, 1.0, -9.81)));
   model.step.static_friction = StaticFriction::load_step;
