@@ -71,7 +71,9 @@ void demand_differentiable(const std::string& option, const Model& model) {
                                   "'): with friction (" + friction.str() +
                                   ") its static tangential state is the stick accumulated along the solver's path "
                                   "(static.friction: iterate), or, with static.friction: load_step, a function of "
-                                  "the parameters whose derivative is not validated yet; frictionless free bodies "
+                                  "the parameters whose derivative is not validated yet (it is not unique where "
+                                  "redundant contact records slide: docs/method.md \"Static equilibrium with "
+                                  "contact\", *Found*); frictionless free bodies "
                                   "held in all six dofs by their contacts, hinged, slider and fixed bodies are "
                                   "differentiated");
       }

@@ -121,8 +121,10 @@ class EquilibriumSystem {
                       "rigid body '" + b.name + "'): with friction (" + std::to_string(mu) +
                           ") and static.friction iterate its static tangential state is the stick accumulated along "
                           "the solver's path, not a function of the parameters; with static.friction load_step it "
-                          "is, but its derivative is not validated yet (frictionless free bodies are "
-                          "differentiated: docs/method.md \"Static equilibrium with rigid bodies\")");
+                          "is, but its derivative is not validated yet: it is not unique where redundant contact "
+                          "records slide (docs/method.md \"Static equilibrium with contact\", *Found*), and those "
+                          "places are not told apart yet (frictionless free bodies are differentiated: "
+                          "docs/method.md \"Static equilibrium with rigid bodies\")");
     }
     for (const auto& a : model_.actuation.actuators) {
       const auto* servo = std::get_if<actuation::Servo>(&a.kind);
