@@ -54,6 +54,15 @@ struct DetectionModel {
   std::vector<PairRule> pairs;
   double margin = 1e-3;               // pairs closer than this (signed distance) become contacts
   std::vector<std::string> names;     // bodies then obstacles
+
+  // The largest friction coefficient of the pair rules with `side` (a surface or obstacle
+  // index, as PairRule's a and b) on either side; 0 if none.
+  double max_friction(int side) const {
+    double mu = 0;
+    for (const auto& rule : pairs)
+      if (rule.a == side || rule.b == side) mu = mu > rule.mu ? mu : rule.mu;
+    return mu;
+  }
 };
 
 struct DetectionStats {

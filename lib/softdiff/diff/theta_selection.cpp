@@ -4,7 +4,6 @@
 #include <softdiff/core/text.hpp>
 #include <softdiff/integrator/static_solver_derivatives.hpp>
 
-#include <algorithm>
 #include <sstream>
 #include <variant>
 
@@ -53,16 +52,13 @@ void demand_differentiable(const std::string& option, const Model& model) {
     // all six dofs by their contacts at the equilibrium: checked there, 2026-12-04, srfree);
     // a free body with friction beside soft bodies is not differentiated yet (with
     // static.friction iterate its tangential state is the solver's path; with load_step it
-    // is a function of the parameters, but the derivative is not validated: 2026-12-04,
-    // branch sfric, docs/method.md *Load-step-anchored friction*).
+    // is a function of the parameters, but its derivative is not unique where redundant
+    // contact records slide: docs/method.md *Load-step-anchored friction*, *Found*).
     const int soft_bodies = static_cast<int>(model.fem.bodies.size());
     for (std::size_t r = 0; r < model.rigid.size(); ++r) {
       const auto& b = model.rigid[r];
       if (b.joint.kind != rigid::Joint::Kind::free || model.fem.num_nodes == 0) continue;
-      double mu = 0;
-      for (const auto& rule : model.contact.detection.pairs)
-        if (rule.a == soft_bodies + static_cast<int>(r) || rule.b == soft_bodies + static_cast<int>(r))
-          mu = std::max(mu, rule.mu);
+      const double mu = model.contact.detection.max_friction(soft_bodies + static_cast<int>(r));
       if (mu > 0) {
         std::ostringstream friction;
         friction << mu;

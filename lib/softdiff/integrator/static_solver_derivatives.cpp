@@ -102,9 +102,7 @@ class EquilibriumSystem {
     for (std::size_t r = 0; r < model_.rigid.size(); ++r) {
       const auto& b = model_.rigid[r];
       if (b.joint.kind != rigid::Joint::Kind::free || model_.fem.num_nodes == 0) continue;
-      double mu = 0;
-      for (const auto& rule : model_.contact.detection.pairs)
-        if (rule.a == nb + static_cast<int>(r) || rule.b == nb + static_cast<int>(r)) mu = std::max(mu, rule.mu);
+      const double mu = model_.contact.detection.max_friction(nb + static_cast<int>(r));
       // static.friction load_step (2026-12-04, branch ffric): the derivative with the face
       // terms agrees with central differences on the free cube on the slab (1e-7) and in the
       // soft corner with friction on the slab alone, but not with friction on the corner's
